@@ -1,0 +1,1 @@
+"""controllers (coming in later issues)."""

@@ -1,0 +1,9 @@
+"""softrom's compiled simulation core.
+
+The extension module ``cpp_sim._core`` is built from ``cpp_sim/src`` by the package's
+scikit-build-core build; this package re-exports its public classes.
+"""
+
+from ._core import FEMModel
+
+__all__ = ["FEMModel"]

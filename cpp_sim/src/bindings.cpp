@@ -1,0 +1,183 @@
+// pybind11 module `cpp_sim._core`: a validating binding layer over the unchecked C++ core.
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <memory>
+#include <sstream>
+
+#include "fem_model.h"
+#include "validate.h"
+
+namespace py = pybind11;
+using namespace softrom;
+namespace v = softrom::validate;
+
+namespace {
+
+py::object to_csr(const SpMat& k) {
+  // K is symmetric, so its column-compressed arrays are also its row-compressed ones.
+  const py::ssize_t nnz = k.nonZeros();
+  py::array_t<double> data(nnz);
+  py::array_t<int32_t> indices(nnz);
+  py::array_t<int32_t> indptr(k.outerSize() + 1);
+  std::copy(k.valuePtr(), k.valuePtr() + nnz, data.mutable_data());
+  std::copy(k.innerIndexPtr(), k.innerIndexPtr() + nnz, indices.mutable_data());
+  std::copy(k.outerIndexPtr(), k.outerIndexPtr() + k.outerSize() + 1, indptr.mutable_data());
+  py::object csr = py::module_::import("scipy.sparse").attr("csr_matrix");
+  return csr(py::make_tuple(data, indices, indptr), py::arg("shape") = py::make_tuple(k.rows(), k.cols()));
+}
+
+std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, double youngs_modulus,
+                                   double poisson_ratio, double density) {
+  VecX x = v::real_matrix(nodes, "nodes", -1, 3);
+  if (x.size() < 12) throw py::value_error("nodes must hold at least 4 nodes");
+  std::vector<Tet> t = v::tet_array(tets, "tets");
+  v::positive(youngs_modulus, "youngs_modulus");
+  if (!(poisson_ratio > -1.0 && poisson_ratio < 0.5)) {
+    std::ostringstream msg;
+    msg << "poisson_ratio must lie in (-1, 0.5), got " << poisson_ratio;
+    throw py::value_error(msg.str());
+  }
+  v::positive(density, "density");
+  try {
+    return std::make_unique<FEMModel>(x, std::move(t), youngs_modulus, poisson_ratio, density);
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(e.what());
+  }
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "softrom C++ simulation core (FEM, reduced model, contact, batched rollouts).";
+
+  py::class_<FEMModel>(m, "FEMModel", R"doc(
+Full-space finite-element model of a soft body.
+
+Linear tetrahedra with the stable Neo-Hookean material (Smith et al. 2018)
+
+    Psi(F) = mu/2 (I_C - 3) - mu (J - 1) + lambda/2 (J - 1)^2,  lambda = lambda_Lame + mu,
+
+which reduces to linear elasticity (E, nu) at small strain and stays restoring under
+inversion. Lumped mass, gravity (default (0, 0, -9.81) m/s^2, z up), Rayleigh damping
+D = damping_alpha M + damping_beta K(x_n). SI units throughout; positions are (N, 3) arrays.
+
+Parameters
+----------
+nodes : (N, 3) array of float
+    Rest positions in metres.
+tets : (T, 4) array of int
+    Node indices of each tetrahedron, positively oriented (positive rest volume).
+youngs_modulus : float
+    E in Pa, > 0.
+poisson_ratio : float
+    nu, in (-1, 0.5).
+density : float
+    rho in kg/m^3, > 0.
+)doc")
+      .def(py::init(&make_fem), py::arg("nodes"), py::arg("tets"), py::arg("youngs_modulus"),
+           py::arg("poisson_ratio"), py::arg("density"))
+      .def_property_readonly("num_nodes", [](const FEMModel& f) { return f.mesh().num_nodes; })
+      .def_property_readonly("num_tets", [](const FEMModel& f) { return f.mesh().num_tets(); })
+      .def_property_readonly(
+          "mass",
+          [](const FEMModel& f) {
+            py::array_t<double> out(f.mass().size());
+            std::copy(f.mass().data(), f.mass().data() + f.mass().size(), out.mutable_data());
+            return out;
+          },
+          "Lumped mass per node (N,), kg.")
+      .def_property_readonly(
+          "volumes",
+          [](const FEMModel& f) {
+            py::array_t<double> out(f.mesh().num_tets());
+            std::copy(f.mesh().volume.begin(), f.mesh().volume.end(), out.mutable_data());
+            return out;
+          },
+          "Rest volume per tetrahedron (T,), m^3.")
+      .def_property_readonly("volume", [](const FEMModel& f) { return f.mesh().total_volume(); },
+                             "Total rest volume, m^3.")
+      .def_property_readonly("rest_positions",
+                             [](const FEMModel& f) { return v::positions_out(f.mesh().rest); })
+      .def_property_readonly("youngs_modulus", &FEMModel::youngs_modulus)
+      .def_property_readonly("poisson_ratio", &FEMModel::poisson_ratio)
+      .def_property_readonly("density", &FEMModel::density)
+      .def_property(
+          "gravity", [](const FEMModel& f) { return std::vector<double>{f.gravity.x(), f.gravity.y(), f.gravity.z()}; },
+          [](FEMModel& f, py::handle g) {
+            VecX gv = v::real_matrix(py::array::ensure(g).reshape({1, -1}), "gravity", 1, 3);
+            f.gravity = gv;
+          },
+          "Gravitational acceleration (3,), m/s^2.")
+      .def_property(
+          "damping_alpha", [](const FEMModel& f) { return f.damping_alpha; },
+          [](FEMModel& f, double a) { f.damping_alpha = v::non_negative(a, "damping_alpha"); },
+          "Mass-proportional Rayleigh damping, 1/s (default 0: it would also damp free flight).")
+      .def_property(
+          "damping_beta", [](const FEMModel& f) { return f.damping_beta; },
+          [](FEMModel& f, double b) { f.damping_beta = v::non_negative(b, "damping_beta"); },
+          "Stiffness-proportional Rayleigh damping, s (default 0.005).")
+      .def_property(
+          "newton_tolerance", [](const FEMModel& f) { return f.newton_tolerance; },
+          [](FEMModel& f, double t) { f.newton_tolerance = v::positive(t, "newton_tolerance"); },
+          "Newton stops when max |dx| / dt falls below this, m/s.")
+      .def_property(
+          "max_newton_iterations", [](const FEMModel& f) { return f.max_newton_iterations; },
+          [](FEMModel& f, int n) {
+            if (n < 1) throw py::value_error("max_newton_iterations must be >= 1, got " + std::to_string(n));
+            f.max_newton_iterations = n;
+          })
+      .def(
+          "energy",
+          [](const FEMModel& f, py::handle x) {
+            return f.energy(v::real_matrix(x, "x", f.mesh().num_nodes, 3));
+          },
+          py::arg("x"), "Elastic potential energy E(x) in J for positions x (N, 3).")
+      .def(
+          "forces",
+          [](const FEMModel& f, py::handle x) {
+            return v::positions_out(f.forces(v::real_matrix(x, "x", f.mesh().num_nodes, 3)));
+          },
+          py::arg("x"), "Internal elastic forces -dE/dx (N, 3) in N.")
+      .def(
+          "stiffness",
+          [](const FEMModel& f, py::handle x, bool project) {
+            return to_csr(f.stiffness(v::real_matrix(x, "x", f.mesh().num_nodes, 3), project));
+          },
+          py::arg("x"), py::arg("project") = false,
+          "Stiffness K = d(-forces)/dx as a scipy.sparse CSR (3N, 3N) matrix; row 3i+k is "
+          "node i, axis k. project=True clamps each element's Hessian to be PSD.")
+      .def(
+          "step",
+          [](FEMModel& f, py::handle x, py::handle vel, double dt, py::handle fixed) {
+            const int n = f.mesh().num_nodes;
+            VecX xv = v::real_matrix(x, "x", n, 3);
+            VecX vv = v::real_matrix(vel, "v", n, 3);
+            v::positive(dt, "dt");
+            std::vector<char> mask = v::node_mask(fixed, "fixed", n);
+            VecX xo, vo;
+            {
+              py::gil_scoped_release release;
+              f.step(xv, vv, dt, mask, xo, vo);
+            }
+            return py::make_tuple(v::positions_out(xo), v::positions_out(vo));
+          },
+          py::arg("x"), py::arg("v"), py::arg("dt"), py::arg("fixed") = py::none(),
+          R"doc(One implicit Euler step; returns (x_new, v_new), each (N, 3).
+
+Newton's method on the incremental potential with a backtracking line search and a sparse
+LDL^T solve. ``fixed`` (boolean mask (N,) or node indices) clamps nodes in place.
+Raises RuntimeError if the step diverges.)doc")
+      .def_property_readonly(
+          "last_step_stats",
+          [](const FEMModel& f) {
+            const StepStats& s = f.last_step_stats();
+            py::dict d;
+            d["iterations"] = s.iterations;
+            d["step_norm"] = s.step_norm;
+            d["converged"] = s.converged;
+            return d;
+          },
+          "Newton iterations, final max |dx|/dt and convergence flag of the last step.");
+}

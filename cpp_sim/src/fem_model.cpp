@@ -1,0 +1,183 @@
+#include "fem_model.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace softrom {
+
+FEMModel::FEMModel(const VecX& rest_positions, std::vector<Tet> tets, double youngs_modulus,
+                   double poisson_ratio, double density)
+    : mesh_(rest_positions, std::move(tets)),
+      material_(StableNeoHookean::from_young_poisson(youngs_modulus, poisson_ratio)),
+      youngs_(youngs_modulus),
+      poisson_(poisson_ratio),
+      density_(density) {
+  mass_ = mesh_.lumped_mass(density);
+  const int n = mesh_.num_nodes;
+  mass3_.resize(3 * n);
+  for (int i = 0; i < n; ++i) mass3_.segment<3>(3 * i).setConstant(mass_[i]);
+
+  // Sparsity: full 3x3 blocks for every pair of nodes sharing a tet, plus every diagonal so
+  // that isolated nodes (and fixed DOFs) still have a pivot.
+  std::vector<Eigen::Triplet<double>> trip;
+  trip.reserve(mesh_.tets.size() * 144 + 3 * n);
+  for (const Tet& t : mesh_.tets)
+    for (int a = 0; a < 4; ++a)
+      for (int b = 0; b < 4; ++b)
+        for (int i = 0; i < 3; ++i)
+          for (int j = 0; j < 3; ++j) trip.emplace_back(3 * t[a] + i, 3 * t[b] + j, 1.0);
+  for (int d = 0; d < 3 * n; ++d) trip.emplace_back(d, d, 1.0);
+  pattern_.resize(3 * n, 3 * n);
+  pattern_.setFromTriplets(trip.begin(), trip.end());
+  pattern_.makeCompressed();
+
+  auto slot = [&](int row, int col) {
+    const int* begin = pattern_.innerIndexPtr() + pattern_.outerIndexPtr()[col];
+    const int* end = pattern_.innerIndexPtr() + pattern_.outerIndexPtr()[col + 1];
+    return static_cast<int>(std::lower_bound(begin, end, row) - pattern_.innerIndexPtr());
+  };
+  slots_.resize(mesh_.tets.size() * 144);
+  for (size_t e = 0; e < mesh_.tets.size(); ++e) {
+    const Tet& t = mesh_.tets[e];
+    for (int a = 0; a < 4; ++a)
+      for (int i = 0; i < 3; ++i)
+        for (int b = 0; b < 4; ++b)
+          for (int j = 0; j < 3; ++j)
+            slots_[e * 144 + (3 * a + i) * 12 + 3 * b + j] = slot(3 * t[a] + i, 3 * t[b] + j);
+  }
+  diag_slots_.resize(3 * n);
+  for (int d = 0; d < 3 * n; ++d) diag_slots_[d] = slot(d, d);
+}
+
+double FEMModel::energy(const VecX& x) const {
+  double e = 0.0;
+  for (int t = 0; t < mesh_.num_tets(); ++t)
+    e += mesh_.volume[t] * material_.energy_density(mesh_.deformation_gradient(t, x));
+  return e;
+}
+
+VecX FEMModel::forces(const VecX& x) const {
+  VecX f = VecX::Zero(x.size());
+  for (int t = 0; t < mesh_.num_tets(); ++t) {
+    const Mat3 p = material_.pk1(mesh_.deformation_gradient(t, x));
+    // f_a = -V P D_m^{-T} e_a for a = 1..3, f_0 = -(f_1 + f_2 + f_3).
+    const Mat3 h = -mesh_.volume[t] * p * mesh_.dm_inv[t].transpose();
+    const Tet& tet = mesh_.tets[t];
+    for (int k = 0; k < 3; ++k) f.segment<3>(3 * tet[k + 1]) += h.col(k);
+    f.segment<3>(3 * tet[0]) -= h.rowwise().sum();
+  }
+  return f;
+}
+
+void FEMModel::assemble(const VecX& x, bool project, SpMat& k) const {
+  k = pattern_;
+  std::fill(k.valuePtr(), k.valuePtr() + k.nonZeros(), 0.0);
+  double* val = k.valuePtr();
+  for (int t = 0; t < mesh_.num_tets(); ++t) {
+    const Mat3 f = mesh_.deformation_gradient(t, x);
+    Mat9 dp = material_.dpdf(f);
+    // Most elements are stable; a 9x9 Cholesky is far cheaper than the eigen decomposition.
+    if (project && Eigen::LLT<Mat9>(dp).info() != Eigen::Success) dp = project_psd<9>(dp);
+    const Eigen::Matrix<double, 9, 12> d = dfdx(mesh_.dm_inv[t]);
+    const Eigen::Matrix<double, 12, 12> ke = mesh_.volume[t] * d.transpose() * dp * d;
+    const int* s = &slots_[static_cast<size_t>(t) * 144];
+    for (int r = 0; r < 12; ++r)
+      for (int c = 0; c < 12; ++c) val[s[r * 12 + c]] += ke(r, c);
+  }
+}
+
+SpMat FEMModel::stiffness(const VecX& x, bool project) const {
+  SpMat k;
+  assemble(x, project, k);
+  return k;
+}
+
+double FEMModel::incremental_potential(const VecX& x, const VecX& x_tilde, const VecX& x_n,
+                                       const SpMat& damping_k, double dt) const {
+  const VecX dxt = x - x_tilde;
+  const VecX dxn = x - x_n;
+  double phi = 0.5 / (dt * dt) * dxt.dot(mass3_.cwiseProduct(dxt)) + energy(x);
+  for (int i = 0; i < mesh_.num_nodes; ++i)
+    phi -= mass_[i] * gravity.dot(x.segment<3>(3 * i));
+  phi += 0.5 / dt *
+         (damping_alpha * dxn.dot(mass3_.cwiseProduct(dxn)) +
+          damping_beta * dxn.dot(damping_k * dxn));
+  return phi;
+}
+
+void FEMModel::step(const VecX& x_n, const VecX& v_n, double dt, const std::vector<char>& fixed,
+                    VecX& x_out, VecX& v_out) {
+  const int ndof = 3 * mesh_.num_nodes;
+  const bool any_fixed = std::any_of(fixed.begin(), fixed.end(), [](char c) { return c != 0; });
+  VecX x_tilde = x_n + dt * v_n;
+  VecX x = x_n;
+  VecX mg(ndof);
+  for (int i = 0; i < mesh_.num_nodes; ++i) mg.segment<3>(3 * i) = mass_[i] * gravity;
+
+  SpMat k0, k, h;
+  stats_ = StepStats{};
+  for (int it = 0; it < max_newton_iterations; ++it) {
+    if (it == 0) {
+      assemble(x, true, k0);
+      k = k0;
+    } else {
+      assemble(x, true, k);
+    }
+    // Gradient of the incremental potential (its negative is the residual force).
+    const VecX dxn = x - x_n;
+    VecX grad = mass3_.cwiseProduct(x - x_tilde) / (dt * dt) - forces(x) - mg +
+                (damping_alpha * mass3_.cwiseProduct(dxn) + damping_beta * (k0 * dxn)) / dt;
+    // Hessian M/dt^2 + K(x) + (alpha M + beta K0)/dt, built on the shared pattern.
+    h = k;
+    double* hv = h.valuePtr();
+    const double* k0v = k0.valuePtr();
+    const double kb = damping_beta / dt;
+    for (Eigen::Index s = 0; s < h.nonZeros(); ++s) hv[s] += kb * k0v[s];
+    for (int d = 0; d < ndof; ++d)
+      hv[diag_slots_[d]] += mass3_[d] * (1.0 / (dt * dt) + damping_alpha / dt);
+    if (any_fixed) {
+      for (int col = 0; col < ndof; ++col)
+        for (int s = h.outerIndexPtr()[col]; s < h.outerIndexPtr()[col + 1]; ++s) {
+          const int row = h.innerIndexPtr()[s];
+          if (fixed[row / 3] || fixed[col / 3]) hv[s] = (row == col) ? 1.0 : 0.0;
+        }
+      for (int d = 0; d < ndof; ++d)
+        if (fixed[d / 3]) grad[d] = 0.0;
+    }
+    if (!analysed_) {
+      solver_.analyzePattern(h);
+      analysed_ = true;
+    }
+    solver_.factorize(h);
+    if (solver_.info() != Eigen::Success)
+      throw std::runtime_error("implicit Euler: sparse factorisation failed");
+    const VecX dx = solver_.solve(-grad);
+    const double step_norm = dx.cwiseAbs().maxCoeff() / dt;
+    stats_.iterations = it + 1;
+    stats_.step_norm = step_norm;
+    if (!std::isfinite(step_norm))
+      throw std::runtime_error("implicit Euler: Newton step is not finite (simulation diverged)");
+    if (step_norm < newton_tolerance) {
+      x += dx;
+      stats_.converged = true;
+      break;
+    }
+    // Backtracking (Armijo) line search on the incremental potential.
+    const double phi0 = incremental_potential(x, x_tilde, x_n, k0, dt);
+    const double slope = grad.dot(dx);
+    double alpha = 1.0;
+    VecX trial = x + dx;
+    while (alpha > 1e-6) {
+      const double phi = incremental_potential(trial, x_tilde, x_n, k0, dt);
+      if (std::isfinite(phi) && phi <= phi0 + 1e-4 * alpha * slope) break;
+      alpha *= 0.5;
+      trial = x + alpha * dx;
+    }
+    x = trial;
+  }
+  x_out = x;
+  v_out = (x - x_n) / dt;
+}
+
+}  // namespace softrom

@@ -1,0 +1,151 @@
+// Argument validation for the binding layer: every public entry point converts and checks its
+// numpy inputs here, so the C++ core below can assume well-formed data. Errors name the
+// argument, what was expected and what was given.
+#pragma once
+
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
+#include <Eigen/Dense>
+#include <cmath>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tet_mesh.h"
+
+namespace softrom::validate {
+
+namespace py = pybind11;
+
+inline std::string shape_str(const py::array& a) {
+  std::ostringstream s;
+  s << "(";
+  for (py::ssize_t i = 0; i < a.ndim(); ++i) s << (i ? ", " : "") << a.shape(i);
+  if (a.ndim() == 1) s << ",";
+  s << ")";
+  return s.str();
+}
+
+inline py::array as_array(py::handle obj, const char* name) {
+  if (obj.is_none()) throw py::type_error(std::string(name) + " must be an array, got None");
+  py::array a = py::array::ensure(obj);
+  if (!a) throw py::type_error(std::string(name) + " must be array-like");
+  return a;
+}
+
+inline void require_real(const py::array& a, const char* name) {
+  const char kind = a.dtype().kind();
+  if (kind != 'f' && kind != 'i' && kind != 'u')
+    throw py::type_error(std::string(name) + " must hold real numbers, got dtype " +
+                         std::string(py::str(a.dtype())));
+}
+
+// A finite float64 array of shape (rows, cols) (rows = -1: any), returned flattened row-major.
+inline VecX real_matrix(py::handle obj, const char* name, py::ssize_t rows, py::ssize_t cols) {
+  py::array a = as_array(obj, name);
+  require_real(a, name);
+  if (a.ndim() != 2 || a.shape(1) != cols || (rows >= 0 && a.shape(0) != rows)) {
+    std::ostringstream msg;
+    msg << name << " has shape " << shape_str(a) << ", expected (";
+    if (rows >= 0)
+      msg << rows;
+    else
+      msg << "N";
+    msg << ", " << cols << ")";
+    throw py::value_error(msg.str());
+  }
+  auto c = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(a);
+  const double* p = c.data();
+  const py::ssize_t n = c.size();
+  for (py::ssize_t i = 0; i < n; ++i)
+    if (!std::isfinite(p[i])) {
+      std::ostringstream msg;
+      msg << name << " contains a non-finite value (" << p[i] << ") at row " << i / cols;
+      throw py::value_error(msg.str());
+    }
+  return Eigen::Map<const VecX>(p, n);
+}
+
+inline std::vector<Tet> tet_array(py::handle obj, const char* name) {
+  py::array a = as_array(obj, name);
+  const char kind = a.dtype().kind();
+  if (kind != 'i' && kind != 'u')
+    throw py::type_error(std::string(name) + " must be an integer array, got dtype " +
+                         std::string(py::str(a.dtype())));
+  if (a.ndim() != 2 || a.shape(1) != 4 || a.shape(0) < 1)
+    throw py::value_error(std::string(name) + " has shape " + shape_str(a) +
+                          ", expected (T, 4) with T >= 1");
+  auto c = py::array_t<int64_t, py::array::c_style | py::array::forcecast>::ensure(a);
+  std::vector<Tet> tets(static_cast<size_t>(a.shape(0)));
+  const int64_t* p = c.data();
+  for (size_t e = 0; e < tets.size(); ++e)
+    for (int k = 0; k < 4; ++k) {
+      const int64_t v = p[4 * e + k];
+      if (v < 0 || v > INT32_MAX) {
+        std::ostringstream msg;
+        msg << name << "[" << e << "] has node index " << v << " out of range";
+        throw py::value_error(msg.str());
+      }
+      tets[e][k] = static_cast<int32_t>(v);
+    }
+  return tets;
+}
+
+inline double positive(double v, const char* name) {
+  if (!(std::isfinite(v) && v > 0.0)) {
+    std::ostringstream msg;
+    msg << name << " must be a finite number > 0, got " << v;
+    throw py::value_error(msg.str());
+  }
+  return v;
+}
+
+inline double non_negative(double v, const char* name) {
+  if (!(std::isfinite(v) && v >= 0.0)) {
+    std::ostringstream msg;
+    msg << name << " must be a finite number >= 0, got " << v;
+    throw py::value_error(msg.str());
+  }
+  return v;
+}
+
+// A per-node mask from None, a boolean array of length n, or an array of node indices.
+inline std::vector<char> node_mask(py::handle obj, const char* name, int n) {
+  std::vector<char> mask(static_cast<size_t>(n), 0);
+  if (obj.is_none()) return mask;
+  py::array a = as_array(obj, name);
+  if (a.ndim() != 1)
+    throw py::value_error(std::string(name) + " has shape " + shape_str(a) +
+                          ", expected a 1-D boolean mask or index array");
+  const char kind = a.dtype().kind();
+  if (kind == 'b') {
+    if (a.shape(0) != n)
+      throw py::value_error(std::string(name) + " is a boolean mask of length " +
+                            std::to_string(a.shape(0)) + ", expected " + std::to_string(n));
+    auto c = py::array_t<bool, py::array::c_style | py::array::forcecast>::ensure(a);
+    for (int i = 0; i < n; ++i) mask[i] = c.data()[i] ? 1 : 0;
+  } else if (kind == 'i' || kind == 'u') {
+    auto c = py::array_t<int64_t, py::array::c_style | py::array::forcecast>::ensure(a);
+    for (py::ssize_t k = 0; k < c.size(); ++k) {
+      const int64_t i = c.data()[k];
+      if (i < 0 || i >= n)
+        throw py::value_error(std::string(name) + " contains node index " + std::to_string(i) +
+                              " out of range [0, " + std::to_string(n) + ")");
+      mask[i] = 1;
+    }
+  } else {
+    throw py::type_error(std::string(name) + " must be a boolean mask or integer indices, got dtype " +
+                         std::string(py::str(a.dtype())));
+  }
+  return mask;
+}
+
+// (N, 3) float64 numpy array from a 3N vector.
+inline py::array_t<double> positions_out(const VecX& x) {
+  py::array_t<double> out({static_cast<py::ssize_t>(x.size() / 3), static_cast<py::ssize_t>(3)});
+  std::copy(x.data(), x.data() + x.size(), out.mutable_data());
+  return out;
+}
+
+}  // namespace softrom::validate

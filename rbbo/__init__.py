@@ -1,0 +1,1 @@
+"""rbbo (coming in later issues)."""

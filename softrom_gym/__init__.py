@@ -1,0 +1,1 @@
+"""softrom_gym."""

@@ -1,0 +1,123 @@
+"""The ``Robot`` container: a tetrahedral mesh and its default material."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .voxel import boundary_faces
+
+if TYPE_CHECKING:
+    import trimesh
+
+    import cpp_sim
+
+__all__ = ["Robot"]
+
+
+@dataclass(frozen=True, eq=False)
+class Robot:
+    """A soft robot: rest mesh (metres, z up, resting on z = 0) and material.
+
+    Attributes
+    ----------
+    name : str
+        Short name (``"cross"``, ``"beam"``, ..., or the mesh file's stem).
+    nodes : (N, 3) float64 array
+        Rest positions, m.
+    tets : (T, 4) int64 array
+        Positively oriented tetrahedra (node indices).
+    youngs_modulus : float
+        E, Pa.
+    poisson_ratio : float
+        nu.
+    density : float
+        rho, kg/m^3.
+    """
+
+    name: str
+    nodes: np.ndarray
+    tets: np.ndarray
+    youngs_modulus: float = 5.0e4
+    poisson_ratio: float = 0.3
+    density: float = 1000.0
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        nodes = np.ascontiguousarray(self.nodes, dtype=np.float64)
+        tets = np.ascontiguousarray(self.tets, dtype=np.int64)
+        if nodes.ndim != 2 or nodes.shape[1] != 3:
+            raise ValueError(f"nodes has shape {nodes.shape}, expected (N, 3)")
+        if tets.ndim != 2 or tets.shape[1] != 4:
+            raise ValueError(f"tets has shape {tets.shape}, expected (T, 4)")
+        nodes.flags.writeable = False
+        tets.flags.writeable = False
+        object.__setattr__(self, "nodes", nodes)
+        object.__setattr__(self, "tets", tets)
+
+    @property
+    def num_nodes(self) -> int:
+        return int(self.nodes.shape[0])
+
+    @property
+    def num_tets(self) -> int:
+        return int(self.tets.shape[0])
+
+    @cached_property
+    def surface_faces(self) -> np.ndarray:
+        """(F, 3) boundary triangles, indices into ``nodes``, outward winding."""
+        return boundary_faces(self.tets, self.nodes)
+
+    @cached_property
+    def surface_nodes(self) -> np.ndarray:
+        """Sorted indices of the nodes on the boundary (the contact candidates)."""
+        return np.unique(self.surface_faces)
+
+    @property
+    def volume(self) -> float:
+        """Rest volume, m^3."""
+        p = self.nodes[self.tets]
+        return float(np.linalg.det(p[:, 1:] - p[:, :1]).sum() / 6.0)
+
+    @property
+    def mass(self) -> float:
+        """Total mass, kg."""
+        return self.density * self.volume
+
+    def surface(self, positions: np.ndarray | None = None) -> trimesh.Trimesh:
+        """The boundary as a ``trimesh.Trimesh``.
+
+        Vertices are all N nodes (at ``positions`` if given, else at rest) so that vertex i is
+        node i; interior nodes are unreferenced.
+        """
+        import trimesh
+
+        verts = self.nodes if positions is None else np.asarray(positions, dtype=float)
+        if verts.shape != self.nodes.shape:
+            raise ValueError(f"positions has shape {verts.shape}, expected {self.nodes.shape}")
+        return trimesh.Trimesh(vertices=verts, faces=self.surface_faces, process=False)
+
+    def fem_model(self, **material: float) -> cpp_sim.FEMModel:
+        """A full-space ``cpp_sim.FEMModel`` of this robot; keyword arguments override the
+        material (``youngs_modulus``, ``poisson_ratio``, ``density``)."""
+        import cpp_sim
+
+        unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
+        if unknown:
+            raise TypeError(f"unknown material parameter(s) {sorted(unknown)}")
+        return cpp_sim.FEMModel(
+            self.nodes,
+            self.tets,
+            material.get("youngs_modulus", self.youngs_modulus),
+            material.get("poisson_ratio", self.poisson_ratio),
+            material.get("density", self.density),
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"Robot({self.name!r}, nodes={self.num_nodes}, tets={self.num_tets}, "
+            f"E={self.youngs_modulus:g} Pa, nu={self.poisson_ratio:g}, rho={self.density:g})"
+        )

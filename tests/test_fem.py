@@ -1,0 +1,179 @@
+"""Full-space FEM (cpp_sim.FEMModel): derivatives, invariants, mass, dynamics, a cantilever."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.spatial.transform import Rotation
+
+import cpp_sim
+from softrom_gym.robots.voxel import voxels_to_tets
+
+E, NU, RHO = 1.0e5, 0.3, 1000.0
+
+
+def deformed(nodes, rng, scale=0.02):
+    return nodes + scale * rng.standard_normal(nodes.shape)
+
+
+def test_forces_are_minus_energy_gradient(small_block, rng):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    for _ in range(3):
+        x = deformed(nodes, rng)
+        f = fem.forces(x)
+        grad = np.zeros_like(x)
+        h = 1e-6
+        for i in range(x.shape[0]):
+            for k in range(3):
+                xp, xm = x.copy(), x.copy()
+                xp[i, k] += h
+                xm[i, k] -= h
+                grad[i, k] = (fem.energy(xp) - fem.energy(xm)) / (2 * h)
+        assert np.linalg.norm(f + grad) / np.linalg.norm(f) < 1e-5
+
+
+def test_stiffness_is_minus_force_jacobian(small_block, rng):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    x = deformed(nodes, rng, 0.03)
+    k = fem.stiffness(x)
+    assert sp.isspmatrix_csr(k) and k.shape == (x.size, x.size)
+    k = k.toarray()
+    h = 1e-6
+    kfd = np.zeros_like(k)
+    for j in range(x.size):
+        xp, xm = x.copy(), x.copy()
+        xp.flat[j] += h
+        xm.flat[j] -= h
+        kfd[:, j] = -(fem.forces(xp) - fem.forces(xm)).ravel() / (2 * h)
+    assert np.linalg.norm(k - kfd) / np.linalg.norm(k) < 1e-5
+    np.testing.assert_allclose(k, k.T, atol=1e-9 * np.abs(k).max())
+
+
+def test_projected_stiffness_is_psd_and_exact_at_rest(small_block, rng):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    # Strong compression makes the exact Hessian indefinite.
+    x = deformed(nodes * np.array([1.0, 1.0, 0.3]), rng, 0.03)
+    kp = fem.stiffness(x, project=True).toarray()
+    assert np.linalg.eigvalsh(kp).min() > -1e-8 * np.abs(kp).max()
+    k_rest = fem.stiffness(nodes).toarray()
+    np.testing.assert_allclose(fem.stiffness(nodes, project=True).toarray(), k_rest, atol=1e-8)
+
+
+def test_zero_force_at_rest_and_under_rigid_motion(small_block, rng):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    scale = E * 0.1**2  # force of unit strain on a voxel face
+    assert np.abs(fem.forces(nodes)).max() < 1e-10 * scale
+    assert abs(fem.energy(nodes)) < 1e-12
+    for seed in range(3):
+        rot = Rotation.random(random_state=seed).as_matrix()
+        x = nodes @ rot.T + rng.standard_normal(3)
+        assert np.abs(fem.forces(x)).max() < 1e-9 * scale
+        assert abs(fem.energy(x)) < 1e-9
+
+
+def test_net_force_and_torque_vanish(small_block, rng):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    x = deformed(nodes, rng, 0.05)
+    f = fem.forces(x)
+    scale = np.abs(f).sum()
+    assert np.linalg.norm(f.sum(axis=0)) < 1e-10 * scale
+    torque = np.cross(x, f).sum(axis=0)
+    assert np.linalg.norm(torque) < 1e-10 * scale
+
+
+def test_lumped_mass_equals_density_times_volume(small_block):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    assert fem.volume == pytest.approx(3 * 2 * 2 * 0.1**3, rel=1e-12)
+    assert fem.mass.sum() == pytest.approx(RHO * fem.volume, rel=1e-12)
+    assert np.all(fem.mass > 0)
+
+
+def test_free_fall_matches_implicit_euler_recurrence(small_block):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    x, v = nodes.copy(), np.zeros_like(nodes)
+    dt, steps = 0.01, 20
+    for _ in range(steps):
+        x, v = fem.step(x, v, dt)
+    # Implicit Euler under constant g: v_n = n g dt, x_n = g dt^2 n (n + 1) / 2; no deformation.
+    expected = -9.81 * dt**2 * steps * (steps + 1) / 2
+    np.testing.assert_allclose(x[:, 2] - nodes[:, 2], expected, rtol=1e-8)
+    np.testing.assert_allclose(v[:, 2], -9.81 * dt * steps, rtol=1e-8)
+    assert fem.last_step_stats["converged"]
+
+
+def test_step_conserves_momentum_without_gravity(small_block, rng):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    fem.gravity = [0.0, 0.0, 0.0]
+    x, v = deformed(nodes, rng, 0.01), 0.1 * rng.standard_normal(nodes.shape)
+    p0 = (fem.mass[:, None] * v).sum(axis=0)
+    for _ in range(10):
+        x, v = fem.step(x, v, 0.005)
+    p1 = (fem.mass[:, None] * v).sum(axis=0)
+    np.testing.assert_allclose(p1, p0, atol=1e-8 * np.abs(p0).max())
+
+
+def test_elastic_energy_decays_with_damping(small_block, rng):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    fem.gravity = [0.0, 0.0, 0.0]
+    x, v = deformed(nodes, rng, 0.01), np.zeros_like(nodes)
+    total = [fem.energy(x)]
+    for _ in range(30):
+        x, v = fem.step(x, v, 0.005)
+        total.append(fem.energy(x) + 0.5 * (fem.mass[:, None] * v**2).sum())
+    assert np.all(np.diff(total) <= 1e-12)
+    assert total[-1] < 0.5 * total[0]
+
+
+def test_fixed_nodes_stay_put(small_block):
+    nodes, tets = small_block
+    fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+    fixed = nodes[:, 0] < 1e-9
+    x, v = nodes.copy(), np.zeros_like(nodes)
+    for _ in range(5):
+        x, v = fem.step(x, v, 0.01, fixed=fixed)
+    np.testing.assert_array_equal(x[fixed], nodes[fixed])
+    assert np.all(v[fixed] == 0)
+    assert x[~fixed, 2].min() < nodes[~fixed, 2].min()
+    # Index form is equivalent to the mask.
+    x2, _ = fem.step(nodes, np.zeros_like(nodes), 0.01, fixed=np.flatnonzero(fixed))
+    x1, _ = fem.step(nodes, np.zeros_like(nodes), 0.01, fixed=fixed)
+    np.testing.assert_array_equal(x1, x2)
+
+
+def _cantilever_tip_ratio(n: int) -> float:
+    """Static tip deflection of a clamped 1 x 0.1 x 0.1 m beam under gravity / Euler-Bernoulli."""
+    length, h, e, rho = 1.0, 0.1, 1.0e9, 1000.0
+    m = max(1, round(n * h / length))
+    nodes, tets = voxels_to_tets(np.ones((n, m, m), dtype=bool), length / n)
+    fem = cpp_sim.FEMModel(nodes, tets, e, 0.3, rho)
+    free = np.repeat(nodes[:, 0] > 1e-9, 3)
+    weight = np.zeros_like(nodes)
+    weight[:, 2] = -9.81 * fem.mass
+    x = nodes.copy()
+    for _ in range(10):  # Newton on forces(x) + weight = 0
+        residual = (fem.forces(x) + weight).ravel()[free]
+        k = fem.stiffness(x).tocsc()[free][:, free]
+        dx = spla.splu(k, permc_spec="MMD_AT_PLUS_A").solve(residual)
+        x.ravel()[free] += dx
+        if np.abs(dx).max() < 1e-12:
+            break
+    tip = nodes[:, 0] > length - 1e-9
+    w = -(x[tip, 2] - nodes[tip, 2]).mean()
+    w_eb = rho * 9.81 * h * h * length**4 / (8 * e * h**4 / 12)
+    return w / w_eb
+
+
+def test_cantilever_matches_euler_bernoulli_and_converges():
+    ratios = [_cantilever_tip_ratio(n) for n in (20, 40, 80)]
+    errors = [abs(r - 1.0) for r in ratios]
+    assert errors[-1] < 0.10, ratios
+    assert errors[0] > errors[1] > errors[2], ratios

@@ -1,0 +1,107 @@
+"""Benchmark robots and user meshes (softrom_gym.robots)."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from softrom_gym.robots import ROBOTS, Robot, from_mesh, make_robot
+
+# Node counts of the paper's Table I.
+TABLE_I = {"cross": 623, "beam": 426, "quadruped": 1315, "tripod": 1417}
+
+
+@pytest.mark.parametrize("name", sorted(TABLE_I))
+def test_node_counts_match_table_i(name):
+    robot = ROBOTS[name]()
+    assert abs(robot.num_nodes / TABLE_I[name] - 1.0) <= 0.25, robot
+
+
+@pytest.mark.parametrize("name", sorted(TABLE_I))
+def test_robot_mesh_is_valid(name):
+    robot = ROBOTS[name]()
+    p = robot.nodes[robot.tets]
+    vol = np.linalg.det(p[:, 1:] - p[:, :1]) / 6
+    assert np.all(vol > 0)
+    assert robot.nodes[:, 2].min() == pytest.approx(0.0)
+    surface = robot.surface()
+    assert isinstance(surface, trimesh.Trimesh)
+    assert surface.is_watertight
+    assert surface.volume == pytest.approx(robot.volume, rel=1e-9)  # outward winding
+    # Only boundary nodes are contact candidates, and every node is used.
+    assert 0 < len(robot.surface_nodes) < robot.num_nodes
+    assert np.array_equal(np.unique(robot.tets), np.arange(robot.num_nodes))
+    fem = robot.fem_model()
+    assert fem.mass.sum() == pytest.approx(robot.mass)
+
+
+def test_shapes_are_recognisable():
+    c = make_robot("cross")
+    extent = np.ptp(c.nodes, axis=0)
+    assert extent[0] == pytest.approx(extent[1]) and extent[2] < 0.2 * extent[0]
+    # The plus shape leaves its corners empty: area is well under the bounding square's.
+    assert c.volume < 0.5 * extent.prod()
+    # The quadruped's and tripod's legs: the footprint at z = 0 has 4 / 3 separate pieces.
+    for name, legs in (("quadruped", 4), ("tripod", 3)):
+        r = make_robot(name)
+        base = r.nodes[r.nodes[:, 2] < 1e-9][:, :2]
+        pitch = r.metadata["pitch"]
+        ids = np.arange(len(base))
+        for _ in range(len(base)):  # label propagation over grid neighbours
+            d = np.abs(base[:, None] - base[None]).max(-1) <= pitch * 1.01
+            ids = np.min(np.where(d, ids[None], len(base)), axis=1)
+        assert len(np.unique(ids)) == legs, name
+
+
+def test_resolution_scales_node_count():
+    assert make_robot("beam", resolution=48).num_nodes > 2 * make_robot("beam").num_nodes
+
+
+def test_unknown_robot_lists_valid_ones():
+    with pytest.raises(ValueError, match=r"unknown robot 'octopus'; valid robots: \['beam'"):
+        make_robot("octopus")
+
+
+def test_bad_resolution():
+    with pytest.raises(ValueError, match="resolution must be >= 2"):
+        make_robot("cross", resolution=1)
+    with pytest.raises(TypeError, match="resolution must be an integer"):
+        make_robot("cross", resolution=2.5)
+    with pytest.raises(ValueError, match="too coarse"):
+        make_robot("beam", resolution=4)
+
+
+def test_from_mesh_box_volume():
+    box = trimesh.creation.box((0.3, 0.2, 0.1))
+    robot = from_mesh(box, resolution=20)
+    assert robot.volume == pytest.approx(box.volume, rel=0.10)
+    assert isinstance(robot, Robot) and robot.name == "mesh"
+
+
+def test_from_mesh_sphere_volume():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
+    robot = from_mesh(sphere, resolution=16)
+    assert robot.volume == pytest.approx(sphere.volume, rel=0.10)
+    assert robot.surface().is_watertight
+
+
+def test_from_mesh_reads_files(tmp_path):
+    path = tmp_path / "capsule.stl"
+    trimesh.creation.capsule(height=0.3, radius=0.1).export(path)
+    robot = from_mesh(path, resolution=10, youngs_modulus=2e5)
+    assert robot.name == "capsule" and robot.youngs_modulus == 2e5
+
+
+def test_from_mesh_rejects_open_mesh():
+    box = trimesh.creation.box((1, 1, 1))
+    open_box = trimesh.Trimesh(box.vertices, box.faces[:-2], process=False)
+    with pytest.raises(ValueError, match="mesh is not watertight"):
+        from_mesh(open_box)
+
+
+def test_from_mesh_bad_arguments(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        from_mesh(tmp_path / "missing.stl")
+    with pytest.raises(TypeError, match="mesh must be a file path or a trimesh.Trimesh"):
+        from_mesh(42)
+    with pytest.raises(TypeError, match="unknown material parameter"):
+        from_mesh(trimesh.creation.box((1, 1, 1)), stiffness=3)

@@ -1,0 +1,119 @@
+"""Bad input to the compiled core raises clear Python errors, never crashes."""
+
+import numpy as np
+import pytest
+
+import cpp_sim
+
+
+@pytest.fixture
+def tet():
+    nodes = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    tets = np.array([[0, 1, 2, 3]])
+    return nodes, tets
+
+
+def make(nodes, tets, e=1e5, nu=0.3, rho=1000.0):
+    return cpp_sim.FEMModel(nodes, tets, e, nu, rho)
+
+
+def test_wrong_node_shape(tet):
+    nodes, tets = tet
+    with pytest.raises(ValueError, match=r"nodes has shape \(4, 2\), expected \(N, 3\)"):
+        make(nodes[:, :2], tets)
+    with pytest.raises(ValueError, match=r"nodes has shape \(12,\)"):
+        make(nodes.ravel(), tets)
+
+
+def test_wrong_dtypes(tet):
+    nodes, tets = tet
+    with pytest.raises(TypeError, match="tets must be an integer array, got dtype float64"):
+        make(nodes, tets.astype(float))
+    with pytest.raises(TypeError, match="nodes must hold real numbers, got dtype complex128"):
+        make(nodes.astype(complex), tets)
+    with pytest.raises(TypeError, match="nodes must hold real numbers"):
+        make(np.array([["a", "b", "c"]] * 4), tets)
+
+
+def test_tet_index_out_of_range(tet):
+    nodes, _ = tet
+    with pytest.raises(ValueError, match=r"tets\[0\] has node index 7 out of range \[0, 4\)"):
+        make(nodes, np.array([[0, 1, 2, 7]]))
+    with pytest.raises(ValueError, match=r"tets\[0\] has node index -1 out of range"):
+        make(nodes, np.array([[0, 1, 2, -1]]))
+
+
+def test_inverted_or_degenerate_tet(tet):
+    nodes, _ = tet
+    with pytest.raises(
+        ValueError, match=r"tets\[0\] = \[0, 2, 1, 3\] has non-positive rest volume"
+    ):
+        make(nodes, np.array([[0, 2, 1, 3]]))
+    flat = nodes.copy()
+    flat[3] = [0.5, 0.5, 0.0]
+    with pytest.raises(ValueError, match="non-positive rest volume"):
+        make(flat, np.array([[0, 1, 2, 3]]))
+
+
+def test_unreferenced_node(tet):
+    nodes, tets = tet
+    with pytest.raises(ValueError, match="node 4 is not used by any tetrahedron"):
+        make(np.vstack([nodes, [[2.0, 2.0, 2.0]]]), tets)
+
+
+def test_non_finite_nodes(tet):
+    nodes, tets = tet
+    nodes[2, 1] = np.nan
+    with pytest.raises(ValueError, match="nodes contains a non-finite value"):
+        make(nodes, tets)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"e": 0.0}, "youngs_modulus must be a finite number > 0, got 0"),
+        ({"e": -5.0}, "youngs_modulus must be a finite number > 0, got -5"),
+        ({"e": np.inf}, "youngs_modulus must be a finite number > 0, got inf"),
+        ({"nu": 0.5}, r"poisson_ratio must lie in \(-1, 0.5\), got 0.5"),
+        ({"nu": -1.0}, r"poisson_ratio must lie in \(-1, 0.5\), got -1"),
+        ({"nu": np.nan}, r"poisson_ratio must lie in \(-1, 0.5\), got nan"),
+        ({"rho": 0.0}, "density must be a finite number > 0, got 0"),
+    ],
+)
+def test_bad_material(tet, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        make(*tet, **kwargs)
+
+
+def test_bad_step_arguments(tet):
+    nodes, tets = tet
+    fem = make(nodes, tets)
+    v = np.zeros_like(nodes)
+    with pytest.raises(ValueError, match="dt must be a finite number > 0, got 0"):
+        fem.step(nodes, v, 0.0)
+    with pytest.raises(ValueError, match="dt must be a finite number > 0, got -0.1"):
+        fem.step(nodes, v, -0.1)
+    with pytest.raises(ValueError, match=r"x has shape \(3, 3\), expected \(4, 3\)"):
+        fem.step(nodes[:3], v, 0.01)
+    with pytest.raises(ValueError, match=r"v has shape \(4, 2\), expected \(4, 3\)"):
+        fem.step(nodes, v[:, :2], 0.01)
+    bad = v.copy()
+    bad[1, 0] = np.inf
+    with pytest.raises(ValueError, match="v contains a non-finite value"):
+        fem.step(nodes, bad, 0.01)
+    with pytest.raises(ValueError, match="fixed is a boolean mask of length 3, expected 4"):
+        fem.step(nodes, v, 0.01, fixed=np.ones(3, dtype=bool))
+    with pytest.raises(ValueError, match=r"fixed contains node index 9 out of range \[0, 4\)"):
+        fem.step(nodes, v, 0.01, fixed=[9])
+    with pytest.raises(TypeError, match="x must be an array, got None"):
+        fem.energy(None)
+
+
+def test_bad_settings(tet):
+    fem = make(*tet)
+    with pytest.raises(ValueError, match="damping_beta must be a finite number >= 0, got -1"):
+        fem.damping_beta = -1.0
+    with pytest.raises(ValueError, match=r"gravity has shape \(1, 2\), expected \(1, 3\)"):
+        fem.gravity = [0.0, 1.0]
+    fem.gravity = [0.0, 0.0, -1.62]
+    assert fem.gravity == [0.0, 0.0, -1.62]
