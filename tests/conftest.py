@@ -16,3 +16,17 @@ def small_block():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _isolated_cache(tmp_path_factory):
+    """Subspace and cubature caches go to a per-session folder, never the user's cache."""
+    import os
+
+    old = os.environ.get("SOFTROM_CACHE_DIR")
+    os.environ["SOFTROM_CACHE_DIR"] = str(tmp_path_factory.mktemp("softrom-cache"))
+    yield
+    if old is None:
+        del os.environ["SOFTROM_CACHE_DIR"]
+    else:
+        os.environ["SOFTROM_CACHE_DIR"] = old

@@ -49,6 +49,8 @@ std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, double you
 
 }  // namespace
 
+void bind_reduced(py::module_& m);
+
 PYBIND11_MODULE(_core, m) {
   m.doc() = "softrom C++ simulation core (FEM, reduced model, contact, batched rollouts).";
 
@@ -180,4 +182,6 @@ Raises RuntimeError if the step diverges.)doc")
             return d;
           },
           "Newton iterations, final max |dx|/dt and convergence flag of the last step.");
+
+  bind_reduced(m);
 }

@@ -78,7 +78,7 @@ void FEMModel::assemble(const VecX& x, bool project, SpMat& k) const {
     const Mat3 f = mesh_.deformation_gradient(t, x);
     Mat9 dp = material_.dpdf(f);
     // Most elements are stable; a 9x9 Cholesky is far cheaper than the eigen decomposition.
-    if (project && Eigen::LLT<Mat9>(dp).info() != Eigen::Success) dp = project_psd<9>(dp);
+    if (project && !nearly_psd<9>(dp)) dp = project_psd<9>(dp);
     const Eigen::Matrix<double, 9, 12> d = dfdx(mesh_.dm_inv[t]);
     const Eigen::Matrix<double, 12, 12> ke = mesh_.volume[t] * d.transpose() * dp * d;
     const int* s = &slots_[static_cast<size_t>(t) * 144];

@@ -76,6 +76,17 @@ struct StableNeoHookean {
 
 // Projects a symmetric matrix onto the positive semi-definite cone (negative eigenvalues
 // clamped to zero), so Newton's method on the implicit-Euler energy always descends.
+// True when a is positive semi-definite up to a relative tolerance: a Cholesky of a slightly
+// shifted copy succeeds. Much cheaper than an eigen decomposition, and the stable Neo-Hookean
+// Hessian is exactly singular at rest, so an unshifted Cholesky would fail there.
+template <int N>
+bool nearly_psd(const Eigen::Matrix<double, N, N>& a) {
+  const double shift = 1e-9 * a.diagonal().cwiseAbs().maxCoeff();
+  Eigen::Matrix<double, N, N> b = a;
+  b.diagonal().array() += shift;
+  return Eigen::LLT<Eigen::Matrix<double, N, N>>(b).info() == Eigen::Success;
+}
+
 template <int N>
 Eigen::Matrix<double, N, N> project_psd(const Eigen::Matrix<double, N, N>& a) {
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> es(a);

@@ -1,0 +1,435 @@
+// Bindings for the reduced model: ReducedState, ReducedModel, cubature training helper.
+#include <pybind11/eigen.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <sstream>
+#include <thread>
+
+#include "fem_model.h"
+#include "reduced_model.h"
+#include "validate.h"
+
+namespace py = pybind11;
+using namespace softrom;
+namespace v = softrom::validate;
+
+namespace {
+
+py::array_t<double> vec_out(const VecX& x) {
+  py::array_t<double> out(x.size());
+  std::copy(x.data(), x.data() + x.size(), out.mutable_data());
+  return out;
+}
+
+VecX vector_in(py::handle obj, const char* name, Eigen::Index n) {
+  py::array a = v::as_array(obj, name);
+  if (a.ndim() != 1 || (n >= 0 && a.shape(0) != n)) {
+    std::ostringstream msg;
+    msg << name << " has shape " << v::shape_str(a) << ", expected (" << n << ",)";
+    throw py::value_error(msg.str());
+  }
+  return v::real_matrix(a.reshape({a.shape(0), py::ssize_t{1}}), name, n, 1);
+}
+
+MatX matrix_in(py::handle obj, const char* name, py::ssize_t rows, py::ssize_t cols) {
+  py::array a = v::as_array(obj, name);
+  if (a.ndim() != 2 || (rows >= 0 && a.shape(0) != rows) || (cols >= 0 && a.shape(1) != cols)) {
+    std::ostringstream msg;
+    msg << name << " has shape " << v::shape_str(a) << ", expected (";
+    msg << (rows >= 0 ? std::to_string(rows) : std::string("rows")) << ", "
+        << (cols >= 0 ? std::to_string(cols) : std::string("cols")) << ")";
+    throw py::value_error(msg.str());
+  }
+  VecX flat = v::real_matrix(a, name, a.shape(0), a.shape(1));
+  return Eigen::Map<RowMatX>(flat.data(), a.shape(0), a.shape(1));
+}
+
+std::vector<int> index_vector(py::handle obj, const char* name, int bound) {
+  py::array a = v::as_array(obj, name);
+  const char kind = a.dtype().kind();
+  if (kind != 'i' && kind != 'u')
+    throw py::type_error(std::string(name) + " must be an integer array, got dtype " +
+                         std::string(py::str(a.dtype())));
+  auto c = py::array_t<int64_t, py::array::c_style | py::array::forcecast>::ensure(a);
+  std::vector<int> out(static_cast<size_t>(c.size()));
+  for (py::ssize_t k = 0; k < c.size(); ++k) {
+    const int64_t i = c.data()[k];
+    if (i < 0 || i >= bound)
+      throw py::value_error(std::string(name) + " contains index " + std::to_string(i) +
+                            " out of range [0, " + std::to_string(bound) + ")");
+    out[k] = static_cast<int>(i);
+  }
+  return out;
+}
+
+ContactModel parse_contact(const std::string& s) {
+  if (s == "staggered") return ContactModel::Staggered;
+  if (s == "penalty") return ContactModel::Penalty;
+  if (s == "none") return ContactModel::None;
+  throw py::value_error("contact must be one of 'staggered', 'penalty', 'none'; got '" + s + "'");
+}
+
+const char* contact_name(ContactModel c) {
+  switch (c) {
+    case ContactModel::Staggered: return "staggered";
+    case ContactModel::Penalty: return "penalty";
+    default: return "none";
+  }
+}
+
+void check_state(const ReducedModel& m, const ReducedState& s) {
+  if (s.q.size() != m.dim() || s.qdot.size() != m.dim() ||
+      s.impulses.size() != 3 * m.num_surface_nodes()) {
+    std::ostringstream msg;
+    msg << "state has q of size " << s.q.size() << " and impulses of size " << s.impulses.size()
+        << ", expected " << m.dim() << " and " << 3 * m.num_surface_nodes()
+        << " for this model";
+    throw py::value_error(msg.str());
+  }
+}
+
+std::unique_ptr<ReducedModel> make_reduced(py::handle nodes, py::handle tets, double e, double nu,
+                                           double rho, py::handle basis, py::handle cub_elements,
+                                           py::handle cub_weights, py::handle surface_nodes,
+                                           py::handle surface_faces) {
+  // Reuse the FEM model's validation and rest data.
+  py::object fem_cls = py::module_::import("cpp_sim._core").attr("FEMModel");
+  py::object fem_obj = fem_cls(nodes, tets, e, nu, rho);
+  const FEMModel& fem = fem_obj.cast<const FEMModel&>();
+  const int n = fem.mesh().num_nodes;
+  MatX b = matrix_in(basis, "basis", 3 * n, -1);
+  if (b.cols() < 4)
+    throw py::value_error("basis must have at least 4 columns (3 translations + 1 deformation)");
+  // B_r^T M B_r = I is what the reduced equations assume (identity reduced mass).
+  VecX m3(3 * n);
+  for (int i = 0; i < n; ++i) m3.segment<3>(3 * i).setConstant(fem.mass()[i]);
+  const double err =
+      (b.transpose() * m3.asDiagonal() * b - MatX::Identity(b.cols(), b.cols())).cwiseAbs().maxCoeff();
+  if (err > 1e-6) {
+    std::ostringstream msg;
+    msg << "basis is not mass-orthonormal: max |B^T M B - I| = " << err << " (tolerance 1e-6)";
+    throw py::value_error(msg.str());
+  }
+  const double sm = std::sqrt(fem.mass().sum());
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < n; ++i)
+      for (int a = 0; a < 3; ++a)
+        if (std::abs(b(3 * i + a, k) - (a == k ? 1.0 / sm : 0.0)) > 1e-9 / sm) {
+          throw py::value_error("basis columns 0..2 must be the rigid translations e_k / sqrt(mass)");
+        }
+  std::vector<int> elems = index_vector(cub_elements, "cubature_elements", fem.mesh().num_tets());
+  VecX w = vector_in(cub_weights, "cubature_weights", static_cast<Eigen::Index>(elems.size()));
+  if ((w.array() < 0).any()) throw py::value_error("cubature_weights must be >= 0");
+  std::vector<int> snodes = index_vector(surface_nodes, "surface_nodes", n);
+  py::array fa = v::as_array(surface_faces, "surface_faces");
+  if (fa.ndim() != 2 || fa.shape(1) != 3)
+    throw py::value_error("surface_faces has shape " + v::shape_str(fa) + ", expected (F, 3)");
+  std::vector<int> fidx = index_vector(fa.attr("ravel")(), "surface_faces", n);
+  std::vector<std::array<int, 3>> faces(fidx.size() / 3);
+  for (size_t f = 0; f < faces.size(); ++f) faces[f] = {fidx[3 * f], fidx[3 * f + 1], fidx[3 * f + 2]};
+  try {
+    return std::make_unique<ReducedModel>(fem.mesh(), fem.material(), fem.mass(), b, elems,
+                                          std::vector<double>(w.data(), w.data() + w.size()),
+                                          snodes, faces);
+  } catch (const std::invalid_argument& ex) {
+    throw py::value_error(ex.what());
+  }
+}
+
+py::array_t<double> controls_in(const ReducedModel& m, py::handle obj, const char* name,
+                                int ndim) {
+  py::array a = v::as_array(obj, name);
+  v::require_real(a, name);
+  const int c = m.control_dim();
+  if (a.ndim() != ndim || a.shape(ndim - 1) != c) {
+    std::ostringstream msg;
+    msg << name << " has shape " << v::shape_str(a) << ", expected "
+        << (ndim == 3 ? "(B, H, " : "(") << c << (ndim == 1 ? ",)" : ")")
+        << " with C = " << c << " the control dimension";
+    throw py::value_error(msg.str());
+  }
+  auto out = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(a);
+  const double* p = out.data();
+  for (py::ssize_t i = 0; i < out.size(); ++i)
+    if (!std::isfinite(p[i])) {
+      std::ostringstream msg;
+      msg << name << " contains a non-finite value (" << p[i] << ") at flat index " << i;
+      throw py::value_error(msg.str());
+    }
+  return out;
+}
+
+}  // namespace
+
+void bind_reduced(py::module_& m) {
+  py::class_<ReducedState>(m, "ReducedState", R"doc(
+State of a reduced model: q_r and qdot_r (M + 3,) and the contact impulses (3 per surface
+node) that warm-start the next contact solve. Copies in, copies out; picklable.)doc")
+      .def(py::init([](py::handle q, py::handle qdot, py::handle impulses) {
+             ReducedState s;
+             s.q = vector_in(q, "q", -1);
+             s.qdot = vector_in(qdot, "qdot", s.q.size());
+             s.impulses = vector_in(impulses, "impulses", -1);
+             return s;
+           }),
+           py::arg("q"), py::arg("qdot"), py::arg("impulses"))
+      .def_property_readonly("q", [](const ReducedState& s) { return vec_out(s.q); })
+      .def_property_readonly("qdot", [](const ReducedState& s) { return vec_out(s.qdot); })
+      .def_property_readonly("impulses", [](const ReducedState& s) { return vec_out(s.impulses); })
+      .def("copy", [](const ReducedState& s) { return ReducedState(s); })
+      .def("__copy__", [](const ReducedState& s) { return ReducedState(s); })
+      .def("__deepcopy__", [](const ReducedState& s, py::dict) { return ReducedState(s); })
+      .def(py::pickle(
+          [](const ReducedState& s) {
+            return py::make_tuple(vec_out(s.q), vec_out(s.qdot), vec_out(s.impulses));
+          },
+          [](py::tuple t) {
+            ReducedState s;
+            s.q = vector_in(t[0], "q", -1);
+            s.qdot = vector_in(t[1], "qdot", s.q.size());
+            s.impulses = vector_in(t[2], "impulses", -1);
+            return s;
+          }))
+      .def("__repr__", [](const ReducedState& s) {
+        return "ReducedState(dim=" + std::to_string(s.q.size()) + ")";
+      });
+
+  py::class_<ReducedModel>(m, "ReducedModel", R"doc(
+Reduced-order soft body in the simulation space B_r (see softrom_gym.rom.ReducedModel for the
+Python front end that builds the basis and cubature).
+
+q_r = (3 rigid translations, M deformation coordinates), x = X + B_r q_r, B_r^T M B_r = I.
+Implicit Euler with Newton on the (M + 3)-dimensional system; elastic forces by cubature;
+ground contact by staggered projection (default) or penalty; quadratic drag when
+fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc")
+      .def(py::init(&make_reduced), py::arg("nodes"), py::arg("tets"), py::arg("youngs_modulus"),
+           py::arg("poisson_ratio"), py::arg("density"), py::arg("basis"),
+           py::arg("cubature_elements"), py::arg("cubature_weights"), py::arg("surface_nodes"),
+           py::arg("surface_faces"))
+      .def_property_readonly("dim", &ReducedModel::dim, "M + 3")
+      .def_property_readonly("M", &ReducedModel::deformation_dim, "deformation coordinates")
+      .def_property_readonly("C", &ReducedModel::control_dim, "control dimension")
+      .def_property_readonly("num_nodes", &ReducedModel::num_nodes)
+      .def_property_readonly("total_mass", &ReducedModel::total_mass)
+      .def_property_readonly("surface_nodes", &ReducedModel::surface_nodes)
+      .def_property(
+          "control_basis", [](const ReducedModel& r) { return MatX(r.control_basis()); },
+          [](ReducedModel& r, py::handle bc) {
+            r.set_control_basis(matrix_in(bc, "control_basis", r.deformation_dim(), -1));
+          },
+          "B_c, (M, C): f_r = B_c f_c acts on the deformation coordinates.")
+      .def_property(
+          "dt", [](const ReducedModel& r) { return r.config.dt; },
+          [](ReducedModel& r, double x) { r.config.dt = v::positive(x, "dt"); }, "time step, s")
+      .def_property(
+          "gravity",
+          [](const ReducedModel& r) {
+            return std::vector<double>{r.config.gravity.x(), r.config.gravity.y(), r.config.gravity.z()};
+          },
+          [](ReducedModel& r, py::handle g) {
+            r.config.gravity = vector_in(g, "gravity", 3);
+          },
+          "gravitational acceleration (3,), m/s^2")
+      .def_property(
+          "contact", [](const ReducedModel& r) { return std::string(contact_name(r.config.contact)); },
+          [](ReducedModel& r, const std::string& s) { r.config.contact = parse_contact(s); },
+          "'staggered' (default), 'penalty' or 'none'")
+      .def_property(
+          "friction", [](const ReducedModel& r) { return r.config.friction; },
+          [](ReducedModel& r, double x) { r.config.friction = v::non_negative(x, "friction"); },
+          "Coulomb coefficient mu")
+      .def_property(
+          "ground_height", [](const ReducedModel& r) { return r.config.ground_height; },
+          [](ReducedModel& r, double x) {
+            if (!std::isfinite(x)) throw py::value_error("ground_height must be finite");
+            r.config.ground_height = x;
+          })
+      .def_property(
+          "contact_margin", [](const ReducedModel& r) { return r.config.contact_margin; },
+          [](ReducedModel& r, double x) { r.config.contact_margin = v::non_negative(x, "contact_margin"); })
+      .def_property(
+          "penalty_stiffness", [](const ReducedModel& r) { return r.config.penalty_stiffness; },
+          [](ReducedModel& r, double x) { r.config.penalty_stiffness = v::non_negative(x, "penalty_stiffness"); },
+          "N/m per node for contact='penalty' (0: 0.25 m_i / dt^2)")
+      .def_property(
+          "fluid_density", [](const ReducedModel& r) { return r.config.fluid_density; },
+          [](ReducedModel& r, double x) { r.config.fluid_density = v::non_negative(x, "fluid_density"); },
+          "kg/m^3; > 0 turns quadratic surface drag on")
+      .def_property(
+          "drag_coefficient", [](const ReducedModel& r) { return r.config.drag_coefficient; },
+          [](ReducedModel& r, double x) { r.config.drag_coefficient = v::non_negative(x, "drag_coefficient"); })
+      .def_property(
+          "damping_alpha", [](const ReducedModel& r) { return r.config.damping_alpha; },
+          [](ReducedModel& r, double x) { r.config.damping_alpha = v::non_negative(x, "damping_alpha"); })
+      .def_property(
+          "damping_beta", [](const ReducedModel& r) { return r.config.damping_beta; },
+          [](ReducedModel& r, double x) { r.config.damping_beta = v::non_negative(x, "damping_beta"); })
+      .def_property(
+          "newton_tolerance", [](const ReducedModel& r) { return r.config.newton_tolerance; },
+          [](ReducedModel& r, double x) { r.config.newton_tolerance = v::positive(x, "newton_tolerance"); })
+      .def_property(
+          "max_newton_iterations", [](const ReducedModel& r) { return r.config.max_newton_iterations; },
+          [](ReducedModel& r, int n) {
+            if (n < 1) throw py::value_error("max_newton_iterations must be >= 1, got " + std::to_string(n));
+            r.config.max_newton_iterations = n;
+          })
+      .def_property(
+          "contact_tolerance", [](const ReducedModel& r) { return r.config.contact_tolerance; },
+          [](ReducedModel& r, double x) { r.config.contact_tolerance = v::positive(x, "contact_tolerance"); },
+          "staggered projection stops when contact-node velocities change less than this, m/s")
+      .def_property(
+          "max_stagger_iterations", [](const ReducedModel& r) { return r.config.max_stagger_iterations; },
+          [](ReducedModel& r, int n) {
+            if (n < 1) throw py::value_error("max_stagger_iterations must be >= 1, got " + std::to_string(n));
+            r.config.max_stagger_iterations = n;
+          })
+      .def_property(
+          "max_speed", [](const ReducedModel& r) { return r.config.max_speed; },
+          [](ReducedModel& r, double x) { r.config.max_speed = v::positive(x, "max_speed"); },
+          "RMS node speed (m/s) above which a step counts as diverged")
+      .def_property(
+          "direction",
+          [](const ReducedModel& r) {
+            return std::vector<double>{r.config.direction.x(), r.config.direction.y(), r.config.direction.z()};
+          },
+          [](ReducedModel& r, py::handle d) {
+            VecX dv = vector_in(d, "direction", 3);
+            const double n = dv.norm();
+            if (!(n > 0)) throw py::value_error("direction must be a non-zero vector");
+            r.config.direction = dv / n;
+          },
+          "unit task direction d; per-step reward d . v_com dt")
+      .def("rest_state", &ReducedModel::rest_state)
+      .def(
+          "step",
+          [](const ReducedModel& r, const ReducedState& s, py::handle fc) {
+            check_state(r, s);
+            ReducedState out = s;
+            py::array_t<double> f;
+            const double* fp = nullptr;
+            if (!fc.is_none()) {
+              f = controls_in(r, fc, "f_c", 1);
+              fp = f.data();
+            } else if (r.control_dim() > 0) {
+              throw py::value_error("f_c is required: this model has a control basis with C = " +
+                                    std::to_string(r.control_dim()));
+            }
+            StepInfo info;
+            {
+              py::gil_scoped_release release;
+              info = r.step(out, fp);
+            }
+            py::dict d;
+            d["newton_iterations"] = info.newton_iterations;
+            d["stagger_iterations"] = info.stagger_iterations;
+            d["contacts"] = info.contacts;
+            d["normal_iterations"] = info.normal_iterations;
+            d["friction_iterations"] = info.friction_iterations;
+            d["active_rows"] = info.active_rows;
+            d["diverged"] = info.diverged;
+            return py::make_tuple(out, d);
+          },
+          py::arg("state"), py::arg("f_c") = py::none(),
+          "One implicit step; returns (new_state, info). A diverged step returns the input "
+          "state and info['diverged'] = True; it never raises.")
+      .def(
+          "rollout",
+          [](const ReducedModel& r, const ReducedState& s, py::handle controls, py::object threads) {
+            check_state(r, s);
+            py::array_t<double> u = controls_in(r, controls, "controls", 3);
+            const int b = static_cast<int>(u.shape(0)), h = static_cast<int>(u.shape(1));
+            if (b < 1 || h < 1) throw py::value_error("controls must have B >= 1 and H >= 1");
+            int nt = threads.is_none() ? static_cast<int>(std::max(1u, std::thread::hardware_concurrency()))
+                                       : threads.cast<int>();
+            if (nt < 1) throw py::value_error("threads must be >= 1, got " + std::to_string(nt));
+            const py::ssize_t dim = r.dim(), ni = 3 * r.num_surface_nodes();
+            py::array_t<double> rewards({b, h}), q({py::ssize_t{b}, dim}), qd({py::ssize_t{b}, dim}),
+                imp({py::ssize_t{b}, ni}), com({py::ssize_t{b}, py::ssize_t{h}, py::ssize_t{3}});
+            py::array_t<bool> div(b);
+            std::vector<unsigned char> flags(b);
+            {
+              py::gil_scoped_release release;
+              r.rollout(s, u.data(), b, h, nt, rewards.mutable_data(), q.mutable_data(),
+                        qd.mutable_data(), imp.mutable_data(), flags.data(), com.mutable_data());
+            }
+            for (int i = 0; i < b; ++i) div.mutable_data()[i] = flags[i] != 0;
+            py::dict d;
+            d["rewards"] = rewards;
+            d["q"] = q;
+            d["qdot"] = qd;
+            d["impulses"] = imp;
+            d["diverged"] = div;
+            d["com"] = com;
+            return d;
+          },
+          py::arg("state"), py::arg("controls"), py::arg("threads") = py::none(),
+          R"doc(B rollouts of H steps from one state, controls (B, H, C).
+
+Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 3) and impulses
+(B, 3 n_surface) of the final states, diverged (B,) and com (B, H, 3). Rollouts run on
+`threads` C++ threads with the GIL released; results do not depend on the thread count. A
+diverged rollout keeps its last good state and earns zero reward from then on.)doc")
+      .def(
+          "positions",
+          [](const ReducedModel& r, py::handle q) {
+            return v::positions_out(r.positions(vector_in(q, "q", r.dim())));
+          },
+          py::arg("q"), "Node positions (N, 3) of reduced coordinates q.")
+      .def(
+          "com", [](const ReducedModel& r, py::handle q) { return vec_out(r.com(vector_in(q, "q", r.dim()))); },
+          py::arg("q"), "Centre of mass (3,) of reduced coordinates q.")
+      .def(
+          "elastic_energy",
+          [](const ReducedModel& r, py::handle qd) {
+            return r.elastic_energy(vector_in(qd, "q_d", r.deformation_dim()));
+          },
+          py::arg("q_d"))
+      .def(
+          "elastic_forces",
+          [](const ReducedModel& r, py::handle qd) {
+            return vec_out(r.elastic_forces(vector_in(qd, "q_d", r.deformation_dim())));
+          },
+          py::arg("q_d"), "Reduced elastic force B_d^T f(X + B_d q_d) (M,) by cubature.")
+      .def(
+          "elastic_stiffness",
+          [](const ReducedModel& r, py::handle qd, bool project) {
+            return r.elastic_stiffness(vector_in(qd, "q_d", r.deformation_dim()), project);
+          },
+          py::arg("q_d"), py::arg("project") = false);
+
+  m.def(
+      "reduced_element_forces",
+      [](const FEMModel& fem, py::handle basis, py::handle poses) {
+        const int n = fem.mesh().num_nodes;
+        MatX b = matrix_in(basis, "basis", 3 * n, -1);
+        MatX p = matrix_in(poses, "poses", -1, b.cols());
+        const int nt = fem.mesh().num_tets();
+        const Eigen::Index md = b.cols();
+        py::array_t<double> out({static_cast<py::ssize_t>(p.rows()), static_cast<py::ssize_t>(nt),
+                                 static_cast<py::ssize_t>(md)});
+        double* o = out.mutable_data();
+        {
+          py::gil_scoped_release release;
+          for (Eigen::Index s = 0; s < p.rows(); ++s) {
+            const VecX x = fem.mesh().rest + b * p.row(s).transpose();
+            for (int e = 0; e < nt; ++e) {
+              const Tet& t = fem.mesh().tets[e];
+              Eigen::Matrix<double, 12, Eigen::Dynamic> u(12, md);
+              for (int a = 0; a < 4; ++a) u.middleRows<3>(3 * a) = b.middleRows(3 * t[a], 3);
+              const Mat3 f = fem.mesh().deformation_gradient(e, x);
+              const Mat3 pk = fem.material().pk1(f);
+              const VecX g = -fem.mesh().volume[e] *
+                             ((dfdx(fem.mesh().dm_inv[e]) * u).transpose() *
+                              Eigen::Map<const Vec9>(pk.data()));
+              std::copy(g.data(), g.data() + md, o + (s * nt + e) * md);
+            }
+          }
+        }
+        return out;
+      },
+      py::arg("fem"), py::arg("basis"), py::arg("poses"),
+      "Per-element reduced elastic forces -V_e G_e^T vec P(F_e) (P, T, M) at poses (P, M) of "
+      "the deformation basis (3N, M): the training data for cubature.");
+}

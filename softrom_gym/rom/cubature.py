@@ -1,0 +1,155 @@
+"""Optimized cubature for reduced elastic forces (An, Kim & James 2008).
+
+The reduced force is a sum over all T tetrahedra, f_r(q) = sum_e g_e(q). Cubature replaces it
+with a few elements and non-negative weights, f_r(q) ~ sum_{e in S} w_e g_e(q), trained by
+greedy non-negative least squares on sampled poses, so a step costs O(|S|), not O(T).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import nnls
+
+import cpp_sim
+
+from ..robots import Robot
+from .subspace import Subspace, cache_dir, mesh_key
+
+__all__ = ["Cubature", "sample_poses", "train_cubature"]
+
+
+@dataclass(frozen=True)
+class Cubature:
+    """A cubature rule: element indices, non-negative weights, and its training error."""
+
+    elements: np.ndarray
+    weights: np.ndarray
+    training_error: float
+
+    def __len__(self) -> int:
+        return len(self.elements)
+
+
+def sample_poses(
+    robot: Robot, subspace: Subspace, count: int, rng: np.random.Generator
+) -> np.ndarray:
+    """Random deformation coordinates q_d (count, M) spanning small to large deformation.
+
+    Column j gets a Gaussian coefficient scaled by 1 / omega_j (stiffer columns move less, as
+    they do in motion); each pose is then scaled so its largest node displacement is between
+    2% and 30% of the robot's size.
+    """
+    size = float(np.ptp(robot.nodes, axis=0).max())
+    omega = np.maximum(subspace.frequencies, subspace.frequencies.min())
+    defo = subspace.deformation
+    poses = rng.standard_normal((count, subspace.M)) / omega
+    target = size * rng.uniform(0.02, 0.30, size=count)
+    for p in range(count):
+        disp = np.abs(defo @ poses[p]).max()
+        poses[p] *= target[p] / disp
+    return poses
+
+
+def _greedy_nnls(
+    a: np.ndarray, b: np.ndarray, tolerance: float, max_elements: int, verbose: bool
+) -> tuple[np.ndarray, np.ndarray, float]:
+    norms = np.linalg.norm(a, axis=0)
+    norms[norms == 0] = np.inf
+    bnorm = np.linalg.norm(b)
+    selected: list[int] = []
+    weights = np.zeros(0)
+    residual = b.copy()
+    err = 1.0
+    batch = 4  # candidates added per round; NNLS then prunes the useless ones
+    while err > tolerance and len(selected) < max_elements:
+        score = (a.T @ residual) / norms
+        score[selected] = -np.inf
+        picks = [int(i) for i in np.argsort(score)[::-1][:batch] if score[i] > 0]
+        if not picks:
+            break
+        selected += picks
+        weights, _ = nnls(a[:, selected], b, maxiter=50 * len(selected))
+        keep = weights > 0
+        selected = [s for s, k in zip(selected, keep, strict=True) if k]
+        weights = weights[keep]
+        residual = b - a[:, selected] @ weights
+        err = float(np.linalg.norm(residual) / bnorm)
+        if verbose and len(selected) % 20 < batch:
+            print(f"  cubature: {len(selected)} elements, training error {err:.4f}")
+    return np.array(selected, dtype=np.int64), weights, err
+
+
+def train_cubature(
+    robot: Robot,
+    subspace: Subspace,
+    *,
+    num_poses: int = 100,
+    tolerance: float = 0.005,
+    max_elements: int | None = None,
+    seed: int = 0,
+    cache: bool | str | os.PathLike = True,
+    verbose: bool = False,
+) -> Cubature:
+    """Train a cubature rule for the reduced elastic force of ``subspace``.
+
+    Parameters
+    ----------
+    num_poses : int
+        Training poses (see :func:`sample_poses`).
+    tolerance : float
+        Stop when the relative force error over all training poses is below this.
+    max_elements : int, optional
+        Cap on the rule's size (default ``min(T, 25 M)``).
+    seed : int
+        Seed of the pose sampler; the rule is deterministic for a given seed.
+    cache : bool or path
+        As in :func:`~softrom_gym.rom.build_subspace`.
+    """
+    if num_poses < 1:
+        raise ValueError(f"num_poses must be >= 1, got {num_poses}")
+    if not 0 < tolerance < 1:
+        raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
+    max_elements = max_elements or min(robot.num_tets, 25 * subspace.M)
+    path = None
+    if cache is not False:
+        root = cache_dir() if cache is True else Path(cache)
+        key = mesh_key(robot, subspace.basis.shape, float(subspace.basis.sum()), num_poses,
+                       tolerance, max_elements, seed)  # fmt: skip
+        path = root / f"cubature-{key}.npz"
+        if path.exists():
+            try:
+                with np.load(path) as d:
+                    return Cubature(d["elements"], d["weights"], float(d["training_error"]))
+            except (OSError, KeyError, ValueError):
+                pass
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    poses = sample_poses(robot, subspace, num_poses, rng)
+    fem = robot.fem_model()
+    g = cpp_sim.reduced_element_forces(fem, subspace.deformation, poses)  # (P, T, M)
+    b = g.sum(axis=1)  # (P, M)
+    # Each pose counts equally, whatever its force magnitude.
+    scale = 1.0 / np.maximum(np.linalg.norm(b, axis=1), 1e-300)
+    a = (g * scale[:, None, None]).transpose(0, 2, 1).reshape(-1, g.shape[1])
+    elements, weights, err = _greedy_nnls(a, (b * scale[:, None]).ravel(), tolerance,
+                                          max_elements, verbose)  # fmt: skip
+    rule = Cubature(elements, weights, err)
+    if verbose:
+        print(
+            f"trained cubature for {robot.name}: {len(rule)} of {robot.num_tets} elements, "
+            f"training error {err:.4f}, {time.perf_counter() - t0:.2f} s"
+        )
+    if path is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+            np.savez(tmp, elements=elements, weights=weights, training_error=err)
+            os.replace(tmp, path)
+        except OSError:
+            pass
+    return rule

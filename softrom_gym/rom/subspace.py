@@ -1,0 +1,309 @@
+"""The simulation space B_r: exact rigid translations plus modes and modal derivatives.
+
+``build_subspace(robot, M)`` returns a :class:`Subspace` whose basis B_r has ``M + 3`` columns:
+
+* columns 0..2: the three rigid translations, each ``e_k / sqrt(total mass)``, so the robot
+  can travel arbitrarily far with no error;
+* columns 3..M+2: ``M`` deformation columns: the lowest free-vibration modes of
+  ``K u = lambda M u`` at rest (rigid modes split off) followed by modal derivatives
+  (Barbič & James 2005), mass-orthonormalised.
+
+``M`` counts deformation coordinates only, so a control space B_c (M x C) acts on
+deformation and can never push the centre of mass (the paper's f_r = B_c f_c).
+
+Rotation is *linearised*: B_r has no rotation column; large rigid rotations are not in the
+subspace and a rotated pose shows up as (resisted) stretch. This suits locomotion tasks whose
+regulariser penalises turning, and is the documented limit of the model: a robot that must
+turn around needs a floating frame, which this model does not implement.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..robots import Robot
+
+__all__ = ["Subspace", "build_subspace", "cache_dir"]
+
+_CACHE_VERSION = "1"
+
+
+@dataclass(frozen=True, eq=False)
+class Subspace:
+    """A mass-orthonormal reduced basis B_r (3N x (M + 3)), ``B_r^T M B_r = I``.
+
+    Attributes
+    ----------
+    basis : (3N, M + 3) float64
+        B_r; row ``3 i + k`` is node i, axis k. Columns 0..2 are rigid translations.
+    frequencies : (M,) float64
+        sqrt(u^T K u) of each deformation column (rad/s), a Rayleigh-quotient frequency.
+    num_modes : int
+        Number of linear vibration modes among the deformation columns.
+    """
+
+    basis: np.ndarray
+    frequencies: np.ndarray
+    num_modes: int
+
+    @property
+    def M(self) -> int:
+        """Number of deformation coordinates."""
+        return self.basis.shape[1] - 3
+
+    @property
+    def deformation(self) -> np.ndarray:
+        """The deformation columns of B_r, (3N, M)."""
+        return self.basis[:, 3:]
+
+
+def cache_dir() -> Path:
+    """Where subspaces and cubature rules are cached: ``$SOFTROM_CACHE_DIR`` or the user cache."""
+    env = os.environ.get("SOFTROM_CACHE_DIR")
+    if env:
+        return Path(env)
+    if sys.platform == "darwin":
+        base = Path.home() / "Library" / "Caches"
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+    return base / "softrom"
+
+
+def mesh_key(robot: Robot, *extra: object) -> str:
+    """Hash of mesh, material and ``extra`` parameters, for on-disk caches."""
+    h = hashlib.sha256()
+    h.update(_CACHE_VERSION.encode())
+    h.update(np.ascontiguousarray(robot.nodes).tobytes())
+    h.update(np.ascontiguousarray(robot.tets).tobytes())
+    h.update(repr((robot.youngs_modulus, robot.poisson_ratio, robot.density, extra)).encode())
+    return h.hexdigest()[:24]
+
+
+def _mass_gram_schmidt(
+    columns: list[np.ndarray], mass3: np.ndarray, start: np.ndarray, tol: float = 1e-6
+) -> list[np.ndarray]:
+    """Mass-orthonormalise ``columns`` against ``start`` and each other, dropping dependents."""
+    basis = [c for c in start.T]
+    out = []
+    for c in columns:
+        v = c.copy()
+        norm0 = np.sqrt(v @ (mass3 * v))
+        if norm0 == 0:
+            continue
+        for _ in range(2):  # twice is enough (Kahan)
+            for b in basis:
+                v -= (b @ (mass3 * v)) * b
+        norm = np.sqrt(v @ (mass3 * v))
+        if norm < tol * norm0:
+            continue
+        v /= norm
+        basis.append(v)
+        out.append(v)
+    return out
+
+
+def _rigid_modes(nodes: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """Mass-orthonormal rigid translations (3) and linearised rotations (3), (3N, 6)."""
+    n = len(nodes)
+    com = mass @ nodes / mass.sum()
+    r = nodes - com
+    cols = []
+    for k in range(3):
+        t = np.zeros((n, 3))
+        t[:, k] = 1.0
+        cols.append(t.ravel())
+    for k in range(3):
+        axis = np.zeros(3)
+        axis[k] = 1.0
+        cols.append(np.cross(axis, r).ravel())
+    mass3 = np.repeat(mass, 3)
+    return np.column_stack(_mass_gram_schmidt(cols, mass3, np.zeros((3 * n, 0))))
+
+
+def _modal_derivatives(
+    fem, nodes: np.ndarray, modes: np.ndarray, pairs: list[tuple[int, int]], k0, rigid, mass3
+) -> list[np.ndarray]:
+    """Barbič & James modal derivatives: K Phi_ij = -(dK/dq_i) psi_j, by central differences
+    of the stiffness along psi_i; the rigid null space of K is regularised out."""
+    # K + M R R^T M is non-singular and agrees with K on the deformation complement.
+    mr = mass3[:, None] * rigid
+    a = (k0 + sp.csr_matrix(mr @ mr.T)).tocsc() if len(nodes) < 400 else None
+    solve = (
+        spla.splu(a).solve
+        if a is not None
+        else _woodbury_solver(k0, mr)  # avoids a dense (3N)^2 matrix on big meshes
+    )
+    scale = np.abs(nodes).max()
+    derivs = []
+    dk_cache: dict[int, sp.spmatrix] = {}
+    for i, j in pairs:
+        if i not in dk_cache:
+            u = modes[:, i].reshape(-1, 3)
+            eps = 1e-4 * scale / np.abs(u).max()
+            kp = fem.stiffness(nodes + eps * u)
+            km = fem.stiffness(nodes - eps * u)
+            dk_cache[i] = (kp - km) / (2 * eps)
+        rhs = -(dk_cache[i] @ modes[:, j])
+        rhs -= mr @ (rigid.T @ rhs)  # the force is free of net force/torque up to round-off
+        phi = solve(rhs)
+        phi -= rigid @ (mr.T @ phi)
+        derivs.append(phi)
+    return derivs
+
+
+def _woodbury_solver(k0: sp.spmatrix, mr: np.ndarray):
+    """Solve (K + U U^T) x = b with U = M R via a shifted sparse factorisation of K."""
+    shift = 1e-8 * np.abs(k0.diagonal()).max()
+    lu = spla.splu((k0 + shift * sp.identity(k0.shape[0])).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    ku = lu.solve(mr)
+    cap = np.eye(mr.shape[1]) + mr.T @ ku
+
+    def solve(b: np.ndarray) -> np.ndarray:
+        kb = lu.solve(b)
+        return kb - ku @ np.linalg.solve(cap, mr.T @ kb)
+
+    return solve
+
+
+def build_subspace(
+    robot: Robot,
+    M: int = 20,
+    *,
+    num_derivatives: int | None = None,
+    cache: bool | str | os.PathLike = True,
+    verbose: bool = False,
+) -> Subspace:
+    """Build the simulation space B_r of a robot (3N x (M + 3), mass-orthonormal).
+
+    Parameters
+    ----------
+    robot : Robot
+    M : int
+        Deformation coordinates (>= 1). The basis has ``M + 3`` columns.
+    num_derivatives : int, optional
+        How many of the M columns are modal derivatives (default ``M // 3``); the rest are
+        the lowest linear vibration modes.
+    cache : bool or path
+        ``True`` caches under :func:`cache_dir`, a path caches there, ``False`` never caches.
+    verbose : bool
+        Print what is being computed and how long it took.
+    """
+    n = robot.num_nodes
+    if isinstance(M, bool) or not isinstance(M, (int, np.integer)):
+        raise TypeError(f"M must be an integer, got {M!r}")
+    max_m = 3 * n - 6
+    if not 1 <= M <= max_m:
+        raise ValueError(
+            f"M = {M} deformation modes requested, but the robot has only {max_m} "
+            f"(3N - 6 with N = {n}); choose 1 <= M <= {max_m}"
+        )
+    if num_derivatives is None:
+        num_derivatives = M // 3 if M >= 6 else 0
+    if not 0 <= num_derivatives < M:
+        raise ValueError(f"num_derivatives must be in [0, M), got {num_derivatives} for M = {M}")
+    num_modes = M - num_derivatives
+
+    path = None
+    if cache is not False:
+        root = cache_dir() if cache is True else Path(cache)
+        path = root / f"subspace-{mesh_key(robot, M, num_derivatives)}.npz"
+        if path.exists():
+            try:
+                with np.load(path) as data:
+                    return Subspace(data["basis"], data["frequencies"], int(data["num_modes"]))
+            except (OSError, KeyError, ValueError):
+                pass  # a corrupt cache entry is rebuilt below
+
+    t0 = time.perf_counter()
+    fem = robot.fem_model()
+    mass3 = np.repeat(fem.mass, 3)
+    k0 = fem.stiffness(robot.nodes)
+    rigid = _rigid_modes(robot.nodes, fem.mass)
+
+    # Shift-invert Lanczos around a small negative shift finds the smallest eigenpairs;
+    # the six rigid modes sit at lambda ~ 0 and are split off below.
+    want = min(num_modes + 6, 3 * n - 1)
+    scale = float(np.mean(k0.diagonal() / mass3))
+    if 3 * n <= 600:
+        lam, vec = _dense_eigh(k0, mass3)
+        lam, vec = lam[:want], vec[:, :want]
+    else:
+        lam, vec = spla.eigsh(
+            k0,
+            k=want,
+            M=sp.diags(mass3),
+            sigma=-1e-6 * scale,
+            which="LM",
+            tol=1e-10,
+            v0=np.ones(3 * n),  # a fixed start vector keeps the result reproducible
+        )
+        order = np.argsort(lam)
+        lam, vec = lam[order], vec[:, order]
+    rigid_like = lam < 1e-8 * scale
+    if rigid_like.sum() > 6:
+        raise ValueError(
+            f"the robot's stiffness has {int(rigid_like.sum())} zero modes (6 expected): the "
+            "mesh is probably disconnected"
+        )
+    modes = vec[:, 6:][:, :num_modes]
+    # Remove any rigid component that leaked in (degenerate lambda ~ 0 subspace).
+    modes = modes - rigid @ ((mass3[:, None] * rigid).T @ modes)
+
+    columns = list(modes.T)
+    if num_derivatives:
+        # Pairs of low modes in order of their contribution, as Barbič & James weight them:
+        # lambda_1 / (lambda_i lambda_j) -- lowest products first.
+        base = min(num_modes, max(2, int(np.ceil(np.sqrt(2 * num_derivatives))) + 1))
+        lam_def = lam[6 : 6 + base]
+        pairs = sorted(
+            ((i, j) for i in range(base) for j in range(i, base)),
+            key=lambda p: lam_def[p[0]] * lam_def[p[1]],
+        )[: 2 * num_derivatives]
+        columns += _modal_derivatives(fem, robot.nodes, modes, pairs, k0, rigid, mass3)
+
+    translations = rigid[:, :3]
+    deformation = _mass_gram_schmidt(columns, mass3, rigid)[:M]
+    if len(deformation) < M:
+        raise ValueError(
+            f"could only build {len(deformation)} independent deformation columns, M = {M}"
+        )
+    # Eigenvectors are defined up to sign: make each column's largest entry positive so the
+    # same robot always gets the same basis (and the same meaning of q_r and B_c).
+    deformation = [d if d[np.argmax(np.abs(d))] > 0 else -d for d in deformation]
+    basis = np.column_stack([translations, *deformation])
+    defo = basis[:, 3:]
+    freq = np.sqrt(np.maximum(np.einsum("ij,ij->j", defo, k0 @ defo), 0.0))
+    sub = Subspace(basis, freq, num_modes)
+    if verbose:
+        print(
+            f"built B_r for {robot.name}: N = {n}, M = {M} ({num_modes} modes + "
+            f"{num_derivatives} derivatives) in {time.perf_counter() - t0:.2f} s"
+        )
+    if path is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+            np.savez(tmp, basis=basis, frequencies=freq, num_modes=num_modes)
+            os.replace(tmp, path)  # atomic: a concurrent reader never sees half a file
+        except OSError:
+            pass  # a read-only cache location only costs speed
+    return sub
+
+
+def _dense_eigh(k0: sp.spmatrix, mass3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Generalised eigenpairs of a small system by a dense solver (all of them)."""
+    from scipy.linalg import eigh
+
+    minv = 1.0 / np.sqrt(mass3)
+    a = minv[:, None] * k0.toarray() * minv[None, :]
+    lam, w = eigh(a)
+    return lam, minv[:, None] * w

@@ -1,0 +1,260 @@
+"""Reduced dynamics (cpp_sim.ReducedModel): accuracy, contact, friction, drag, actuation,
+batched rollouts and bad input."""
+
+import numpy as np
+import pytest
+import trimesh
+
+import cpp_sim
+from softrom_gym.robots import beam, cross, from_mesh, quadruped
+from softrom_gym.robots.robot import Robot
+from softrom_gym.robots.voxel import voxels_to_tets
+from softrom_gym.rom import build_reduced_model, build_subspace
+from softrom_gym.rom.subspace import Subspace, _mass_gram_schmidt
+
+G = 9.81
+
+
+def com_velocity(model, state):
+    return state.qdot[:3] / np.sqrt(model.total_mass)
+
+
+@pytest.fixture(scope="module")
+def box():
+    """A stiff 0.2 x 0.2 x 0.1 m block: rigid-body-like answers for contact and friction."""
+    return from_mesh(trimesh.creation.box((0.2, 0.2, 0.1)), 8, youngs_modulus=1e6)
+
+
+def test_full_basis_reproduces_full_space_trajectory():
+    # Small block; B_r spans all 3N directions (translations + everything else).
+    nodes, tets = voxels_to_tets(np.ones((2, 1, 1), dtype=bool), 0.1)
+    robot = Robot("block", nodes, tets, youngs_modulus=1e4)
+    fem = robot.fem_model()
+    m3 = np.repeat(fem.mass, 3)
+    rigid = np.zeros((3 * robot.num_nodes, 3))
+    for k in range(3):
+        rigid[k::3, k] = 1.0 / np.sqrt(fem.mass.sum())
+    rest = _mass_gram_schmidt(list(np.eye(3 * robot.num_nodes)), m3, rigid)
+    basis = np.column_stack([rigid, *rest])
+    assert basis.shape == (36, 36)
+    sub = Subspace(basis, np.ones(33), 33)
+    model = build_reduced_model(
+        robot, forces="exact", subspace=sub, contact="none", damping_beta=0.0, dt=0.01,
+        newton_tolerance=1e-10, max_newton_iterations=30,
+    )  # fmt: skip
+    fem.damping_beta = 0.0
+    fem.newton_tolerance = 1e-10
+    rng = np.random.default_rng(3)
+    x = nodes + 0.01 * rng.standard_normal(nodes.shape)
+    v = 0.2 * rng.standard_normal(nodes.shape)
+    q = basis.T @ (m3 * (x - nodes).ravel())
+    qdot = basis.T @ (m3 * v.ravel())
+    state = cpp_sim.ReducedState(q, qdot, np.zeros(3 * len(robot.surface_nodes)))
+    for _ in range(30):
+        x, v = fem.step(x, v, 0.01)
+        state, info = model.step(state)
+        assert not info["diverged"]
+    np.testing.assert_allclose(model.positions(state.q), x, atol=1e-7)
+
+
+def test_free_fall_follows_half_g_t_squared():
+    robot = beam()
+    model = build_reduced_model(robot, dt=1 / 500)
+    state = model.rest_state()
+    q = state.q
+    q[2] = 1.0 * np.sqrt(model.total_mass)  # lift 1 m
+    state = cpp_sim.ReducedState(q, state.qdot, state.impulses)
+    z0 = model.com(state.q)[2]
+    steps = 200  # 0.4 s, before impact
+    for _ in range(steps):
+        state, _ = model.step(state)
+    t = steps * model.dt
+    drop = z0 - model.com(state.q)[2]
+    assert drop == pytest.approx(0.5 * G * t * t, rel=0.01)
+    assert model.positions(state.q)[:, 2].min() > 0.0
+
+
+def test_resting_contact_neither_sinks_nor_drifts():
+    robot = quadruped()
+    model = build_reduced_model(robot)
+    height = np.ptp(robot.nodes[:, 2])
+    state = model.rest_state()
+    com = []
+    for _ in range(400):  # 2 s
+        state, info = model.step(state)
+        assert not info["diverged"]
+        com.append(model.com(state.q))
+    penetration = -model.positions(state.q)[:, 2].min()
+    assert penetration < 0.01 * height
+    com = np.array(com)
+    drift = np.linalg.norm(com[-1, :2] - com[199, :2]) / 1.0  # over the last second
+    assert drift < 1e-3, f"tangential drift {drift * 1e3:.3f} mm/s"
+
+
+def _incline(box, theta, mu, seconds=0.6):
+    model = build_reduced_model(box, M=12, friction=mu, damping_beta=0.01)
+    model.gravity = [G * np.sin(theta), 0.0, -G * np.cos(theta)]
+    state = model.rest_state()
+    ts, vs = [], []
+    for n in range(round(seconds / model.dt)):
+        state, info = model.step(state)
+        assert not info["diverged"]
+        ts.append((n + 1) * model.dt)
+        vs.append(com_velocity(model, state)[0])
+    return np.array(ts), np.array(vs)
+
+
+@pytest.mark.parametrize("theta_deg", [10.0, 25.0])
+def test_friction_sticks_below_the_cone(box, theta_deg):
+    mu = 0.6  # tan(25 deg) = 0.47 < 0.6
+    t, v = _incline(box, np.deg2rad(theta_deg), mu)
+    assert np.abs(v[t > 0.2]).max() < 1e-3
+
+
+@pytest.mark.parametrize(("theta_deg", "mu"), [(35.0, 0.5), (30.0, 0.2)])
+def test_friction_slides_with_coulomb_acceleration(box, theta_deg, mu):
+    theta = np.deg2rad(theta_deg)
+    t, v = _incline(box, theta, mu)
+    late = t > 0.2
+    accel = np.polyfit(t[late], v[late], 1)[0]
+    expected = G * (np.sin(theta) - mu * np.cos(theta))
+    assert accel == pytest.approx(expected, rel=0.10)
+
+
+@pytest.fixture(scope="module")
+def swimmer():
+    return cross()
+
+
+def swim_model(robot, **kw):
+    return build_reduced_model(robot, contact="none", gravity=[0, 0, 0], fluid_density=1000.0, **kw)
+
+
+def test_drag_decelerates_a_coasting_body_monotonically(swimmer):
+    model = swim_model(swimmer)
+    state = model.rest_state()
+    qdot = state.qdot
+    qdot[:3] = np.array([0.5, 0.2, 0.3]) * np.sqrt(model.total_mass)
+    state = cpp_sim.ReducedState(state.q, qdot, state.impulses)
+    speeds = []
+    for _ in range(200):
+        state, _ = model.step(state)
+        speeds.append(np.linalg.norm(com_velocity(model, state)))
+    assert np.all(np.diff(speeds) < 0)
+
+
+def test_drag_on_a_broadside_plate_matches_quadratic_law(swimmer):
+    # Moving along +z, only the top face (area A) advances into the fluid:
+    # m dv/dt = -1/2 rho C_d A v^2  =>  v(t) = v0 / (1 + k v0 t), k = rho C_d A / (2 m).
+    model = swim_model(swimmer, drag_coefficient=1.2)
+    v0 = 0.3
+    state = model.rest_state()
+    qdot = state.qdot
+    qdot[2] = v0 * np.sqrt(model.total_mass)
+    state = cpp_sim.ReducedState(state.q, qdot, state.impulses)
+    steps = 200
+    for _ in range(steps):
+        state, _ = model.step(state)
+    area = swimmer.volume / np.ptp(swimmer.nodes[:, 2])
+    k = 1000.0 * 1.2 * area / (2 * model.total_mass)
+    t = steps * model.dt
+    assert com_velocity(model, state)[2] == pytest.approx(v0 / (1 + k * v0 * t), rel=0.05)
+
+
+def _stroke(model, lag, seconds=4.0):
+    """Two modes driven at 1 Hz, ``lag`` apart; returns the centre of mass displacement."""
+    state = model.rest_state()
+    amp = 0.5 * np.sqrt(model.total_mass) * G  # half a body weight, in modal units
+    omega = 2 * np.pi * 1.0
+    start = model.com(state.q)
+    for n in range(round(seconds / model.dt)):
+        t = n * model.dt
+        f_c = amp * np.array([np.sin(omega * t), np.sin(omega * t - lag)])
+        state, info = model.step(state, f_c)
+        assert not info["diverged"]
+    return model.com(state.q) - start
+
+
+def test_travelling_wave_stroke_swims(swimmer):
+    model = swim_model(swimmer, control_basis=np.eye(20)[:, :2])
+    travel = np.linalg.norm(_stroke(model, np.pi / 2))
+    assert travel > 0.03, f"net displacement {travel:.4f} m"
+    # The thrust is the fluid's: the same stroke without drag goes nowhere.
+    model.fluid_density = 0.0
+    assert np.linalg.norm(_stroke(model, np.pi / 2)) < 1e-9
+
+
+def test_actuation_alone_never_moves_the_centre_of_mass(swimmer):
+    model = build_reduced_model(
+        swimmer, contact="none", gravity=[0, 0, 0], control_basis=np.eye(20)[:, :3]
+    )
+    rng = np.random.default_rng(0)
+    state = model.rest_state()
+    com0 = model.com(state.q)
+    for _ in range(100):
+        state, _ = model.step(state, 50.0 * rng.standard_normal(3))
+    np.testing.assert_allclose(model.com(state.q), com0, atol=1e-12)
+    assert np.abs(state.q[3:]).max() > 1e-3  # it did deform
+
+
+@pytest.fixture(scope="module")
+def walker():
+    model = build_reduced_model(beam(), control_basis=np.eye(20)[:, :3])
+    return model
+
+
+def test_rollout_matches_stepping_and_is_thread_count_independent(walker):
+    rng = np.random.default_rng(1)
+    controls = 20.0 * rng.standard_normal((4, 30, 3))
+    start = walker.rest_state()
+    one = walker.rollout(start, controls, threads=1)
+    two = walker.rollout(start, controls, threads=2)
+    for key in ("rewards", "q", "qdot", "impulses", "com", "diverged"):
+        np.testing.assert_array_equal(one[key], two[key])
+    state = start
+    rewards = []
+    for t in range(30):
+        state, _ = walker.step(state, controls[2, t])
+        rewards.append(walker.direction @ com_velocity(walker, state) * walker.dt)
+    np.testing.assert_array_equal(one["q"][2], state.q)
+    np.testing.assert_allclose(one["rewards"][2], rewards, rtol=1e-12, atol=1e-15)
+    assert one["rewards"].shape == (4, 30) and one["com"].shape == (4, 30, 3)
+
+
+def test_diverging_rollout_is_flagged_and_isolated(walker):
+    rng = np.random.default_rng(2)
+    controls = 20.0 * rng.standard_normal((3, 10, 3))
+    bad = controls.copy()
+    bad[1] *= 1e12
+    clean = walker.rollout(walker.rest_state(), controls, threads=2)
+    mixed = walker.rollout(walker.rest_state(), bad, threads=2)
+    assert list(mixed["diverged"]) == [False, True, False]
+    assert np.all(np.isfinite(mixed["q"])) and np.all(np.isfinite(mixed["rewards"]))
+    for b in (0, 2):
+        np.testing.assert_array_equal(mixed["q"][b], clean["q"][b])
+
+
+def test_bad_input_raises_clear_errors(walker):
+    state = walker.rest_state()
+    with pytest.raises(ValueError, match=r"control_basis has shape \(19, 3\), expected \(20,"):
+        walker.control_basis = np.zeros((19, 3))
+    with pytest.raises(ValueError, match="dt must be a finite number > 0, got 0"):
+        walker.dt = 0.0
+    with pytest.raises(ValueError, match="friction must be a finite number >= 0, got -0.1"):
+        walker.friction = -0.1
+    with pytest.raises(ValueError, match=r"controls has shape \(2, 5, 4\), expected \(B, H, 3\)"):
+        walker.rollout(state, np.zeros((2, 5, 4)))
+    nan = np.zeros((2, 5, 3))
+    nan[1, 2, 0] = np.nan
+    with pytest.raises(ValueError, match="controls contains a non-finite value"):
+        walker.rollout(state, nan)
+    with pytest.raises(ValueError, match=r"f_c has shape \(2,\), expected \(3,\)"):
+        walker.step(state, np.zeros(2))
+    with pytest.raises(ValueError, match="f_c contains a non-finite value"):
+        walker.step(state, np.array([0.0, np.inf, 0.0]))
+    with pytest.raises(ValueError, match="contact must be one of"):
+        walker.contact = "soft"
+    with pytest.raises(TypeError, match="unknown setting"):
+        build_reduced_model(beam(), frction=0.5)
+    with pytest.raises(ValueError, match="M = 5000 deformation modes requested"):
+        build_subspace(beam(), 5000)

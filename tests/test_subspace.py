@@ -1,0 +1,103 @@
+"""Simulation space B_r and cubature (softrom_gym.rom)."""
+
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+import cpp_sim
+from softrom_gym.robots import beam, from_mesh
+from softrom_gym.rom import build_subspace, cache_dir, sample_poses, train_cubature
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return beam()
+
+
+@pytest.fixture(scope="module")
+def subspace(robot):
+    return build_subspace(robot, 20)
+
+
+def test_basis_is_mass_orthonormal_with_exact_translations(robot, subspace):
+    b = subspace.basis
+    mass = robot.fem_model().mass
+    m3 = np.repeat(mass, 3)
+    assert b.shape == (3 * robot.num_nodes, 23) and subspace.M == 20
+    np.testing.assert_allclose(b.T @ (m3[:, None] * b), np.eye(23), atol=1e-10)
+    for k in range(3):
+        t = np.zeros((robot.num_nodes, 3))
+        t[:, k] = 1.0 / np.sqrt(mass.sum())
+        np.testing.assert_allclose(b[:, k], t.ravel(), atol=1e-14)
+
+
+def test_lowest_modes_solve_the_eigenproblem(robot, subspace):
+    fem = robot.fem_model()
+    k = fem.stiffness(robot.nodes)
+    m3 = np.repeat(fem.mass, 3)
+    for j in range(subspace.num_modes):
+        u = subspace.deformation[:, j]
+        lam = subspace.frequencies[j] ** 2
+        residual = k @ u - lam * m3 * u
+        assert np.linalg.norm(residual) < 1e-6 * np.linalg.norm(k @ u)
+    # Sorted, positive, and rigid motions excluded.
+    f = subspace.frequencies[: subspace.num_modes]
+    assert np.all(np.diff(f) >= -1e-9) and f[0] > 0.1
+
+
+def test_modal_derivatives_span_quadratic_deformation(robot, subspace):
+    # A modal derivative column is far stiffer than the linear modes around it.
+    assert subspace.frequencies[subspace.num_modes :].min() > subspace.frequencies[0]
+
+
+def test_subspace_is_cached_on_disk(robot, subspace):
+    files = list(cache_dir().glob("subspace-*.npz"))
+    assert files, "no cache file written"
+    start = time.perf_counter()
+    again = build_subspace(robot, 20)
+    assert time.perf_counter() - start < 0.5
+    np.testing.assert_array_equal(again.basis, subspace.basis)
+    # A corrupt cache entry is rebuilt, not fatal.
+    for f in files:
+        f.write_bytes(b"not a zip file")
+    rebuilt = build_subspace(robot, 20)
+    np.testing.assert_allclose(rebuilt.basis, subspace.basis, atol=1e-8)
+
+
+def test_cache_dir_is_user_settable(tmp_path, monkeypatch):
+    monkeypatch.setenv("SOFTROM_CACHE_DIR", str(tmp_path))
+    assert cache_dir() == tmp_path
+
+
+def test_too_many_modes_raise(robot):
+    small = from_mesh(trimesh.creation.box((0.2, 0.1, 0.1)), 2)
+    with pytest.raises(ValueError, match=r"M = 500 deformation modes requested, but the robot"):
+        build_subspace(small, 500, cache=False)
+    with pytest.raises(TypeError, match="M must be an integer"):
+        build_subspace(robot, 2.5, cache=False)
+    with pytest.raises(ValueError, match="num_derivatives must be in"):
+        build_subspace(robot, 10, num_derivatives=10, cache=False)
+
+
+def test_cubature_matches_exact_forces_on_held_out_poses(robot, subspace):
+    rule = train_cubature(robot, subspace)
+    assert len(rule) < robot.num_tets // 5
+    assert np.all(rule.weights > 0)
+    poses = sample_poses(robot, subspace, 30, np.random.default_rng(2024))  # unseen seed
+    g = cpp_sim.reduced_element_forces(robot.fem_model(), subspace.deformation, poses)
+    exact = g.sum(axis=1)
+    approx = np.einsum("pem,e->pm", g[:, rule.elements], rule.weights)
+    rel = np.linalg.norm(approx - exact, axis=1) / np.linalg.norm(exact, axis=1)
+    assert rel.max() < 0.05, rel.max()
+
+
+def test_reduced_element_forces_sum_to_projected_full_forces(robot, subspace):
+    poses = sample_poses(robot, subspace, 2, np.random.default_rng(0))
+    fem = robot.fem_model()
+    g = cpp_sim.reduced_element_forces(fem, subspace.deformation, poses)
+    for p in range(2):
+        x = robot.nodes + (subspace.deformation @ poses[p]).reshape(-1, 3)
+        projected = subspace.deformation.T @ fem.forces(x).ravel()
+        np.testing.assert_allclose(g[p].sum(axis=0), projected, rtol=1e-9, atol=1e-9)
