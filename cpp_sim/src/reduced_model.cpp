@@ -275,7 +275,7 @@ int ReducedModel::solve_contacts(const VecX& q, const MatX& a, VecX& v, VecX& im
     {
       ++info.normal_iterations;
       const MatX et = a_llt.matrixL().solve(jn.transpose());  // (L^{-1} J_n^T), m x k
-      VecX x, lam;
+      VecX x, lam = lam_n;  // warm start: last stagger's (or step's) loaded nodes
       if (least_distance(et.transpose(), b - jn * v_prime, x, lam)) {
         v = v_prime + a_llt.matrixU().solve(x);
         lam_n = lam;

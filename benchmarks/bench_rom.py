@@ -1,0 +1,180 @@
+"""Reduced model vs full-space FEM, per benchmark robot, measured side by side in one run.
+
+For each of the five benchmarks (cross swim, cross walk, beam, quadruped, tripod) it prints:
+
+* full-space implicit steps/s (squashed body released under gravity, as bench_fem.py);
+* reduced steps/s (M = 20, cubature) with the task's physics on: staggered-projection ground
+  contact for walkers (dropped from 5 cm, then bouncing and settling), quadratic drag for the
+  swimmer; and the same with the penalty ground model;
+* their ratio (`speedup`; target >= 100x on the quadruped);
+* batched rollout throughput (16 rollouts x 40 steps, random controls in the first three
+  modes) on 2 threads vs 1 (`thread_speedup`; target >= 1.8x);
+* `mujoco_steps_per_s`: reserved for MuJoCo's own deformable on the same mesh; not measured
+  yet (always null), see the issue tracker;
+* `drop_error_rel`: position error of the reduced model against full space over 1 s of free
+  flight under gravity with the lowest modes excited (about 3% deformation),
+  ||x_r - x_f|| / ||x_f - x_rigid|| summed over the trajectory. The full-space model has no
+  ground, so this compares the deformation dynamics (subspace + cubature), not contact.
+
+    python benchmarks/bench_rom.py [--json] [--robots quadruped ...] [--seconds 1.0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+import cpp_sim
+from softrom_gym.robots import ROBOTS
+from softrom_gym.rom import build_reduced_model, build_subspace
+
+BENCHMARKS = {
+    "cross-swim": ("cross", "swim"),
+    "cross-walk": ("cross", "walk"),
+    "beam-walk": ("beam", "walk"),
+    "quadruped-walk": ("quadruped", "walk"),
+    "tripod-walk": ("tripod", "walk"),
+}
+DT = 1.0 / 200.0
+
+
+def full_steps_per_s(robot, steps: int) -> float:
+    fem = robot.fem_model()
+    x = robot.nodes * np.array([1.0, 1.0, 0.8])
+    v = np.zeros_like(x)
+    x, v = fem.step(x, v, DT)
+    start = time.perf_counter()
+    for _ in range(steps):
+        x, v = fem.step(x, v, DT)
+    return steps / (time.perf_counter() - start)
+
+
+def task_model(robot, task: str, contact: str = "staggered"):
+    if task == "swim":
+        return build_reduced_model(
+            robot, contact="none", gravity=[0.0, 0.0, 0.0], fluid_density=1000.0,
+            control_basis=np.eye(20)[:, :3],
+        )  # fmt: skip
+    return build_reduced_model(robot, contact=contact, control_basis=np.eye(20)[:, :3])
+
+
+def lifted(model, height: float):
+    s = model.rest_state()
+    q = s.q
+    q[2] = height * np.sqrt(model.total_mass)
+    return cpp_sim.ReducedState(q, s.qdot, s.impulses)
+
+
+def reduced_steps_per_s(model, task: str, steps: int) -> float:
+    rng = np.random.default_rng(0)
+    amp = 0.5 * np.sqrt(model.total_mass) * 9.81
+    state = lifted(model, 0.0 if task == "swim" else 0.05)
+    controls = amp * rng.standard_normal((steps, 3)) if task == "swim" else np.zeros((steps, 3))
+    start = time.perf_counter()
+    for n in range(steps):
+        state, _ = model.step(state, controls[n])
+    return steps / (time.perf_counter() - start)
+
+
+def thread_speedup(model, task: str) -> tuple[float, float]:
+    rng = np.random.default_rng(1)
+    amp = 0.3 * np.sqrt(model.total_mass) * 9.81
+    controls = amp * rng.standard_normal((16, 40, 3))
+    state = lifted(model, 0.0 if task == "swim" else 0.02)
+    model.rollout(state, controls[:2, :5], threads=2)  # warm-up
+    times = {}
+    for threads in (1, 2):
+        start = time.perf_counter()
+        model.rollout(state, controls, threads=threads)
+        times[threads] = time.perf_counter() - start
+    return times[1] / times[2], controls.shape[0] * controls.shape[1] / times[2]
+
+
+def drop_error(robot, seconds: float) -> float:
+    """Relative position error of the reduced model against full space over ``seconds`` of
+    free flight under gravity, started with the three lowest deformation columns moving so
+    that the body deforms by about 3% of its size (the motions B_r is built to carry)."""
+    sub = build_subspace(robot, 20)
+    model = build_reduced_model(robot, subspace=sub, contact="none")
+    fem = robot.fem_model()
+    fem.damping_beta = model.damping_beta
+    size = float(np.ptp(robot.nodes, axis=0).max())
+    qdot = np.zeros(sub.basis.shape[1])
+    for j in range(3, 6):
+        peak = np.abs(sub.basis[:, j]).max() / sub.frequencies[j - 3]  # displacement per unit
+        qdot[j] = 0.03 * size / (np.sqrt(3.0) * peak)
+    q = np.zeros_like(qdot)
+    state = cpp_sim.ReducedState(q, qdot, model.rest_state().impulses)
+    x = model.positions(q)
+    v = (sub.basis @ qdot).reshape(-1, 3)
+    err = ref = 0.0
+    m = fem.mass
+    for _ in range(round(seconds / DT)):
+        x, v = fem.step(x, v, DT)
+        state, _ = model.step(state)
+        xr = model.positions(state.q)
+        rigid = robot.nodes + (m @ x - m @ robot.nodes) / m.sum()
+        err += np.sum((xr - x) ** 2)
+        ref += np.sum((x - rigid) ** 2)
+    return float(np.sqrt(err / ref))
+
+
+def measure(name: str, full_steps: int, seconds: float) -> dict:
+    robot_name, task = BENCHMARKS[name]
+    robot = ROBOTS[robot_name]()
+    full = full_steps_per_s(robot, full_steps)
+    model = task_model(robot, task)
+    model.step(model.rest_state(), np.zeros(3))  # warm-up
+    reduced = reduced_steps_per_s(model, task, round(seconds / DT))
+    row = {
+        "robot": name,
+        "nodes": robot.num_nodes,
+        "tets": robot.num_tets,
+        "contact": "none (drag)" if task == "swim" else model.contact,
+        "full_steps_per_s": full,
+        "reduced_steps_per_s": reduced,
+        "speedup": reduced / full,
+    }
+    if task == "walk":
+        penalty = task_model(robot, task, contact="penalty")
+        row["penalty_steps_per_s"] = reduced_steps_per_s(penalty, task, round(seconds / DT))
+    else:
+        row["penalty_steps_per_s"] = None
+    row["thread_speedup"], row["rollout_steps_per_s"] = thread_speedup(model, task)
+    row["mujoco_steps_per_s"] = None
+    row["drop_error_rel"] = drop_error(robot, seconds)
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="one JSON object per line")
+    parser.add_argument("--robots", nargs="*", default=list(BENCHMARKS), choices=list(BENCHMARKS))
+    parser.add_argument("--seconds", type=float, default=1.0, help="simulated time per test")
+    parser.add_argument("--full-steps", type=int, default=20, help="timed full-space steps")
+    args = parser.parse_args()
+    if not args.seconds > 0 or args.full_steps < 1:
+        parser.error("--seconds must be > 0 and --full-steps >= 1")
+    cols = ("full/s", "reduced/s", "speedup", "penalty/s", "2thr/1thr", "rollout/s", "drop err")
+    if not args.json:
+        print(f"{'benchmark':<15} {'nodes':>5} " + " ".join(f"{c:>10}" for c in cols))
+    for name in args.robots:
+        r = measure(name, args.full_steps, args.seconds)
+        if args.json:
+            print(json.dumps(r), flush=True)
+            continue
+        pen = "-" if r["penalty_steps_per_s"] is None else f"{r['penalty_steps_per_s']:.0f}"
+        print(
+            f"{name:<15} {r['nodes']:>5} {r['full_steps_per_s']:>10.2f} "
+            f"{r['reduced_steps_per_s']:>10.0f} {r['speedup']:>9.0f}x {pen:>10} "
+            f"{r['thread_speedup']:>9.2f}x {r['rollout_steps_per_s']:>10.0f} "
+            f"{r['drop_error_rel']:>10.3f}",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
