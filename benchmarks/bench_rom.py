@@ -13,7 +13,8 @@ For each of the five benchmarks (cross swim, cross walk, beam, quadruped, tripod
   `flexcomp` of the same tetrahedra, mass and material (E, nu) dropped on a plane from 5 cm,
   with `integrator="discrete"` (MuJoCo 4 runs flex elasticity only there). Each simulator
   runs at the largest time step, from a fixed ladder, at which a 1 s drop stays stable
-  (finite, penetration under 1 cm, RMS speed under 10 m/s); the comparison is simulated
+  (finite, penetration under 1 cm, RMS speed under 10 m/s, and for MuJoCo no solver
+  warning); the comparison is simulated
   seconds per wall second (`mujoco_sim_rate`, `reduced_sim_rate`, ratio `vs_mujoco`), and
   `mujoco_steps_per_s` is MuJoCo's raw rate at its step (all null when not measured; the
   swimmer is not compared, MuJoCo's fluid model being a different one);
@@ -187,7 +188,10 @@ def mujoco_sim_rate(robot, seconds: float) -> tuple[float, float, float] | None:
                     ok = False
                     break
         wall = time.perf_counter() - start
-        if ok and data.flexvert_xpos[:, 2].min() > -0.01:
+        # A run in which MuJoCo itself warned (ill-conditioned flex solve, singular inertia,
+        # bad accelerations) does not count as stable, even if it stayed finite.
+        warned = any(w.number > 0 for w in data.warning)
+        if ok and not warned and data.flexvert_xpos[:, 2].min() > -0.01:
             return dt, seconds / wall, steps / wall
     return None
 

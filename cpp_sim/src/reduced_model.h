@@ -33,7 +33,7 @@ struct ReducedConfig {
   double newton_tolerance = 1e-6; // on max |dv| (reduced velocity units), relative to 1
   int max_newton_iterations = 8;
   double contact_tolerance = 1e-4;  // m/s on contact-node velocities
-  int max_stagger_iterations = 30;
+  int max_stagger_iterations = 60;
   Vec3 direction{1.0, 0.0, 0.0};  // unit task direction d (reward d . v_com dt)
   double max_speed = 100.0;       // m/s: an RMS node speed above this counts as divergence
 };
@@ -49,7 +49,7 @@ struct StepInfo {
   int newton_iterations = 0;
   int stagger_iterations = 0;
   int normal_iterations = 0;   // semismooth Newton solves of the normal problem
-  int friction_iterations = 0; // reweighted solves of the friction problem
+  int friction_iterations = 0; // reweighted least-squares solves of the friction problem
   int active_rows = 0;       // contact candidates this step
   int contacts = 0;
   bool diverged = false;
