@@ -1,1 +1,12 @@
-"""softrom_gym."""
+"""softrom_gym: Gymnasium environments of soft robots simulated in a reduced space.
+
+Importing the package registers the environments: ``softrom_gym/CrossSwim-v0``,
+``CrossWalk-v0``, ``BeamWalk-v0``, ``QuadrupedWalk-v0``, ``TripodWalk-v0`` and the generic
+``softrom_gym/SoftRobot-v0`` (any robot, task and direction).
+"""
+
+from .registration import BENCHMARKS, register_envs
+
+register_envs()
+
+__all__ = ["BENCHMARKS", "register_envs"]

@@ -336,7 +336,8 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           "state and info['diverged'] = True; it never raises.")
       .def(
           "rollout",
-          [](const ReducedModel& r, const ReducedState& s, py::handle controls, py::object threads) {
+          [](const ReducedModel& r, const ReducedState& s, py::handle controls, py::object threads,
+             py::handle observe) {
             check_state(r, s);
             py::array_t<double> u = controls_in(r, controls, "controls", 3);
             const int b = static_cast<int>(u.shape(0)), h = static_cast<int>(u.shape(1));
@@ -349,10 +350,18 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
                 imp({py::ssize_t{b}, ni}), com({py::ssize_t{b}, py::ssize_t{h}, py::ssize_t{3}});
             py::array_t<bool> div(b);
             std::vector<unsigned char> flags(b);
+            MatX obs_m;
+            py::ssize_t no = 0;
+            if (!observe.is_none()) {
+              obs_m = matrix_in(observe, "observe", -1, r.dim());
+              no = obs_m.rows();
+            }
+            py::array_t<double> observed({py::ssize_t{b}, py::ssize_t{h}, no});
             {
               py::gil_scoped_release release;
               r.rollout(s, u.data(), b, h, nt, rewards.mutable_data(), q.mutable_data(),
-                        qd.mutable_data(), imp.mutable_data(), flags.data(), com.mutable_data());
+                        qd.mutable_data(), imp.mutable_data(), flags.data(), com.mutable_data(),
+                        no ? &obs_m : nullptr, no ? observed.mutable_data() : nullptr);
             }
             for (int i = 0; i < b; ++i) div.mutable_data()[i] = flags[i] != 0;
             py::dict d;
@@ -362,13 +371,16 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
             d["impulses"] = imp;
             d["diverged"] = div;
             d["com"] = com;
+            if (no) d["observed"] = observed;
             return d;
           },
           py::arg("state"), py::arg("controls"), py::arg("threads") = py::none(),
+          py::arg("observe") = py::none(),
           R"doc(B rollouts of H steps from one state, controls (B, H, C).
 
 Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 3) and impulses
-(B, 3 n_surface) of the final states, diverged (B,) and com (B, H, 3). Rollouts run on
+(B, 3 n_surface) of the final states, diverged (B,) and com (B, H, 3); with `observe`
+(P x (M + 3)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
 `threads` C++ threads with the GIL released; results do not depend on the thread count. A
 diverged rollout keeps its last good state and earns zero reward from then on.)doc")
       .def(

@@ -419,7 +419,7 @@ StepInfo ReducedModel::step(ReducedState& s, const double* fc) const {
 void ReducedModel::rollout(const ReducedState& start, const double* controls, int batch,
                            int horizon, int threads, double* rewards, double* final_q,
                            double* final_qdot, double* final_impulses, unsigned char* diverged,
-                           double* com_traj) const {
+                           double* com_traj, const MatX* observe, double* observed) const {
   const int c = control_dim();
   const Eigen::Index m = basis_cols_;
   const Vec3 d = config.direction;
@@ -437,6 +437,12 @@ void ReducedModel::rollout(const ReducedState& start, const double* controls, in
       if (com_traj) {
         const Vec3 p = com(s.q);
         std::copy(p.data(), p.data() + 3, com_traj + (static_cast<size_t>(b) * horizon + t) * 3);
+      }
+      if (observe && observed) {
+        // Linear observables of q_r per step (e.g. the linearised orientation).
+        const Eigen::Index no = observe->rows();
+        Eigen::Map<VecX>(observed + (static_cast<size_t>(b) * horizon + t) * no, no) =
+            (*observe) * s.q;
       }
     }
     std::copy(s.q.data(), s.q.data() + m, final_q + static_cast<size_t>(b) * m);

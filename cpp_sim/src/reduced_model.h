@@ -93,7 +93,8 @@ class ReducedModel {
   // Batched rollouts: controls (B, H, C) row-major; outputs rewards (B, H), final states.
   void rollout(const ReducedState& start, const double* controls, int batch, int horizon,
                int threads, double* rewards, double* final_q, double* final_qdot,
-               double* final_impulses, unsigned char* diverged, double* com_traj) const;
+               double* final_impulses, unsigned char* diverged, double* com_traj,
+               const MatX* observe = nullptr, double* observed = nullptr) const;
 
  private:
   struct Workspace;

@@ -1,0 +1,343 @@
+"""``SoftRobotEnv``: a soft robot walking or swimming through its control space B_c."""
+
+from __future__ import annotations
+
+import os
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+import cpp_sim
+
+from ..robots import ROBOTS, Robot, from_mesh
+from ..rom import build_reduced_model, build_subspace
+from ..rom.subspace import _rigid_modes
+
+__all__ = ["TASKS", "SoftRobotEnv"]
+
+TASKS = ("walk", "swim")
+G = 9.81
+
+
+def _direction(direction: float | np.ndarray) -> np.ndarray:
+    d = np.asarray(direction, dtype=float)
+    if d.ndim == 0:
+        if not np.isfinite(d):
+            raise ValueError(f"direction angle must be finite, got {direction!r}")
+        return np.array([np.cos(d), np.sin(d), 0.0])
+    if d.shape != (2,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+        raise ValueError(
+            f"direction must be an angle in radians or a non-zero 2-vector, got {direction!r}"
+        )
+    return np.array([d[0], d[1], 0.0]) / np.linalg.norm(d)
+
+
+def _control_basis(
+    b_c: np.ndarray | None, sim_dim: int, control_dim: int, orthonormalize: bool
+) -> np.ndarray:
+    if b_c is None:
+        return np.eye(sim_dim)[:, :control_dim]
+    b = np.asarray(b_c, dtype=float)
+    if b.shape != (sim_dim, control_dim):
+        raise ValueError(
+            f"control_basis has shape {b.shape}, expected (sim_dim, control_dim) = "
+            f"({sim_dim}, {control_dim})"
+        )
+    if not np.all(np.isfinite(b)):
+        raise ValueError("control_basis contains non-finite values")
+    if orthonormalize:
+        q, r = np.linalg.qr(b)
+        if np.min(np.abs(np.diag(r))) < 1e-10 * max(1.0, np.abs(r).max()):
+            raise ValueError("control_basis is rank-deficient; orthonormalize needs full rank")
+        return q * np.sign(np.diag(r))  # keep each column's orientation
+    err = float(np.abs(b.T @ b - np.eye(control_dim)).max())
+    if err > 1e-8:
+        raise ValueError(
+            f"control_basis is not orthonormal: max |B_c^T B_c - I| = {err:.3g} (tolerance "
+            "1e-8); pass orthonormalize=True to orthonormalise a full-rank matrix"
+        )
+    return b
+
+
+class SoftRobotEnv(gym.Env):
+    r"""A finite-element soft robot that walks or swims, actuated in a control space B_c.
+
+    The robot is simulated in the reduced simulation space B_r (``sim_dim`` = M deformation
+    modes plus 3 exact rigid translations; see :mod:`softrom_gym.rom`) and actuated by the
+    reduced force f_r = B_c f_c, where the action is f_c and B_c (M x C) is the control space
+    (the paper's Eq. OPT). Actuation is internal: it deforms the body and never pushes its
+    centre of mass; motion comes from ground friction (walk) or fluid drag (swim).
+
+    ## Action Space
+    ``Box(-a, a, (C,), float32)``: f_c, the generalised force along each column of B_c, held
+    for ``frame_skip`` simulation steps. Units are N·kg^(-1/2)·kg = mass-normalised modal
+    force (B_r is mass-orthonormal). The bound ``a = action_scale * sqrt(m) * g`` is the
+    modal force equivalent of the robot's weight: a prototype found no net motion below about
+    0.75 body weight and hopping artefacts of linear modes above about 2. Actions beyond the
+    bound are clipped. RL libraries that prefer [-1, 1] can wrap the env in
+    ``gymnasium.wrappers.RescaleAction(env, -1.0, 1.0)``.
+
+    ## Observation Space
+    ``Box(-inf, inf, (7 + 2 M,), float32)``:
+
+    | index          | observation                                             | unit   |
+    |----------------|---------------------------------------------------------|--------|
+    | 0              | centre-of-mass height above the ground                  | m      |
+    | 1..3           | centre-of-mass velocity (x, y, z)                       | m/s    |
+    | 4..6           | linearised orientation (rotation vector vs. rest)       | rad    |
+    | 7..6+M         | deformation coordinates q_d of B_r                      | m·kg½  |
+    | 7+M..6+2M      | their velocities                                        | m·kg½/s|
+
+    ## Rewards
+    Per step, the displacement of the centre of mass along the task direction d,
+    ``R = sum over sub-steps of d · v_com · dt`` (metres; the paper's R). ``info`` holds the
+    terms of the regulariser Λ separately: ``orientation`` (|rotation vector|, rad),
+    ``lateral`` (motion orthogonal to d in the ground plane this step, m) and ``effort``
+    (|f_c / a|^2), plus ``distance`` (along d since reset, m), ``com`` and ``diverged``.
+
+    ## Starting State
+    The robot at rest (on the ground for walking), with deformation velocities drawn
+    uniformly in ±``reset_noise_scale`` · sqrt(m) · 0.01 m/s from ``np_random``.
+
+    ## Episode End
+    Terminated when the simulation diverges (``info["diverged"] = True``; reset() makes the
+    env usable again). Truncated by the TimeLimit wrapper (``max_episode_steps``; 400 steps
+    = 10 s for the registered ids).
+
+    ## Arguments
+    ``robot`` (name in :data:`softrom_gym.robots.ROBOTS`, a mesh path, or a Robot), ``task``
+    ("walk" or "swim"), ``direction`` (angle in radians or 2-vector), ``control_dim`` C
+    (default 3), ``sim_dim`` M (default 20), ``control_basis`` B_c (M x C, orthonormal to 1e-8;
+    default: the first C deformation modes), ``orthonormalize`` (accept any full-rank B_c),
+    ``frame_skip`` (simulation steps per action, default 5: 40 Hz control at dt = 1/200 s),
+    ``dt``, ``action_scale``, ``friction`` (mu), ``contact`` ("staggered" or "penalty"),
+    ``fluid_density`` (swim), ``material`` (dict of youngs_modulus / poisson_ratio /
+    density), ``resolution`` (mesh resolution), ``reset_noise_scale``, ``render_mode``.
+
+    ## For model-predictive control
+    ``get_state()`` / ``set_state(state)`` copy the full simulation state, and
+    ``rollout(state, controls)`` runs B control sequences (B, H, C) of H env steps from a
+    state through the batched C++ path (see :meth:`rollout`).
+
+    ## Version History
+    * v0: initial release.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "render_fps": 40}
+
+    def __init__(
+        self,
+        robot: str | os.PathLike | Robot = "quadruped",
+        task: str = "walk",
+        direction: float | np.ndarray = 0.0,
+        control_dim: int = 3,
+        sim_dim: int = 20,
+        control_basis: np.ndarray | None = None,
+        orthonormalize: bool = False,
+        frame_skip: int = 5,
+        dt: float = 1.0 / 200.0,
+        action_scale: float = 1.0,
+        friction: float = 0.8,
+        contact: str = "staggered",
+        fluid_density: float = 1000.0,
+        material: dict[str, float] | None = None,
+        resolution: int | None = None,
+        reset_noise_scale: float = 1.0,
+        render_mode: str | None = None,
+    ) -> None:
+        if task not in TASKS:
+            raise ValueError(f"unknown task {task!r}; valid tasks: {list(TASKS)}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode {render_mode!r} is not supported; valid: "
+                f"{self.metadata['render_modes']}"
+            )
+        for name, value in (("control_dim", control_dim), ("sim_dim", sim_dim),
+                            ("frame_skip", frame_skip)):  # fmt: skip
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if control_dim > sim_dim:
+            raise ValueError(f"control_dim = {control_dim} exceeds sim_dim = {sim_dim}")
+        if not (np.isfinite(action_scale) and action_scale > 0):
+            raise ValueError(f"action_scale must be > 0, got {action_scale}")
+        self.render_mode = render_mode
+        self.task = task
+        self.frame_skip = int(frame_skip)
+        self.robot = self._make_robot(robot, material or {}, resolution)
+        self.direction = _direction(direction)
+        self.control_basis = _control_basis(control_basis, sim_dim, control_dim, orthonormalize)
+
+        self.subspace = build_subspace(self.robot, sim_dim)
+        settings: dict[str, Any] = {"dt": dt, "direction": self.direction}
+        if task == "swim":
+            settings.update(contact="none", gravity=[0.0, 0.0, 0.0], fluid_density=fluid_density)
+        else:
+            settings.update(contact=contact, friction=friction)
+        self.model = build_reduced_model(
+            self.robot, sim_dim, subspace=self.subspace, control_basis=self.control_basis,
+            **settings,
+        )  # fmt: skip
+        mass = self.robot.fem_model().mass
+        self._sqrt_m = float(np.sqrt(mass.sum()))
+        # Linearised orientation: rotation vector theta = (I^-1/2) R^T M B_r q_r from the
+        # mass-orthonormal infinitesimal rotations R of the rest shape.
+        rigid = _rigid_modes(self.robot.nodes, mass)
+        rot = rigid[:, 3:]
+        r = self.robot.nodes - mass @ self.robot.nodes / mass.sum()
+        scale = np.array([np.sqrt(np.sum(mass * np.sum(np.cross(e, r) ** 2, axis=1)))
+                          for e in np.eye(3)])  # fmt: skip
+        self._orientation = (rot.T * np.repeat(mass, 3)) @ self.subspace.basis / scale[:, None]
+        self.action_bound = float(action_scale * self._sqrt_m * G)
+        c = control_dim
+        m = sim_dim
+        self.action_space = spaces.Box(-self.action_bound, self.action_bound, (c,), np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (7 + 2 * m,), np.float32)
+        self.reset_noise_scale = float(reset_noise_scale)
+        self._state = self.model.rest_state()
+        self._com0 = self.model.com(self._state.q)
+
+    @staticmethod
+    def _make_robot(robot, material: dict[str, float], resolution: int | None) -> Robot:
+        unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
+        if unknown:
+            raise ValueError(f"unknown material parameter(s) {sorted(unknown)}")
+        kwargs: dict[str, Any] = dict(material)
+        if resolution is not None:
+            kwargs["resolution"] = resolution
+        if isinstance(robot, Robot):
+            if kwargs:
+                from dataclasses import replace
+
+                return replace(robot, **material)
+            return robot
+        if isinstance(robot, str) and robot in ROBOTS:
+            return ROBOTS[robot](**kwargs)
+        if isinstance(robot, (str, os.PathLike)) and os.path.splitext(str(robot))[1]:
+            return from_mesh(robot, **kwargs)
+        raise ValueError(
+            f"unknown robot {robot!r}; valid robots: {sorted(ROBOTS)}, a mesh file path "
+            "(STL/OBJ/PLY), or a softrom_gym.robots.Robot"
+        )
+
+    # ---------------------------------------------------------------- observations
+    def _obs(self, state: cpp_sim.ReducedState) -> np.ndarray:
+        q, qdot = state.q, state.qdot
+        com = self.model.com(q)
+        return np.concatenate(
+            [
+                [com[2] - self.model.ground_height],
+                qdot[:3] / self._sqrt_m,
+                self._orientation @ q,
+                q[3:],
+                qdot[3:],
+            ]
+        ).astype(np.float32)
+
+    def _check_action(self, action: np.ndarray) -> np.ndarray:
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != self.action_space.shape:
+            raise ValueError(
+                f"action has shape {a.shape}, expected {self.action_space.shape} "
+                f"(control_dim = {self.action_space.shape[0]})"
+            )
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action contains non-finite values: {a}")
+        return np.clip(a, -self.action_bound, self.action_bound)
+
+    # ---------------------------------------------------------------- gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rest = self.model.rest_state()
+        qdot = rest.qdot
+        noise = self.reset_noise_scale * 0.01 * self._sqrt_m
+        qdot[3:] = self.np_random.uniform(-noise, noise, size=qdot.size - 3)
+        self._state = cpp_sim.ReducedState(rest.q, qdot, rest.impulses)
+        self._com0 = self.model.com(self._state.q)
+        return self._obs(self._state), self._info(self._state, 0.0, 0.0, False)
+
+    def _info(self, state, lateral: float, effort: float, diverged: bool) -> dict[str, Any]:
+        com = self.model.com(state.q)
+        return {
+            "distance": float(self.direction @ (com - self._com0)),
+            "orientation": float(np.linalg.norm(self._orientation @ state.q)),
+            "lateral": lateral,
+            "effort": effort,
+            "com": com,
+            "diverged": diverged,
+            "contact": self.model.contact,
+        }
+
+    def step(self, action):
+        f_c = self._check_action(action)
+        out = self.rollout(self._state, f_c[None, None, :], threads=1)
+        diverged = bool(out["diverged"][0])
+        self._state = cpp_sim.ReducedState(out["q"][0], out["qdot"][0], out["impulses"][0])
+        reward = float(out["rewards"][0, 0])
+        info = self._info(self._state, float(out["lateral"][0, 0]), float(out["effort"][0, 0]),
+                          diverged)  # fmt: skip
+        return self._obs(self._state), reward, diverged, False, info
+
+    # ---------------------------------------------------------------- MPC API
+    def get_state(self) -> cpp_sim.ReducedState:
+        """A copy of the full simulation state (q_r, qdot_r and contact warm-start)."""
+        return self._state.copy()
+
+    def set_state(self, state: cpp_sim.ReducedState) -> None:
+        """Restore a state returned by :meth:`get_state`."""
+        if not isinstance(state, cpp_sim.ReducedState):
+            raise TypeError(f"state must be a ReducedState from get_state(), got {type(state)}")
+        if state.q.shape != (self.model.dim,):
+            raise ValueError(f"state has dimension {state.q.shape[0]}, expected {self.model.dim}")
+        self._state = state.copy()
+
+    def rollout(
+        self, state: cpp_sim.ReducedState, controls: np.ndarray, threads: int | None = None
+    ) -> dict[str, np.ndarray]:
+        """Run B control sequences of H env steps from ``state`` (batched, in C++).
+
+        Parameters
+        ----------
+        state : ReducedState
+        controls : (B, H, C) array
+            f_c per env step (each held for ``frame_skip`` simulation steps), clipped to the
+            action bound.
+        threads : int, optional
+            C++ worker threads (default: all cores). Results do not depend on it.
+
+        Returns
+        -------
+        dict with ``rewards`` (B, H), ``orientation`` (B, H) rotation magnitude at the end
+        of each step (rad), ``lateral`` (B, H) motion orthogonal to d (m), ``effort`` (B, H)
+        |f_c / a|^2, ``diverged`` (B,), and the final ``q``, ``qdot``, ``impulses``.
+        """
+        u = np.asarray(controls, dtype=np.float64)
+        if u.ndim != 3 or u.shape[2] != self.action_space.shape[0]:
+            raise ValueError(
+                f"controls has shape {u.shape}, expected (B, H, {self.action_space.shape[0]})"
+            )
+        if not np.all(np.isfinite(u)):
+            raise ValueError("controls contains non-finite values")
+        u = np.clip(u, -self.action_bound, self.action_bound)
+        b, h, _ = u.shape
+        k = self.frame_skip
+        out = self.model.rollout(state, np.repeat(u, k, axis=1), threads=threads,
+                                 observe=self._orientation)  # fmt: skip
+        com = out["com"].reshape(b, h, k, 3)[:, :, -1]
+        start = self.model.com(state.q)
+        prev = np.concatenate([np.broadcast_to(start, (b, 1, 3)), com[:, :-1]], axis=1)
+        delta = (com - prev)[..., :2]
+        d2 = self.direction[:2]
+        lateral = np.linalg.norm(delta - (delta @ d2)[..., None] * d2, axis=-1)
+        theta = out["observed"].reshape(b, h, k, 3)[:, :, -1]
+        return {
+            "rewards": out["rewards"].reshape(b, h, k).sum(axis=2),
+            "orientation": np.linalg.norm(theta, axis=-1),
+            "lateral": lateral,
+            "effort": np.sum((u / self.action_bound) ** 2, axis=-1),
+            "diverged": out["diverged"],
+            "q": out["q"],
+            "qdot": out["qdot"],
+            "impulses": out["impulses"],
+        }

@@ -1,0 +1,132 @@
+"""Gymnasium environments (softrom_gym.envs): API conformance, determinism, MPC API, errors."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import trimesh
+from gymnasium.utils.env_checker import check_env
+
+import softrom_gym
+from softrom_gym.robots import from_mesh
+
+IDS = [f"softrom_gym/{name}" for name in softrom_gym.BENCHMARKS] + ["softrom_gym/SoftRobot-v0"]
+
+
+@pytest.fixture(scope="module", params=IDS)
+def env(request):
+    env = gym.make(request.param)
+    yield env
+    env.close()
+
+
+# The action bound is physical (a body weight of modal force), not [-1, 1], and positions and
+# velocities are unbounded, as in Gymnasium's own MuJoCo envs: the checker's advice on both
+# is a recommendation, not a violation.
+@pytest.mark.filterwarnings("ignore:.*symmetric and normalized space")
+@pytest.mark.filterwarnings("ignore:.*space (minimum|maximum) value is -?infinity")
+def test_check_env(env):
+    check_env(env.unwrapped, skip_render_check=True)
+
+
+def test_spaces_and_info(env):
+    obs, info = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    assert env.action_space.shape == (3,) and env.action_space.dtype == np.float32
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    for key in ("distance", "orientation", "lateral", "effort", "com", "diverged", "contact"):
+        assert key in info
+    assert info["distance"] == pytest.approx(reward)
+    assert not terminated and not truncated
+    assert env.spec.max_episode_steps == 400
+
+
+def test_seeded_determinism(env):
+    def trajectory(seed):
+        obs, _ = env.reset(seed=seed)
+        env.action_space.seed(seed)
+        out = [obs]
+        for _ in range(5):
+            obs, reward, *_ = env.step(env.action_space.sample())
+            out += [obs, [reward]]
+        return np.concatenate(out)
+
+    a, b = trajectory(7), trajectory(7)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, trajectory(8))
+
+
+def test_module_prefix_make_without_import():
+    env = gym.make("softrom_gym:softrom_gym/BeamWalk-v0")
+    assert env.unwrapped.robot.name == "beam"
+
+
+def test_rollout_equals_stepping():
+    env = gym.make("softrom_gym/BeamWalk-v0").unwrapped
+    env.reset(seed=3)
+    start = env.get_state()
+    rng = np.random.default_rng(0)
+    controls = rng.uniform(-1, 1, (3, 6, 3)) * env.action_bound
+    out = env.rollout(start, controls, threads=2)
+    rewards, efforts = [], []
+    for t in range(6):
+        _, r, _, _, info = env.step(controls[1, t])
+        rewards.append(r)
+        efforts.append(info["effort"])
+    np.testing.assert_array_equal(out["rewards"][1], rewards)
+    np.testing.assert_array_equal(env.get_state().q, out["q"][1])
+    np.testing.assert_allclose(out["effort"][1], efforts)
+    env.set_state(start)
+    np.testing.assert_array_equal(env.get_state().q, start.q)
+
+
+def test_direction_sets_the_reward_axis():
+    a = gym.make("softrom_gym/SoftRobot-v0", robot="beam", direction=0.0).unwrapped
+    b = gym.make("softrom_gym/SoftRobot-v0", robot="beam", direction=np.pi).unwrapped
+    for env in (a, b):
+        env.reset(seed=0)
+    ctrl = np.full((1, 10, 3), 0.5 * a.action_bound)
+    ra = a.rollout(a.get_state(), ctrl)["rewards"].sum()
+    rb = b.rollout(b.get_state(), ctrl)["rewards"].sum()
+    assert ra == pytest.approx(-rb, rel=1e-9, abs=1e-15)
+
+
+def test_custom_mesh_robot_runs(tmp_path):
+    capsule = trimesh.creation.capsule(height=0.3, radius=0.08)
+    robot = from_mesh(capsule, 10)
+    env = gym.make("softrom_gym/SoftRobot-v0", robot=robot, task="walk", sim_dim=8)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (7 + 16,)
+    for _ in range(3):
+        obs, *_ = env.step(env.action_space.sample())
+    assert np.all(np.isfinite(obs))
+    # The same robot from a mesh file on disk, swimming.
+    path = tmp_path / "capsule.stl"
+    capsule.export(path)
+    env = gym.make("softrom_gym/SoftRobot-v0", robot=str(path), task="swim", sim_dim=8,
+                   resolution=10)  # fmt: skip
+    assert env.unwrapped.robot.name == "capsule"
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+
+
+def test_bad_input_errors():
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action has shape \(2,\), expected \(3,\)"):
+        env.step(np.zeros(2))
+    with pytest.raises(ValueError, match="action contains non-finite values"):
+        env.step(np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(ValueError, match=r"unknown robot 'octopus'; valid robots: \['beam'"):
+        gym.make("softrom_gym/SoftRobot-v0", robot="octopus")
+    with pytest.raises(ValueError, match=r"unknown task 'fly'; valid tasks: \['walk', 'swim'\]"):
+        gym.make("softrom_gym/SoftRobot-v0", robot="beam", task="fly")
+    bad = np.eye(20)[:, :3] * 1.01
+    with pytest.raises(ValueError, match=r"control_basis is not orthonormal: max \|B_c\^T B_c"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=bad)
+    with pytest.raises(ValueError, match=r"control_basis has shape \(20, 2\), expected"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=np.eye(20)[:, :2])
+    ok = gym.make("softrom_gym/BeamWalk-v0", control_basis=bad, orthonormalize=True)
+    b_c = ok.unwrapped.control_basis
+    np.testing.assert_allclose(b_c.T @ b_c, np.eye(3), atol=1e-12)
+    with pytest.raises(ValueError, match="rank-deficient"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=np.ones((20, 3)), orthonormalize=True)
