@@ -116,7 +116,7 @@ class ReducedModel:
     ) -> tuple[ReducedState, dict[str, int | bool]]: ...
     def rollout(
         self,
-        state: ReducedState,
+        state: ReducedState | Sequence[ReducedState],
         controls: npt.ArrayLike,
         threads: int | None = None,
         observe: npt.ArrayLike | None = None,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import gymnasium as gym
 
 ENTRY_POINT = "softrom_gym.envs.soft_robot_env:SoftRobotEnv"
+VECTOR_ENTRY_POINT = "softrom_gym.envs.vector_env:SoftRobotVectorEnv"
 MAX_EPISODE_STEPS = 400  # 10 s at the default frame_skip = 5, dt = 1/200 s
 
 # The paper's Table I benchmarks.
@@ -21,8 +22,9 @@ def register_envs() -> None:
     for name, kwargs in BENCHMARKS.items():
         env_id = f"softrom_gym/{name}"
         if env_id not in gym.registry:
-            gym.register(env_id, entry_point=ENTRY_POINT, kwargs=kwargs,
-                         max_episode_steps=MAX_EPISODE_STEPS)  # fmt: skip
+            gym.register(env_id, entry_point=ENTRY_POINT, vector_entry_point=VECTOR_ENTRY_POINT,
+                         kwargs=kwargs, max_episode_steps=MAX_EPISODE_STEPS)  # fmt: skip
     if "softrom_gym/SoftRobot-v0" not in gym.registry:
         gym.register("softrom_gym/SoftRobot-v0", entry_point=ENTRY_POINT,
+                     vector_entry_point=VECTOR_ENTRY_POINT,
                      max_episode_steps=MAX_EPISODE_STEPS)  # fmt: skip

@@ -130,3 +130,38 @@ def test_bad_input_errors():
     np.testing.assert_allclose(b_c.T @ b_c, np.eye(3), atol=1e-12)
     with pytest.raises(ValueError, match="rank-deficient"):
         gym.make("softrom_gym/BeamWalk-v0", control_basis=np.ones((20, 3)), orthonormalize=True)
+
+
+def test_vector_env_equals_single_envs():
+    n = 3
+    venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=n,
+                        vectorization_mode="vector_entry_point")  # fmt: skip
+    singles = [gym.make("softrom_gym/BeamWalk-v0") for _ in range(n)]
+    obs, _ = venv.reset(seed=10)
+    for i, env in enumerate(singles):
+        o, _ = env.reset(seed=10 + i)
+        np.testing.assert_array_equal(obs[i], o)
+    rng = np.random.default_rng(0)
+    bound = singles[0].unwrapped.action_bound
+    for _ in range(4):
+        actions = rng.uniform(-bound, bound, (n, 3)).astype(np.float32)
+        obs, rewards, _term, _trunc, info = venv.step(actions)
+        for i, env in enumerate(singles):
+            o, r, *_ = env.step(actions[i])
+            np.testing.assert_array_equal(obs[i], o)
+            assert rewards[i] == r
+        assert info["distance"].shape == (n,)
+    venv.close()
+
+
+def test_vector_env_autoresets_on_the_next_step():
+    venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, max_episode_steps=2,
+                        vectorization_mode="vector_entry_point")  # fmt: skip
+    first, _ = venv.reset(seed=0)
+    zero = np.zeros((2, 3), dtype=np.float32)
+    venv.step(zero)
+    _, _, _, trunc, _ = venv.step(zero)
+    assert trunc.all()
+    obs, rewards, term, trunc, _ = venv.step(zero)  # the autoreset step
+    assert not trunc.any() and not term.any() and np.all(rewards == 0)
+    assert obs.shape == first.shape

@@ -336,12 +336,26 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           "state and info['diverged'] = True; it never raises.")
       .def(
           "rollout",
-          [](const ReducedModel& r, const ReducedState& s, py::handle controls, py::object threads,
+          [](const ReducedModel& r, py::handle state, py::handle controls, py::object threads,
              py::handle observe) {
-            check_state(r, s);
             py::array_t<double> u = controls_in(r, controls, "controls", 3);
             const int b = static_cast<int>(u.shape(0)), h = static_cast<int>(u.shape(1));
             if (b < 1 || h < 1) throw py::value_error("controls must have B >= 1 and H >= 1");
+            std::vector<ReducedState> starts;
+            if (py::isinstance<ReducedState>(state)) {
+              starts.push_back(state.cast<ReducedState>());
+            } else {
+              for (py::handle item : state) {
+                if (!py::isinstance<ReducedState>(item))
+                  throw py::type_error("state must be a ReducedState or a sequence of them");
+                starts.push_back(item.cast<ReducedState>());
+              }
+              if (static_cast<int>(starts.size()) != b)
+                throw py::value_error("state is a sequence of " + std::to_string(starts.size()) +
+                                      " states, expected one per rollout (B = " +
+                                      std::to_string(b) + ")");
+            }
+            for (const ReducedState& s : starts) check_state(r, s);
             int nt = threads.is_none() ? static_cast<int>(std::max(1u, std::thread::hardware_concurrency()))
                                        : threads.cast<int>();
             if (nt < 1) throw py::value_error("threads must be >= 1, got " + std::to_string(nt));
@@ -359,7 +373,7 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
             py::array_t<double> observed({py::ssize_t{b}, py::ssize_t{h}, no});
             {
               py::gil_scoped_release release;
-              r.rollout(s, u.data(), b, h, nt, rewards.mutable_data(), q.mutable_data(),
+              r.rollout(starts, u.data(), b, h, nt, rewards.mutable_data(), q.mutable_data(),
                         qd.mutable_data(), imp.mutable_data(), flags.data(), com.mutable_data(),
                         no ? &obs_m : nullptr, no ? observed.mutable_data() : nullptr);
             }
@@ -376,7 +390,7 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           },
           py::arg("state"), py::arg("controls"), py::arg("threads") = py::none(),
           py::arg("observe") = py::none(),
-          R"doc(B rollouts of H steps from one state, controls (B, H, C).
+          R"doc(B rollouts of H steps from one state (or a sequence of B states), controls (B, H, C).
 
 Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 3) and impulses
 (B, 3 n_surface) of the final states, diverged (B,) and com (B, H, 3); with `observe`

@@ -416,15 +416,15 @@ StepInfo ReducedModel::step(ReducedState& s, const double* fc) const {
   return info;
 }
 
-void ReducedModel::rollout(const ReducedState& start, const double* controls, int batch,
-                           int horizon, int threads, double* rewards, double* final_q,
+void ReducedModel::rollout(const std::vector<ReducedState>& starts, const double* controls,
+                           int batch, int horizon, int threads, double* rewards, double* final_q,
                            double* final_qdot, double* final_impulses, unsigned char* diverged,
                            double* com_traj, const MatX* observe, double* observed) const {
   const int c = control_dim();
   const Eigen::Index m = basis_cols_;
   const Vec3 d = config.direction;
   auto run = [&](int b) {
-    ReducedState s = start;
+    ReducedState s = starts[starts.size() == 1 ? 0 : b];
     bool bad = false;
     for (int t = 0; t < horizon; ++t) {
       double reward = 0.0;

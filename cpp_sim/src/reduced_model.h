@@ -91,7 +91,9 @@ class ReducedModel {
   Vec3 com(const VecX& q) const;
 
   // Batched rollouts: controls (B, H, C) row-major; outputs rewards (B, H), final states.
-  void rollout(const ReducedState& start, const double* controls, int batch, int horizon,
+  // `starts` holds 1 state (shared by all rollouts) or `batch` states (one each).
+  void rollout(const std::vector<ReducedState>& starts, const double* controls, int batch,
+               int horizon,
                int threads, double* rewards, double* final_q, double* final_qdot,
                double* final_impulses, unsigned char* diverged, double* com_traj,
                const MatX* observe = nullptr, double* observed = nullptr) const;

@@ -293,13 +293,17 @@ class SoftRobotEnv(gym.Env):
         self._state = state.copy()
 
     def rollout(
-        self, state: cpp_sim.ReducedState, controls: np.ndarray, threads: int | None = None
+        self,
+        state: cpp_sim.ReducedState | list[cpp_sim.ReducedState],
+        controls: np.ndarray,
+        threads: int | None = None,
     ) -> dict[str, np.ndarray]:
         """Run B control sequences of H env steps from ``state`` (batched, in C++).
 
         Parameters
         ----------
-        state : ReducedState
+        state : ReducedState or list of B ReducedState
+            One start state shared by all rollouts, or one per rollout.
         controls : (B, H, C) array
             f_c per env step (each held for ``frame_skip`` simulation steps), clipped to the
             action bound.
@@ -325,7 +329,8 @@ class SoftRobotEnv(gym.Env):
         out = self.model.rollout(state, np.repeat(u, k, axis=1), threads=threads,
                                  observe=self._orientation)  # fmt: skip
         com = out["com"].reshape(b, h, k, 3)[:, :, -1]
-        start = self.model.com(state.q)
+        states = [state] if isinstance(state, cpp_sim.ReducedState) else list(state)
+        start = np.array([self.model.com(s.q) for s in states]).reshape(-1, 1, 3)
         prev = np.concatenate([np.broadcast_to(start, (b, 1, 3)), com[:, :-1]], axis=1)
         delta = (com - prev)[..., :2]
         d2 = self.direction[:2]

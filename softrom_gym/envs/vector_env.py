@@ -1,0 +1,123 @@
+"""``SoftRobotVectorEnv``: n robots stepped together in one batched C++ call."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+import cpp_sim
+
+from .soft_robot_env import SoftRobotEnv
+
+__all__ = ["SoftRobotVectorEnv"]
+
+
+class SoftRobotVectorEnv(VectorEnv):
+    """``num_envs`` copies of :class:`SoftRobotEnv` sharing one reduced model.
+
+    Each ``step`` advances every robot in a single batched C++ call (one rollout of one env
+    step per robot, on a thread pool). Sub-environment i behaves exactly like a single
+    :class:`SoftRobotEnv` reset with seed ``seed + i``. Autoreset follows Gymnasium's
+    ``AutoresetMode.NEXT_STEP``: the step after an episode ends resets that robot and returns
+    its first observation with reward 0. Episodes are truncated after ``max_episode_steps``.
+
+    Create it with ``gym.make_vec(id, num_envs=n, vectorization_mode="vector_entry_point")``;
+    every other keyword is passed to :class:`SoftRobotEnv`.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": [],
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        max_episode_steps: int | None = 400,
+        threads: int | None = None,
+        **env_kwargs: Any,
+    ) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        self.env = SoftRobotEnv(**env_kwargs)
+        self.num_envs = num_envs
+        self.max_episode_steps = max_episode_steps
+        self.threads = threads
+        self.single_observation_space = self.env.observation_space
+        self.single_action_space = self.env.action_space
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._states = [self.env.model.rest_state() for _ in range(num_envs)]
+        self._com0 = np.zeros((num_envs, 3))
+        self._elapsed = np.zeros(num_envs, dtype=np.int64)
+        self._autoreset = np.zeros(num_envs, dtype=bool)
+        self._rngs = [seeding.np_random()[0] for _ in range(num_envs)]
+
+    def _reset_one(self, i: int) -> tuple[np.ndarray, dict[str, Any]]:
+        env = self.env
+        env._np_random = self._rngs[i]  # the sub-env's own stream, as a single env's
+        obs, info = env.reset()
+        self._rngs[i] = env.np_random
+        self._states[i] = env.get_state()
+        self._com0[i] = info["com"]
+        self._elapsed[i] = 0
+        return obs, info
+
+    def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, int):
+            seeds = [seed + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed list has {len(seeds)} entries, expected {self.num_envs}")
+        infos: dict[str, Any] = {}
+        obs = np.zeros(self.observation_space.shape, dtype=np.float32)
+        for i, s in enumerate(seeds):
+            if s is not None or seed is None:
+                self._rngs[i] = seeding.np_random(s)[0]
+            obs[i], info = self._reset_one(i)
+            infos = self._add_info(infos, info, i)
+        self._autoreset[:] = False
+        return obs, infos
+
+    def step(self, actions: np.ndarray):
+        a = np.asarray(actions, dtype=np.float64)
+        if a.shape != self.action_space.shape:
+            raise ValueError(f"actions has shape {a.shape}, expected {self.action_space.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("actions contains non-finite values")
+        obs = np.zeros(self.observation_space.shape, dtype=np.float32)
+        rewards = np.zeros(self.num_envs)
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        truncated = np.zeros(self.num_envs, dtype=bool)
+        infos: dict[str, Any] = {}
+        live = np.flatnonzero(~self._autoreset)
+        for i in np.flatnonzero(self._autoreset):
+            obs[i], info = self._reset_one(int(i))
+            infos = self._add_info(infos, info, int(i))
+        if live.size:
+            env = self.env
+            out = env.rollout([self._states[i] for i in live], a[live, None, :],
+                              threads=self.threads)  # fmt: skip
+            for k, i in enumerate(live):
+                state = cpp_sim.ReducedState(out["q"][k], out["qdot"][k], out["impulses"][k])
+                self._states[i] = state
+                self._elapsed[i] += 1
+                diverged = bool(out["diverged"][k])
+                rewards[i] = out["rewards"][k, 0]
+                terminated[i] = diverged
+                if self.max_episode_steps is not None:
+                    truncated[i] = self._elapsed[i] >= self.max_episode_steps
+                obs[i] = env._obs(state)
+                env._com0 = self._com0[i]
+                info = env._info(state, float(out["lateral"][k, 0]),
+                                 float(out["effort"][k, 0]), diverged)  # fmt: skip
+                infos = self._add_info(infos, info, int(i))
+        self._autoreset = terminated | truncated
+        return obs, rewards, terminated, truncated, infos
