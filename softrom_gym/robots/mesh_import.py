@@ -4,17 +4,22 @@ from __future__ import annotations
 
 import os
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from .robot import Robot
 from .voxel import largest_component, voxels_to_tets
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["from_mesh"]
 
 
 def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, str]:
+    import trimesh  # imported on use: it costs about a second at start-up
+
     if isinstance(mesh, trimesh.Trimesh):
         return mesh, "mesh"
     if isinstance(mesh, (str, os.PathLike)):
@@ -61,6 +66,8 @@ def from_mesh(
     ValueError
         If the mesh is not watertight, or the resolution is too coarse to fill any voxel.
     """
+    import trimesh
+
     surface, default_name = _load(mesh)
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
         raise TypeError(f"resolution must be an integer, got {resolution!r}")
