@@ -1,7 +1,8 @@
 """Environment throughput per registered benchmark, measured side by side in one run.
 
 For each env id: single-env steps/s (``gym.make`` + ``step``), the native vector env with 8
-robots (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) in robot-steps/s,
+robots (each stepping as many times as the single env, so both see the same mix of settling
+and walking) (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) in robot-steps/s,
 their ratio (`vector_speedup`), and batched ``rollout`` throughput on 2 threads in robot
 env-steps/s (64 rollouts x 10 env steps). Actions are uniform random in the action box.
 
@@ -38,7 +39,7 @@ def measure(env_id: str, steps: int, num_envs: int = 8) -> dict:
     venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point",
                         threads=2)  # fmt: skip
     venv.reset(seed=0)
-    vsteps = max(1, steps // num_envs)
+    vsteps = steps  # each robot takes as many steps as the single env: same trajectory mix
     vactions = rng.uniform(-bound, bound, (vsteps, num_envs, 3)).astype(np.float32)
     start = time.perf_counter()
     for a in vactions:
