@@ -5,8 +5,9 @@ Importing the package registers the environments: ``softrom_gym/CrossSwim-v0``,
 ``softrom_gym/SoftRobot-v0`` (any robot, task and direction).
 """
 
+from .export import export_trajectory
 from .registration import BENCHMARKS, register_envs
 
 register_envs()
 
-__all__ = ["BENCHMARKS", "register_envs"]
+__all__ = ["BENCHMARKS", "export_trajectory", "register_envs"]

@@ -165,3 +165,46 @@ def test_vector_env_autoresets_on_the_next_step():
     obs, rewards, term, trunc, _ = venv.step(zero)  # the autoreset step
     assert not trunc.any() and not term.any() and np.all(rewards == 0)
     assert obs.shape == first.shape
+
+
+def test_export_trajectory_writes_one_mesh_per_frame(tmp_path):
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    states = [env.unwrapped.get_state()]
+    for _ in range(3):
+        env.step(env.action_space.sample())
+        states.append(env.unwrapped.get_state())
+    files = softrom_gym.export_trajectory(states, tmp_path / "out" / "beam.ply", env=env)
+    assert [f.name for f in files] == [f"beam_{i:04d}.ply" for i in range(4)]
+    last = trimesh.load(files[-1])
+    assert last.is_watertight
+    expected = env.unwrapped.model.positions(states[-1].q)
+    assert np.allclose(np.sort(last.vertices[:, 0]), np.sort(expected[np.unique(
+        env.unwrapped.robot.surface_faces)][:, 0]))  # fmt: skip
+    with pytest.raises(ValueError, match="unsupported mesh format"):
+        softrom_gym.export_trajectory(states, tmp_path / "x.txt", env=env)
+    with pytest.raises(ValueError, match="needs env= or robot="):
+        softrom_gym.export_trajectory(states, tmp_path / "x.ply")
+
+
+@pytest.mark.parametrize("env_id", ["softrom_gym/QuadrupedWalk-v0", "softrom_gym/CrossSwim-v0"])
+def test_rgb_array_rendering_is_headless_and_follows_the_robot(env_id):
+    env = gym.make(env_id, render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (360, 480, 3) and frame.dtype == np.uint8
+    # The robot's blue dominates the centre of the picture; the sky or ground the corners.
+    centre = frame[150:210, 200:280].astype(int)
+    assert (centre[..., 2] - centre[..., 0]).mean() > 60
+    assert np.ptp(frame.reshape(-1, 3), axis=0).min() > 50  # not a blank image
+    for _ in range(3):
+        env.step(env.action_space.high)
+    assert not np.array_equal(env.render(), frame)
+    assert env.metadata["render_fps"] == 40
+
+
+def test_unknown_render_mode_is_rejected():
+    from softrom_gym.envs import SoftRobotEnv
+
+    with pytest.raises(ValueError, match=r"render_mode 'human' is not supported; valid: \['rgb"):
+        SoftRobotEnv(robot="beam", render_mode="human")

@@ -125,7 +125,7 @@ class SoftRobotEnv(gym.Env):
     * v0: initial release.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "render_fps": 40}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 40}
 
     def __init__(
         self,
@@ -197,6 +197,27 @@ class SoftRobotEnv(gym.Env):
         self.reset_noise_scale = float(reset_noise_scale)
         self._state = self.model.rest_state()
         self._com0 = self.model.com(self._state.q)
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / (dt * self.frame_skip))}
+        self._renderer = None
+
+    def render(self) -> np.ndarray | None:
+        """An RGB frame (height, width, 3) when ``render_mode="rgb_array"``: the shaded robot
+        surface on a ground grid, the task direction as a red arrow, the camera following the
+        centre of mass. Software-rendered with numpy: no display or OpenGL needed."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
+            return None
+        if self._renderer is None:
+            from ..rendering import SoftwareRenderer
+
+            size = float(np.ptp(self.robot.nodes, axis=0).max())
+            self._renderer = SoftwareRenderer(distance=2.2 * size)
+        positions = self.model.positions(self._state.q)
+        com = self.model.com(self._state.q)
+        return self._renderer.render(
+            positions, self.robot.surface_faces, target=com, arrow=self.direction,
+            ground=self.task == "walk",
+        )  # fmt: skip
 
     @staticmethod
     def _make_robot(robot, material: dict[str, float], resolution: int | None) -> Robot:

@@ -1,0 +1,72 @@
+"""Export simulated motion as a mesh sequence (one OBJ/PLY/STL per frame) for Blender & co."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import cpp_sim
+
+from .robots import Robot
+
+__all__ = ["export_trajectory"]
+
+_FORMATS = (".obj", ".ply", ".stl", ".glb")
+
+
+def export_trajectory(
+    states: Sequence[Any],
+    path: str | os.PathLike,
+    *,
+    env: Any = None,
+    robot: Robot | None = None,
+) -> list[Path]:
+    """Write one surface mesh per frame.
+
+    Parameters
+    ----------
+    states : sequence
+        Frames: ``ReducedState`` objects (from ``env.unwrapped.get_state()``; needs ``env``)
+        or node positions of shape (N, 3) (needs ``env`` or ``robot`` for the surface).
+    path : path
+        ``frames/walk.ply`` writes ``frames/walk_0000.ply``, ``frames/walk_0001.ply``, ...;
+        the extension (.obj, .ply, .stl or .glb) picks the format. Folders are created.
+    env : SoftRobotEnv (or a wrapper of one), optional
+    robot : Robot, optional
+
+    Returns
+    -------
+    list of Path
+        The files written, in frame order.
+    """
+    base = getattr(env, "unwrapped", env)
+    if robot is None:
+        if base is None:
+            raise ValueError("export_trajectory needs env= or robot= to know the surface")
+        robot = base.robot
+    path = Path(path)
+    if path.suffix.lower() not in _FORMATS:
+        raise ValueError(f"unsupported mesh format {path.suffix!r}; use one of {_FORMATS}")
+    if len(states) == 0:
+        raise ValueError("states is empty: nothing to export")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    written = []
+    for i, frame in enumerate(states):
+        if isinstance(frame, cpp_sim.ReducedState):
+            if base is None:
+                raise ValueError("ReducedState frames need env= to map them to positions")
+            positions = base.model.positions(frame.q)
+        else:
+            positions = np.asarray(frame, dtype=float)
+        if positions.shape != robot.nodes.shape:
+            raise ValueError(f"frame {i} has shape {positions.shape}, expected {robot.nodes.shape}")
+        out = path.with_name(f"{path.stem}_{i:04d}{path.suffix}")
+        mesh = robot.surface(positions)
+        mesh.remove_unreferenced_vertices()
+        mesh.export(out)
+        written.append(out)
+    return written
