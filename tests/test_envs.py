@@ -208,3 +208,15 @@ def test_unknown_render_mode_is_rejected():
 
     with pytest.raises(ValueError, match=r"render_mode 'human' is not supported; valid: \['rgb"):
         SoftRobotEnv(robot="beam", render_mode="human")
+
+
+def test_record_video_wrapper_writes_a_video(tmp_path):
+    env = gym.make("softrom_gym/BeamWalk-v0", render_mode="rgb_array")
+    env = gym.wrappers.RecordVideo(env, str(tmp_path / "videos"), episode_trigger=lambda _: True,
+                                   video_length=10)  # fmt: skip
+    env.reset(seed=0)
+    for _ in range(10):
+        env.step(env.action_space.sample())
+    env.close()
+    videos = list((tmp_path / "videos").glob("*.mp4"))
+    assert len(videos) == 1 and videos[0].stat().st_size > 1000
