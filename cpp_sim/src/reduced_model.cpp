@@ -161,14 +161,16 @@ void ReducedModel::drag(const VecX& q, const VecX& qdot, VecX& f, MatX& jac) con
     const double vn = n.dot(v);
     if (vn <= 0.0) continue;
     const double ca = c * 0.5 * twice_area;
-    // w = U_t^T n with U_t the mean of the three nodes' rows of B_r.
-    w = (surface_rows_.middleRows(3 * tri[0], 3) + surface_rows_.middleRows(3 * tri[1], 3) +
-         surface_rows_.middleRows(3 * tri[2], 3))
-            .transpose() *
-        n / 3.0;
+    // w = U_t^T n with U_t the mean of the three nodes' rows of B_r (accumulated in place:
+    // no heap temporaries in this per-face loop, which runs on every rollout thread).
+    const Vec3 n3 = n / 3.0;
+    w.noalias() = surface_rows_.middleRows(3 * tri[0], 3).transpose() * n3;
+    w.noalias() += surface_rows_.middleRows(3 * tri[1], 3).transpose() * n3;
+    w.noalias() += surface_rows_.middleRows(3 * tri[2], 3).transpose() * n3;
     f -= ca * vn * vn * w;
-    jac.noalias() -= (2.0 * ca * vn) * (w * w.transpose());
+    jac.selfadjointView<Eigen::Lower>().rankUpdate(w, -2.0 * ca * vn);
   }
+  jac.triangularView<Eigen::StrictlyUpper>() = jac.transpose();
 }
 
 // Penalty ground: a stiff spring on penetration with critical-ish damping and regularised
