@@ -161,6 +161,9 @@ def mujoco_sim_rate(robot, seconds: float) -> tuple[float, float, float] | None:
         import mujoco
     except ImportError:
         return None
+    # MuJoCo's default warning handler appends to MUJOCO_LOG.TXT in the working directory;
+    # warnings are read from data.warning below instead.
+    mujoco.set_mju_user_warning(lambda message: None)
     points = robot.nodes + np.array([0.0, 0.0, 0.05])
     for dt in DT_LADDER:
         xml = f"""<mujoco>
