@@ -8,7 +8,9 @@ For each of the five benchmarks (cross swim, cross walk, beam, quadruped, tripod
   swimmer; and the same with the penalty ground model;
 * their ratio (`speedup`; target >= 100x on the quadruped);
 * batched rollout throughput (32 rollouts x 40 steps, random controls in the first three
-  modes) on 2 threads vs 1, best of 5 each (`thread_speedup`; target >= 1.8x);
+  modes) on 2 threads vs 1, best of 5 each (`thread_speedup`; target >= 1.8x), and the
+  CPU time of the 2-thread run over the 1-thread run (`thread_cpu_ratio`, "cpu 2/1"; 1.0
+  means the workers do not contend, and a wall ratio under 2 is other load on the machine);
 * against MuJoCo's own deformable, when the optional `mujoco` package is installed: a
   `flexcomp` of the same tetrahedra, mass and material (E, nu) dropped on a plane from 5 cm,
   with `integrator="discrete"` (MuJoCo 4 runs flex elasticity only there). Each simulator
@@ -86,21 +88,26 @@ def reduced_steps_per_s(model, task: str, steps: int) -> float:
     return steps / (time.perf_counter() - start)
 
 
-def thread_speedup(model, task: str, repeats: int = 5) -> tuple[float, float]:
+def thread_speedup(model, task: str, repeats: int = 5) -> tuple[float, float, float]:
     """Batched rollouts (32 x 40 steps) on 2 threads vs 1: the ratio of the best of
-    ``repeats`` alternating runs each, and the 2-thread throughput in robot-steps/s."""
+    ``repeats`` alternating wall times each, the 2-thread throughput in robot-steps/s, and
+    the CPU seconds the 2-thread run spent per CPU second of the 1-thread run (1.0: the
+    workers do not slow each other down, so a wall ratio under 2 is the machine's noise)."""
     rng = np.random.default_rng(1)
     amp = 0.3 * np.sqrt(model.total_mass) * 9.81
     controls = amp * rng.standard_normal((32, 40, 3))
     state = lifted(model, 0.0 if task == "swim" else 0.02)
     model.rollout(state, controls[:2, :5], threads=2)  # warm-up
-    best = {1: np.inf, 2: np.inf}
+    wall = {1: np.inf, 2: np.inf}
+    cpu = {1: np.inf, 2: np.inf}
     for _ in range(repeats):
         for threads in (1, 2):
-            start = time.perf_counter()
+            start, start_cpu = time.perf_counter(), time.process_time()
             model.rollout(state, controls, threads=threads)
-            best[threads] = min(best[threads], time.perf_counter() - start)
-    return best[1] / best[2], controls.shape[0] * controls.shape[1] / best[2]
+            wall[threads] = min(wall[threads], time.perf_counter() - start)
+            cpu[threads] = min(cpu[threads], time.process_time() - start_cpu)
+    steps = controls.shape[0] * controls.shape[1]
+    return wall[1] / wall[2], steps / wall[2], cpu[2] / cpu[1]
 
 
 def drop_error(robot, seconds: float) -> float:
@@ -220,7 +227,9 @@ def measure(name: str, full_steps: int, seconds: float) -> dict:
         row["penalty_steps_per_s"] = reduced_steps_per_s(penalty, task, round(seconds / DT))
     else:
         row["penalty_steps_per_s"] = None
-    row["thread_speedup"], row["rollout_steps_per_s"] = thread_speedup(model, task)
+    row["thread_speedup"], row["rollout_steps_per_s"], row["thread_cpu_ratio"] = thread_speedup(
+        model, task
+    )
     row.update(
         mujoco_dt=None, mujoco_sim_rate=None, mujoco_steps_per_s=None,
         reduced_dt=None, reduced_sim_rate=None, vs_mujoco=None,
@@ -252,8 +261,8 @@ def main() -> None:
     args = parser.parse_args()
     if not args.seconds > 0 or args.full_steps < 1:
         parser.error("--seconds must be > 0 and --full-steps >= 1")
-    cols = ("full/s", "reduced/s", "speedup", "penalty/s", "2thr/1thr", "rollout/s", "drop err",
-            "vs MuJoCo")  # fmt: skip
+    cols = ("full/s", "reduced/s", "speedup", "penalty/s", "2thr/1thr", "cpu 2/1", "rollout/s",
+            "drop err", "vs MuJoCo")  # fmt: skip
     if not args.json:
         print(f"{'benchmark':<15} {'nodes':>5} " + " ".join(f"{c:>10}" for c in cols))
     for name in args.robots:
@@ -265,7 +274,8 @@ def main() -> None:
         print(
             f"{name:<15} {r['nodes']:>5} {r['full_steps_per_s']:>10.2f} "
             f"{r['reduced_steps_per_s']:>10.0f} {r['speedup']:>9.0f}x {pen:>10} "
-            f"{r['thread_speedup']:>9.2f}x {r['rollout_steps_per_s']:>10.0f} "
+            f"{r['thread_speedup']:>9.2f}x {r['thread_cpu_ratio']:>10.2f} "
+            f"{r['rollout_steps_per_s']:>10.0f} "
             f"{r['drop_error_rel']:>10.3f} {mj_text(r):>10}",
             flush=True,
         )
