@@ -120,9 +120,9 @@ def drop_error(robot, seconds: float) -> float:
     fem.damping_beta = model.damping_beta
     size = float(np.ptp(robot.nodes, axis=0).max())
     qdot = np.zeros(sub.basis.shape[1])
-    for j in range(3, 6):
-        peak = np.abs(sub.basis[:, j]).max() / sub.frequencies[j - 3]  # displacement per unit
-        qdot[j] = 0.03 * size / (np.sqrt(3.0) * peak)
+    for j in range(3):  # the three lowest deformation columns, 6..8
+        peak = np.abs(sub.deformation[:, j]).max() / sub.frequencies[j]  # displacement per unit
+        qdot[6 + j] = 0.03 * size / (np.sqrt(3.0) * peak)
     q = np.zeros_like(qdot)
     state = cpp_sim.ReducedState(q, qdot, model.rest_state().impulses)
     x = model.positions(q)

@@ -6,6 +6,7 @@ import pytest
 import trimesh
 from gymnasium.utils.env_checker import check_env
 
+import cpp_sim
 import softrom_gym
 from softrom_gym.robots import from_mesh
 
@@ -38,6 +39,31 @@ def test_spaces_and_info(env):
     assert info["distance"] == pytest.approx(reward)
     assert not terminated and not truncated
     assert env.spec.max_episode_steps == 400
+
+
+def test_orientation_slots_read_the_rotation_and_turning_shows_up():
+    env = gym.make("softrom_gym/QuadrupedWalk-v0")
+    base = env.unwrapped
+    base.reset(seed=0)
+    robot, basis = base.robot, base.subspace.basis
+    mass = robot.fem_model().mass
+    r = robot.nodes - mass @ robot.nodes / mass.sum()
+    a = np.column_stack([np.cross(e, r).ravel() for e in np.eye(3)])
+    m3 = np.repeat(mass, 3)
+    theta, omega = np.array([0.02, -0.01, 0.05]), np.array([0.3, 0.1, -0.2])
+    state = base.get_state()
+    q, qdot = basis.T @ (m3 * (a @ theta)), basis.T @ (m3 * (a @ omega))
+    base.set_state(cpp_sim.ReducedState(q, qdot, state.impulses))
+    obs = base._obs(base.get_state())
+    np.testing.assert_allclose(obs[4:7], theta, rtol=1e-5)
+    np.testing.assert_allclose(obs[7:10], omega, rtol=1e-5)
+    # Walking with random actuation turns the body a little (friction torques).
+    env.reset(seed=1)
+    env.action_space.seed(1)
+    for _ in range(40):
+        *_, info = env.step(env.action_space.sample())
+    assert info["orientation"] > 1e-4
+    env.close()
 
 
 def test_seeded_determinism(env):
@@ -95,7 +121,7 @@ def test_custom_mesh_robot_runs(tmp_path):
     robot = from_mesh(capsule, 10)
     env = gym.make("softrom_gym/SoftRobot-v0", robot=robot, task="walk", sim_dim=8)
     obs, _ = env.reset(seed=0)
-    assert obs.shape == (7 + 16,)
+    assert obs.shape == (10 + 16,)
     for _ in range(3):
         obs, *_ = env.step(env.action_space.sample())
     assert np.all(np.isfinite(obs))

@@ -25,12 +25,20 @@ def test_basis_is_mass_orthonormal_with_exact_translations(robot, subspace):
     b = subspace.basis
     mass = robot.fem_model().mass
     m3 = np.repeat(mass, 3)
-    assert b.shape == (3 * robot.num_nodes, 23) and subspace.M == 20
-    np.testing.assert_allclose(b.T @ (m3[:, None] * b), np.eye(23), atol=1e-10)
+    assert b.shape == (3 * robot.num_nodes, 26) and subspace.M == 20
+    np.testing.assert_allclose(b.T @ (m3[:, None] * b), np.eye(26), atol=1e-10)
     for k in range(3):
         t = np.zeros((robot.num_nodes, 3))
         t[:, k] = 1.0 / np.sqrt(mass.sum())
         np.testing.assert_allclose(b[:, k], t.ravel(), atol=1e-14)
+    # Columns 3..5 span the infinitesimal rotations about the centre of mass.
+    r = robot.nodes - mass @ robot.nodes / mass.sum()
+    a = np.column_stack([np.cross(e, r).ravel() for e in np.eye(3)])
+    fit, *_ = np.linalg.lstsq(a, subspace.rotations, rcond=None)
+    np.testing.assert_allclose(a @ fit, subspace.rotations, atol=1e-12)
+    # ... and are zero-energy at rest: K annihilates them.
+    k = robot.fem_model().stiffness(robot.nodes)
+    assert np.abs(k @ subspace.rotations).max() < 1e-8 * np.abs(k @ subspace.deformation).max()
 
 
 def test_lowest_modes_solve_the_eigenproblem(robot, subspace):
@@ -86,7 +94,7 @@ def test_cubature_matches_exact_forces_on_held_out_poses(robot, subspace):
     assert len(rule) < robot.num_tets // 5
     assert np.all(rule.weights > 0)
     poses = sample_poses(robot, subspace, 30, np.random.default_rng(2024))  # unseen seed
-    g = cpp_sim.reduced_element_forces(robot.fem_model(), subspace.deformation, poses)
+    g = cpp_sim.reduced_element_forces(robot.fem_model(), subspace.elastic, poses)
     exact = g.sum(axis=1)
     approx = np.einsum("pem,e->pm", g[:, rule.elements], rule.weights)
     rel = np.linalg.norm(approx - exact, axis=1) / np.linalg.norm(exact, axis=1)
@@ -96,8 +104,8 @@ def test_cubature_matches_exact_forces_on_held_out_poses(robot, subspace):
 def test_reduced_element_forces_sum_to_projected_full_forces(robot, subspace):
     poses = sample_poses(robot, subspace, 2, np.random.default_rng(0))
     fem = robot.fem_model()
-    g = cpp_sim.reduced_element_forces(fem, subspace.deformation, poses)
+    g = cpp_sim.reduced_element_forces(fem, subspace.elastic, poses)
     for p in range(2):
-        x = robot.nodes + (subspace.deformation @ poses[p]).reshape(-1, 3)
-        projected = subspace.deformation.T @ fem.forces(x).ravel()
+        x = robot.nodes + (subspace.elastic @ poses[p]).reshape(-1, 3)
+        projected = subspace.elastic.T @ fem.forces(x).ravel()
         np.testing.assert_allclose(g[p].sum(axis=0), projected, rtol=1e-9, atol=1e-9)

@@ -100,8 +100,9 @@ std::unique_ptr<ReducedModel> make_reduced(py::handle nodes, py::handle tets, do
   const FEMModel& fem = fem_obj.cast<const FEMModel&>();
   const int n = fem.mesh().num_nodes;
   MatX b = matrix_in(basis, "basis", 3 * n, -1);
-  if (b.cols() < 4)
-    throw py::value_error("basis must have at least 4 columns (3 translations + 1 deformation)");
+  if (b.cols() < ReducedModel::kRigid + 1)
+    throw py::value_error("basis has " + std::to_string(b.cols()) +
+                          " columns, needs at least 7 (3 translations, 3 rotations, 1 deformation)");
   // B_r^T M B_r = I is what the reduced equations assume (identity reduced mass).
   VecX m3(3 * n);
   for (int i = 0; i < n; ++i) m3.segment<3>(3 * i).setConstant(fem.mass()[i]);
@@ -119,6 +120,26 @@ std::unique_ptr<ReducedModel> make_reduced(py::handle nodes, py::handle tets, do
         if (std::abs(b(3 * i + a, k) - (a == k ? 1.0 / sm : 0.0)) > 1e-9 / sm) {
           throw py::value_error("basis columns 0..2 must be the rigid translations e_k / sqrt(mass)");
         }
+  // Columns 3..5: infinitesimal rotations w x (X - c) about the rest centre of mass c.
+  {
+    Vec3 c = Vec3::Zero();
+    for (int i = 0; i < n; ++i) c += fem.mass()[i] * fem.mesh().rest.segment<3>(3 * i);
+    c /= fem.mass().sum();
+    MatX raw(3 * n, 3);
+    for (int k = 0; k < 3; ++k)
+      for (int i = 0; i < n; ++i)
+        raw.block<3, 1>(3 * i, k) = Vec3::Unit(k).cross(fem.mesh().rest.segment<3>(3 * i) - c);
+    const MatX rot = b.middleCols(3, 3);
+    const MatX fit = raw * raw.colPivHouseholderQr().solve(rot);
+    const double res = (rot - fit).cwiseAbs().maxCoeff();
+    if (!(res <= 1e-8 * rot.cwiseAbs().maxCoeff())) {
+      std::ostringstream msg;
+      msg << "basis columns 3..5 must be linearised rotations about the centre of mass "
+             "(w x (X - c)); largest deviation "
+          << res;
+      throw py::value_error(msg.str());
+    }
+  }
   std::vector<int> elems = index_vector(cub_elements, "cubature_elements", fem.mesh().num_tets());
   VecX w = vector_in(cub_weights, "cubature_weights", static_cast<Eigen::Index>(elems.size()));
   if ((w.array() < 0).any()) throw py::value_error("cubature_weights must be >= 0");
@@ -165,7 +186,7 @@ py::array_t<double> controls_in(const ReducedModel& m, py::handle obj, const cha
 
 void bind_reduced(py::module_& m) {
   py::class_<ReducedState>(m, "ReducedState", R"doc(
-State of a reduced model: q_r and qdot_r (M + 3,) and the contact impulses (3 per surface
+State of a reduced model: q_r and qdot_r (M + 6,) and the contact impulses (3 per surface
 node) that warm-start the next contact solve. Copies in, copies out; picklable.)doc")
       .def(py::init([](py::handle q, py::handle qdot, py::handle impulses) {
              ReducedState s;
@@ -200,15 +221,15 @@ node) that warm-start the next contact solve. Copies in, copies out; picklable.)
 Reduced-order soft body in the simulation space B_r (see softrom_gym.rom.ReducedModel for the
 Python front end that builds the basis and cubature).
 
-q_r = (3 rigid translations, M deformation coordinates), x = X + B_r q_r, B_r^T M B_r = I.
-Implicit Euler with Newton on the (M + 3)-dimensional system; elastic forces by cubature;
+q_r = (3 rigid translations, 3 linearised rotations, M deformation coordinates),
+x = X + B_r q_r, B_r^T M B_r = I. Implicit Euler with Newton on the (M + 6)-dimensional system; elastic forces by cubature;
 ground contact by staggered projection (default) or penalty; quadratic drag when
 fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc")
       .def(py::init(&make_reduced), py::arg("nodes"), py::arg("tets"), py::arg("youngs_modulus"),
            py::arg("poisson_ratio"), py::arg("density"), py::arg("basis"),
            py::arg("cubature_elements"), py::arg("cubature_weights"), py::arg("surface_nodes"),
            py::arg("surface_faces"))
-      .def_property_readonly("dim", &ReducedModel::dim, "M + 3")
+      .def_property_readonly("dim", &ReducedModel::dim, "M + 6")
       .def_property_readonly("M", &ReducedModel::deformation_dim, "deformation coordinates")
       .def_property_readonly("C", &ReducedModel::control_dim, "control dimension")
       .def_property_readonly("num_nodes", &ReducedModel::num_nodes)
@@ -392,9 +413,9 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           py::arg("observe") = py::none(),
           R"doc(B rollouts of H steps from one state (or a sequence of B states), controls (B, H, C).
 
-Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 3) and impulses
+Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 6) and impulses
 (B, 3 n_surface) of the final states, diverged (B,) and com (B, H, 3); with `observe`
-(P x (M + 3)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
+(P x (M + 6)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
 `threads` C++ threads with the GIL released; results do not depend on the thread count. A
 diverged rollout keeps its last good state and earns zero reward from then on.)doc")
       .def(
@@ -409,21 +430,21 @@ diverged rollout keeps its last good state and earns zero reward from then on.)d
       .def(
           "elastic_energy",
           [](const ReducedModel& r, py::handle qd) {
-            return r.elastic_energy(vector_in(qd, "q_d", r.deformation_dim()));
+            return r.elastic_energy(vector_in(qd, "q_e", r.elastic_dim()));
           },
-          py::arg("q_d"))
+          py::arg("q_e"))
       .def(
           "elastic_forces",
           [](const ReducedModel& r, py::handle qd) {
-            return vec_out(r.elastic_forces(vector_in(qd, "q_d", r.deformation_dim())));
+            return vec_out(r.elastic_forces(vector_in(qd, "q_e", r.elastic_dim())));
           },
-          py::arg("q_d"), "Reduced elastic force B_d^T f(X + B_d q_d) (M,) by cubature.")
+          py::arg("q_e"), "Reduced elastic force B_e^T f(X + B_e q_e) (M + 3,) by cubature, q_e = q[3:].")
       .def(
           "elastic_stiffness",
           [](const ReducedModel& r, py::handle qd, bool project) {
-            return r.elastic_stiffness(vector_in(qd, "q_d", r.deformation_dim()), project);
+            return r.elastic_stiffness(vector_in(qd, "q_e", r.elastic_dim()), project);
           },
-          py::arg("q_d"), py::arg("project") = false);
+          py::arg("q_e"), py::arg("project") = false);
 
   m.def(
       "reduced_element_forces",

@@ -22,7 +22,7 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
       surface_nodes_(surface_nodes),
       basis_(basis),
       rest_(mesh.rest) {
-  const int md = static_cast<int>(basis.cols()) - 3;
+  const int md = elastic_dim();
   total_mass_ = mass.sum();
   rest_com_.setZero();
   for (int i = 0; i < num_nodes_; ++i) rest_com_ += mass[i] * mesh.rest.segment<3>(3 * i);
@@ -35,7 +35,7 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
     const int e = cubature_elements[k];
     const Tet& t = mesh.tets[e];
     Eigen::Matrix<double, 12, Eigen::Dynamic> u(12, md);
-    for (int a = 0; a < 4; ++a) u.middleRows<3>(3 * a) = basis.block(3 * t[a], 3, 3, md);
+    for (int a = 0; a < 4; ++a) u.middleRows<3>(3 * a) = basis.block(3 * t[a], kTranslations, 3, md);
     grad_.middleRows(9 * k, 9) = dfdx(mesh.dm_inv[e]) * u;
     wvol_.push_back(cubature_weights[k] * mesh.volume[e]);
   }
@@ -59,7 +59,7 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
       throw std::invalid_argument("surface_faces uses a node that is not in surface_nodes");
     faces_.push_back(lf);
   }
-  control_basis_ = MatX::Zero(md, 0);
+  control_basis_ = MatX::Zero(deformation_dim(), 0);
   k_rest_ = elastic_stiffness(VecX::Zero(md), false);
 }
 
@@ -77,7 +77,7 @@ void ReducedModel::elastic(const VecX& qd, bool project, double* energy, VecX* f
                            MatX* stiff) const {
   const Eigen::Index md = qd.size();
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
-  // vec(F_e) = vec(I) + G_e q_d for every cubature element at once.
+  // vec(F_e) = vec(I) + G_e q_e for every cubature element at once.
   VecX fall = grad_ * qd;
   VecX pall(force ? 9 * nk : 0);
   RowMatX hg(stiff ? 9 * nk : 0, md);
@@ -214,8 +214,8 @@ void ReducedModel::penalty_contacts(const VecX& q, const VecX& v, VecX& f, MatX&
 //   normal:   min 1/2 |v - v'|_A^2          s.t. J_n,i v >= -z_i / dt      (friction held)
 //   friction: min 1/2 |v - v''|_A^2 + sum_i mu lambda_n,i |J_t,i v|        (normals held)
 //
-// Both are solved in the primal, over the M + 3 reduced velocities, not over the 3k contact
-// impulses: k contact rows of rank <= M + 3 make the impulses non-unique (Delassus matrices
+// Both are solved in the primal, over the M + 6 reduced velocities, not over the 3k contact
+// impulses: k contact rows of rank <= M + 6 make the impulses non-unique (Delassus matrices
 // with condition numbers ~1e6), so Gauss-Seidel on impulses crawls, while the primal problems
 // are strongly convex and small. The normal problem is solved exactly as a least-distance
 // programme, the friction problem (maximal dissipation) by a reweighted least-squares step on
@@ -332,15 +332,17 @@ StepInfo ReducedModel::step(ReducedState& s, const double* fc) const {
   StepInfo info;
   const double h = config.dt;
   const Eigen::Index m = basis_cols_;
-  const int md = static_cast<int>(m) - 3;
+  const int md = elastic_dim();
+  const int nd = deformation_dim();
   const double sqrt_m = std::sqrt(total_mass_);
 
-  // B_r^T M g: uniform gravity only loads the translation columns, as the deformation
-  // columns are mass-orthogonal to them.
+  // B_r^T M g: uniform gravity only loads the translation columns, as the rotation (about
+  // the centre of mass) and deformation columns are mass-orthogonal to them. Actuation acts on
+  // the deformation coordinates, never on the rigid ones.
   VecX f_ext = VecX::Zero(m);
   f_ext.head<3>() = sqrt_m * config.gravity;
   if (fc != nullptr && control_basis_.cols() > 0)
-    f_ext.tail(md).noalias() += control_basis_ * Eigen::Map<const VecX>(fc, control_basis_.cols());
+    f_ext.tail(nd).noalias() += control_basis_ * Eigen::Map<const VecX>(fc, control_basis_.cols());
 
   const bool swim = config.fluid_density > 0.0;
   VecX f_drag;

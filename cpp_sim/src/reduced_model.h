@@ -57,15 +57,22 @@ struct StepInfo {
 
 class ReducedModel {
  public:
-  // basis: 3N x (M + 3) mass-orthonormal, columns 0..2 rigid translations.
+  // basis: 3N x (M + 6) mass-orthonormal: columns 0..2 rigid translations, 3..5 linearised
+  // rotations about the rest centre of mass, then M deformation columns. The elastic energy
+  // sees columns 3.. (what a linearised rotation does to the mesh, a turn plus a stretch of
+  // theta^2 / 2, is what it stores energy for), so the model is the full-space model projected
+  // on B_r; gravity loads only the translations; actuation B_c acts on deformation only.
   // cubature_elements / weights: tets and non-negative weights for the elastic force.
   ReducedModel(const TetMesh& mesh, const StableNeoHookean& material, const VecX& mass,
                const MatX& basis, const std::vector<int>& cubature_elements,
                const std::vector<double>& cubature_weights, const std::vector<int>& surface_nodes,
                const std::vector<std::array<int, 3>>& surface_faces);
 
-  int dim() const { return static_cast<int>(basis_cols_); }   // M + 3
-  int deformation_dim() const { return dim() - 3; }           // M
+  static constexpr int kTranslations = 3;
+  static constexpr int kRigid = 6;  // translations + linearised rotations  // translations + linearised rotations
+  int dim() const { return static_cast<int>(basis_cols_); }  // M + 6
+  int elastic_dim() const { return dim() - kTranslations; }  // M + 3: rotations too
+  int deformation_dim() const { return dim() - kRigid; }     // M
   int control_dim() const { return static_cast<int>(control_basis_.cols()); }
   int num_nodes() const { return num_nodes_; }
   int num_surface_nodes() const { return static_cast<int>(surface_nodes_.size()); }
@@ -80,7 +87,8 @@ class ReducedModel {
   // One step under control f_c (C). Never throws on divergence: it is reported in StepInfo.
   StepInfo step(ReducedState& s, const double* fc) const;
 
-  // Elastic energy / reduced forces / reduced stiffness of deformation coordinates q_d (M).
+  // Elastic energy / reduced forces / reduced stiffness of the elastic coordinates q_e = q[3:]
+  // (rotations and deformation, M + 3).
   double elastic_energy(const VecX& qd) const;
   VecX elastic_forces(const VecX& qd) const;
   MatX elastic_stiffness(const VecX& qd, bool project) const;

@@ -13,7 +13,6 @@ import cpp_sim
 
 from ..robots import ROBOTS, Robot, from_mesh
 from ..rom import build_reduced_model, build_subspace
-from ..rom.subspace import _rigid_modes
 
 __all__ = ["TASKS", "SoftRobotEnv"]
 
@@ -65,14 +64,15 @@ class SoftRobotEnv(gym.Env):
     r"""A finite-element soft robot that walks or swims, actuated in a control space B_c.
 
     The robot is simulated in the reduced simulation space B_r (``sim_dim`` = M deformation
-    modes plus 3 exact rigid translations; see :mod:`softrom_gym.rom`) and actuated by the
+    modes plus 3 exact rigid translations and 3 linearised rotations; see
+    :mod:`softrom_gym.rom`) and actuated by the
     reduced force f_r = B_c f_c, where the action is f_c and B_c (M x C) is the control space
     (the paper's Eq. OPT). Actuation is internal: it deforms the body and never pushes its
     centre of mass; motion comes from ground friction (walk) or fluid drag (swim).
 
     ## Action Space
     ``Box(-a, a, (C,), float32)``: f_c, the generalised force along each column of B_c, held
-    for ``frame_skip`` simulation steps. Units are N·kg^(-1/2)·kg = mass-normalised modal
+    for ``frame_skip`` simulation steps. Units are N·kg^(-1/2), a mass-normalised modal
     force (B_r is mass-orthonormal). The bound ``a = action_scale * sqrt(m) * g`` is the
     modal force equivalent of the robot's weight: a prototype found no net motion below about
     0.75 body weight and hopping artefacts of linear modes above about 2. Actions beyond the
@@ -80,15 +80,19 @@ class SoftRobotEnv(gym.Env):
     ``gymnasium.wrappers.RescaleAction(env, -1.0, 1.0)``.
 
     ## Observation Space
-    ``Box(-inf, inf, (7 + 2 M,), float32)``:
+    ``Box(-inf, inf, (10 + 2 M,), float32)``:
 
     | index          | observation                                             | unit   |
     |----------------|---------------------------------------------------------|--------|
     | 0              | centre-of-mass height above the ground                  | m      |
     | 1..3           | centre-of-mass velocity (x, y, z)                       | m/s    |
     | 4..6           | linearised orientation (rotation vector vs. rest)       | rad    |
-    | 7..6+M         | deformation coordinates q_d of B_r                      | m·kg½  |
-    | 7+M..6+2M      | their velocities                                        | m·kg½/s|
+    | 7..9           | angular velocity (x, y, z)                              | rad/s  |
+    | 10..9+M        | deformation coordinates q_d of B_r                      | m·kg½  |
+    | 10+M..9+2M     | their velocities                                        | m·kg½/s|
+
+    Orientation is the rotation vector of B_r's linearised rotation coordinates (small-angle:
+    faithful to a few tenths of a radian, see :mod:`softrom_gym.rom.subspace`).
 
     ## Rewards
     Per step, the displacement of the centre of mass along the task direction d,
@@ -181,19 +185,18 @@ class SoftRobotEnv(gym.Env):
         )  # fmt: skip
         mass = self.robot.fem_model().mass
         self._sqrt_m = float(np.sqrt(mass.sum()))
-        # Linearised orientation: rotation vector theta = (I^-1/2) R^T M B_r q_r from the
-        # mass-orthonormal infinitesimal rotations R of the rest shape.
-        rigid = _rigid_modes(self.robot.nodes, mass)
-        rot = rigid[:, 3:]
+        # Linearised orientation: the rotation vector theta whose infinitesimal rotation
+        # A theta (A = [e_k x (X - c)]) best fits x - X in the mass norm,
+        # theta = (A^T M A)^-1 A^T M B_r q_r; exact on B_r's rotation columns.
         r = self.robot.nodes - mass @ self.robot.nodes / mass.sum()
-        scale = np.array([np.sqrt(np.sum(mass * np.sum(np.cross(e, r) ** 2, axis=1)))
-                          for e in np.eye(3)])  # fmt: skip
-        self._orientation = (rot.T * np.repeat(mass, 3)) @ self.subspace.basis / scale[:, None]
+        a = np.column_stack([np.cross(e, r).ravel() for e in np.eye(3)])
+        ma = a * np.repeat(mass, 3)[:, None]
+        self._orientation = np.linalg.solve(a.T @ ma, ma.T @ self.subspace.basis)
         self.action_bound = float(action_scale * self._sqrt_m * G)
         c = control_dim
         m = sim_dim
         self.action_space = spaces.Box(-self.action_bound, self.action_bound, (c,), np.float32)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (7 + 2 * m,), np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (10 + 2 * m,), np.float32)
         self.reset_noise_scale = float(reset_noise_scale)
         self._state = self.model.rest_state()
         self._com0 = self.model.com(self._state.q)
@@ -251,8 +254,9 @@ class SoftRobotEnv(gym.Env):
                 [com[2] - self.model.ground_height],
                 qdot[:3] / self._sqrt_m,
                 self._orientation @ q,
-                q[3:],
-                qdot[3:],
+                self._orientation @ qdot,
+                q[6:],
+                qdot[6:],
             ]
         ).astype(np.float32)
 
@@ -273,7 +277,7 @@ class SoftRobotEnv(gym.Env):
         rest = self.model.rest_state()
         qdot = rest.qdot
         noise = self.reset_noise_scale * 0.01 * self._sqrt_m
-        qdot[3:] = self.np_random.uniform(-noise, noise, size=qdot.size - 3)
+        qdot[6:] = self.np_random.uniform(-noise, noise, size=qdot.size - 6)
         self._state = cpp_sim.ReducedState(rest.q, qdot, rest.impulses)
         self._com0 = self.model.com(self._state.q)
         return self._obs(self._state), self._info(self._state, 0.0, 0.0, False)

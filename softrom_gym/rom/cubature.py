@@ -7,8 +7,10 @@ greedy non-negative least squares on sampled poses, so a step costs O(|S|), not 
 
 from __future__ import annotations
 
+import hashlib
 import os
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,20 +40,26 @@ class Cubature:
 def sample_poses(
     robot: Robot, subspace: Subspace, count: int, rng: np.random.Generator
 ) -> np.ndarray:
-    """Random deformation coordinates q_d (count, M) spanning small to large deformation.
+    """Random elastic coordinates q_e = q[3:] (count, M + 3): rotations, then deformation.
 
-    Column j gets a Gaussian coefficient scaled by 1 / omega_j (stiffer columns move less, as
-    they do in motion); each pose is then scaled so its largest node displacement is between
-    2% and 30% of the robot's size.
+    Deformation column j gets a Gaussian coefficient scaled by 1 / omega_j (stiffer columns
+    move less, as they do in motion), scaled so the pose's largest node displacement is
+    between 2% and 30% of the robot's size. The linearised rotation gets a random axis and an
+    angle whose largest node displacement is up to 20% of the size (about 0.4 rad), so the
+    rule also knows the stretch that a linearised turn carries.
     """
     size = float(np.ptp(robot.nodes, axis=0).max())
     omega = np.maximum(subspace.frequencies, subspace.frequencies.min())
     defo = subspace.deformation
-    poses = rng.standard_normal((count, subspace.M)) / omega
+    rot = subspace.rotations
+    poses = np.empty((count, subspace.M + 3))
+    poses[:, :3] = rng.standard_normal((count, 3))
+    poses[:, 3:] = rng.standard_normal((count, subspace.M)) / omega
+    turn = size * rng.uniform(0.0, 0.20, size=count)
     target = size * rng.uniform(0.02, 0.30, size=count)
     for p in range(count):
-        disp = np.abs(defo @ poses[p]).max()
-        poses[p] *= target[p] / disp
+        poses[p, :3] *= turn[p] / np.abs(rot @ poses[p, :3]).max()
+        poses[p, 3:] *= target[p] / np.abs(defo @ poses[p, 3:]).max()
     return poses
 
 
@@ -118,21 +126,21 @@ def train_cubature(
     path = None
     if cache is not False:
         root = cache_dir() if cache is True else Path(cache)
-        key = mesh_key(robot, subspace.basis.shape, float(subspace.basis.sum()), num_poses,
-                       tolerance, max_elements, seed)  # fmt: skip
+        basis_hash = hashlib.sha256(np.ascontiguousarray(subspace.basis).tobytes()).hexdigest()
+        key = mesh_key(robot, basis_hash, num_poses, tolerance, max_elements, seed)
         path = root / f"cubature-{key}.npz"
         if path.exists():
             try:
                 with np.load(path) as d:
                     return Cubature(d["elements"], d["weights"], float(d["training_error"]))
-            except (OSError, KeyError, ValueError):
+            except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
                 pass
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     poses = sample_poses(robot, subspace, num_poses, rng)
     fem = robot.fem_model()
-    g = cpp_sim.reduced_element_forces(fem, subspace.deformation, poses)  # (P, T, M)
-    b = g.sum(axis=1)  # (P, M)
+    g = cpp_sim.reduced_element_forces(fem, subspace.elastic, poses)  # (P, T, M + 3)
+    b = g.sum(axis=1)  # (P, M + 3)
     # Each pose counts equally, whatever its force magnitude.
     scale = 1.0 / np.maximum(np.linalg.norm(b, axis=1), 1e-300)
     a = (g * scale[:, None, None]).transpose(0, 2, 1).reshape(-1, g.shape[1])

@@ -54,8 +54,8 @@ def build_reduced_model(
     ----------
     robot : Robot
     M : int
-        Deformation coordinates of B_r (the state has M + 3 coordinates: 3 rigid translations
-        first).
+        Deformation coordinates of B_r (the state has M + 6 coordinates: 3 rigid translations,
+        then 3 linearised rotations, then the M deformation coordinates).
     forces : {"cubature", "exact"}
         ``"cubature"`` (default) evaluates reduced elastic forces on a trained element subset,
         O(|S|) per step; ``"exact"`` sums every tetrahedron (the reference, O(T)).
