@@ -230,12 +230,24 @@ def test_diverging_rollout_is_flagged_and_isolated(walker):
     assert np.all(np.isfinite(mixed["q"])) and np.all(np.isfinite(mixed["rewards"]))
     for b in (0, 2):
         np.testing.assert_array_equal(mixed["q"][b], clean["q"][b])
+    # A diverging step leaves the whole state, contact warm-start included, as it was.
+    state = walker.rest_state()
+    for _ in range(5):
+        state, _ = walker.step(state, np.zeros(3))  # settle into contact: non-zero impulses
+    after, info = walker.step(state, np.array([1e15, -1e15, 1e15]))
+    assert info["diverged"] and np.abs(state.impulses).max() > 0
+    for name in ("q", "qdot", "impulses"):
+        np.testing.assert_array_equal(getattr(after, name), getattr(state, name))
 
 
 def test_bad_input_raises_clear_errors(walker):
     state = walker.rest_state()
     with pytest.raises(ValueError, match=r"control_basis has shape \(19, 3\), expected \(20,"):
         walker.control_basis = np.zeros((19, 3))
+    with pytest.raises(
+        ValueError, match=r"control_basis is not orthonormal: max \|B_c\^T B_c - I\| = 3 "
+    ):
+        walker.control_basis = 2.0 * np.eye(20)[:, :3]
     with pytest.raises(ValueError, match="dt must be a finite number > 0, got 0"):
         walker.dt = 0.0
     with pytest.raises(ValueError, match="friction must be a finite number >= 0, got -0.1"):

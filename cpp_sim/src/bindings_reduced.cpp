@@ -238,9 +238,22 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
       .def_property(
           "control_basis", [](const ReducedModel& r) { return MatX(r.control_basis()); },
           [](ReducedModel& r, py::handle bc) {
-            r.set_control_basis(matrix_in(bc, "control_basis", r.deformation_dim(), -1));
+            const MatX b = matrix_in(bc, "control_basis", r.deformation_dim(), -1);
+            if (b.cols() > b.rows())
+              throw py::value_error("control_basis has " + std::to_string(b.cols()) +
+                                    " columns, more than M = " + std::to_string(b.rows()));
+            // The control space is a point of the Grassmannian: orthonormal columns.
+            const double err =
+                (b.transpose() * b - MatX::Identity(b.cols(), b.cols())).cwiseAbs().maxCoeff();
+            if (b.cols() > 0 && !(err <= 1e-8)) {
+              std::ostringstream msg;
+              msg << "control_basis is not orthonormal: max |B_c^T B_c - I| = " << err
+                  << " (tolerance 1e-8)";
+              throw py::value_error(msg.str());
+            }
+            r.set_control_basis(b);
           },
-          "B_c, (M, C): f_r = B_c f_c acts on the deformation coordinates.")
+          "B_c, (M, C), orthonormal: f_r = B_c f_c acts on the deformation coordinates.")
       .def_property(
           "dt", [](const ReducedModel& r) { return r.config.dt; },
           [](ReducedModel& r, double x) { r.config.dt = v::positive(x, "dt"); }, "time step, s")

@@ -6,6 +6,8 @@
 #include <atomic>
 #include <cmath>
 #include <stdexcept>
+#include <exception>
+#include <mutex>
 #include <thread>
 
 namespace softrom {
@@ -404,19 +406,23 @@ StepInfo ReducedModel::step(ReducedState& s, const double* fc) const {
     if (step_norm < config.newton_tolerance) break;
   }
 
+  // Impulses are solved into a copy: a step that diverges leaves the whole state as it was.
+  VecX impulses = s.impulses;
   if (config.contact == ContactModel::Staggered)
-    info.stagger_iterations = solve_contacts(s.q, a, v, s.impulses, info);
+    info.stagger_iterations = solve_contacts(s.q, a, v, impulses, info);
 
   const VecX q_next = s.q + h * v;
   // Divergence: non-finite state or RMS node speed beyond any physical meaning.
-  if (!v.allFinite() || !q_next.allFinite() || v.norm() / sqrt_m > config.max_speed) {
+  if (!v.allFinite() || !q_next.allFinite() || !impulses.allFinite() ||
+      v.norm() / sqrt_m > config.max_speed) {
     info.diverged = true;
     return info;  // the state keeps its last good value
   }
-  for (int c = 0; c < s.impulses.size() / 3; ++c)
-    if (s.impulses[3 * c + 2] > 0.0) ++info.contacts;
+  for (int c = 0; c < impulses.size() / 3; ++c)
+    if (impulses[3 * c + 2] > 0.0) ++info.contacts;
   s.q = q_next;
   s.qdot = v;
+  s.impulses.swap(impulses);
   return info;
 }
 
@@ -462,14 +468,30 @@ void ReducedModel::rollout(const std::vector<ReducedState>& starts, const double
   }
   // Each rollout is independent and computed start to finish by one worker, so results do
   // not depend on the thread count or the schedule.
+  // A worker that throws (bad_alloc) or a thread that cannot be started must not terminate
+  // the interpreter: the first error is carried out of the pool and rethrown after joining.
   std::atomic<int> next{0};
+  std::exception_ptr error;
+  std::mutex error_mutex;
+  auto worker = [&] {
+    try {
+      for (int b = next.fetch_add(1); b < batch; b = next.fetch_add(1)) run(b);
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(error_mutex);
+      if (!error) error = std::current_exception();
+      next.store(batch);  // the others stop at their next rollout
+    }
+  };
   std::vector<std::thread> pool;
   pool.reserve(threads);
-  for (int w = 0; w < threads; ++w)
-    pool.emplace_back([&] {
-      for (int b = next.fetch_add(1); b < batch; b = next.fetch_add(1)) run(b);
-    });
+  try {
+    for (int w = 0; w < threads; ++w) pool.emplace_back(worker);
+  } catch (...) {
+    // Fewer threads than asked: the started ones finish the batch between them.
+    if (pool.empty()) worker();
+  }
   for (auto& t : pool) t.join();
+  if (error) std::rethrow_exception(error);
 }
 
 }  // namespace softrom

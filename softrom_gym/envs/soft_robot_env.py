@@ -45,11 +45,16 @@ def _control_basis(
             f"({sim_dim}, {control_dim})"
         )
     if not np.all(np.isfinite(b)):
-        raise ValueError("control_basis contains non-finite values")
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(b))[0])
+        raise ValueError(f"control_basis contains non-finite values, e.g. {b[bad]} at {bad}")
     if orthonormalize:
         q, r = np.linalg.qr(b)
-        if np.min(np.abs(np.diag(r))) < 1e-10 * max(1.0, np.abs(r).max()):
-            raise ValueError("control_basis is rank-deficient; orthonormalize needs full rank")
+        sv = np.linalg.svd(b, compute_uv=False)
+        if sv[-1] <= 1e-10 * sv[0]:
+            raise ValueError(
+                "control_basis is rank-deficient (singular values "
+                f"{np.array2string(sv, precision=3)}); orthonormalize needs full rank"
+            )
         return q * np.sign(np.diag(r))  # keep each column's orientation
     err = float(np.abs(b.T @ b - np.eye(control_dim)).max())
     if err > 1e-8:

@@ -91,7 +91,8 @@ class SoftRobotVectorEnv(VectorEnv):
         if a.shape != self.action_space.shape:
             raise ValueError(f"actions has shape {a.shape}, expected {self.action_space.shape}")
         if not np.all(np.isfinite(a)):
-            raise ValueError("actions contains non-finite values")
+            rows = sorted({int(i) for i in np.argwhere(~np.isfinite(a))[:, 0]})
+            raise ValueError(f"actions contains non-finite values (env indices {rows})")
         obs = np.zeros(self.observation_space.shape, dtype=np.float32)
         rewards = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, dtype=bool)
