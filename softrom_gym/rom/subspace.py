@@ -163,7 +163,7 @@ def _modal_derivatives(
         if a is not None
         else _woodbury_solver(k0, mr)  # avoids a dense (3N)^2 matrix on big meshes
     )
-    scale = np.abs(nodes).max()
+    scale = float(np.ptp(nodes, axis=0).max())  # the body's size, wherever it sits
     derivs = []
     dk_cache: dict[int, sp.spmatrix] = {}
     for i, j in pairs:
