@@ -6,9 +6,10 @@
 >>> state, info = model.step(model.rest_state())             # one implicit step, dt = 1/200 s
 """
 
+from .cache import cache_dir
 from .cubature import Cubature, sample_poses, train_cubature
 from .model import build_reduced_model
-from .subspace import Subspace, build_subspace, cache_dir
+from .subspace import Subspace, build_subspace
 
 __all__ = [
     "Cubature",

@@ -10,9 +10,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-import zipfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import nnls
@@ -20,7 +18,8 @@ from scipy.optimize import nnls
 import cpp_sim
 
 from ..robots import Robot
-from .subspace import Subspace, cache_dir, mesh_key
+from .cache import cache_path, load_entry, mesh_key, save_entry
+from .subspace import Subspace
 
 __all__ = ["Cubature", "sample_poses", "train_cubature"]
 
@@ -124,18 +123,12 @@ def train_cubature(
     if not 0 < tolerance < 1:
         raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
     max_elements = max_elements or min(robot.num_tets, 25 * subspace.M)
-    path = None
-    if cache is not False:
-        root = cache_dir() if cache is True else Path(cache)
-        basis_hash = hashlib.sha256(np.ascontiguousarray(subspace.basis).tobytes()).hexdigest()
-        key = mesh_key(robot, basis_hash, num_poses, tolerance, max_elements, seed)
-        path = root / f"cubature-{key}.npz"
-        if path.exists():
-            try:
-                with np.load(path) as d:
-                    return Cubature(d["elements"], d["weights"], float(d["training_error"]))
-            except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
-                pass
+    basis_hash = hashlib.sha256(np.ascontiguousarray(subspace.basis).tobytes()).hexdigest()
+    key = mesh_key(robot, basis_hash, num_poses, tolerance, max_elements, seed)
+    path = cache_path(cache, f"cubature-{key}.npz")
+    entry = load_entry(path)
+    if entry is not None and {"elements", "weights", "training_error"} <= entry.keys():
+        return Cubature(entry["elements"], entry["weights"], float(entry["training_error"]))
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     poses = sample_poses(robot, subspace, num_poses, rng)
@@ -153,12 +146,5 @@ def train_cubature(
             f"trained cubature for {robot.name}: {len(rule)} of {robot.num_tets} elements, "
             f"training error {err:.4f}, {time.perf_counter() - t0:.2f} s"
         )
-    if path is not None:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-            np.savez(tmp, elements=elements, weights=weights, training_error=err)
-            os.replace(tmp, path)
-        except OSError:
-            pass
+    save_entry(path, elements=elements, weights=weights, training_error=err)
     return rule

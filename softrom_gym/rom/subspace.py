@@ -28,23 +28,18 @@ around or flip over: that needs a floating frame, which this model does not impl
 
 from __future__ import annotations
 
-import hashlib
 import os
-import sys
 import time
-import zipfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..robots import Robot
+from .cache import cache_path, load_entry, mesh_key, save_entry
 
-__all__ = ["Subspace", "build_subspace", "cache_dir"]
-
-_CACHE_VERSION = "3"  # 3: rotation columns 3..5, cubature trained on small turns
+__all__ = ["Subspace", "build_subspace"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,28 +80,6 @@ class Subspace:
     def elastic(self) -> np.ndarray:
         """The columns the elastic energy sees, rotations and deformation: (3N, M + 3)."""
         return self.basis[:, 3:]
-
-
-def cache_dir() -> Path:
-    """Where subspaces and cubature rules are cached: ``$SOFTROM_CACHE_DIR`` or the user cache."""
-    env = os.environ.get("SOFTROM_CACHE_DIR")
-    if env:
-        return Path(env)
-    if sys.platform == "darwin":
-        base = Path.home() / "Library" / "Caches"
-    else:
-        base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    return base / "softrom"
-
-
-def mesh_key(robot: Robot, *extra: object) -> str:
-    """Hash of mesh, material and ``extra`` parameters, for on-disk caches."""
-    h = hashlib.sha256()
-    h.update(_CACHE_VERSION.encode())
-    h.update(np.ascontiguousarray(robot.nodes).tobytes())
-    h.update(np.ascontiguousarray(robot.tets).tobytes())
-    h.update(repr((robot.youngs_modulus, robot.poisson_ratio, robot.density, extra)).encode())
-    return h.hexdigest()[:24]
 
 
 def _mass_gram_schmidt(
@@ -233,16 +206,10 @@ def build_subspace(
         raise ValueError(f"num_derivatives must be in [0, M), got {num_derivatives} for M = {M}")
     num_modes = M - num_derivatives
 
-    path = None
-    if cache is not False:
-        root = cache_dir() if cache is True else Path(cache)
-        path = root / f"subspace-{mesh_key(robot, M, num_derivatives)}.npz"
-        if path.exists():
-            try:
-                with np.load(path) as data:
-                    return Subspace(data["basis"], data["frequencies"], int(data["num_modes"]))
-            except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
-                pass  # a corrupt cache entry is rebuilt below
+    path = cache_path(cache, f"subspace-{mesh_key(robot, M, num_derivatives)}.npz")
+    entry = load_entry(path)
+    if entry is not None and {"basis", "frequencies", "num_modes"} <= entry.keys():
+        return Subspace(entry["basis"], entry["frequencies"], int(entry["num_modes"]))
 
     t0 = time.perf_counter()
     fem = robot.fem_model()
@@ -308,14 +275,7 @@ def build_subspace(
             f"built B_r for {robot.name}: N = {n}, M = {M} ({num_modes} modes + "
             f"{num_derivatives} derivatives) in {time.perf_counter() - t0:.2f} s"
         )
-    if path is not None:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-            np.savez(tmp, basis=basis, frequencies=freq, num_modes=num_modes)
-            os.replace(tmp, path)  # atomic: a concurrent reader never sees half a file
-        except OSError:
-            pass  # a read-only cache location only costs speed
+    save_entry(path, basis=basis, frequencies=freq, num_modes=num_modes)
     return sub
 
 
