@@ -7,6 +7,10 @@
 #include <sstream>
 #include <thread>
 
+#ifdef __linux__
+#include <sched.h>
+#endif
+
 #include "fem_model.h"
 #include "reduced_model.h"
 #include "validate.h"
@@ -62,6 +66,23 @@ std::vector<int> index_vector(py::handle obj, const char* name, int bound) {
     out[k] = static_cast<int>(i);
   }
   return out;
+}
+
+// Cores this process may run on (its CPU affinity, which process pools and `taskset` narrow),
+// so that the default thread count never oversubscribes a worker process.
+int available_cores() {
+#ifdef __linux__
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof(set), &set) == 0) return std::max(1, CPU_COUNT(&set));
+#endif
+  return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+}
+
+Solver parse_solver(const std::string& s) {
+  if (s == "fast") return Solver::Fast;
+  if (s == "reference") return Solver::Reference;
+  throw py::value_error("solver must be 'fast' or 'reference'; got '" + s + "'");
 }
 
 ContactModel parse_contact(const std::string& s) {
@@ -233,6 +254,8 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
       .def_property_readonly("M", &ReducedModel::deformation_dim, "deformation coordinates")
       .def_property_readonly("C", &ReducedModel::control_dim, "control dimension")
       .def_property_readonly("num_nodes", &ReducedModel::num_nodes)
+      .def_property_readonly("num_cubature_elements", &ReducedModel::num_cubature_elements)
+      .def_property_readonly_static("SOLVERS", [](py::object) { return py::make_tuple("reference", "fast"); })
       .def_property_readonly("total_mass", &ReducedModel::total_mass)
       .def_property_readonly("surface_nodes", &ReducedModel::surface_nodes)
       .def_property(
@@ -270,6 +293,22 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           "contact", [](const ReducedModel& r) { return std::string(contact_name(r.config.contact)); },
           [](ReducedModel& r, const std::string& s) { r.config.contact = parse_contact(s); },
           "'staggered' (default), 'penalty' or 'none'")
+      .def_property(
+          "solver",
+          [](const ReducedModel& r) {
+            return std::string(r.config.solver == Solver::Fast ? "fast" : "reference");
+          },
+          [](ReducedModel& r, const std::string& s) { r.config.solver = parse_solver(s); },
+          "'fast' (default: quasi-Newton from the rest stiffness, line search) or 'reference' "
+          "(exact Newton every iteration), kept to check the fast path against")
+      .def_property(
+          "stabilization", [](const ReducedModel& r) { return r.config.stabilization; },
+          [](ReducedModel& r, double x) {
+            if (!(x > 0.0 && x <= 1.0))
+              throw py::value_error("stabilization must lie in (0, 1], got " + std::to_string(x));
+            r.config.stabilization = x;
+          },
+          "fraction of a ground penetration removed per step (Baumgarte)")
       .def_property(
           "friction", [](const ReducedModel& r) { return r.config.friction; },
           [](ReducedModel& r, double x) { r.config.friction = v::non_negative(x, "friction"); },
@@ -351,17 +390,22 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
                                     std::to_string(r.control_dim()));
             }
             StepInfo info;
+            const StepInputs in = r.inputs();  // copied while the GIL is held
             {
               py::gil_scoped_release release;
-              info = r.step(out, fp);
+              thread_local Workspace ws;
+              info = r.step(in, out, fp, ws);
             }
             py::dict d;
             d["newton_iterations"] = info.newton_iterations;
+            d["stiffness_evaluations"] = info.stiffness_evaluations;
             d["stagger_iterations"] = info.stagger_iterations;
             d["contacts"] = info.contacts;
             d["normal_iterations"] = info.normal_iterations;
             d["friction_iterations"] = info.friction_iterations;
             d["active_rows"] = info.active_rows;
+            d["converged"] = info.converged;
+            d["contact_converged"] = info.contact_converged;
             d["diverged"] = info.diverged;
             return py::make_tuple(out, d);
           },
@@ -390,14 +434,13 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
                                       std::to_string(b) + ")");
             }
             for (const ReducedState& s : starts) check_state(r, s);
-            int nt = threads.is_none() ? static_cast<int>(std::max(1u, std::thread::hardware_concurrency()))
-                                       : threads.cast<int>();
+            int nt = threads.is_none() ? available_cores() : threads.cast<int>();
             if (nt < 1) throw py::value_error("threads must be >= 1, got " + std::to_string(nt));
             const py::ssize_t dim = r.dim(), ni = 3 * r.num_surface_nodes();
             py::array_t<double> rewards({b, h}), q({py::ssize_t{b}, dim}), qd({py::ssize_t{b}, dim}),
                 imp({py::ssize_t{b}, ni}), com({py::ssize_t{b}, py::ssize_t{h}, py::ssize_t{3}});
-            py::array_t<bool> div(b);
-            std::vector<unsigned char> flags(b);
+            py::array_t<bool> div(b), conv(b);
+            std::vector<unsigned char> flags(b), conv_flags(b);
             MatX obs_m;
             py::ssize_t no = 0;
             if (!observe.is_none()) {
@@ -405,19 +448,32 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
               no = obs_m.rows();
             }
             py::array_t<double> observed({py::ssize_t{b}, py::ssize_t{h}, no});
+            const StepInputs in = r.inputs();  // copied while the GIL is held
+            ReducedModel::RolloutOutputs out;
+            out.rewards = rewards.mutable_data();
+            out.final_q = q.mutable_data();
+            out.final_qdot = qd.mutable_data();
+            out.final_impulses = imp.mutable_data();
+            out.diverged = flags.data();
+            out.converged = conv_flags.data();
+            out.com = com.mutable_data();
+            out.observe = no ? &obs_m : nullptr;
+            out.observed = no ? observed.mutable_data() : nullptr;
             {
               py::gil_scoped_release release;
-              r.rollout(starts, u.data(), b, h, nt, rewards.mutable_data(), q.mutable_data(),
-                        qd.mutable_data(), imp.mutable_data(), flags.data(), com.mutable_data(),
-                        no ? &obs_m : nullptr, no ? observed.mutable_data() : nullptr);
+              r.rollout(in, starts, u.data(), b, h, nt, out);
             }
-            for (int i = 0; i < b; ++i) div.mutable_data()[i] = flags[i] != 0;
+            for (int i = 0; i < b; ++i) {
+              div.mutable_data()[i] = flags[i] != 0;
+              conv.mutable_data()[i] = conv_flags[i] != 0;
+            }
             py::dict d;
             d["rewards"] = rewards;
             d["q"] = q;
             d["qdot"] = qd;
             d["impulses"] = imp;
             d["diverged"] = div;
+            d["converged"] = conv;
             d["com"] = com;
             if (no) d["observed"] = observed;
             return d;

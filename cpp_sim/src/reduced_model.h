@@ -1,7 +1,15 @@
-// Reduced-order soft body: q_r in the span of B_r (rigid translations + deformation columns),
-// implicit Euler with Newton on the (M+3)-dimensional system, cubature for the elastic forces,
-// staggered-projection ground contact with Coulomb friction, quadratic fluid drag, and
-// batched rollouts on a thread pool.
+// Reduced-order soft body: q_r in the span of B_r (3 rigid translations, 3 linearised rotations,
+// M deformation columns), implicit Euler on the (M + 6)-dimensional system, cubature for the
+// elastic forces, staggered-projection ground contact with Coulomb friction, quadratic fluid
+// drag, and batched rollouts on a persistent thread pool.
+//
+// The implementation is split by job:
+//   reduced_model.cpp     construction, kinematics (positions, centre of mass)
+//   reduced_elastic.cpp   cubature energy, forces and stiffness (the hot kernels)
+//   reduced_dynamics.cpp  the implicit step: reference Newton and the fast quasi-Newton
+//   reduced_contact.cpp   staggered projection (normal LDP + friction), penalty ground
+//   reduced_drag.cpp      quadratic surface drag
+//   reduced_rollout.cpp   batched rollouts on the thread pool (thread_pool.h)
 #pragma once
 
 #include <Eigen/Dense>
@@ -18,22 +26,33 @@ using RowMatX = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::Row
 
 enum class ContactModel { None = 0, Staggered = 1, Penalty = 2 };
 
+// Reference: exact Newton (stiffness rebuilt at every iteration), QR-based NNLS, the contact
+// metric the last Newton matrix; kept to check the fast path against.
+// Fast (default): quasi-Newton from the rest-stiffness matrix A_0 with BFGS updates and an
+// Armijo line search on the incremental potential, the stiffness rebuilt only when the
+// iteration stalls; contact on A_0 with hoisted factors and a Gram-Cholesky NNLS.
+enum class Solver { Reference = 0, Fast = 1 };
+
+// Every setting of a reduced model, in one place: the binding exposes this struct as
+// `ReducedConfig` and the model's settings as its fields.
 struct ReducedConfig {
   double dt = 1.0 / 200.0;
   Vec3 gravity{0.0, 0.0, -9.81};
   ContactModel contact = ContactModel::Staggered;
+  Solver solver = Solver::Fast;
   double friction = 0.8;          // Coulomb mu
   double ground_height = 0.0;     // plane z = ground_height, normal +z
   double contact_margin = 1e-3;   // m: nodes predicted closer than this are constraint rows
-  double penalty_stiffness = 0.0; // N/m per node (0: chosen from the mass and dt)
+  double penalty_stiffness = 0.0; // N/m per node (0: sized from the node's weight, see penalty)
   double fluid_density = 0.0;     // kg/m^3; > 0 switches quadratic drag on
   double drag_coefficient = 1.0;  // C_d
   double damping_alpha = 0.0;     // 1/s, on all reduced coordinates
-  double damping_beta = 0.005;    // s, times the reduced stiffness K_r(q_n)
-  double newton_tolerance = 1e-6; // on max |dv| (reduced velocity units), relative to 1
-  int max_newton_iterations = 8;
+  double damping_beta = 0.005;    // s, times the reduced stiffness K_r(rest)
+  double newton_tolerance = 1e-6; // on max |dv| / sqrt(m), m/s
+  int max_newton_iterations = 30;
   double contact_tolerance = 1e-4;  // m/s on contact-node velocities
   int max_stagger_iterations = 60;
+  double stabilization = 0.2;     // Baumgarte fraction of a penetration removed per step
   Vec3 direction{1.0, 0.0, 0.0};  // unit task direction d (reward d . v_com dt)
   double max_speed = 100.0;       // m/s: an RMS node speed above this counts as divergence
 };
@@ -47,12 +66,31 @@ struct ReducedState {
 
 struct StepInfo {
   int newton_iterations = 0;
+  int stiffness_evaluations = 0;  // reduced stiffness K_r(q) builds this step
   int stagger_iterations = 0;
-  int normal_iterations = 0;   // semismooth Newton solves of the normal problem
-  int friction_iterations = 0; // reweighted least-squares solves of the friction problem
-  int active_rows = 0;       // contact candidates this step
+  int normal_iterations = 0;      // normal (LDP) solves
+  int friction_iterations = 0;    // reweighted least-squares solves of the friction problem
+  int active_rows = 0;            // contact candidates this step
   int contacts = 0;
+  bool converged = true;          // Newton reached newton_tolerance
+  bool contact_converged = true;  // staggering reached contact_tolerance, NNLS within its cap
   bool diverged = false;
+};
+
+// Per-thread scratch memory for one step: every buffer the step needs, sized once, so that a
+// rollout worker never allocates in its inner loop.
+struct Workspace {
+  VecX fall, pall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
+  RowMatX hg;
+  MatX k_el, a, h_inv, j_drag, j_pen, tmp;
+  VecX f_pen;
+};
+
+// What one call reads from the model besides its constant data: copied at entry, so a call
+// running without the GIL never sees another thread's writes to the settings or B_c.
+struct StepInputs {
+  ReducedConfig config;
+  MatX control_basis;  // M x C
 };
 
 class ReducedModel {
@@ -69,29 +107,31 @@ class ReducedModel {
                const std::vector<std::array<int, 3>>& surface_faces);
 
   static constexpr int kTranslations = 3;
-  static constexpr int kRigid = 6;  // translations + linearised rotations  // translations + linearised rotations
+  static constexpr int kRigid = 6;  // translations + linearised rotations
   int dim() const { return static_cast<int>(basis_cols_); }  // M + 6
   int elastic_dim() const { return dim() - kTranslations; }  // M + 3: rotations too
   int deformation_dim() const { return dim() - kRigid; }     // M
   int control_dim() const { return static_cast<int>(control_basis_.cols()); }
   int num_nodes() const { return num_nodes_; }
   int num_surface_nodes() const { return static_cast<int>(surface_nodes_.size()); }
+  int num_cubature_elements() const { return static_cast<int>(wvol_.size()); }
   const std::vector<int>& surface_nodes() const { return surface_nodes_; }
   double total_mass() const { return total_mass_; }
 
   ReducedConfig config;
-  void set_control_basis(const MatX& bc);  // M x C (deformation coordinates)
+  void set_control_basis(const MatX& bc) { control_basis_ = bc; }  // M x C, validated by caller
   const MatX& control_basis() const { return control_basis_; }
+  StepInputs inputs() const { return {config, control_basis_}; }
 
   ReducedState rest_state() const;
   // One step under control f_c (C). Never throws on divergence: it is reported in StepInfo.
-  StepInfo step(ReducedState& s, const double* fc) const;
+  StepInfo step(const StepInputs& in, ReducedState& s, const double* fc, Workspace& ws) const;
 
   // Elastic energy / reduced forces / reduced stiffness of the elastic coordinates q_e = q[3:]
   // (rotations and deformation, M + 3).
-  double elastic_energy(const VecX& qd) const;
-  VecX elastic_forces(const VecX& qd) const;
-  MatX elastic_stiffness(const VecX& qd, bool project) const;
+  double elastic_energy(const VecX& qe) const;
+  VecX elastic_forces(const VecX& qe) const;
+  MatX elastic_stiffness(const VecX& qe, bool project) const;
 
   // Full positions (N x 3 flattened) of a reduced configuration.
   VecX positions(const VecX& q) const;
@@ -100,40 +140,65 @@ class ReducedModel {
 
   // Batched rollouts: controls (B, H, C) row-major; outputs rewards (B, H), final states.
   // `starts` holds 1 state (shared by all rollouts) or `batch` states (one each).
-  void rollout(const std::vector<ReducedState>& starts, const double* controls, int batch,
-               int horizon,
-               int threads, double* rewards, double* final_q, double* final_qdot,
-               double* final_impulses, unsigned char* diverged, double* com_traj,
-               const MatX* observe = nullptr, double* observed = nullptr) const;
+  struct RolloutOutputs {
+    double* rewards = nullptr;         // B x H
+    double* final_q = nullptr;         // B x dim
+    double* final_qdot = nullptr;      // B x dim
+    double* final_impulses = nullptr;  // B x 3 n_s
+    unsigned char* diverged = nullptr; // B
+    unsigned char* converged = nullptr;// B: every step's Newton and contact solve converged
+    double* com = nullptr;             // B x H x 3 (optional)
+    const MatX* observe = nullptr;     // P x dim (optional)
+    double* observed = nullptr;        // B x H x P
+  };
+  void rollout(const StepInputs& in, const std::vector<ReducedState>& starts,
+               const double* controls, int batch, int horizon, int threads,
+               const RolloutOutputs& out) const;
 
  private:
-  struct Workspace;
-  void elastic(const VecX& qd, bool project, double* energy, VecX* force, MatX* stiff) const;
-  void drag(const VecX& q, const VecX& qdot, VecX& f, MatX& jac) const;
-  int solve_contacts(const VecX& q, const MatX& a, VecX& v, VecX& impulses,
+  // Cubature kernels (reduced_elastic.cpp). `fast` selects the fused fixed-size kernels.
+  void elastic_reference(const VecX& qe, bool project, double* energy, VecX* force,
+                         MatX* stiff) const;
+  double elastic_energy_force(const VecX& qe, VecX& force, Workspace& ws) const;
+  void elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace& ws) const;
+
+  StepInfo step_reference(const StepInputs& in, ReducedState& s, const double* fc,
+                          Workspace& ws) const;
+  StepInfo step_fast(const StepInputs& in, ReducedState& s, const double* fc,
+                     Workspace& ws) const;
+  void external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const;
+  bool finish_step(const StepInputs& in, ReducedState& s, VecX& v, const MatX& a,
+                   const Eigen::LLT<MatX>& a_llt, StepInfo& info) const;
+
+  void drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f, MatX& jac) const;
+  int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
+                     const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses,
                      StepInfo& info) const;
-  void penalty_contacts(const VecX& q, const VecX& v, VecX& f, MatX& jac) const;
+  void penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
+                        MatX& jac) const;
 
   int num_nodes_ = 0;
   Eigen::Index basis_cols_ = 0;
   double total_mass_ = 0.0;
   Vec3 rest_com_;
-  // Cubature: G = [G_1; ...; G_K] stacked (9K x M), G_e = d vec(F_e) / d q_d, and each
+  // Cubature: G = [G_1; ...; G_K] stacked (9K x (M + 3)), G_e = d vec(F_e) / d q_e, and each
   // element's weight times rest volume. Stacking turns the reduced force and stiffness into
-  // two matrix products instead of K small ones.
+  // matrix products instead of K small ones.
   RowMatX grad_;
   std::vector<double> wvol_;
   StableNeoHookean material_;
-  // Surface: rows of B_r (3 x (M+3)) and rest positions of each surface node.
+  // Surface: rows of B_r (3 x (M + 6)) and rest positions of each surface node.
   std::vector<int> surface_nodes_;
-  RowMatX surface_rows_;   // (3 n_s) x (M+3)
+  RowMatX surface_rows_;   // (3 n_s) x (M + 6)
+  RowMatX normal_rows_;    // n_s x (M + 6): the z rows alone, for the candidate search
   VecX surface_rest_;      // 3 n_s
   std::vector<std::array<int, 3>> faces_;  // indices into surface nodes
+  RowMatX face_rows_;      // (3 n_f) x (M + 6): the mean of each face's three node rows
   VecX node_mass_surface_; // lumped mass of each surface node
   MatX basis_;             // full B_r, for positions()
   VecX rest_;
   MatX control_basis_;     // M x C
-  MatX k_rest_;            // K_r at rest (cubature), for Rayleigh damping
+  MatX k_rest_;            // K_r at rest (cubature), for Rayleigh damping and A_0
 };
 
 }  // namespace softrom

@@ -33,6 +33,8 @@ _SETTINGS = {
     "max_stagger_iterations",
     "max_speed",
     "direction",
+    "solver",
+    "stabilization",
 }
 
 

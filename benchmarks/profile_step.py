@@ -1,0 +1,151 @@
+"""Where a reduced step goes: per benchmark robot, per physics configuration, per solver.
+
+For each robot it times, on one thread, with random actuation of 0.5 body weight in the first
+three deformation modes (the same sequence for every row):
+
+* ``forces`` / ``stiffness``: one cubature evaluation of the reduced elastic force f_r(q_r)
+  and of the reduced stiffness K_r(q_r) at a pose taken from the actuated run;
+* ``step`` in four configurations — ``free`` (no gravity, contact or drag), ``drag``
+  (quadratic fluid drag), ``staggered`` (gravity + staggered-projection ground, the walkers'
+  default) and ``penalty`` (gravity + penalty ground) — in µs per step, with the mean Newton
+  iterations, staggers and candidate contact rows per step, and the share of steps that ended
+  at an iteration cap (``newton cap`` / ``stagger cap``: results the solver did not certify);
+* for each solver the model offers (``reference``: the exact Newton path; ``fast``: the
+  default), so the two columns read side by side.
+
+    python benchmarks/profile_step.py [--robots quadruped ...] [--steps 200] [--json]
+
+The summary it printed when committed is in ``benchmarks/PROFILE.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+import cpp_sim
+from softrom_gym.robots import ROBOTS
+from softrom_gym.rom import build_reduced_model
+
+CONFIGS = {
+    "free": {"contact": "none", "gravity": [0.0, 0.0, 0.0]},
+    "drag": {"contact": "none", "gravity": [0.0, 0.0, 0.0], "fluid_density": 1000.0},
+    "staggered": {"contact": "staggered"},
+    "penalty": {"contact": "penalty"},
+}
+
+
+def solvers() -> list[str]:
+    """The solver paths this build offers (older builds have only the reference path)."""
+    return list(getattr(cpp_sim.ReducedModel, "SOLVERS", ("reference",)))
+
+
+def actuation(model, steps: int) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    amp = 0.5 * np.sqrt(model.total_mass) * 9.81
+    return amp * rng.uniform(-1.0, 1.0, (steps, model.C))
+
+
+def time_step(model, steps: int) -> dict:
+    controls = actuation(model, steps)
+    state = model.rest_state()
+    for n in range(10):  # settle contact and warm the caches
+        state, _ = model.step(state, controls[n])
+    newton = stagger = rows = 0
+    newton_cap = stagger_cap = 0
+    start = time.perf_counter()
+    for n in range(steps):
+        state, info = model.step(state, controls[n])
+        newton += info["newton_iterations"]
+        stagger += info["stagger_iterations"]
+        rows += info["active_rows"]
+        newton_cap += not info.get("converged", True)
+        stagger_cap += info["stagger_iterations"] >= model.max_stagger_iterations
+    wall = time.perf_counter() - start
+    return {
+        "us_per_step": 1e6 * wall / steps,
+        "newton_per_step": newton / steps,
+        "staggers_per_step": stagger / steps,
+        "rows_per_step": rows / steps,
+        "newton_cap_share": newton_cap / steps,
+        "stagger_cap_share": stagger_cap / steps,
+        "pose": state.q,
+    }
+
+
+def time_call(fn, *args, repeats: int = 200) -> float:
+    fn(*args)
+    best = np.inf
+    for _ in range(5):
+        start = time.perf_counter()
+        for _ in range(repeats):
+            fn(*args)
+        best = min(best, (time.perf_counter() - start) / repeats)
+    return 1e6 * best
+
+
+def profile(robot_name: str, steps: int) -> list[dict]:
+    robot = ROBOTS[robot_name]()
+    rows = []
+    pose = None
+    for config, settings in CONFIGS.items():
+        for solver in solvers():
+            extra = {"solver": solver} if len(solvers()) > 1 else {}
+            model = build_reduced_model(
+                robot, control_basis=np.eye(20)[:, :3], **settings, **extra
+            )  # fmt: skip
+            r = time_step(model, steps)
+            pose = r.pop("pose") if config == "staggered" else pose
+            rows.append({"robot": robot_name, "config": config, "solver": solver, **r})
+    model = build_reduced_model(robot, control_basis=np.eye(20)[:, :3])
+    q_e = pose[3:]
+    rows.append(
+        {
+            "robot": robot_name,
+            "config": "kernels",
+            "forces_us": time_call(model.elastic_forces, q_e),
+            "stiffness_us": time_call(model.elastic_stiffness, q_e, repeats=50),
+            "cubature_elements": None,
+        }
+    )
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", nargs="*", default=list(ROBOTS), choices=list(ROBOTS))
+    parser.add_argument("--steps", type=int, default=200, help="timed steps per row")
+    parser.add_argument("--json", action="store_true", help="one JSON object per line")
+    args = parser.parse_args()
+    if args.steps < 1:
+        parser.error(f"--steps must be >= 1, got {args.steps}")
+    if not args.json:
+        print(
+            f"{'robot':<10} {'config':<10} {'solver':<10} {'us/step':>9} {'newton':>7} "
+            f"{'stagger':>8} {'rows':>6} {'newton cap':>11} {'stagger cap':>12}"
+        )
+    for name in args.robots:
+        for r in profile(name, args.steps):
+            if args.json:
+                print(json.dumps(r), flush=True)
+            elif r["config"] == "kernels":
+                print(
+                    f"{name:<10} {'kernels':<10} forces {r['forces_us']:.1f} us, "
+                    f"stiffness {r['stiffness_us']:.1f} us",
+                    flush=True,
+                )
+            else:
+                print(
+                    f"{name:<10} {r['config']:<10} {r['solver']:<10} {r['us_per_step']:>9.0f} "
+                    f"{r['newton_per_step']:>7.2f} {r['staggers_per_step']:>8.2f} "
+                    f"{r['rows_per_step']:>6.1f} {r['newton_cap_share']:>11.1%} "
+                    f"{r['stagger_cap_share']:>12.1%}",
+                    flush=True,
+                )
+
+
+if __name__ == "__main__":
+    main()

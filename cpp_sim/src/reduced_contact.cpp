@@ -1,0 +1,203 @@
+// Ground contact: staggered projection (the default, Kaufman et al. 2008) and a penalty model.
+#include <algorithm>
+#include <cmath>
+
+#include "nnls.h"
+#include "reduced_model.h"
+
+namespace softrom {
+
+// Staggered projection (Kaufman, Sueda, James & Pai 2008) in reduced coordinates.
+//
+// With A the Newton matrix of the step and v* the contact-free velocity, the post-contact
+// velocity minimises 1/2 |v - v*|_A^2 under the per-node conditions of the paper's
+// Eq. (LCPConstraint). Staggering alternates two convex problems until the velocities of the
+// contact nodes stop changing:
+//
+//   normal:   min 1/2 |v - v'|_A^2          s.t. J_n,i v >= b_i                (friction held)
+//   friction: min 1/2 |v - v''|_A^2 + sum_i mu lambda_n,i |J_t,i v|        (normals held)
+//
+// with b_i = -z_i / dt for a node above the plane (it may not cross it this step) and
+// b_i = -beta z_i / dt for a penetrating one (Baumgarte: a fraction beta of the penetration is
+// removed per step, instead of a velocity kick that ejects it in one step).
+//
+// Both are solved in the primal, over the M + 6 reduced velocities, not over the 3k contact
+// impulses: k contact rows of rank <= M + 6 make the impulses non-unique (Delassus matrices
+// with condition numbers ~1e6), so Gauss-Seidel on impulses crawls, while the primal problems
+// are strongly convex and small. The normal problem is solved exactly as a least-distance
+// programme, the friction problem (maximal dissipation) by a reweighted least-squares step on
+// |J_t,i v|_eps = sqrt(|J_t,i v|^2 + eps^2). Every step ends with a normal solve, so the normal
+// constraints hold even when staggering stops at its cap (reported in info).
+int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
+                                 const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses,
+                                 StepInfo& info) const {
+  const double h = cfg.dt;
+  const double mu = cfg.friction;
+  const double tol = cfg.contact_tolerance;
+  const int ns = static_cast<int>(surface_nodes_.size());
+  const Eigen::Index m = basis_cols_;
+  const NnlsSolve how = cfg.solver == Solver::Fast ? NnlsSolve::Gram : NnlsSolve::Qr;
+  // Candidate rows: every surface node on or near the ground, or heading there this step.
+  const VecX z_all = normal_rows_ * q;
+  const VecX vn_all = normal_rows_ * v;
+  std::vector<int> active;
+  std::vector<double> gap;
+  for (int c = 0; c < ns; ++c) {
+    const double z = surface_rest_[3 * c + 2] + z_all[c] - cfg.ground_height;
+    if (z + 2.0 * h * std::min(vn_all[c], 0.0) < cfg.contact_margin) {
+      active.push_back(c);
+      gap.push_back(z);
+    }
+  }
+  const VecX old = impulses;
+  impulses.setZero();
+  const int k = static_cast<int>(active.size());
+  info.active_rows = k;
+  if (k == 0) return 0;
+
+  MatX jn(k, m), jt(2 * k, m);
+  VecX b(k), lam_n(k), lam_t(2 * k);
+  for (int i = 0; i < k; ++i) {
+    const int c = active[i];
+    jn.row(i) = surface_rows_.row(3 * c + 2);
+    jt.row(2 * i) = surface_rows_.row(3 * c);
+    jt.row(2 * i + 1) = surface_rows_.row(3 * c + 1);
+    b[i] = gap[i] >= 0.0 ? -gap[i] / h : -cfg.stabilization * gap[i] / h;
+    lam_n[i] = std::max(old[3 * c + 2], 0.0);  // warm start by node id
+    lam_t.segment<2>(2 * i) = old.segment<2>(3 * c);
+  }
+  const VecX v_free = v;
+  const double eps = tol;  // smoothing of |v_t|: sticking nodes creep at most ~eps
+  // Constant within the step: E^T = L^-1 J_n^T (the LDP's constraint matrix), A^-1 J_n^T and
+  // A^-1 J_t^T (the velocity response to unit impulses).
+  MatX g(m + 1, k);
+  g.topRows(m) = a_llt.matrixL().solve(jn.transpose());
+  const MatX ainv_jn = a_llt.solve(jn.transpose());
+  const MatX ainv_jt = a_llt.solve(jt.transpose());
+
+  auto normal_solve = [&](const VecX& v_prime) {
+    // With A = L L^T and x = L^T (v - v'), the normal problem is the least-distance programme
+    // min |x| s.t. J_n L^-T x >= b - J_n v', solved exactly by NNLS (Lawson & Hanson), whose
+    // active set copes with the redundant rows; the multipliers are the normal impulses.
+    ++info.normal_iterations;
+    g.row(m) = (b - jn * v_prime).transpose();
+    VecX x, lam = lam_n;  // warm start: last stagger's (or step's) loaded nodes
+    bool nnls_ok = true;
+    if (least_distance(g, x, lam, nnls_ok, how)) {
+      v = v_prime + a_llt.matrixU().solve(x);
+      lam_n = lam;
+    } else {
+      v = v_prime;  // unreachable for a ground plane (moving up is always feasible)
+      lam_n.setZero();
+      nnls_ok = false;
+    }
+    if (!nnls_ok) info.contact_converged = false;
+  };
+
+  VecX vc_prev(3 * k), vc(3 * k), weight(k);
+  auto contact_velocities = [&](VecX& out) {
+    out.head(k).noalias() = jn * v;
+    out.tail(2 * k).noalias() = jt * v;
+  };
+  contact_velocities(vc_prev);
+  MatX hess(m, m), wjt(2 * k, m);
+  int stagger = 0;
+  bool converged = false;
+  for (; stagger < cfg.max_stagger_iterations; ++stagger) {
+    // --- Normal problem with the friction impulses held fixed.
+    normal_solve(v_free + ainv_jt * lam_t);
+    // --- Friction problem with the normal impulses held fixed.
+    const VecX v_second = v_free + ainv_jn * lam_n;
+    // One reweighted least-squares step on the smoothed, strictly convex
+    //   phi(v) = 1/2 |v - v''|_A^2 + sum_i c_i sqrt(|J_t,i v|^2 + eps^2),  c_i = mu lambda_n,i:
+    // v minimises phi's quadratic majoriser at the current velocities, so phi decreases and
+    // the friction impulses -c_i J_t,i v / |J_t,i v|_eps stay inside the Coulomb discs. One
+    // step per stagger is enough: the stagger loop iterates to the joint fixed point.
+    ++info.friction_iterations;
+    const VecX vt = jt * v;
+    int loaded = 0;
+    for (int i = 0; i < k; ++i) {
+      const double s = std::sqrt(vt.segment<2>(2 * i).squaredNorm() + eps * eps);
+      weight[i] = mu * lam_n[i] / s;
+      if (weight[i] > 0.0) {
+        // sqrt(w_i) J_t,i stacked, so the reweighted Hessian is one rank update.
+        wjt.middleRows(2 * loaded, 2) = std::sqrt(weight[i]) * jt.middleRows(2 * i, 2);
+        ++loaded;
+      }
+    }
+    hess = a;
+    if (loaded > 0)
+      hess.selfadjointView<Eigen::Lower>().rankUpdate(wjt.topRows(2 * loaded).transpose());
+    v = hess.selfadjointView<Eigen::Lower>().llt().solve(a * v_second);
+    for (int i = 0; i < k; ++i)
+      lam_t.segment<2>(2 * i) = -weight[i] * (jt.middleRows(2 * i, 2) * v);
+    contact_velocities(vc);
+    // Converged when the velocities of the loaded nodes (and of every node's normal, so no
+    // unloaded node is about to penetrate) stop changing.
+    double change = (vc.head(k) - vc_prev.head(k)).cwiseAbs().maxCoeff();
+    for (int i = 0; i < k; ++i)
+      if (lam_n[i] > 0.0)
+        change = std::max(change, (vc.segment<2>(k + 2 * i) - vc_prev.segment<2>(k + 2 * i))
+                                      .cwiseAbs()
+                                      .maxCoeff());
+    vc_prev = vc;
+    if (change < tol) {
+      ++stagger;
+      converged = true;
+      break;
+    }
+  }
+  if (!converged) {
+    // Capped after a friction half-step: restore the normal constraints with the last
+    // friction impulses held, and say that the pair did not settle.
+    info.contact_converged = false;
+    normal_solve(v_free + ainv_jt * lam_t);
+  }
+  for (int i = 0; i < k; ++i) {
+    impulses[3 * active[i]] = lam_t[2 * i];
+    impulses[3 * active[i] + 1] = lam_t[2 * i + 1];
+    impulses[3 * active[i] + 2] = lam_n[i];
+  }
+  return stagger;
+}
+
+// Penalty ground: a spring on penetration with damping and regularised Coulomb friction,
+// evaluated at the Newton iterate (implicit in position). The default stiffness is
+// 0.25 m_i / dt^2 per node, the stiffest spring implicit Euler keeps well conditioned at this
+// step; it lets a resting body sink by about 4 g dt^2 N / n_bottom (millimetres at dt = 1/200
+// for the benchmark robots, more for a coarse bottom). It is the fast approximate option;
+// staggered projection is the accurate one.
+void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
+                                    VecX& f, MatX& jac) const {
+  const Eigen::Index m = basis_cols_;
+  f.setZero(m);
+  jac.setZero(m, m);  // d f / d v (position terms are scaled by dt by the caller)
+  const double h = cfg.dt;
+  const VecX xs = surface_rest_ + surface_rows_ * q;
+  const VecX vs = surface_rows_ * v;
+  for (size_t c = 0; c < surface_nodes_.size(); ++c) {
+    const double z = xs[3 * c + 2] - cfg.ground_height;
+    if (z >= 0.0) continue;
+    const double mass = node_mass_surface_[c];
+    const double k = cfg.penalty_stiffness > 0 ? cfg.penalty_stiffness : mass * 0.25 / (h * h);
+    const double damp = 2.0 * std::sqrt(k * mass);
+    const double vz = vs[3 * c + 2];
+    const double fn = std::max(0.0, -k * z - damp * vz);
+    if (fn <= 0.0) continue;
+    const auto rows = surface_rows_.middleRows(3 * c, 3);
+    f += fn * rows.row(2).transpose();
+    // Stiffness (through z = z0 + h v_z) and damping, both on the normal row.
+    jac.noalias() -= (k * h + damp) * rows.row(2).transpose() * rows.row(2);
+    const Eigen::Vector2d vt(vs[3 * c], vs[3 * c + 1]);
+    const double eps = 1e-3;
+    const double s = std::sqrt(vt.squaredNorm() + eps * eps);
+    const double scale = cfg.friction * fn / s;
+    f -= scale * (rows.topRows(2).transpose() * vt);
+    // Exact Jacobian of -mu f_n v_t / |v_t|_eps in v_t: (mu f_n / s)(I - v_t v_t^T / s^2).
+    const Eigen::Matrix2d dt_dv =
+        scale * (Eigen::Matrix2d::Identity() - vt * vt.transpose() / (s * s));
+    jac.noalias() -= rows.topRows(2).transpose() * dt_dv * rows.topRows(2);
+  }
+}
+
+}  // namespace softrom

@@ -1,0 +1,48 @@
+// Quadratic fluid drag on the surface (the paper's swimming model).
+#include <cmath>
+
+#include "reduced_model.h"
+
+namespace softrom {
+
+// Quadratic pressure drag on surface triangles advancing into still fluid (Pan & Manocha's
+// heuristic): f = -1/2 rho C_d A max(n.v, 0)^2 n, shared equally by the three nodes.
+// Returns the reduced force at (q, qdot) and its velocity Jacobian (symmetric, negative
+// semi-definite: a sum of -2 c A (n.v) w w^T with w = U_t^T n).
+void ReducedModel::drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f,
+                        MatX& jac) const {
+  const Eigen::Index m = basis_cols_;
+  const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
+  const VecX xs = surface_rest_ + surface_rows_ * q;
+  // A face's velocity is the mean of its nodes': U_t qdot with U_t precomputed per face.
+  const VecX vf = face_rows_ * qdot;
+  const double c = 0.5 * cfg.fluid_density * cfg.drag_coefficient;
+  // Columns w_f = U_t^T n of the faces advancing into the fluid, scaled for one rank update.
+  MatX w(m, nf);
+  VecX coef(nf), speed(nf);
+  Eigen::Index n_adv = 0;
+  for (Eigen::Index t = 0; t < nf; ++t) {
+    const auto& tri = faces_[t];
+    const Vec3 a = xs.segment<3>(3 * tri[0]), b = xs.segment<3>(3 * tri[1]),
+               d = xs.segment<3>(3 * tri[2]);
+    Vec3 n = (b - a).cross(d - a);
+    const double twice_area = n.norm();
+    if (twice_area <= 0.0) continue;
+    n /= twice_area;
+    const double vn = n.dot(vf.segment<3>(3 * t));
+    if (vn <= 0.0) continue;
+    const double ca = c * 0.5 * twice_area;
+    w.col(n_adv).noalias() = face_rows_.middleRows<3>(3 * t).transpose() * n;
+    coef[n_adv] = ca * vn;
+    speed[n_adv] = vn;
+    ++n_adv;
+  }
+  // f = -sum ca vn^2 w,  df/dv = -sum 2 ca vn w w^T.
+  f.noalias() = -(w.leftCols(n_adv) * coef.head(n_adv).cwiseProduct(speed.head(n_adv)));
+  jac.setZero(m, m);
+  for (Eigen::Index t = 0; t < n_adv; ++t) w.col(t) *= std::sqrt(2.0 * coef[t]);
+  jac.selfadjointView<Eigen::Lower>().rankUpdate(w.leftCols(n_adv), -1.0);
+  jac.triangularView<Eigen::StrictlyUpper>() = jac.transpose();
+}
+
+}  // namespace softrom

@@ -1,0 +1,296 @@
+// The implicit step in the reduced coordinates: implicit Euler on
+//
+//   v - v_n = h (f_ext + f_e(q_n + h v) - D v + f_drag + f_contact),   q_{n+1} = q_n + h v,
+//
+// i.e. the minimiser of the incremental potential
+//
+//   Phi(v) = 1/2 |v - v_n|^2 - h f_ext.v + Psi(q_n + h v) + h alpha/2 |v|^2
+//            + h beta/2 v_e^T K_0 v_e - h f_d.v - h/2 (v - v_n)^T J_d (v - v_n),
+//
+// (identity reduced mass; K_0 the rest stiffness for Rayleigh damping; drag linearised in v
+// at the start of the step), followed by the contact projection.
+#include <cmath>
+#include <limits>
+
+#include "reduced_model.h"
+
+namespace softrom {
+
+void ReducedModel::external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const {
+  // B_r^T M g: uniform gravity only loads the translation columns, as the rotation (about
+  // the centre of mass) and deformation columns are mass-orthogonal to them. Actuation acts on
+  // the deformation coordinates, never on the rigid ones.
+  const Eigen::Index m = basis_cols_;
+  const int nd = deformation_dim();
+  f_ext.setZero(m);
+  f_ext.head<3>() = std::sqrt(total_mass_) * in.config.gravity;
+  const Eigen::Index c = in.control_basis.cols();
+  if (fc != nullptr && c > 0)
+    f_ext.tail(nd).noalias() += in.control_basis * Eigen::Map<const VecX>(fc, c);
+}
+
+StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double* fc,
+                            Workspace& ws) const {
+  // Penalty contact is not a potential force (damping, friction), so it keeps the Newton
+  // solve on the residual; it still gets the fast kernels when solver = fast.
+  if (in.config.solver == Solver::Fast && in.config.contact != ContactModel::Penalty)
+    return step_fast(in, s, fc, ws);
+  return step_reference(in, s, fc, ws);
+}
+
+// Newton's method on the residual, the stiffness rebuilt at every iteration; no line search
+// (the reference kept as it was, only reporting whether it converged).
+StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, const double* fc,
+                                      Workspace& ws) const {
+  const ReducedConfig& cfg = in.config;
+  StepInfo info;
+  const double h = cfg.dt;
+  const Eigen::Index m = basis_cols_;
+  const int md = elastic_dim();
+  const double sqrt_m = std::sqrt(total_mass_);
+  const bool fast_kernels = cfg.solver == Solver::Fast;
+
+  VecX& f_ext = ws.f_ext;
+  external_forces(in, fc, f_ext);
+  const bool swim = cfg.fluid_density > 0.0;
+  if (swim) drag(cfg, s.q, s.qdot, ws.f_drag, ws.j_drag);
+
+  VecX v = s.qdot;
+  VecX& f_el = ws.f_el;
+  VecX& r = ws.r;
+  VecX& dv = ws.dv;
+  MatX& k_el = ws.k_el;
+  MatX& a = ws.a;
+  r.resize(m);
+  Eigen::LDLT<MatX> ldlt(m);
+  info.converged = false;
+  for (int it = 0; it < cfg.max_newton_iterations; ++it) {
+    const VecX qe = s.q.tail(md) + h * v.tail(md);
+    // The exact reduced Hessian: I dominates A = I + dt^2 K_r + ..., so A stays positive
+    // definite unless an element is crushed; only then is K_r projected (below), an M x M
+    // eigen decomposition instead of one 9 x 9 decomposition per element.
+    if (fast_kernels) {
+      elastic_energy_force(qe, f_el, ws);
+      elastic_stiffness_fast(qe, k_el, ws);
+    } else {
+      elastic_reference(qe, false, nullptr, &f_el, &k_el);
+    }
+    ++info.stiffness_evaluations;
+    r = v - s.qdot;
+    r -= h * f_ext;
+    r.tail(md) -= h * f_el;
+    a.setIdentity(m, m);
+    a.bottomRightCorner(md, md) += (h * h) * k_el;
+    if (cfg.damping_alpha > 0.0) {
+      r += h * cfg.damping_alpha * v;
+      a.diagonal().array() += h * cfg.damping_alpha;
+    }
+    if (cfg.damping_beta > 0.0) {
+      r.tail(md) += (h * cfg.damping_beta) * (k_rest_ * v.tail(md));
+      a.bottomRightCorner(md, md) += (h * cfg.damping_beta) * k_rest_;
+    }
+    if (swim) {
+      r -= h * (ws.f_drag + ws.j_drag * (v - s.qdot));
+      a -= h * ws.j_drag;
+    }
+    if (cfg.contact == ContactModel::Penalty) {
+      penalty_contacts(cfg, s.q + h * v, v, ws.f_pen, ws.j_pen);
+      r -= h * ws.f_pen;
+      a -= h * ws.j_pen;
+    }
+    ldlt.compute(a);
+    if (ldlt.info() != Eigen::Success || !ldlt.isPositive() ||
+        (ldlt.vectorD().array() <= 0.0).any()) {
+      Eigen::SelfAdjointEigenSolver<MatX> es(k_el);
+      const MatX k_psd = es.eigenvectors() * es.eigenvalues().cwiseMax(0.0).asDiagonal() *
+                         es.eigenvectors().transpose();
+      a.bottomRightCorner(md, md) += (h * h) * (k_psd - k_el);
+      ldlt.compute(a);
+    }
+    dv = -ldlt.solve(r);
+    info.newton_iterations = it + 1;
+    if (!dv.allFinite()) {
+      info.diverged = true;
+      return info;
+    }
+    const double step_norm = dv.cwiseAbs().maxCoeff() / sqrt_m;
+    v += dv;
+    if (step_norm < cfg.newton_tolerance) {
+      info.converged = true;
+      break;
+    }
+  }
+  Eigen::LLT<MatX> a_llt;
+  if (cfg.contact == ContactModel::Staggered) a_llt.compute(a);
+  finish_step(in, s, v, a, a_llt, info);
+  return info;
+}
+
+// Quasi-Newton on Phi: the first matrix is A_0 = I + (h^2 + h beta) K_0 + h alpha I - h J_d,
+// the implicit matrix at rest (its stiffness needs no evaluation), improved by BFGS updates of
+// its inverse from the gradients the line search computes anyway. The stiffness K_r(q) is
+// evaluated only when the iteration stalls (a step no smaller than half the last), and then
+// replaces K_0. An Armijo backtracking line search on Phi makes every iteration descend; the
+// step is certified (info.converged) by the same test as the reference: max |dv| / sqrt(m)
+// below newton_tolerance.
+StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const double* fc,
+                                 Workspace& ws) const {
+  const ReducedConfig& cfg = in.config;
+  StepInfo info;
+  const double h = cfg.dt;
+  const Eigen::Index m = basis_cols_;
+  const int md = elastic_dim();
+  const double sqrt_m = std::sqrt(total_mass_);
+  const bool swim = cfg.fluid_density > 0.0;
+
+  VecX& f_ext = ws.f_ext;
+  external_forces(in, fc, f_ext);
+  if (swim) drag(cfg, s.q, s.qdot, ws.f_drag, ws.j_drag);
+
+  MatX& a = ws.a;
+  a.setIdentity(m, m);
+  a.bottomRightCorner(md, md) += (h * h + h * cfg.damping_beta) * k_rest_;
+  if (cfg.damping_alpha > 0.0) a.diagonal().array() += h * cfg.damping_alpha;
+  if (swim) a -= h * ws.j_drag;
+  Eigen::LLT<MatX> a_llt(a);
+  if (a_llt.info() != Eigen::Success) return step_reference(in, s, fc, ws);
+  MatX& h_inv = ws.h_inv;
+  h_inv = a_llt.solve(MatX::Identity(m, m));
+
+  VecX tmp_e(md);
+  // Phi(v) and its gradient (the reference's residual).
+  auto potential = [&](const VecX& v, VecX& grad) -> double {
+    tmp_e = s.q.tail(md) + h * v.tail(md);
+    const double psi = elastic_energy_force(tmp_e, ws.f_el, ws);
+    grad = v - s.qdot;
+    double phi = 0.5 * grad.squaredNorm() - h * f_ext.dot(v) + psi;
+    if (swim) {
+      const VecX jd = ws.j_drag * grad;
+      phi -= h * ws.f_drag.dot(v) + 0.5 * h * grad.dot(jd);
+      grad -= h * (ws.f_drag + jd);
+    }
+    grad -= h * f_ext;
+    grad.tail(md) -= h * ws.f_el;
+    if (cfg.damping_alpha > 0.0) {
+      phi += 0.5 * h * cfg.damping_alpha * v.squaredNorm();
+      grad += h * cfg.damping_alpha * v;
+    }
+    if (cfg.damping_beta > 0.0) {
+      tmp_e.noalias() = k_rest_ * v.tail(md);
+      phi += 0.5 * h * cfg.damping_beta * v.tail(md).dot(tmp_e);
+      grad.tail(md) += h * cfg.damping_beta * tmp_e;
+    }
+    return phi;
+  };
+
+  auto refresh = [&](const VecX& v) -> bool {
+    // Replace K_0 by the stiffness at the current iterate (projected if A would not be
+    // positive definite), and restart the inverse from its exact inverse.
+    tmp_e = s.q.tail(md) + h * v.tail(md);
+    elastic_stiffness_fast(tmp_e, ws.k_el, ws);
+    ++info.stiffness_evaluations;
+    a.bottomRightCorner(md, md) += (h * h) * (ws.k_el - k_rest_);
+    a_llt.compute(a);
+    if (a_llt.info() != Eigen::Success) {
+      Eigen::SelfAdjointEigenSolver<MatX> es(ws.k_el);
+      const MatX k_psd = es.eigenvectors() * es.eigenvalues().cwiseMax(0.0).asDiagonal() *
+                         es.eigenvectors().transpose();
+      a.bottomRightCorner(md, md) += (h * h) * (k_psd - ws.k_el);
+      a_llt.compute(a);
+      if (a_llt.info() != Eigen::Success) return false;
+    }
+    h_inv = a_llt.solve(MatX::Identity(m, m));
+    return true;
+  };
+
+  VecX v = s.qdot;
+  VecX& g = ws.g;
+  VecX& g_trial = ws.g_trial;
+  VecX& v_trial = ws.v_trial;
+  VecX& dv = ws.dv;
+  VecX& sv = ws.s;
+  VecX& y = ws.y;
+  VecX& hy = ws.hy;
+  double phi = potential(v, g);
+  double prev_norm = std::numeric_limits<double>::infinity();
+  bool refreshed = false;
+  info.converged = false;
+  constexpr double kArmijo = 1e-4;
+  constexpr double kRoundoff = 1e-13;
+  for (int it = 0; it < cfg.max_newton_iterations; ++it) {
+    dv.noalias() = -(h_inv * g);
+    info.newton_iterations = it + 1;
+    if (!dv.allFinite() || !std::isfinite(phi)) {
+      info.diverged = true;
+      return info;
+    }
+    const double step_norm = dv.cwiseAbs().maxCoeff() / sqrt_m;
+    if (step_norm < cfg.newton_tolerance) {
+      v += dv;
+      info.converged = true;
+      break;
+    }
+    if (it >= 1 && step_norm > 0.5 * prev_norm && !refreshed) {
+      // Linear convergence too slow for A_0: build the real stiffness once.
+      refreshed = true;
+      if (!refresh(v)) {
+        info.diverged = true;
+        return info;
+      }
+      dv.noalias() = -(h_inv * g);
+    }
+    prev_norm = step_norm;
+    // Armijo backtracking; a rise within round-off of Phi counts as no rise.
+    const double slope = g.dot(dv);
+    double t = 1.0, phi_trial = 0.0;
+    for (int ls = 0; ls < 30; ++ls) {
+      v_trial = v + t * dv;
+      phi_trial = potential(v_trial, g_trial);
+      if (phi_trial <= phi + kArmijo * t * slope + kRoundoff * std::abs(phi)) break;
+      t *= 0.5;
+    }
+    sv = v_trial - v;
+    y = g_trial - g;
+    const double sy = sv.dot(y);
+    if (sy > 1e-12 * sv.norm() * y.norm()) {
+      // BFGS update of the inverse: H+ = (I - r s y^T) H (I - r y s^T) + r s s^T.
+      const double rho = 1.0 / sy;
+      hy.noalias() = h_inv * y;
+      const double yhy = y.dot(hy);
+      h_inv.noalias() -= rho * (sv * hy.transpose() + hy * sv.transpose());
+      h_inv.noalias() += (rho * rho * yhy + rho) * (sv * sv.transpose());
+    }
+    v.swap(v_trial);
+    g.swap(g_trial);
+    phi = phi_trial;
+  }
+  finish_step(in, s, v, a, a_llt, info);
+  return info;
+}
+
+// Contact projection, divergence check, and the state update. Impulses are solved into a copy:
+// a step that diverges leaves the whole state as it was.
+bool ReducedModel::finish_step(const StepInputs& in, ReducedState& s, VecX& v, const MatX& a,
+                               const Eigen::LLT<MatX>& a_llt, StepInfo& info) const {
+  const ReducedConfig& cfg = in.config;
+  const double h = cfg.dt;
+  const double sqrt_m = std::sqrt(total_mass_);
+  VecX impulses = s.impulses;
+  if (cfg.contact == ContactModel::Staggered)
+    info.stagger_iterations = solve_contacts(cfg, s.q, a, a_llt, v, impulses, info);
+  const VecX q_next = s.q + h * v;
+  // Divergence: non-finite state or RMS node speed beyond any physical meaning.
+  if (!v.allFinite() || !q_next.allFinite() || !impulses.allFinite() ||
+      v.norm() / sqrt_m > cfg.max_speed) {
+    info.diverged = true;
+    return false;  // the state keeps its last good value
+  }
+  for (int c = 0; c < impulses.size() / 3; ++c)
+    if (impulses[3 * c + 2] > 0.0) ++info.contacts;
+  s.q = q_next;
+  s.qdot = v;
+  s.impulses.swap(impulses);
+  return true;
+}
+
+}  // namespace softrom

@@ -1,0 +1,58 @@
+// Batched rollouts on the persistent thread pool.
+#include <algorithm>
+
+#include "reduced_model.h"
+#include "thread_pool.h"
+
+namespace softrom {
+
+void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>& starts,
+                           const double* controls, int batch, int horizon, int threads,
+                           const RolloutOutputs& out) const {
+  const int c = static_cast<int>(in.control_basis.cols());
+  const Eigen::Index m = basis_cols_;
+  const Vec3 d = in.config.direction;
+  const double h = in.config.dt;
+  // Each rollout is computed start to finish by one worker, with that thread's own scratch,
+  // so results do not depend on the thread count or the schedule.
+  auto run = [&](int b) {
+    thread_local Workspace ws;
+    ReducedState s = starts[starts.size() == 1 ? 0 : b];
+    bool bad = false, converged = true;
+    for (int t = 0; t < horizon; ++t) {
+      const size_t bt = static_cast<size_t>(b) * horizon + t;
+      double reward = 0.0;
+      if (!bad) {
+        const StepInfo info = step(in, s, controls + bt * c, ws);
+        bad = info.diverged;
+        converged = converged && info.converged && info.contact_converged;
+        if (!bad) reward = d.dot(com_velocity(s.qdot)) * h;
+      }
+      out.rewards[bt] = reward;
+      if (out.com) {
+        const Vec3 p = com(s.q);
+        std::copy(p.data(), p.data() + 3, out.com + bt * 3);
+      }
+      if (out.observe && out.observed) {
+        // Linear observables of q_r per step (e.g. the linearised orientation).
+        const Eigen::Index no = out.observe->rows();
+        Eigen::Map<VecX>(out.observed + bt * no, no).noalias() = (*out.observe) * s.q;
+      }
+    }
+    std::copy(s.q.data(), s.q.data() + m, out.final_q + static_cast<size_t>(b) * m);
+    std::copy(s.qdot.data(), s.qdot.data() + m, out.final_qdot + static_cast<size_t>(b) * m);
+    const Eigen::Index ni = s.impulses.size();
+    std::copy(s.impulses.data(), s.impulses.data() + ni,
+              out.final_impulses + static_cast<size_t>(b) * ni);
+    out.diverged[b] = bad ? 1 : 0;
+    if (out.converged) out.converged[b] = converged ? 1 : 0;
+  };
+  threads = std::max(1, std::min(threads, batch));
+  if (threads == 1) {
+    for (int b = 0; b < batch; ++b) run(b);
+    return;
+  }
+  ThreadPool::instance().run(threads, batch, run);
+}
+
+}  // namespace softrom
