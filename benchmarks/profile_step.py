@@ -10,6 +10,9 @@ three deformation modes (the same sequence for every row):
   default) and ``penalty`` (gravity + penalty ground) — in µs per step, with the mean Newton
   iterations, staggers and candidate contact rows per step, and the share of steps that ended
   at an iteration cap (``newton cap`` / ``stagger cap``: results the solver did not certify);
+* the split of a step's time (µs, measured inside C++ with ``profile=True``): ``dynamics``
+  (the implicit solve), ``drag``, and the staggered projection's ``normal`` and ``friction``
+  halves; the remainder of ``us/step`` is binding overhead and bookkeeping;
 * for each solver the model offers (``reference``: the exact Newton path; ``fast``: the
   default), so the two columns read side by side.
 
@@ -56,6 +59,8 @@ def time_step(model, steps: int) -> dict:
         state, _ = model.step(state, controls[n])
     newton = stagger = rows = 0
     newton_cap = stagger_cap = 0
+    parts = dict.fromkeys(("time_dynamics", "time_drag", "time_normal", "time_friction"), 0.0)
+    model.profile = True
     start = time.perf_counter()
     for n in range(steps):
         state, info = model.step(state, controls[n])
@@ -63,7 +68,9 @@ def time_step(model, steps: int) -> dict:
         stagger += info["stagger_iterations"]
         rows += info["active_rows"]
         newton_cap += not info.get("converged", True)
-        stagger_cap += info["stagger_iterations"] >= model.max_stagger_iterations
+        stagger_cap += not info.get("contact_converged", True)
+        for key in parts:
+            parts[key] += info.get(key, 0.0)
     wall = time.perf_counter() - start
     return {
         "us_per_step": 1e6 * wall / steps,
@@ -72,6 +79,7 @@ def time_step(model, steps: int) -> dict:
         "rows_per_step": rows / steps,
         "newton_cap_share": newton_cap / steps,
         "stagger_cap_share": stagger_cap / steps,
+        **{key.replace("time_", "") + "_us": 1e6 * t / steps for key, t in parts.items()},
         "pose": state.q,
     }
 
@@ -125,7 +133,8 @@ def main() -> None:
     if not args.json:
         print(
             f"{'robot':<10} {'config':<10} {'solver':<10} {'us/step':>9} {'newton':>7} "
-            f"{'stagger':>8} {'rows':>6} {'newton cap':>11} {'stagger cap':>12}"
+            f"{'stagger':>8} {'rows':>6} {'newton cap':>11} {'stagger cap':>12} "
+            f"{'dynamics':>9} {'drag':>6} {'normal':>7} {'friction':>9}"
         )
     for name in args.robots:
         for r in profile(name, args.steps):
@@ -142,7 +151,8 @@ def main() -> None:
                     f"{name:<10} {r['config']:<10} {r['solver']:<10} {r['us_per_step']:>9.0f} "
                     f"{r['newton_per_step']:>7.2f} {r['staggers_per_step']:>8.2f} "
                     f"{r['rows_per_step']:>6.1f} {r['newton_cap_share']:>11.1%} "
-                    f"{r['stagger_cap_share']:>12.1%}",
+                    f"{r['stagger_cap_share']:>12.1%} {r['dynamics_us']:>9.0f} "
+                    f"{r['drag_us']:>6.0f} {r['normal_us']:>7.0f} {r['friction_us']:>9.0f}",
                     flush=True,
                 )
 

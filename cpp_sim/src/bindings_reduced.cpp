@@ -310,6 +310,11 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           },
           "fraction of a ground penetration removed per step (Baumgarte)")
       .def_property(
+          "profile", [](const ReducedModel& r) { return r.config.profile; },
+          [](ReducedModel& r, bool on) { r.config.profile = on; },
+          "time the parts of each step: step() then reports time_dynamics, time_drag, "
+          "time_normal, time_friction (s)")
+      .def_property(
           "friction", [](const ReducedModel& r) { return r.config.friction; },
           [](ReducedModel& r, double x) { r.config.friction = v::non_negative(x, "friction"); },
           "Coulomb coefficient mu")
@@ -407,6 +412,12 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
             d["converged"] = info.converged;
             d["contact_converged"] = info.contact_converged;
             d["diverged"] = info.diverged;
+            if (in.config.profile) {
+              d["time_dynamics"] = info.time_dynamics;
+              d["time_drag"] = info.time_drag;
+              d["time_normal"] = info.time_normal;
+              d["time_friction"] = info.time_friction;
+            }
             return py::make_tuple(out, d);
           },
           py::arg("state"), py::arg("f_c") = py::none(),

@@ -14,6 +14,7 @@
 
 #include <Eigen/Dense>
 #include <array>
+#include <chrono>
 #include <vector>
 
 #include "material.h"
@@ -55,6 +56,7 @@ struct ReducedConfig {
   double stabilization = 0.2;     // Baumgarte fraction of a penetration removed per step
   Vec3 direction{1.0, 0.0, 0.0};  // unit task direction d (reward d . v_com dt)
   double max_speed = 100.0;       // m/s: an RMS node speed above this counts as divergence
+  bool profile = false;           // time the parts of each step into StepInfo (a few % cost)
 };
 
 // Simulation state. `impulses` warm-starts the contact solver (per surface node, normal and two
@@ -75,6 +77,26 @@ struct StepInfo {
   bool converged = true;          // Newton reached newton_tolerance
   bool contact_converged = true;  // staggering reached contact_tolerance, NNLS within its cap
   bool diverged = false;
+  // With config.profile: seconds spent in each part of the step.
+  double time_dynamics = 0.0, time_drag = 0.0, time_normal = 0.0, time_friction = 0.0;
+};
+
+// Adds the seconds since construction to `*target` on destruction (when target is not null).
+class ScopedTimer {
+ public:
+  explicit ScopedTimer(double* target) : target_(target) {
+    if (target_) start_ = std::chrono::steady_clock::now();
+  }
+  ~ScopedTimer() { stop(); }
+  void stop() {
+    if (target_)
+      *target_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+    target_ = nullptr;
+  }
+
+ private:
+  double* target_;
+  std::chrono::steady_clock::time_point start_;
 };
 
 // Per-thread scratch memory for one step: every buffer the step needs, sized once, so that a
@@ -170,6 +192,7 @@ class ReducedModel {
   bool finish_step(const StepInputs& in, ReducedState& s, VecX& v, const MatX& a,
                    const Eigen::LLT<MatX>& a_llt, StepInfo& info) const;
 
+  bool near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v) const;
   void drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f, MatX& jac) const;
   int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                      const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses,

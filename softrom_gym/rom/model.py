@@ -35,6 +35,7 @@ _SETTINGS = {
     "direction",
     "solver",
     "stabilization",
+    "profile",
 }
 
 
