@@ -164,6 +164,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     normal_solve(v_free + ainv_jt * lam_t);
   }
   for (int i = 0; i < k; ++i) {
+    // The reweighted step's impulse -w_i J_t,i v uses the weight of the velocities before the
+    // step, so it can leave the Coulomb disc by the last stagger's change (up to ~0.1% was
+    // measured): report, and warm-start from, its projection on the disc.
+    const double bound = mu * lam_n[i], norm = lam_t.segment<2>(2 * i).norm();
+    if (norm > bound) lam_t.segment<2>(2 * i) *= bound / norm;
     impulses[3 * active[i]] = lam_t[2 * i];
     impulses[3 * active[i] + 1] = lam_t[2 * i + 1];
     impulses[3 * active[i] + 2] = lam_n[i];
