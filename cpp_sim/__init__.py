@@ -4,6 +4,12 @@ The extension module ``cpp_sim._core`` is built from ``cpp_sim/src`` by the pack
 scikit-build-core build; this package re-exports its public classes.
 """
 
-from ._core import FEMModel, ReducedModel, ReducedState, reduced_element_forces
+from ._core import (
+    FEMModel,
+    ReducedConfig,
+    ReducedModel,
+    ReducedState,
+    reduced_element_forces,
+)
 
-__all__ = ["FEMModel", "ReducedModel", "ReducedState", "reduced_element_forces"]
+__all__ = ["FEMModel", "ReducedConfig", "ReducedModel", "ReducedState", "reduced_element_forces"]

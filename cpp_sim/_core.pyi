@@ -1,134 +1,588 @@
-from collections.abc import Sequence
-
-import numpy as np
-import numpy.typing as npt
-import scipy.sparse
-
-_Positions = npt.ArrayLike  # (N, 3) real array
-
+"""
+softrom C++ simulation core (FEM, reduced model, contact, batched rollouts).
+"""
+from __future__ import annotations
+import numpy
+import numpy.typing
+import typing
+__all__: list[str] = ['FEMModel', 'ReducedConfig', 'ReducedModel', 'ReducedState', 'reduced_element_forces']
 class FEMModel:
-    def __init__(
-        self,
-        nodes: npt.ArrayLike,
-        tets: npt.ArrayLike,
-        youngs_modulus: float,
-        poisson_ratio: float,
-        density: float,
-    ) -> None: ...
+    """
+    Full-space finite-element model of a soft body.
+    
+    Linear tetrahedra with the stable Neo-Hookean material (Smith et al. 2018)
+    
+        Psi(F) = mu/2 (I_C - 3) - mu (J - 1) + lambda/2 (J - 1)^2,  lambda = lambda_Lame + mu,
+    
+    which reduces to linear elasticity (E, nu) at small strain and stays restoring under
+    inversion. Lumped mass, gravity (default (0, 0, -9.81) m/s^2, z up), Rayleigh damping
+    D = damping_alpha M + damping_beta K(x_n). SI units throughout; positions are (N, 3) arrays.
+    
+    Parameters
+    ----------
+    nodes : (N, 3) array of float
+        Rest positions in metres.
+    tets : (T, 4) array of int
+        Node indices of each tetrahedron, positively oriented (positive rest volume).
+    youngs_modulus : float
+        E in Pa, > 0.
+    poisson_ratio : float
+        nu, in (-1, 0.5).
+    density : float
+        rho in kg/m^3, > 0.
+    """
+    def __init__(self, nodes: typing.Any, tets: typing.Any, youngs_modulus: typing.SupportsFloat | typing.SupportsIndex, poisson_ratio: typing.SupportsFloat | typing.SupportsIndex, density: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    def energy(self, x: typing.Any) -> float:
+        """
+        Elastic potential energy E(x) in J for positions x (N, 3).
+        """
+    def forces(self, x: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        Internal elastic forces -dE/dx (N, 3) in N.
+        """
+    def step(self, x: typing.Any, v: typing.Any, dt: typing.SupportsFloat | typing.SupportsIndex, fixed: typing.Any = None) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]:
+        """
+        One implicit Euler step; returns (x_new, v_new), each (N, 3).
+        
+        Newton's method on the incremental potential with a backtracking line search and a sparse
+        LDL^T solve. ``fixed`` (boolean mask (N,) or node indices) clamps nodes in place.
+        Raises RuntimeError if the step diverges.
+        """
+    def stiffness(self, x: typing.Any, project: bool = False) -> typing.Any:
+        """
+        Stiffness K = d(-forces)/dx as a scipy.sparse CSR (3N, 3N) matrix; row 3i+k is node i, axis k. project=True clamps each element's Hessian to be PSD.
+        """
     @property
-    def num_nodes(self) -> int: ...
+    def damping_alpha(self) -> float:
+        """
+        Mass-proportional Rayleigh damping, 1/s (default 0: it would also damp free flight).
+        """
+    @damping_alpha.setter
+    def damping_alpha(self, arg1: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
     @property
-    def num_tets(self) -> int: ...
+    def damping_beta(self) -> float:
+        """
+        Stiffness-proportional Rayleigh damping, s (default 0.005).
+        """
+    @damping_beta.setter
+    def damping_beta(self, arg1: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
     @property
-    def mass(self) -> npt.NDArray[np.float64]: ...
+    def density(self) -> float:
+        ...
     @property
-    def volumes(self) -> npt.NDArray[np.float64]: ...
-    @property
-    def volume(self) -> float: ...
-    @property
-    def rest_positions(self) -> npt.NDArray[np.float64]: ...
-    @property
-    def youngs_modulus(self) -> float: ...
-    @property
-    def poisson_ratio(self) -> float: ...
-    @property
-    def density(self) -> float: ...
-    @property
-    def gravity(self) -> list[float]: ...
+    def gravity(self) -> list[float]:
+        """
+        Gravitational acceleration (3,), m/s^2.
+        """
     @gravity.setter
-    def gravity(self, value: Sequence[float] | npt.ArrayLike) -> None: ...
-    damping_alpha: float
-    damping_beta: float
-    newton_tolerance: float
-    max_newton_iterations: int
+    def gravity(self, arg1: typing.Any) -> None:
+        ...
     @property
-    def last_step_stats(self) -> dict[str, int | float | bool]: ...
-    def energy(self, x: _Positions) -> float: ...
-    def forces(self, x: _Positions) -> npt.NDArray[np.float64]: ...
-    def stiffness(self, x: _Positions, project: bool = False) -> scipy.sparse.csr_matrix: ...
-    def step(
-        self,
-        x: _Positions,
-        v: _Positions,
-        dt: float,
-        fixed: npt.ArrayLike | None = None,
-    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
-
+    def last_step_stats(self) -> dict:
+        """
+        Newton iterations, final max |dx|/dt and convergence flag of the last step.
+        """
+    @property
+    def mass(self) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        Lumped mass per node (N,), kg.
+        """
+    @property
+    def max_newton_iterations(self) -> int:
+        ...
+    @max_newton_iterations.setter
+    def max_newton_iterations(self, arg1: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def newton_tolerance(self) -> float:
+        """
+        Newton stops when max |dx| / dt falls below this, m/s.
+        """
+    @newton_tolerance.setter
+    def newton_tolerance(self, arg1: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def num_nodes(self) -> int:
+        ...
+    @property
+    def num_tets(self) -> int:
+        ...
+    @property
+    def poisson_ratio(self) -> float:
+        ...
+    @property
+    def rest_positions(self) -> numpy.typing.NDArray[numpy.float64]:
+        ...
+    @property
+    def volume(self) -> float:
+        """
+        Total rest volume, m^3.
+        """
+    @property
+    def volumes(self) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        Rest volume per tetrahedron (T,), m^3.
+        """
+    @property
+    def youngs_modulus(self) -> float:
+        ...
 class ReducedState:
-    def __init__(self, q: npt.ArrayLike, qdot: npt.ArrayLike, impulses: npt.ArrayLike) -> None: ...
+    """
+    State of a reduced model: q_r and qdot_r (M + 6,) and the contact impulses (3 per surface
+    node) that warm-start the next contact solve. Copies in, copies out; picklable.
+    """
+    def __copy__(self) -> ReducedState:
+        ...
+    def __deepcopy__(self, arg0: dict) -> ReducedState:
+        ...
+    def __getstate__(self) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]:
+        ...
+    def __init__(self, q: typing.Any, qdot: typing.Any, impulses: typing.Any) -> None:
+        ...
+    def __repr__(self) -> str:
+        ...
+    def __setstate__(self, arg0: tuple) -> None:
+        ...
+    def copy(self) -> ReducedState:
+        ...
     @property
-    def q(self) -> npt.NDArray[np.float64]: ...
+    def impulses(self) -> numpy.typing.NDArray[numpy.float64]:
+        ...
     @property
-    def qdot(self) -> npt.NDArray[np.float64]: ...
+    def q(self) -> numpy.typing.NDArray[numpy.float64]:
+        ...
     @property
-    def impulses(self) -> npt.NDArray[np.float64]: ...
-    def copy(self) -> ReducedState: ...
-    def __copy__(self) -> ReducedState: ...
-    def __deepcopy__(self, memo: dict) -> ReducedState: ...
-
+    def qdot(self) -> numpy.typing.NDArray[numpy.float64]:
+        ...
 class ReducedModel:
-    def __init__(
-        self,
-        nodes: npt.ArrayLike,
-        tets: npt.ArrayLike,
-        youngs_modulus: float,
-        poisson_ratio: float,
-        density: float,
-        basis: npt.ArrayLike,
-        cubature_elements: npt.ArrayLike,
-        cubature_weights: npt.ArrayLike,
-        surface_nodes: npt.ArrayLike,
-        surface_faces: npt.ArrayLike,
-    ) -> None: ...
+    """
+    Reduced-order soft body in the simulation space B_r (see softrom_gym.rom.ReducedModel for the
+    Python front end that builds the basis and cubature).
+    
+    q_r = (3 rigid translations, 3 linearised rotations, M deformation coordinates),
+    x = X + B_r q_r, B_r^T M B_r = I. Implicit Euler with Newton on the (M + 6)-dimensional system; elastic forces by cubature;
+    ground contact by staggered projection (default) or penalty; quadratic drag when
+    fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.
+    """
+    SOLVERS: typing.ClassVar[tuple] = ('reference', 'fast')
+    def __init__(self, nodes: typing.Any, tets: typing.Any, youngs_modulus: typing.SupportsFloat | typing.SupportsIndex, poisson_ratio: typing.SupportsFloat | typing.SupportsIndex, density: typing.SupportsFloat | typing.SupportsIndex, basis: typing.Any, cubature_elements: typing.Any, cubature_weights: typing.Any, surface_nodes: typing.Any, surface_faces: typing.Any) -> None:
+        ...
+    def com(self, q: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        Centre of mass (3,) of reduced coordinates q.
+        """
+    def elastic_energy(self, q_e: typing.Any) -> float:
+        ...
+    def elastic_forces(self, q_e: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        Reduced elastic force B_e^T f(X + B_e q_e) (M + 3,) by cubature, q_e = q[3:].
+        """
+    def elastic_stiffness(self, q_e: typing.Any, project: bool = False) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
+        ...
+    def positions(self, q: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        Node positions (N, 3) of reduced coordinates q.
+        """
+    def rest_state(self) -> ReducedState:
+        ...
+    def rollout(self, state: typing.Any, controls: typing.Any, threads: typing.Any = None, observe: typing.Any = None) -> dict:
+        """
+        B rollouts of H steps from one state (or a sequence of B states), controls (B, H, C).
+        
+        Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 6) and impulses
+        (B, 3 n_surface) of the final states, diverged (B,) and com (B, H, 3); with `observe`
+        (P x (M + 6)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
+        `threads` C++ threads with the GIL released; results do not depend on the thread count. A
+        diverged rollout keeps its last good state and earns zero reward from then on.
+        """
+    def step(self, state: ReducedState, f_c: typing.Any = None) -> tuple[ReducedState, dict]:
+        """
+        One implicit step; returns (new_state, info). A diverged step returns the input state and info['diverged'] = True; it never raises.
+        """
     @property
-    def dim(self) -> int: ...
+    def C(self) -> int:
+        """
+        control dimension
+        """
     @property
-    def M(self) -> int: ...
+    def M(self) -> int:
+        """
+        deformation coordinates
+        """
     @property
-    def C(self) -> int: ...
+    def config(self) -> ReducedConfig:
+        """
+        A copy of all settings (ReducedConfig); assign one to change several at once.
+        """
+    @config.setter
+    def config(self, arg1: ReducedConfig) -> None:
+        ...
     @property
-    def num_nodes(self) -> int: ...
+    def contact(self) -> typing.Any:
+        """
+        'staggered' (default: staggered projection, the accurate model), 'penalty' (a fast approximate spring ground) or 'none'
+        """
+    @contact.setter
+    def contact(self, arg1: typing.Any) -> None:
+        ...
     @property
-    def total_mass(self) -> float: ...
+    def contact_margin(self) -> typing.Any:
+        """
+        m: surface nodes predicted closer than this to the ground are contact candidates
+        """
+    @contact_margin.setter
+    def contact_margin(self, arg1: typing.Any) -> None:
+        ...
     @property
-    def surface_nodes(self) -> list[int]: ...
-    control_basis: npt.NDArray[np.float64]
-    dt: float
-    gravity: list[float]
-    contact: str
-    friction: float
-    ground_height: float
-    contact_margin: float
-    penalty_stiffness: float
-    fluid_density: float
-    drag_coefficient: float
-    damping_alpha: float
-    damping_beta: float
-    newton_tolerance: float
-    max_newton_iterations: int
-    contact_tolerance: float
-    max_stagger_iterations: int
-    max_speed: float
-    direction: list[float]
-    def rest_state(self) -> ReducedState: ...
-    def step(
-        self, state: ReducedState, f_c: npt.ArrayLike | None = None
-    ) -> tuple[ReducedState, dict[str, int | bool]]: ...
-    def rollout(
-        self,
-        state: ReducedState | Sequence[ReducedState],
-        controls: npt.ArrayLike,
-        threads: int | None = None,
-        observe: npt.ArrayLike | None = None,
-    ) -> dict[str, npt.NDArray[np.float64] | npt.NDArray[np.bool_]]: ...
-    def positions(self, q: npt.ArrayLike) -> npt.NDArray[np.float64]: ...
-    def com(self, q: npt.ArrayLike) -> npt.NDArray[np.float64]: ...
-    def elastic_energy(self, q_e: npt.ArrayLike) -> float: ...
-    def elastic_forces(self, q_e: npt.ArrayLike) -> npt.NDArray[np.float64]: ...
-    def elastic_stiffness(
-        self, q_e: npt.ArrayLike, project: bool = False
-    ) -> npt.NDArray[np.float64]: ...
-
-def reduced_element_forces(
-    fem: FEMModel, basis: npt.ArrayLike, poses: npt.ArrayLike
-) -> npt.NDArray[np.float64]: ...
+    def contact_tolerance(self) -> typing.Any:
+        """
+        staggered projection stops when contact-node velocities change less than this, m/s
+        """
+    @contact_tolerance.setter
+    def contact_tolerance(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def control_basis(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
+        """
+        B_c, (M, C), orthonormal: f_r = B_c f_c acts on the deformation coordinates.
+        """
+    @control_basis.setter
+    def control_basis(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def damping_alpha(self) -> typing.Any:
+        """
+        Rayleigh damping on all reduced coordinates, 1/s
+        """
+    @damping_alpha.setter
+    def damping_alpha(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def damping_beta(self) -> typing.Any:
+        """
+        Rayleigh damping times the rest stiffness K_0, s
+        """
+    @damping_beta.setter
+    def damping_beta(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def dim(self) -> int:
+        """
+        M + 6
+        """
+    @property
+    def direction(self) -> typing.Any:
+        """
+        unit task direction d; per-step reward d . v_com dt
+        """
+    @direction.setter
+    def direction(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def drag_coefficient(self) -> typing.Any:
+        """
+        C_d of the quadratic drag
+        """
+    @drag_coefficient.setter
+    def drag_coefficient(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def dt(self) -> typing.Any:
+        """
+        time step h, s
+        """
+    @dt.setter
+    def dt(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def fluid_density(self) -> typing.Any:
+        """
+        kg/m^3; > 0 turns quadratic surface drag on
+        """
+    @fluid_density.setter
+    def fluid_density(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def friction(self) -> typing.Any:
+        """
+        Coulomb coefficient mu
+        """
+    @friction.setter
+    def friction(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def gravity(self) -> typing.Any:
+        """
+        gravitational acceleration (3,), m/s^2
+        """
+    @gravity.setter
+    def gravity(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def ground_height(self) -> typing.Any:
+        """
+        height of the ground plane z = ground_height, m
+        """
+    @ground_height.setter
+    def ground_height(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def max_newton_iterations(self) -> typing.Any:
+        """
+        cap on implicit-solve iterations per step
+        """
+    @max_newton_iterations.setter
+    def max_newton_iterations(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def max_speed(self) -> typing.Any:
+        """
+        RMS node speed (m/s) above which a step counts as diverged
+        """
+    @max_speed.setter
+    def max_speed(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def max_stagger_iterations(self) -> typing.Any:
+        """
+        cap on staggered-projection iterations per step
+        """
+    @max_stagger_iterations.setter
+    def max_stagger_iterations(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def newton_tolerance(self) -> typing.Any:
+        """
+        the implicit solve stops when max |dv| / sqrt(m) < this, m/s
+        """
+    @newton_tolerance.setter
+    def newton_tolerance(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def num_cubature_elements(self) -> int:
+        ...
+    @property
+    def num_nodes(self) -> int:
+        ...
+    @property
+    def penalty_stiffness(self) -> typing.Any:
+        """
+        N/m per node for contact='penalty' (0: 0.25 m_i / dt^2)
+        """
+    @penalty_stiffness.setter
+    def penalty_stiffness(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def profile(self) -> typing.Any:
+        """
+        time the parts of each step: step() then reports time_dynamics, time_drag, time_normal, time_friction (s)
+        """
+    @profile.setter
+    def profile(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def solver(self) -> typing.Any:
+        """
+        'fast' (default: quasi-Newton from the rest stiffness with a line search) or 'reference' (exact Newton every iteration), kept to check the fast path against
+        """
+    @solver.setter
+    def solver(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def stabilization(self) -> typing.Any:
+        """
+        fraction of a ground penetration removed per step (Baumgarte)
+        """
+    @stabilization.setter
+    def stabilization(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def surface_nodes(self) -> list[int]:
+        ...
+    @property
+    def total_mass(self) -> float:
+        ...
+class ReducedConfig:
+    """
+    Every setting of a reduced model, in one object. `ReducedModel.config` returns a copy and
+    accepts one; each setting is also a property of the model itself. Values are validated when
+    set; `ReducedConfig.SETTINGS` lists the names.
+    """
+    SETTINGS: typing.ClassVar[tuple] = ('dt', 'gravity', 'contact', 'solver', 'friction', 'ground_height', 'contact_margin', 'penalty_stiffness', 'fluid_density', 'drag_coefficient', 'damping_alpha', 'damping_beta', 'newton_tolerance', 'max_newton_iterations', 'contact_tolerance', 'max_stagger_iterations', 'stabilization', 'direction', 'max_speed', 'profile')
+    @typing.overload
+    def __init__(self) -> None:
+        ...
+    @typing.overload
+    def __init__(self, **kwargs) -> None:
+        """
+        ReducedConfig(**settings): defaults, then the given settings (validated).
+        """
+    def __repr__(self) -> str:
+        ...
+    @property
+    def contact(self) -> typing.Any:
+        """
+        'staggered' (default: staggered projection, the accurate model), 'penalty' (a fast approximate spring ground) or 'none'
+        """
+    @contact.setter
+    def contact(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def contact_margin(self) -> typing.Any:
+        """
+        m: surface nodes predicted closer than this to the ground are contact candidates
+        """
+    @contact_margin.setter
+    def contact_margin(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def contact_tolerance(self) -> typing.Any:
+        """
+        staggered projection stops when contact-node velocities change less than this, m/s
+        """
+    @contact_tolerance.setter
+    def contact_tolerance(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def damping_alpha(self) -> typing.Any:
+        """
+        Rayleigh damping on all reduced coordinates, 1/s
+        """
+    @damping_alpha.setter
+    def damping_alpha(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def damping_beta(self) -> typing.Any:
+        """
+        Rayleigh damping times the rest stiffness K_0, s
+        """
+    @damping_beta.setter
+    def damping_beta(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def direction(self) -> typing.Any:
+        """
+        unit task direction d; per-step reward d . v_com dt
+        """
+    @direction.setter
+    def direction(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def drag_coefficient(self) -> typing.Any:
+        """
+        C_d of the quadratic drag
+        """
+    @drag_coefficient.setter
+    def drag_coefficient(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def dt(self) -> typing.Any:
+        """
+        time step h, s
+        """
+    @dt.setter
+    def dt(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def fluid_density(self) -> typing.Any:
+        """
+        kg/m^3; > 0 turns quadratic surface drag on
+        """
+    @fluid_density.setter
+    def fluid_density(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def friction(self) -> typing.Any:
+        """
+        Coulomb coefficient mu
+        """
+    @friction.setter
+    def friction(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def gravity(self) -> typing.Any:
+        """
+        gravitational acceleration (3,), m/s^2
+        """
+    @gravity.setter
+    def gravity(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def ground_height(self) -> typing.Any:
+        """
+        height of the ground plane z = ground_height, m
+        """
+    @ground_height.setter
+    def ground_height(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def max_newton_iterations(self) -> typing.Any:
+        """
+        cap on implicit-solve iterations per step
+        """
+    @max_newton_iterations.setter
+    def max_newton_iterations(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def max_speed(self) -> typing.Any:
+        """
+        RMS node speed (m/s) above which a step counts as diverged
+        """
+    @max_speed.setter
+    def max_speed(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def max_stagger_iterations(self) -> typing.Any:
+        """
+        cap on staggered-projection iterations per step
+        """
+    @max_stagger_iterations.setter
+    def max_stagger_iterations(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def newton_tolerance(self) -> typing.Any:
+        """
+        the implicit solve stops when max |dv| / sqrt(m) < this, m/s
+        """
+    @newton_tolerance.setter
+    def newton_tolerance(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def penalty_stiffness(self) -> typing.Any:
+        """
+        N/m per node for contact='penalty' (0: 0.25 m_i / dt^2)
+        """
+    @penalty_stiffness.setter
+    def penalty_stiffness(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def profile(self) -> typing.Any:
+        """
+        time the parts of each step: step() then reports time_dynamics, time_drag, time_normal, time_friction (s)
+        """
+    @profile.setter
+    def profile(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def solver(self) -> typing.Any:
+        """
+        'fast' (default: quasi-Newton from the rest stiffness with a line search) or 'reference' (exact Newton every iteration), kept to check the fast path against
+        """
+    @solver.setter
+    def solver(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def stabilization(self) -> typing.Any:
+        """
+        fraction of a ground penetration removed per step (Baumgarte)
+        """
+    @stabilization.setter
+    def stabilization(self, arg1: typing.Any) -> None:
+        ...
+def reduced_element_forces(fem: FEMModel, basis: typing.Any, poses: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
+    """
+    Per-element reduced elastic forces -V_e G_e^T vec P(F_e) (P, T, M) at poses (P, M) of the deformation basis (3N, M): the training data for cubature.
+    """

@@ -79,26 +79,8 @@ int available_cores() {
   return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
 }
 
-Solver parse_solver(const std::string& s) {
-  if (s == "fast") return Solver::Fast;
-  if (s == "reference") return Solver::Reference;
-  throw py::value_error("solver must be 'fast' or 'reference'; got '" + s + "'");
-}
 
-ContactModel parse_contact(const std::string& s) {
-  if (s == "staggered") return ContactModel::Staggered;
-  if (s == "penalty") return ContactModel::Penalty;
-  if (s == "none") return ContactModel::None;
-  throw py::value_error("contact must be one of 'staggered', 'penalty', 'none'; got '" + s + "'");
-}
 
-const char* contact_name(ContactModel c) {
-  switch (c) {
-    case ContactModel::Staggered: return "staggered";
-    case ContactModel::Penalty: return "penalty";
-    default: return "none";
-  }
-}
 
 void check_state(const ReducedModel& m, const ReducedState& s) {
   if (s.q.size() != m.dim() || s.qdot.size() != m.dim() ||
@@ -205,6 +187,8 @@ py::array_t<double> controls_in(const ReducedModel& m, py::handle obj, const cha
 
 }  // namespace
 
+void bind_config(py::module_& m, py::class_<ReducedModel>& model);
+
 void bind_reduced(py::module_& m) {
   py::class_<ReducedState>(m, "ReducedState", R"doc(
 State of a reduced model: q_r and qdot_r (M + 6,) and the contact impulses (3 per surface
@@ -238,14 +222,16 @@ node) that warm-start the next contact solve. Copies in, copies out; picklable.)
         return "ReducedState(dim=" + std::to_string(s.q.size()) + ")";
       });
 
-  py::class_<ReducedModel>(m, "ReducedModel", R"doc(
+  py::class_<ReducedModel> model_cls(m, "ReducedModel", R"doc(
 Reduced-order soft body in the simulation space B_r (see softrom_gym.rom.ReducedModel for the
 Python front end that builds the basis and cubature).
 
 q_r = (3 rigid translations, 3 linearised rotations, M deformation coordinates),
 x = X + B_r q_r, B_r^T M B_r = I. Implicit Euler with Newton on the (M + 6)-dimensional system; elastic forces by cubature;
 ground contact by staggered projection (default) or penalty; quadratic drag when
-fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc")
+fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc");
+  bind_config(m, model_cls);
+  model_cls
       .def(py::init(&make_reduced), py::arg("nodes"), py::arg("tets"), py::arg("youngs_modulus"),
            py::arg("poisson_ratio"), py::arg("density"), py::arg("basis"),
            py::arg("cubature_elements"), py::arg("cubature_weights"), py::arg("surface_nodes"),
@@ -277,108 +263,6 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
             r.set_control_basis(b);
           },
           "B_c, (M, C), orthonormal: f_r = B_c f_c acts on the deformation coordinates.")
-      .def_property(
-          "dt", [](const ReducedModel& r) { return r.config.dt; },
-          [](ReducedModel& r, double x) { r.config.dt = v::positive(x, "dt"); }, "time step, s")
-      .def_property(
-          "gravity",
-          [](const ReducedModel& r) {
-            return std::vector<double>{r.config.gravity.x(), r.config.gravity.y(), r.config.gravity.z()};
-          },
-          [](ReducedModel& r, py::handle g) {
-            r.config.gravity = vector_in(g, "gravity", 3);
-          },
-          "gravitational acceleration (3,), m/s^2")
-      .def_property(
-          "contact", [](const ReducedModel& r) { return std::string(contact_name(r.config.contact)); },
-          [](ReducedModel& r, const std::string& s) { r.config.contact = parse_contact(s); },
-          "'staggered' (default), 'penalty' or 'none'")
-      .def_property(
-          "solver",
-          [](const ReducedModel& r) {
-            return std::string(r.config.solver == Solver::Fast ? "fast" : "reference");
-          },
-          [](ReducedModel& r, const std::string& s) { r.config.solver = parse_solver(s); },
-          "'fast' (default: quasi-Newton from the rest stiffness, line search) or 'reference' "
-          "(exact Newton every iteration), kept to check the fast path against")
-      .def_property(
-          "stabilization", [](const ReducedModel& r) { return r.config.stabilization; },
-          [](ReducedModel& r, double x) {
-            if (!(x > 0.0 && x <= 1.0))
-              throw py::value_error("stabilization must lie in (0, 1], got " + std::to_string(x));
-            r.config.stabilization = x;
-          },
-          "fraction of a ground penetration removed per step (Baumgarte)")
-      .def_property(
-          "profile", [](const ReducedModel& r) { return r.config.profile; },
-          [](ReducedModel& r, bool on) { r.config.profile = on; },
-          "time the parts of each step: step() then reports time_dynamics, time_drag, "
-          "time_normal, time_friction (s)")
-      .def_property(
-          "friction", [](const ReducedModel& r) { return r.config.friction; },
-          [](ReducedModel& r, double x) { r.config.friction = v::non_negative(x, "friction"); },
-          "Coulomb coefficient mu")
-      .def_property(
-          "ground_height", [](const ReducedModel& r) { return r.config.ground_height; },
-          [](ReducedModel& r, double x) {
-            if (!std::isfinite(x)) throw py::value_error("ground_height must be finite");
-            r.config.ground_height = x;
-          })
-      .def_property(
-          "contact_margin", [](const ReducedModel& r) { return r.config.contact_margin; },
-          [](ReducedModel& r, double x) { r.config.contact_margin = v::non_negative(x, "contact_margin"); })
-      .def_property(
-          "penalty_stiffness", [](const ReducedModel& r) { return r.config.penalty_stiffness; },
-          [](ReducedModel& r, double x) { r.config.penalty_stiffness = v::non_negative(x, "penalty_stiffness"); },
-          "N/m per node for contact='penalty' (0: 0.25 m_i / dt^2)")
-      .def_property(
-          "fluid_density", [](const ReducedModel& r) { return r.config.fluid_density; },
-          [](ReducedModel& r, double x) { r.config.fluid_density = v::non_negative(x, "fluid_density"); },
-          "kg/m^3; > 0 turns quadratic surface drag on")
-      .def_property(
-          "drag_coefficient", [](const ReducedModel& r) { return r.config.drag_coefficient; },
-          [](ReducedModel& r, double x) { r.config.drag_coefficient = v::non_negative(x, "drag_coefficient"); })
-      .def_property(
-          "damping_alpha", [](const ReducedModel& r) { return r.config.damping_alpha; },
-          [](ReducedModel& r, double x) { r.config.damping_alpha = v::non_negative(x, "damping_alpha"); })
-      .def_property(
-          "damping_beta", [](const ReducedModel& r) { return r.config.damping_beta; },
-          [](ReducedModel& r, double x) { r.config.damping_beta = v::non_negative(x, "damping_beta"); })
-      .def_property(
-          "newton_tolerance", [](const ReducedModel& r) { return r.config.newton_tolerance; },
-          [](ReducedModel& r, double x) { r.config.newton_tolerance = v::positive(x, "newton_tolerance"); })
-      .def_property(
-          "max_newton_iterations", [](const ReducedModel& r) { return r.config.max_newton_iterations; },
-          [](ReducedModel& r, int n) {
-            if (n < 1) throw py::value_error("max_newton_iterations must be >= 1, got " + std::to_string(n));
-            r.config.max_newton_iterations = n;
-          })
-      .def_property(
-          "contact_tolerance", [](const ReducedModel& r) { return r.config.contact_tolerance; },
-          [](ReducedModel& r, double x) { r.config.contact_tolerance = v::positive(x, "contact_tolerance"); },
-          "staggered projection stops when contact-node velocities change less than this, m/s")
-      .def_property(
-          "max_stagger_iterations", [](const ReducedModel& r) { return r.config.max_stagger_iterations; },
-          [](ReducedModel& r, int n) {
-            if (n < 1) throw py::value_error("max_stagger_iterations must be >= 1, got " + std::to_string(n));
-            r.config.max_stagger_iterations = n;
-          })
-      .def_property(
-          "max_speed", [](const ReducedModel& r) { return r.config.max_speed; },
-          [](ReducedModel& r, double x) { r.config.max_speed = v::positive(x, "max_speed"); },
-          "RMS node speed (m/s) above which a step counts as diverged")
-      .def_property(
-          "direction",
-          [](const ReducedModel& r) {
-            return std::vector<double>{r.config.direction.x(), r.config.direction.y(), r.config.direction.z()};
-          },
-          [](ReducedModel& r, py::handle d) {
-            VecX dv = vector_in(d, "direction", 3);
-            const double n = dv.norm();
-            if (!(n > 0)) throw py::value_error("direction must be a non-zero vector");
-            r.config.direction = dv / n;
-          },
-          "unit task direction d; per-step reward d . v_com dt")
       .def("rest_state", &ReducedModel::rest_state)
       .def(
           "step",

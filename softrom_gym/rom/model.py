@@ -15,28 +15,8 @@ from .subspace import Subspace, build_subspace
 
 __all__ = ["build_reduced_model"]
 
-_SETTINGS = {
-    "dt",
-    "gravity",
-    "contact",
-    "friction",
-    "ground_height",
-    "contact_margin",
-    "penalty_stiffness",
-    "fluid_density",
-    "drag_coefficient",
-    "damping_alpha",
-    "damping_beta",
-    "newton_tolerance",
-    "max_newton_iterations",
-    "contact_tolerance",
-    "max_stagger_iterations",
-    "max_speed",
-    "direction",
-    "solver",
-    "stabilization",
-    "profile",
-}
+# The settings' names live in one place, the C++ binding's table.
+_SETTINGS = frozenset(cpp_sim.ReducedConfig.SETTINGS)
 
 
 def build_reduced_model(

@@ -1,0 +1,219 @@
+// The reduced model's settings, bound once: each entry of the table below becomes a validated
+// property of `ReducedConfig` and the same-named property of `ReducedModel` (which reads and
+// writes the model's own config), and its name is listed in `ReducedConfig.SETTINGS`, which
+// the Python front end uses to accept settings. Adding a setting is one entry here plus the
+// field in `ReducedConfig` (reduced_model.h).
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <cmath>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "reduced_model.h"
+#include "validate.h"
+
+namespace py = pybind11;
+using namespace softrom;
+namespace v = softrom::validate;
+
+namespace {
+
+// A setting: how to read it from a config, how to write a Python value into one (validating),
+// and its documentation.
+struct Setting {
+  const char* name;
+  py::object (*get)(const ReducedConfig&);
+  void (*set)(ReducedConfig&, py::handle);
+  const char* doc;
+};
+
+double real(py::handle x, const char* name) {
+  try {
+    return x.cast<double>();
+  } catch (const py::cast_error&) {
+    throw py::type_error(std::string(name) + " must be a real number, got " +
+                         std::string(py::repr(x)));
+  }
+}
+
+int integer_at_least(py::handle x, const char* name, int low) {
+  if (!py::isinstance<py::int_>(x) || py::isinstance<py::bool_>(x))
+    throw py::type_error(std::string(name) + " must be an integer, got " +
+                         std::string(py::repr(x)));
+  const int n = x.cast<int>();
+  if (n < low)
+    throw py::value_error(std::string(name) + " must be >= " + std::to_string(low) + ", got " +
+                          std::to_string(n));
+  return n;
+}
+
+Vec3 vec3(py::handle x, const char* name) {
+  py::array a = v::as_array(x, name);
+  if (a.ndim() != 1 || a.shape(0) != 3)
+    throw py::value_error(std::string(name) + " has shape " + v::shape_str(a) +
+                          ", expected (3,)");
+  const VecX vv = v::real_matrix(a.reshape({py::ssize_t{3}, py::ssize_t{1}}), name, 3, 1);
+  return Vec3(vv[0], vv[1], vv[2]);
+}
+
+py::object vec3_out(const Vec3& x) { return py::cast(std::vector<double>{x.x(), x.y(), x.z()}); }
+
+const char* contact_name(ContactModel c) {
+  switch (c) {
+    case ContactModel::Staggered: return "staggered";
+    case ContactModel::Penalty: return "penalty";
+    default: return "none";
+  }
+}
+
+#define SOFTROM_POSITIVE(field, doc)                                                      \
+  Setting {                                                                               \
+    #field, [](const ReducedConfig& c) -> py::object { return py::float_(c.field); },     \
+        [](ReducedConfig& c, py::handle x) { c.field = v::positive(real(x, #field), #field); }, \
+        doc                                                                               \
+  }
+#define SOFTROM_NON_NEGATIVE(field, doc)                                                  \
+  Setting {                                                                               \
+    #field, [](const ReducedConfig& c) -> py::object { return py::float_(c.field); },     \
+        [](ReducedConfig& c, py::handle x) {                                              \
+          c.field = v::non_negative(real(x, #field), #field);                             \
+        },                                                                                \
+        doc                                                                               \
+  }
+#define SOFTROM_COUNT(field, doc)                                                         \
+  Setting {                                                                               \
+    #field, [](const ReducedConfig& c) -> py::object { return py::int_(c.field); },       \
+        [](ReducedConfig& c, py::handle x) { c.field = integer_at_least(x, #field, 1); }, \
+        doc                                                                               \
+  }
+
+const std::vector<Setting>& settings() {
+  static const std::vector<Setting> table = {
+      SOFTROM_POSITIVE(dt, "time step h, s"),
+      {"gravity", [](const ReducedConfig& c) { return vec3_out(c.gravity); },
+       [](ReducedConfig& c, py::handle x) { c.gravity = vec3(x, "gravity"); },
+       "gravitational acceleration (3,), m/s^2"},
+      {"contact", [](const ReducedConfig& c) -> py::object { return py::str(contact_name(c.contact)); },
+       [](ReducedConfig& c, py::handle x) {
+         const std::string s = py::str(x);
+         if (s == "staggered") c.contact = ContactModel::Staggered;
+         else if (s == "penalty") c.contact = ContactModel::Penalty;
+         else if (s == "none") c.contact = ContactModel::None;
+         else throw py::value_error("contact must be one of 'staggered', 'penalty', 'none'; got '" + s + "'");
+       },
+       "'staggered' (default: staggered projection, the accurate model), 'penalty' (a fast "
+       "approximate spring ground) or 'none'"},
+      {"solver", [](const ReducedConfig& c) -> py::object {
+         return py::str(c.solver == Solver::Fast ? "fast" : "reference");
+       },
+       [](ReducedConfig& c, py::handle x) {
+         const std::string s = py::str(x);
+         if (s == "fast") c.solver = Solver::Fast;
+         else if (s == "reference") c.solver = Solver::Reference;
+         else throw py::value_error("solver must be 'fast' or 'reference'; got '" + s + "'");
+       },
+       "'fast' (default: quasi-Newton from the rest stiffness with a line search) or "
+       "'reference' (exact Newton every iteration), kept to check the fast path against"},
+      SOFTROM_NON_NEGATIVE(friction, "Coulomb coefficient mu"),
+      {"ground_height", [](const ReducedConfig& c) -> py::object { return py::float_(c.ground_height); },
+       [](ReducedConfig& c, py::handle x) {
+         const double z = real(x, "ground_height");
+         if (!std::isfinite(z)) throw py::value_error("ground_height must be finite");
+         c.ground_height = z;
+       },
+       "height of the ground plane z = ground_height, m"},
+      SOFTROM_NON_NEGATIVE(contact_margin,
+                           "m: surface nodes predicted closer than this to the ground are "
+                           "contact candidates"),
+      SOFTROM_NON_NEGATIVE(penalty_stiffness,
+                           "N/m per node for contact='penalty' (0: 0.25 m_i / dt^2)"),
+      SOFTROM_NON_NEGATIVE(fluid_density, "kg/m^3; > 0 turns quadratic surface drag on"),
+      SOFTROM_NON_NEGATIVE(drag_coefficient, "C_d of the quadratic drag"),
+      SOFTROM_NON_NEGATIVE(damping_alpha, "Rayleigh damping on all reduced coordinates, 1/s"),
+      SOFTROM_NON_NEGATIVE(damping_beta, "Rayleigh damping times the rest stiffness K_0, s"),
+      SOFTROM_POSITIVE(newton_tolerance,
+                       "the implicit solve stops when max |dv| / sqrt(m) < this, m/s"),
+      SOFTROM_COUNT(max_newton_iterations, "cap on implicit-solve iterations per step"),
+      SOFTROM_POSITIVE(contact_tolerance,
+                       "staggered projection stops when contact-node velocities change less "
+                       "than this, m/s"),
+      SOFTROM_COUNT(max_stagger_iterations, "cap on staggered-projection iterations per step"),
+      {"stabilization", [](const ReducedConfig& c) -> py::object { return py::float_(c.stabilization); },
+       [](ReducedConfig& c, py::handle x) {
+         const double b = real(x, "stabilization");
+         if (!(b > 0.0 && b <= 1.0)) {
+           std::ostringstream msg;
+           msg << "stabilization must lie in (0, 1], got " << b;
+           throw py::value_error(msg.str());
+         }
+         c.stabilization = b;
+       },
+       "fraction of a ground penetration removed per step (Baumgarte)"},
+      {"direction", [](const ReducedConfig& c) { return vec3_out(c.direction); },
+       [](ReducedConfig& c, py::handle x) {
+         const Vec3 d = vec3(x, "direction");
+         if (!(d.norm() > 0)) throw py::value_error("direction must be a non-zero vector");
+         c.direction = d / d.norm();
+       },
+       "unit task direction d; per-step reward d . v_com dt"},
+      SOFTROM_POSITIVE(max_speed, "RMS node speed (m/s) above which a step counts as diverged"),
+      {"profile", [](const ReducedConfig& c) -> py::object { return py::bool_(c.profile); },
+       [](ReducedConfig& c, py::handle x) { c.profile = x.cast<bool>(); },
+       "time the parts of each step: step() then reports time_dynamics, time_drag, "
+       "time_normal, time_friction (s)"},
+  };
+  return table;
+}
+
+}  // namespace
+
+void bind_config(py::module_& m, py::class_<ReducedModel>& model) {
+  py::class_<ReducedConfig> cfg(m, "ReducedConfig", R"doc(
+Every setting of a reduced model, in one object. `ReducedModel.config` returns a copy and
+accepts one; each setting is also a property of the model itself. Values are validated when
+set; `ReducedConfig.SETTINGS` lists the names.)doc");
+  cfg.def(py::init<>());
+  cfg.def(py::init([](py::kwargs kwargs) {
+            ReducedConfig c;
+            for (auto item : kwargs) {
+              const std::string key = py::str(item.first);
+              bool found = false;
+              for (const Setting& s : settings())
+                if (key == s.name) {
+                  s.set(c, item.second);
+                  found = true;
+                }
+              if (!found) throw py::type_error("unknown setting '" + key + "'");
+            }
+            return c;
+          }),
+          "ReducedConfig(**settings): defaults, then the given settings (validated).");
+  py::list names;
+  for (const Setting& s : settings()) {
+    names.append(s.name);
+    const Setting* p = &s;
+    cfg.def_property(
+        s.name, [p](const ReducedConfig& c) { return p->get(c); },
+        [p](ReducedConfig& c, py::handle x) { p->set(c, x); }, s.doc);
+    model.def_property(
+        s.name, [p](const ReducedModel& r) { return p->get(r.config); },
+        [p](ReducedModel& r, py::handle x) { p->set(r.config, x); }, s.doc);
+  }
+  cfg.attr("SETTINGS") = py::tuple(names);
+  cfg.def("__repr__", [](const ReducedConfig& c) {
+    std::string out = "ReducedConfig(";
+    bool first = true;
+    for (const Setting& s : settings()) {
+      if (!first) out += ", ";
+      first = false;
+      out += std::string(s.name) + "=" + std::string(py::repr(s.get(c)));
+    }
+    return out + ")";
+  });
+  model.def_property(
+      "config", [](const ReducedModel& r) { return r.config; },
+      [](ReducedModel& r, const ReducedConfig& c) { r.config = c; },
+      "A copy of all settings (ReducedConfig); assign one to change several at once.");
+}
