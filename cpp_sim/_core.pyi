@@ -370,7 +370,7 @@ class ReducedModel:
     @property
     def penalty_stiffness(self) -> typing.Any:
         """
-        N/m per node for contact='penalty' (0: 0.25 m_i / dt^2)
+        N/m per node for contact='penalty' (0: sized so that the body's weight on its resting nodes sinks them 1 mm)
         """
     @penalty_stiffness.setter
     def penalty_stiffness(self, arg1: typing.Any) -> None:
@@ -553,7 +553,7 @@ class ReducedConfig:
     @property
     def penalty_stiffness(self) -> typing.Any:
         """
-        N/m per node for contact='penalty' (0: 0.25 m_i / dt^2)
+        N/m per node for contact='penalty' (0: sized so that the body's weight on its resting nodes sinks them 1 mm)
         """
     @penalty_stiffness.setter
     def penalty_stiffness(self, arg1: typing.Any) -> None:

@@ -222,3 +222,17 @@ def test_actuation_conserves_angular_momentum_in_free_flight(beam_robot):
         scale = np.sum(mass * np.linalg.norm(r, axis=1) * np.linalg.norm(v, axis=1))
         worst = max(worst, np.linalg.norm(momentum) / scale)
     assert worst < 1e-3
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_penalty_ground_carries_the_weight_and_converges(box, solver):
+    # The default penalty stiffness is sized so the weight on the resting nodes sinks them by
+    # 1 mm; Newton with the residual line search converges on every step.
+    model = build_reduced_model(box, contact="penalty", solver=solver)
+    state = model.rest_state()
+    for _ in range(200):
+        state, info = model.step(state)
+        assert info["converged"]
+    z = model.positions(state.q)[model.surface_nodes, 2] - model.ground_height
+    assert -3e-3 < z.min() < 0.0
+    np.testing.assert_allclose(state.qdot[:3], 0.0, atol=1e-3 * np.sqrt(model.total_mass))

@@ -104,6 +104,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   };
   contact_velocities(vc_prev);
   MatX hess(m, m), wjt(2 * k, m);
+  std::vector<int> loaded;
+  loaded.reserve(k);
   int stagger = 0;
   bool converged = false;
   for (; stagger < cfg.max_stagger_iterations; ++stagger) {
@@ -122,23 +124,31 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       // converges linearly at a rate near 0.95 per stagger; solving this half to convergence
       // by Newton's method, or Anderson-accelerating the stagger map, made it oscillate
       // instead: the slow part is the normal-friction coupling through the active sets.)
-      const VecX vt = jt * v;
-      int loaded = 0;
-      for (int i = 0; i < k; ++i) {
-        const double s = std::sqrt(vt.segment<2>(2 * i).squaredNorm() + eps * eps);
-        weight[i] = mu * lam_n[i] / s;
-        if (weight[i] > 0.0) {
+      // Only loaded nodes (lambda_n > 0) carry friction: the others have zero weight.
+      loaded.clear();
+      for (int i = 0; i < k; ++i)
+        if (lam_n[i] > 0.0 && mu > 0.0) loaded.push_back(i);
+      const int nl = static_cast<int>(loaded.size());
+      lam_t.setZero();
+      if (nl == 0) {
+        v = v_second;
+      } else {
+        for (int l = 0; l < nl; ++l) {
+          const int i = loaded[l];
+          const Eigen::Vector2d ut = jt.middleRows(2 * i, 2) * v;
+          const double w = mu * lam_n[i] / std::sqrt(ut.squaredNorm() + eps * eps);
+          weight[l] = w;
           // sqrt(w_i) J_t,i stacked, so the reweighted Hessian is one rank update.
-          wjt.middleRows(2 * loaded, 2) = std::sqrt(weight[i]) * jt.middleRows(2 * i, 2);
-          ++loaded;
+          wjt.middleRows(2 * l, 2) = std::sqrt(w) * jt.middleRows(2 * i, 2);
+        }
+        hess = a;
+        hess.selfadjointView<Eigen::Lower>().rankUpdate(wjt.topRows(2 * nl).transpose());
+        v = hess.selfadjointView<Eigen::Lower>().llt().solve(a * v_second);
+        for (int l = 0; l < nl; ++l) {
+          const int i = loaded[l];
+          lam_t.segment<2>(2 * i) = -weight[l] * (jt.middleRows(2 * i, 2) * v);
         }
       }
-      hess = a;
-      if (loaded > 0)
-        hess.selfadjointView<Eigen::Lower>().rankUpdate(wjt.topRows(2 * loaded).transpose());
-      v = hess.selfadjointView<Eigen::Lower>().llt().solve(a * v_second);
-      for (int i = 0; i < k; ++i)
-        lam_t.segment<2>(2 * i) = -weight[i] * (jt.middleRows(2 * i, 2) * v);
     }
     timer.stop();
     contact_velocities(vc);
@@ -177,11 +187,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 }
 
 // Penalty ground: a spring on penetration with damping and regularised Coulomb friction,
-// evaluated at the Newton iterate (implicit in position). The default stiffness is
-// 0.25 m_i / dt^2 per node, the stiffest spring implicit Euler keeps well conditioned at this
-// step; it lets a resting body sink by about 4 g dt^2 N / n_bottom (millimetres at dt = 1/200
-// for the benchmark robots, more for a coarse bottom). It is the fast approximate option;
-// staggered projection is the accurate one.
+// evaluated at the Newton iterate (implicit in position). The default stiffness is sized from
+// the weight it must carry: the body's weight shared by the surface nodes that touch the
+// ground at rest sinks them by kPenaltySink (1 mm). (The earlier 0.25 m_i / dt^2 let the
+// quadruped's feet sink 6 cm.) It is the fast approximate option; staggered projection is the
+// accurate one.
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
                                     VecX& f, MatX& jac) const {
   const Eigen::Index m = basis_cols_;
@@ -194,7 +204,10 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
     const double z = xs[3 * c + 2] - cfg.ground_height;
     if (z >= 0.0) continue;
     const double mass = node_mass_surface_[c];
-    const double k = cfg.penalty_stiffness > 0 ? cfg.penalty_stiffness : mass * 0.25 / (h * h);
+    const double k = cfg.penalty_stiffness > 0
+                         ? cfg.penalty_stiffness
+                         : total_mass_ * std::abs(cfg.gravity.z()) / (rest_contacts_ * kPenaltySink) +
+                               mass * 0.25 / (h * h);
     const double damp = 2.0 * std::sqrt(k * mass);
     const double vz = vs[3 * c + 2];
     const double fn = std::max(0.0, -k * z - damp * vz);

@@ -39,8 +39,10 @@ StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double*
   return step_reference(in, s, fc, ws);
 }
 
-// Newton's method on the residual, the stiffness rebuilt at every iteration; no line search
-// (the reference kept as it was, only reporting whether it converged).
+// Newton's method on the residual, the stiffness rebuilt at every iteration (the reference
+// kept as it was, now reporting whether it converged). Penalty contact, whose regularised
+// friction switches sign over a few mm/s, gets a backtracking line search on |r|: without it
+// Newton cycled, and 70-100% of walking steps ended at the iteration cap.
 StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, const double* fc,
                                       Workspace& ws) const {
   const ReducedConfig& cfg = in.config;
@@ -69,6 +71,27 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
   r.resize(m);
   Eigen::LDLT<MatX> ldlt(m);
   info.converged = false;
+  const bool penalty = cfg.contact == ContactModel::Penalty;
+  // |r(w)| for the penalty line search (forces only, no stiffness).
+  VecX r_trial(m), f_trial(md), v_trial(m);
+  auto residual_norm = [&](const VecX& w) {
+    const VecX qe = s.q.tail(md) + h * w.tail(md);
+    if (fast_kernels) {
+      elastic_energy_force(qe, f_trial, ws);
+    } else {
+      elastic_reference(qe, false, nullptr, &f_trial, nullptr);
+    }
+    r_trial = w - s.qdot - h * f_ext;
+    r_trial.tail(md) -= h * f_trial;
+    if (cfg.damping_alpha > 0.0) r_trial += h * cfg.damping_alpha * w;
+    if (cfg.damping_beta > 0.0) r_trial.tail(md) += (h * cfg.damping_beta) * (k_rest_ * w.tail(md));
+    if (swim) r_trial -= h * (ws.f_drag + ws.j_drag * (w - s.qdot));
+    MatX unused;
+    VecX f_pen;
+    penalty_contacts(cfg, s.q + h * w, w, f_pen, unused);
+    r_trial -= h * f_pen;
+    return r_trial.norm();
+  };
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
     const VecX qe = s.q.tail(md) + h * v.tail(md);
     // The exact reduced Hessian: I dominates A = I + dt^2 K_r + ..., so A stays positive
@@ -119,7 +142,16 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
       return info;
     }
     const double step_norm = dv.cwiseAbs().maxCoeff() / sqrt_m;
-    v += dv;
+    double t = 1.0;
+    if (penalty && step_norm >= cfg.newton_tolerance) {
+      const double r0 = r.norm();
+      for (int ls = 0; ls < 8; ++ls) {
+        v_trial = v + t * dv;
+        if (residual_norm(v_trial) <= (1.0 - 1e-4 * t) * r0) break;
+        t *= 0.5;
+      }
+    }
+    v += t * dv;
     if (step_norm < cfg.newton_tolerance) {
       info.converged = true;
       break;

@@ -1,6 +1,7 @@
 // ReducedModel: construction (cubature gradients, surface rows) and kinematics.
 #include "reduced_model.h"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -64,6 +65,12 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
                                        surface_rows_.middleRows(3 * f[1], 3) +
                                        surface_rows_.middleRows(3 * f[2], 3)) /
                                       3.0;
+  }
+  if (ns > 0) {
+    const double z_min = surface_rest_(Eigen::seqN(2, ns, 3)).minCoeff();
+    int on_ground = 0;
+    for (int c = 0; c < ns; ++c) on_ground += surface_rest_[3 * c + 2] <= z_min + 1e-6;
+    rest_contacts_ = std::max(1, on_ground);
   }
   control_basis_ = MatX::Zero(deformation_dim(), 0);
   k_rest_ = elastic_stiffness(VecX::Zero(md), false);
