@@ -4,6 +4,8 @@
 #pragma once
 
 #include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
 #include <vector>
 
 namespace softrom {
@@ -124,6 +126,124 @@ inline NnlsResult nnls(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
   return res;
 }
 
+// Lawson-Hanson with the passive set's Gram matrix G_p^T G_p = R^T R kept as an upper
+// Cholesky factor that grows by one column per added variable (a triangular solve, O(p^2 + rows
+// p)) and is refactorised only when variables leave the set. A column that is (numerically) a
+// combination of the passive ones is not added: Lawson-Hanson never needs it, and its Gram
+// matrix would be singular. Same iterates as the QR variant, a fraction of the work.
+inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
+                                const Eigen::VectorXd* guess, int max_iterations) {
+  const Eigen::Index n = g.cols(), rows = g.rows();
+  if (max_iterations <= 0) max_iterations = static_cast<int>(3 * n + 10);
+  NnlsResult res;
+  Eigen::VectorXd& u = res.u;
+  u = Eigen::VectorXd::Zero(n);
+  const double tol = 1e-12 * std::max(1.0, g.cwiseAbs().maxCoeff() * d.cwiseAbs().maxCoeff());
+  const Eigen::VectorXd gtd = g.transpose() * d;
+  std::vector<Eigen::Index> set;   // passive variables, in the order of R's columns
+  std::vector<char> passive(n, 0), blocked(n, 0);
+  Eigen::MatrixXd r(rows, rows);   // upper triangular, p x p in use (p <= rows)
+  Eigen::VectorXd z(n), col(rows), rhs(rows);
+  auto add = [&](Eigen::Index t) -> bool {
+    const Eigen::Index p = static_cast<Eigen::Index>(set.size());
+    if (p >= rows) return false;
+    for (Eigen::Index c = 0; c < p; ++c) col[c] = g.col(set[c]).dot(g.col(t));
+    auto rp = r.topLeftCorner(p, p).triangularView<Eigen::Upper>();
+    if (p > 0) rp.transpose().solveInPlace(col.head(p));
+    const double gg = g.col(t).squaredNorm();
+    const double rho2 = gg - col.head(p).squaredNorm();
+    if (!(rho2 > 1e-12 * gg)) return false;  // dependent on the passive columns
+    r.col(p).head(p) = col.head(p);
+    r(p, p) = std::sqrt(rho2);
+    r.row(p).head(p).setZero();
+    set.push_back(t);
+    passive[t] = 1;
+    return true;
+  };
+  auto rebuild = [&]() {
+    std::vector<Eigen::Index> keep;
+    for (Eigen::Index j : set)
+      if (passive[j]) keep.push_back(j);
+    set.clear();
+    for (Eigen::Index j : keep) {
+      passive[j] = 0;
+      if (!add(j)) blocked[j] = 1;
+    }
+  };
+  auto solve = [&]() {  // z on the passive set, 0 elsewhere
+    const Eigen::Index p = static_cast<Eigen::Index>(set.size());
+    for (Eigen::Index c = 0; c < p; ++c) rhs[c] = gtd[set[c]];
+    auto rp = r.topLeftCorner(p, p).triangularView<Eigen::Upper>();
+    rp.transpose().solveInPlace(rhs.head(p));
+    rp.solveInPlace(rhs.head(p));
+    z.setZero();
+    for (Eigen::Index c = 0; c < p; ++c) z[set[c]] = rhs[c];
+  };
+  if (guess != nullptr && guess->size() == n) {
+    for (Eigen::Index j = 0; j < n; ++j)
+      if ((*guess)[j] > 0.0) add(j);
+    for (int it = 0; it < static_cast<int>(n) + 1 && !set.empty(); ++it) {
+      solve();
+      bool pruned = false;
+      for (Eigen::Index j : set)
+        if (z[j] <= 0.0) {
+          passive[j] = 0;
+          pruned = true;
+        }
+      if (!pruned) {
+        u = z;
+        break;
+      }
+      rebuild();
+    }
+  }
+  Eigen::VectorXd w = g.transpose() * (d - g * u);
+  int outer = 0;
+  for (; outer < max_iterations; ++outer) {
+    Eigen::Index t = -1;
+    double best = tol;
+    for (Eigen::Index j = 0; j < n; ++j)
+      if (!passive[j] && !blocked[j] && w[j] > best) {
+        best = w[j];
+        t = j;
+      }
+    if (t < 0) break;
+    if (!add(t)) {
+      blocked[t] = 1;  // cannot improve the fit beyond the passive columns
+      continue;
+    }
+    int inner = 0;
+    for (; inner < max_iterations; ++inner) {
+      solve();
+      bool all_positive = true;
+      for (Eigen::Index j : set)
+        if (z[j] <= 0.0) all_positive = false;
+      if (all_positive) {
+        u = z;
+        break;
+      }
+      double alpha = 1.0;
+      for (Eigen::Index j : set)
+        if (z[j] <= 0.0) alpha = std::min(alpha, u[j] / (u[j] - z[j]));
+      u += alpha * (z - u);
+      bool dropped = false;
+      for (Eigen::Index j : set)
+        if (u[j] <= 1e-14 * (1.0 + u.cwiseAbs().maxCoeff())) {
+          u[j] = 0.0;
+          passive[j] = 0;
+          dropped = true;
+        }
+      if (dropped) rebuild();
+    }
+    if (inner == max_iterations) res.converged = false;
+    // A dropped variable may be useful again once the set has changed.
+    std::fill(blocked.begin(), blocked.end(), 0);
+    w.noalias() = g.transpose() * (d - g * u);
+  }
+  if (outer == max_iterations) res.converged = false;
+  return res;
+}
+
 // Least-distance programme: min |x| subject to E x >= f, solved as the NNLS of
 // [E^T; f^T] u ~ e_{m+1}. The caller passes g = [E^T; f^T] ((m + 1) x k) so that a constant E
 // is copied once. Returns false if infeasible. On success x = E^T lambda with multipliers
@@ -134,7 +254,9 @@ inline bool least_distance(const Eigen::MatrixXd& g, Eigen::VectorXd& x, Eigen::
   const Eigen::Index m = g.rows() - 1, k = g.cols();
   Eigen::VectorXd d = Eigen::VectorXd::Zero(m + 1);
   d[m] = 1.0;
-  const NnlsResult res = nnls(g, d, lambda.size() == k ? &lambda : nullptr, 0, how);
+  const Eigen::VectorXd* guess = lambda.size() == k ? &lambda : nullptr;
+  const NnlsResult res =
+      how == NnlsSolve::Gram ? nnls_cholesky(g, d, guess, 0) : nnls(g, d, guess, 0, how);
   converged = converged && res.converged;
   const Eigen::VectorXd r = g * res.u - d;
   if (!(r[m] < -1e-14)) return false;
