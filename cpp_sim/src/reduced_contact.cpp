@@ -94,6 +94,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       lam_n.setZero();
       nnls_ok = false;
     }
+    // The LDP's answer must be feasible: every candidate ends on or above its bound.
+    if (nnls_ok) {
+      const double worst = (b - jn * v).maxCoeff();
+      if (worst > tol) nnls_ok = false;
+    }
     if (!nnls_ok) info.contact_converged = false;
   };
 
