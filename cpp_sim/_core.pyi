@@ -1,10 +1,12 @@
 from collections.abc import Sequence
+from typing import Literal, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
 import scipy.sparse
 
 _Positions = npt.ArrayLike  # (N, 3) real array
+_FEMSolver: TypeAlias = Literal["supernodal_llt", "simplicial_llt", "simplicial_ldlt", "reference"]
 
 class FEMModel:
     def __init__(
@@ -41,6 +43,7 @@ class FEMModel:
     damping_beta: float
     newton_tolerance: float
     max_newton_iterations: int
+    solver: _FEMSolver
     @property
     def last_step_stats(self) -> dict[str, int | float | bool]: ...
     def energy(self, x: _Positions) -> float: ...
