@@ -273,8 +273,10 @@ void FEMModel::step_fast(const VecX& x_n, const VecX& v_n, double dt,
     const VecX dxn = x - x_n;
     sys.multiply(k0_, dxn, k0_dxn);
     ++stats_.energy_evaluations;
+    const double damping = damping_alpha * dxn.dot(mass3_.cwiseProduct(dxn)) +
+                           damping_beta * dxn.dot(k0_dxn);
     return 0.5 * inv_dt2 * dxt.dot(mass3_.cwiseProduct(dxt)) + energy(x) - mg.dot(x) +
-           0.5 / dt * (damping_alpha * dxn.dot(mass3_.cwiseProduct(dxn)) + damping_beta * dxn.dot(k0_dxn));
+           0.5 / dt * damping;
   };
 
   VecX x = x_n, grad(ndof), dx(ndof);
