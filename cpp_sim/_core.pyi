@@ -46,12 +46,12 @@ class FEMModel:
         One implicit Euler step; returns (x_new, v_new), each (N, 3).
         
         Newton's method on the incremental potential with a backtracking line search and a sparse
-        LDL^T solve. ``fixed`` (boolean mask (N,) or node indices) clamps nodes in place.
+        Cholesky solve (see ``solver``). ``fixed`` (boolean mask (N,) or node indices) clamps nodes in place.
         Raises RuntimeError if the step diverges.
         """
     def stiffness(self, x: typing.Any, project: bool = False) -> typing.Any:
         """
-        Stiffness K = d(-forces)/dx as a scipy.sparse CSR (3N, 3N) matrix; row 3i+k is node i, axis k. project=True clamps each element's Hessian to be PSD.
+        Stiffness K = d(-forces)/dx as a scipy.sparse CSR (3N, 3N) matrix; row 3i+k is node i, axis k. project=True clamps each element's Hessian to be PSD, as step() does (a 9x9 eigensolver for solver='reference', the closed-form eigensystem otherwise).
         """
     @property
     def damping_alpha(self) -> float:
@@ -83,7 +83,7 @@ class FEMModel:
     @property
     def last_step_stats(self) -> dict:
         """
-        Newton iterations, final max |dx|/dt and convergence flag of the last step.
+        Newton iterations, factorisations and line-search energy evaluations, final max |dx|/dt, convergence flag and wall seconds per phase (assemble_s, gradient_s, factorize_s, solve_s, line_search_s) of the last step.
         """
     @property
     def mass(self) -> numpy.typing.NDArray[numpy.float64]:
@@ -115,6 +115,14 @@ class FEMModel:
         ...
     @property
     def rest_positions(self) -> numpy.typing.NDArray[numpy.float64]:
+        ...
+    @property
+    def solver(self) -> str:
+        """
+        How step() solves its Newton systems. 'supernodal_llt' (default), 'simplicial_llt' and 'simplicial_ldlt' share the fast step (closed-form element projection, in-place assembly on a pre-permuted pattern, symbolic analysis once, no factorisation once a bound proves convergence) and differ in the sparse Cholesky; 'reference' is the original step, kept to measure against. All converge to the same implicit-Euler solution under newton_tolerance.
+        """
+    @solver.setter
+    def solver(self, arg1: str) -> None:
         ...
     @property
     def volume(self) -> float:

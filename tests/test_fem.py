@@ -177,3 +177,75 @@ def test_cantilever_matches_euler_bernoulli_and_converges():
     errors = [abs(r - 1.0) for r in ratios]
     assert errors[-1] < 0.10, ratios
     assert errors[0] > errors[1] > errors[2], ratios
+
+
+FAST_SOLVERS = ["supernodal_llt", "simplicial_llt", "simplicial_ldlt"]
+
+
+def test_default_solver_and_unknown_solver_error(small_block):
+    fem = cpp_sim.FEMModel(*small_block, E, NU, RHO)
+    assert fem.solver == "supernodal_llt"
+    for name in [*FAST_SOLVERS, "reference"]:
+        fem.solver = name
+        assert fem.solver == name
+    with pytest.raises(ValueError, match=r"solver must be one of .*'reference'.*got 'cholmod'"):
+        fem.solver = "cholmod"
+    assert fem.solver == "reference"  # a rejected name leaves the setting as it was
+
+
+@pytest.mark.parametrize(
+    "f",
+    [
+        np.eye(3),  # rest: the exact Hessian is PSD but singular
+        np.diag([1.0, 1.0, 0.3]),  # compression: indefinite
+        np.diag([2.0, 2.0, 0.5]),  # repeated singular values
+        np.diag([1.0, 1.0, -0.5]),  # inverted
+        np.diag([1e-3, 1.0, 1.0]),  # nearly flat
+        Rotation.from_rotvec([0.3, -0.2, 0.9]).as_matrix() @ np.diag([1.3, 0.7, 0.9]),
+        np.array([[0.9, 0.4, -0.2], [-0.3, 1.1, 0.5], [0.2, -0.6, -0.8]]),  # sheared, inverted
+    ],
+)
+def test_closed_form_projection_matches_numeric_eigensolver(f):
+    # One tet deformed by an affine map x = F X has deformation gradient F everywhere, so its
+    # projected stiffness V B^T [dP/dF]_+ B exposes the 9x9 projection itself.
+    rest = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]])
+    fem = cpp_sim.FEMModel(rest, np.array([[0, 1, 2, 3]]), E, NU, RHO)
+    x = rest @ f.T
+    fem.solver = "reference"
+    numeric = fem.stiffness(x, project=True).toarray()
+    fem.solver = "supernodal_llt"
+    closed_form = fem.stiffness(x, project=True).toarray()
+    np.testing.assert_allclose(closed_form, numeric, rtol=0, atol=1e-8 * np.abs(numeric).max())
+    assert np.linalg.eigvalsh(closed_form).min() > -1e-10 * np.abs(closed_form).max()
+
+
+@pytest.mark.parametrize("solver", FAST_SOLVERS)
+@pytest.mark.parametrize("clamped", [False, True])
+def test_fast_step_matches_reference_step(small_block, rng, solver, clamped):
+    nodes, tets = small_block
+    fixed = nodes[:, 0] < 1e-9 if clamped else None
+    x0 = nodes if clamped else deformed(nodes, rng, 0.01)
+    v0 = np.zeros_like(nodes) if clamped else 0.2 * rng.standard_normal(nodes.shape)
+    runs = {}
+    for name in ["reference", solver]:
+        fem = cpp_sim.FEMModel(nodes, tets, E, NU, RHO)
+        fem.solver = name
+        x, v, stats = x0, v0, []
+        for _ in range(8):
+            x, v = fem.step(x, v, 0.01, fixed=fixed)
+            stats.append(fem.last_step_stats)
+        runs[name] = x, v, stats
+    (x_ref, v_ref, s_ref), (x, v, s) = runs["reference"], runs[solver]
+    # Newton stops at max |dx| / dt < 1e-6 m/s, so the two may differ by far less than
+    # tolerance * dt = 1e-8 m per step; they agree to rounding.
+    np.testing.assert_allclose(x, x_ref, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(v, v_ref, rtol=0, atol=1e-8)
+    assert [t["iterations"] for t in s] == [t["iterations"] for t in s_ref]
+    assert all(t["converged"] for t in s)
+    # The reference factorises at every iteration; the fast step skips the last one whenever
+    # the residual bound already proves convergence.
+    assert all(t["factorizations"] == t["iterations"] for t in s_ref)
+    assert all(t["factorizations"] <= t["iterations"] for t in s)
+    assert sum(t["factorizations"] for t in s) < sum(t["iterations"] for t in s)
+    for t in s:
+        assert min(t[k] for k in ("assemble_s", "factorize_s", "solve_s")) >= 0.0

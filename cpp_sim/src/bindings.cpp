@@ -5,6 +5,8 @@
 
 #include <memory>
 #include <sstream>
+#include <string>
+#include <utility>
 
 #include "fem_model.h"
 #include "validate.h"
@@ -45,6 +47,33 @@ std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, double you
   } catch (const std::invalid_argument& e) {
     throw py::value_error(e.what());
   }
+}
+
+constexpr std::pair<FEMSolver, const char*> kSolverNames[] = {
+    {FEMSolver::kSupernodalLLT, "supernodal_llt"},
+    {FEMSolver::kSimplicialLLT, "simplicial_llt"},
+    {FEMSolver::kSimplicialLDLT, "simplicial_ldlt"},
+    {FEMSolver::kReference, "reference"},
+};
+
+std::string solver_name(FEMSolver kind) {
+  for (const auto& [k, name] : kSolverNames)
+    if (k == kind) return name;
+  return "unknown";
+}
+
+FEMSolver solver_from_name(const std::string& name) {
+  for (const auto& [k, n] : kSolverNames)
+    if (name == n) return k;
+  std::ostringstream msg;
+  msg << "solver must be one of";
+  const char* sep = " ";
+  for (const auto& kn : kSolverNames) {
+    msg << sep << "'" << kn.second << "'";
+    sep = ", ";
+  }
+  msg << ", got '" << name << "'";
+  throw py::value_error(msg.str());
 }
 
 }  // namespace
@@ -130,6 +159,15 @@ density : float
             if (n < 1) throw py::value_error("max_newton_iterations must be >= 1, got " + std::to_string(n));
             f.max_newton_iterations = n;
           })
+      .def_property(
+          "solver", [](const FEMModel& f) { return solver_name(f.solver()); },
+          [](FEMModel& f, const std::string& name) { f.set_solver(solver_from_name(name)); },
+          "How step() solves its Newton systems. 'supernodal_llt' (default), "
+          "'simplicial_llt' and 'simplicial_ldlt' share the fast step (closed-form element "
+          "projection, in-place assembly on a pre-permuted pattern, symbolic analysis once, no "
+          "factorisation once a bound proves convergence) and differ in the sparse Cholesky; "
+          "'reference' is the original step, kept to measure against. All converge to the same "
+          "implicit-Euler solution under newton_tolerance.")
       .def(
           "energy",
           [](const FEMModel& f, py::handle x) {
@@ -149,7 +187,8 @@ density : float
           },
           py::arg("x"), py::arg("project") = false,
           "Stiffness K = d(-forces)/dx as a scipy.sparse CSR (3N, 3N) matrix; row 3i+k is "
-          "node i, axis k. project=True clamps each element's Hessian to be PSD.")
+          "node i, axis k. project=True clamps each element's Hessian to be PSD, as step() does "
+          "(a 9x9 eigensolver for solver='reference', the closed-form eigensystem otherwise).")
       .def(
           "step",
           [](FEMModel& f, py::handle x, py::handle vel, double dt, py::handle fixed) {
@@ -169,7 +208,7 @@ density : float
           R"doc(One implicit Euler step; returns (x_new, v_new), each (N, 3).
 
 Newton's method on the incremental potential with a backtracking line search and a sparse
-LDL^T solve. ``fixed`` (boolean mask (N,) or node indices) clamps nodes in place.
+Cholesky solve (see ``solver``). ``fixed`` (boolean mask (N,) or node indices) clamps nodes in place.
 Raises RuntimeError if the step diverges.)doc")
       .def_property_readonly(
           "last_step_stats",
@@ -179,9 +218,18 @@ Raises RuntimeError if the step diverges.)doc")
             d["iterations"] = s.iterations;
             d["step_norm"] = s.step_norm;
             d["converged"] = s.converged;
+            d["factorizations"] = s.factorizations;
+            d["energy_evaluations"] = s.energy_evaluations;
+            d["assemble_s"] = s.assemble_s;
+            d["gradient_s"] = s.gradient_s;
+            d["factorize_s"] = s.factorize_s;
+            d["solve_s"] = s.solve_s;
+            d["line_search_s"] = s.line_search_s;
             return d;
           },
-          "Newton iterations, final max |dx|/dt and convergence flag of the last step.");
+          "Newton iterations, factorisations and line-search energy evaluations, final max "
+          "|dx|/dt, convergence flag and wall seconds per phase (assemble_s, gradient_s, "
+          "factorize_s, solve_s, line_search_s) of the last step.");
 
   bind_reduced(m);
 }
