@@ -15,9 +15,9 @@
 #pragma once
 
 #include <Eigen/Dense>
-#include <algorithm>
 #include <array>
 #include <cmath>
+#include <utility>
 
 #include "material.h"
 
@@ -78,8 +78,13 @@ inline void rotation_variant_svd(const Mat3& f, Mat3& u, Eigen::Vector3d& sigma,
       }
   }
   // Order the columns by decreasing eigenvalue of F^T F, and make V a rotation.
-  int order[3] = {0, 1, 2};
-  std::sort(order, order + 3, [&](int a, int b) { return s(a, a) > s(b, b); });
+  int order[3] = {0, 1, 2};  // a three-element sort, written out (NaN-safe, branch-light)
+  auto order_pair = [&](int i, int j) {
+    if (s(order[j], order[j]) > s(order[i], order[i])) std::swap(order[i], order[j]);
+  };
+  order_pair(0, 1);
+  order_pair(1, 2);
+  order_pair(0, 1);
   Mat3 sorted;
   for (int k = 0; k < 3; ++k) sorted.col(k) = v.col(order[k]);
   v = sorted;
