@@ -339,6 +339,10 @@ class SoftRobotEnv(gym.Env):
             raise ValueError(f"state has dimension {state.q.shape[0]}, expected {self.model.dim}")
         self._state = state.copy()
 
+    def center_of_mass(self, state: cpp_sim.ReducedState | None = None) -> np.ndarray:
+        """The centre of mass (3,) of ``state`` (default: the current state), m."""
+        return self.model.com((self._state if state is None else state).q)
+
     @property
     def dt(self) -> float:
         """The control period: seconds of simulated time per env step (frame_skip * dt)."""
