@@ -1,1 +1,40 @@
-"""controllers (coming in later issues)."""
+"""controllers: MPC in the control space B_c (the paper's "MPC in Control-Space").
+
+One planner interface (:class:`Planner`: ``reset``, ``plan``, ``action``), two planners
+(:class:`MPPI`, :class:`GaussNewtonShooting`) over a shared :class:`SplinePlan`
+(F_c = S F~_c), the objective R - Λ (:mod:`controllers.cost`), an episode runner
+(:func:`run_episode`) and per-benchmark defaults (:func:`default_planner`).
+Planners use only the env's public MPC API (``get_state``, ``rollout``, ``action_bound``).
+
+    python -m controllers CrossWalk-v0 --planner mppi --seconds 10
+"""
+
+from .cost import CostWeights, Evaluation, evaluate
+from .defaults import DEFAULTS, default_planner, default_settings
+from .episode import EpisodeResult, run_episode
+from .gaits import SinusoidGait, gait_grid, phase_orders
+from .gauss_newton import GaussNewtonSettings, GaussNewtonShooting
+from .mppi import MPPI, MPPISettings
+from .planner import Planner, PlannerSettings
+from .spline import SplinePlan
+
+__all__ = [
+    "DEFAULTS",
+    "MPPI",
+    "CostWeights",
+    "EpisodeResult",
+    "Evaluation",
+    "GaussNewtonSettings",
+    "GaussNewtonShooting",
+    "MPPISettings",
+    "Planner",
+    "PlannerSettings",
+    "SinusoidGait",
+    "SplinePlan",
+    "default_planner",
+    "default_settings",
+    "evaluate",
+    "gait_grid",
+    "phase_orders",
+    "run_episode",
+]

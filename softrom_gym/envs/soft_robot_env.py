@@ -65,6 +65,14 @@ def _control_basis(
     return b
 
 
+def _first_frozen_substep(rewards: np.ndarray, com: np.ndarray) -> int:
+    """The sub-step at which a diverged rollout froze: from the diverging step on, the C++
+    core keeps the last good state (the COM stops, bit for bit) and pays zero reward."""
+    frozen = (rewards == 0.0) & np.all(com == com[-1], axis=1)
+    moving = np.flatnonzero(~frozen)
+    return int(moving[-1]) + 1 if moving.size else 0
+
+
 class SoftRobotEnv(gym.Env):
     r"""A finite-element soft robot that walks or swims, actuated in a control space B_c.
 
@@ -128,7 +136,11 @@ class SoftRobotEnv(gym.Env):
     ## For model-predictive control
     ``get_state()`` / ``set_state(state)`` copy the full simulation state, and
     ``rollout(state, controls)`` runs B control sequences (B, H, C) of H env steps from a
-    state through the batched C++ path (see :meth:`rollout`).
+    state through the batched C++ path (see :meth:`rollout`), returning the per-step terms a
+    planner needs (COM, orientation vector, R, Λ's terms, lost steps after a divergence).
+    Through ``gym.make``'s wrappers reach them, and ``action_bound``, ``dt`` (control
+    period, s) and ``body_length`` (m), with ``env.get_wrapper_attr(name)``. A plan replays
+    exactly: ``rollout`` of H actions and H calls of ``step`` agree to the last bit.
 
     ## Version History
     * v0: initial release.
@@ -287,11 +299,15 @@ class SoftRobotEnv(gym.Env):
         self._com0 = self.model.com(self._state.q)
         return self._obs(self._state), self._info(self._state, 0.0, 0.0, False)
 
-    def _info(self, state, lateral: float, effort: float, diverged: bool) -> dict[str, Any]:
+    def _info(
+        self, state, lateral: float, effort: float, diverged: bool, orientation: float | None = None
+    ) -> dict[str, Any]:
         com = self.model.com(state.q)
+        if orientation is None:
+            orientation = float(np.linalg.norm(self._orientation @ state.q))
         return {
             "distance": float(self.direction @ (com - self._com0)),
-            "orientation": float(np.linalg.norm(self._orientation @ state.q)),
+            "orientation": orientation,
             "lateral": lateral,
             "effort": effort,
             "com": com,
@@ -305,8 +321,9 @@ class SoftRobotEnv(gym.Env):
         diverged = bool(out["diverged"][0])
         self._state = cpp_sim.ReducedState(out["q"][0], out["qdot"][0], out["impulses"][0])
         reward = float(out["rewards"][0, 0])
+        # The terms as rollout() computed them: a planner's prediction is what step reports.
         info = self._info(self._state, float(out["lateral"][0, 0]), float(out["effort"][0, 0]),
-                          diverged)  # fmt: skip
+                          diverged, float(out["orientation"][0, 0]))  # fmt: skip
         return self._obs(self._state), reward, diverged, False, info
 
     # ---------------------------------------------------------------- MPC API
@@ -322,13 +339,32 @@ class SoftRobotEnv(gym.Env):
             raise ValueError(f"state has dimension {state.q.shape[0]}, expected {self.model.dim}")
         self._state = state.copy()
 
+    def center_of_mass(self, state: cpp_sim.ReducedState | None = None) -> np.ndarray:
+        """The centre of mass (3,) of ``state`` (default: the current state), m."""
+        return self.model.com((self._state if state is None else state).q)
+
+    @property
+    def dt(self) -> float:
+        """The control period: seconds of simulated time per env step (frame_skip * dt)."""
+        return self.frame_skip * float(self.model.dt)
+
+    @property
+    def body_length(self) -> float:
+        """The robot's largest horizontal extent at rest (m): the unit of locomotion distance."""
+        return float(np.ptp(self.robot.nodes[:, :2], axis=0).max())
+
     def rollout(
         self,
         state: cpp_sim.ReducedState | list[cpp_sim.ReducedState],
         controls: np.ndarray,
         threads: int | None = None,
+        observe: np.ndarray | None = None,
     ) -> dict[str, np.ndarray]:
         """Run B control sequences of H env steps from ``state`` (batched, in C++).
+
+        ``H`` calls of :meth:`step` with the same actions from the same state give the same
+        rewards, terms and states to the last bit, whatever the actions' dtype: both paths
+        clip f_c to the action bound and round it to the action space's float32.
 
         Parameters
         ----------
@@ -336,15 +372,29 @@ class SoftRobotEnv(gym.Env):
             One start state shared by all rollouts, or one per rollout.
         controls : (B, H, C) array
             f_c per env step (each held for ``frame_skip`` simulation steps), clipped to the
-            action bound.
+            action bound, then rounded to float32.
         threads : int, optional
             C++ worker threads (default: all cores). Results do not depend on it.
+        observe : (P, M + 6) array, optional
+            Linear observables of q_r to return after every env step (``observed``).
 
         Returns
         -------
-        dict with ``rewards`` (B, H), ``orientation`` (B, H) rotation magnitude at the end
-        of each step (rad), ``lateral`` (B, H) motion orthogonal to d (m), ``effort`` (B, H)
-        |f_c / a|^2, ``diverged`` (B,), and the final ``q``, ``qdot``, ``impulses``.
+        dict of arrays, per env step t = 1..H (the value at the end of step t):
+
+        * ``rewards`` (B, H): the paper's R per step, d · (com_t - com_{t-1}) (m).
+        * ``com`` (B, H, 3): centre of mass (m).
+        * ``theta`` (B, H, 3): linearised orientation, the rotation vector vs. rest (rad);
+          ``orientation`` (B, H) is its norm.
+        * ``lateral`` (B, H): |motion orthogonal to d in the ground plane| this step (m).
+        * ``effort`` (B, H): |f_c / a|^2 (dimensionless).
+        * ``lost`` (B, H): 1.0 on the step a rollout diverges and on every step after it,
+          else 0.0. A diverged rollout keeps its last good state and earns zero reward from
+          then on, so a planner must price these steps (a controller's Λ charges a weight in
+          metres per lost step) or a blow-up would beat a trajectory that goes backwards.
+        * ``diverged`` (B,): whether the rollout diverged.
+        * ``observed`` (B, H, P): ``observe @ q_r``, only when ``observe`` is given.
+        * ``q``, ``qdot`` (B, M + 6), ``impulses``: the final states.
         """
         u = np.asarray(controls, dtype=np.float64)
         if u.ndim != 3 or u.shape[2] != self.action_space.shape[0]:
@@ -353,11 +403,18 @@ class SoftRobotEnv(gym.Env):
             )
         if not np.all(np.isfinite(u)):
             raise ValueError("controls contains non-finite values")
-        u = np.clip(u, -self.action_bound, self.action_bound)
+        # The same rounding as a float32 action through step(): a plan replays bit for bit.
+        u = np.clip(u, -self.action_bound, self.action_bound).astype(np.float32).astype(float)
         b, h, _ = u.shape
         k = self.frame_skip
-        out = self.model.rollout(state, np.repeat(u, k, axis=1), threads=threads,
-                                 observe=self._orientation)  # fmt: skip
+        n_orient = self._orientation.shape[0]
+        rows = self._orientation
+        if observe is not None:
+            extra = np.asarray(observe, dtype=np.float64)
+            if extra.ndim != 2 or extra.shape[1] != self.model.dim:
+                raise ValueError(f"observe has shape {extra.shape}, expected (P, {self.model.dim})")
+            rows = np.vstack([rows, extra])
+        out = self.model.rollout(state, np.repeat(u, k, axis=1), threads=threads, observe=rows)
         com = out["com"].reshape(b, h, k, 3)[:, :, -1]
         states = [state] if isinstance(state, cpp_sim.ReducedState) else list(state)
         start = np.array([self.model.com(s.q) for s in states]).reshape(-1, 1, 3)
@@ -365,14 +422,27 @@ class SoftRobotEnv(gym.Env):
         delta = (com - prev)[..., :2]
         d2 = self.direction[:2]
         lateral = np.linalg.norm(delta - (delta @ d2)[..., None] * d2, axis=-1)
-        theta = out["observed"].reshape(b, h, k, 3)[:, :, -1]
-        return {
-            "rewards": out["rewards"].reshape(b, h, k).sum(axis=2),
+        observed = out["observed"].reshape(b, h, k, -1)[:, :, -1]
+        theta = observed[..., :n_orient]
+        rewards = out["rewards"].reshape(b, h, k)
+        # The C++ core zeroes the reward of every sub-step from the diverging one on; a step
+        # is lost when any of its sub-steps is.
+        lost = np.zeros((b, h))
+        for i in np.flatnonzero(out["diverged"]):
+            lost[i, _first_frozen_substep(rewards[i].ravel(), out["com"][i]) // k :] = 1.0
+        result = {
+            "rewards": rewards.sum(axis=2),
+            "com": com,
+            "theta": theta,
             "orientation": np.linalg.norm(theta, axis=-1),
             "lateral": lateral,
             "effort": np.sum((u / self.action_bound) ** 2, axis=-1),
+            "lost": lost,
             "diverged": out["diverged"],
             "q": out["q"],
             "qdot": out["qdot"],
             "impulses": out["impulses"],
         }
+        if observe is not None:
+            result["observed"] = observed[..., n_orient:]
+        return result

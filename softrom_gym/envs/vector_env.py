@@ -118,7 +118,8 @@ class SoftRobotVectorEnv(VectorEnv):
                 obs[i] = env._obs(state)
                 env._com0 = self._com0[i]
                 info = env._info(state, float(out["lateral"][k, 0]),
-                                 float(out["effort"][k, 0]), diverged)  # fmt: skip
+                                 float(out["effort"][k, 0]), diverged,
+                                 float(out["orientation"][k, 0]))  # fmt: skip
                 infos = self._add_info(infos, info, int(i))
         self._autoreset = terminated | truncated
         return obs, rewards, terminated, truncated, infos

@@ -1,0 +1,97 @@
+"""MPC speed and locomotion: each planner with its defaults on each benchmark (C = 3).
+
+For every (benchmark, planner): one closed-loop episode of ``--seconds`` per seed with the
+defaults of :mod:`controllers.defaults`, on ``--threads`` rollout threads. Reports the mean
+wall time of one replan, the real-time factor (simulated seconds advanced per replan / wall
+seconds per replan; >= 1 keeps up with the robot), and the distance along d between
+t = ``--start`` and the end, per second and in body lengths (mean over seeds).
+
+    python benchmarks/bench_mpc.py [ENV_ID ...] [--planners mppi gn] [--seconds 10]
+        [--seeds 0 1 2] [--json] [--out runs/bench_mpc]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import softrom_gym
+from controllers import default_planner, run_episode
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _results import write_csv
+
+IDS = [f"softrom_gym/{name}" for name in softrom_gym.BENCHMARKS]
+
+
+def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
+    walls, distances, lengths, rtfs = [], [], [], []
+    start = time.perf_counter()
+    for seed in args.seeds:
+        env = gym.make(env_id)
+        planner, every = default_planner(env_id, planner_name, threads=args.threads)
+        res = run_episode(env, planner, args.seconds, replan_every=every, seed=seed,
+                          progress=args.progress)  # fmt: skip
+        t0 = args.start if args.seconds > args.start else 0.0
+        walls.append(float(np.mean(res.replan_wall_s)))
+        rtfs.append(res.realtime_factor(every))
+        distances.append(res.distance_between(t0))
+        lengths.append(res.body_length)
+        env.close()
+    span = args.seconds - args.start if args.seconds > args.start else args.seconds
+    return {
+        "env_id": env_id,
+        "controller": planner_name,
+        "replan_wall_s": float(np.mean(walls)),
+        "realtime_factor": float(np.mean(rtfs)),
+        "distance_per_s": float(np.mean(distances)) / span,
+        "distance_bl": float(np.mean(distances) / lengths[0]),
+        "distance_bl_std": float(np.std(distances) / lengths[0]),
+        "seconds": args.seconds,
+        "start": args.start if args.seconds > args.start else 0.0,
+        "seeds": len(args.seeds),
+        "replan_every": every,
+        "horizon": planner.settings.horizon,
+        "threads": args.threads,
+        "wall_s": time.perf_counter() - start,
+    }
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("env_ids", nargs="*", default=IDS)
+    p.add_argument("--planners", nargs="+", choices=["mppi", "gn"], default=["mppi", "gn"])
+    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--start", type=float, default=2.0, help="distance counts from this time (s)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0])
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--out", type=Path, default=Path("runs/bench_mpc"))
+    p.add_argument("--progress", action="store_true", help="progress bars")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    args = p.parse_args(argv)
+    ids = [i if "/" in i else f"softrom_gym/{i}" for i in args.env_ids]
+    if not args.json:
+        print(f"{'env id':<30} {'ctrl':<5} {'replan s':>9} {'RTF':>7} {'m/s':>8} {'BL':>7}")
+    rows = []
+    for env_id in ids:
+        for planner in args.planners:
+            row = measure(env_id, planner, args)
+            rows.append(row)
+            if args.json:
+                print(json.dumps(row), flush=True)
+            else:
+                print(f"{env_id:<30} {planner:<5} {row['replan_wall_s']:>9.3f} "
+                      f"{row['realtime_factor']:>7.3f} {row['distance_per_s']:>8.4f} "
+                      f"{row['distance_bl']:>7.3f}", flush=True)  # fmt: skip
+    write_csv(rows, args.out / "bench_mpc.csv")
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,82 @@
+"""Study (a), the paper's cost figure: wall time of one Gauss-Newton iteration against C.
+
+On CrossWalk-v0 with identity control bases B_c = the first C modes (C = 1..20 by default),
+one GN iteration (the K C + 1 finite-difference rollouts and the batched line search) from
+the reset state, best of ``--repeats``, on ``--threads`` threads, with the benchmark's
+default horizon and knots unless overridden. The K C + 1 rollouts grow linearly in C and the
+normal equations cubically, so the cost should grow at least linearly; the paper reports
+superlinear growth. Writes ``cost_vs_c.csv`` and ``cost_vs_c.png`` into ``--out``.
+
+    python benchmarks/study_cost_vs_c.py [--cs 1 2 ... 20] [--horizon H] [--knots K]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import softrom_gym  # noqa: F401
+from controllers import default_planner
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _results import plot_lines, write_csv
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--env-id", default="softrom_gym/CrossWalk-v0")
+    p.add_argument("--cs", type=int, nargs="+", default=list(range(1, 21)))
+    p.add_argument("--horizon", type=int, help="env steps (default: the benchmark's)")
+    p.add_argument("--knots", type=int, help="knots per dimension (default: the benchmark's)")
+    p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--out", type=Path, default=Path("runs/study_cost_vs_c"))
+    args = p.parse_args(argv)
+    changes = {"threads": args.threads, "iterations": 1, "gait_seed": False}
+    if args.horizon is not None:
+        changes.update(horizon=args.horizon, window=None)
+    if args.knots is not None:
+        changes["knots"] = args.knots
+    rows = []
+    print(f"{'C':>3} {'rollouts':>9} {'GN iteration s':>15} {'per rollout ms':>15}")
+    for c in args.cs:
+        env = gym.make(args.env_id, control_dim=c)
+        env.reset(seed=0)
+        planner, _ = default_planner(args.env_id, "gn", **changes)
+        walls = []
+        for _ in range(args.repeats):
+            planner.reset(env, seed=0)
+            start = time.perf_counter()
+            planner.plan(env)
+            walls.append(time.perf_counter() - start)
+        rollouts = planner.last_["rollouts"]
+        row = {
+            "C": c,
+            "K": planner.settings.knots,
+            "H": planner.settings.horizon,
+            "rollouts": rollouts,
+            "iteration_s": min(walls),
+            "threads": args.threads,
+        }
+        rows.append(row)
+        print(f"{c:>3} {rollouts:>9} {row['iteration_s']:>15.3f} "
+              f"{1e3 * row['iteration_s'] / rollouts:>15.2f}", flush=True)  # fmt: skip
+        env.close()
+    write_csv(rows, args.out / "cost_vs_c.csv")
+    cs = [r["C"] for r in rows]
+    walls = [r["iteration_s"] for r in rows]
+    plot_lines({"one GN iteration": (cs, walls, None)}, "control-space dimension C",
+               "wall time (s)", args.out / "cost_vs_c.png")  # fmt: skip
+    if len(rows) >= 2:
+        slope = np.polyfit(np.log(cs), np.log([r["iteration_s"] for r in rows]), 1)[0]
+        print(f"log-log slope {slope:.2f} (1 = linear in C); CSV and PNG in {args.out}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""Study (b), the paper's reward-vs-C figure: task reward against C for identity bases.
+
+On CrossWalk-v0 with B_c = the first C modes (C = 1..10 by default), one closed-loop episode
+of ``--seconds`` per seed with the planner's benchmark defaults; the task reward R is the
+distance along d between t = ``--start`` and the end (m), without Λ. Reports mean and
+standard deviation over the seeds, writes ``reward_vs_c.csv`` (one row per episode) and
+``reward_vs_c.png`` (mean and spread) into ``--out``.
+
+    python benchmarks/study_reward_vs_c.py [--cs 1 .. 10] [--seeds 0 1 2] [--seconds 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import softrom_gym  # noqa: F401
+from controllers import default_planner, run_episode
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _results import plot_lines, write_csv
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--env-id", default="softrom_gym/CrossWalk-v0")
+    p.add_argument("--planner", choices=["mppi", "gn"], default="mppi")
+    p.add_argument("--cs", type=int, nargs="+", default=list(range(1, 11)))
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--start", type=float, default=2.0)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--out", type=Path, default=Path("runs/study_reward_vs_c"))
+    args = p.parse_args(argv)
+    start = args.start if args.seconds > args.start else 0.0
+    rows = []
+    print(f"{'C':>3} {'R mean (m)':>11} {'std':>8}  per seed")
+    for c in args.cs:
+        per_seed = []
+        for seed in args.seeds:
+            env = gym.make(args.env_id, control_dim=c)
+            planner, every = default_planner(args.env_id, args.planner, threads=args.threads)
+            res = run_episode(env, planner, args.seconds, replan_every=every, seed=seed,
+                              progress=False)  # fmt: skip
+            r = res.distance_between(start)
+            per_seed.append(r)
+            rows.append({"C": c, "seed": seed, "R_m": r, "R_bl": r / res.body_length,
+                         "R_total_m": res.R, "planner": args.planner,
+                         "seconds": res.seconds, "start": start})  # fmt: skip
+            env.close()
+        print(f"{c:>3} {np.mean(per_seed):>11.4f} {np.std(per_seed):>8.4f}  "
+              + " ".join(f"{r:+.4f}" for r in per_seed), flush=True)  # fmt: skip
+    write_csv(rows, args.out / "reward_vs_c.csv")
+    cs = list(dict.fromkeys(r["C"] for r in rows))
+    mean = [np.mean([r["R_m"] for r in rows if r["C"] == c]) for c in cs]
+    std = [np.std([r["R_m"] for r in rows if r["C"] == c]) for c in cs]
+    plot_lines({f"{args.planner}, {len(args.seeds)} seeds": (cs, mean, std)},
+               "control-space dimension C (identity basis)",
+               f"distance t = {start:g}..{args.seconds:g} s (m)",
+               args.out / "reward_vs_c.png")  # fmt: skip
+    print(f"CSV and PNG in {args.out}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()

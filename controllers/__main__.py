@@ -1,0 +1,84 @@
+"""Watch a planner walk: ``python -m controllers ENV_ID --planner mppi|gn --seconds 10``.
+
+Runs one closed-loop episode with the benchmark's defaults (:mod:`controllers.defaults`)
+and prints a one-line summary: distance between t = 2 s and the end (m and body lengths),
+the task reward R, Λ's terms, and the wall time per replan.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .defaults import DEFAULTS, PLANNERS, default_planner
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m controllers", description=__doc__.split("\n")[0])
+    p.add_argument("env_id", help=f"a benchmark id: {', '.join(sorted(DEFAULTS))}")
+    p.add_argument("--planner", choices=sorted(PLANNERS), default="mppi")
+    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--control-basis", type=Path, help="B_c (M x C) as a .npy file")
+    p.add_argument("--video", type=Path, help="write the episode to this video file")
+    p.add_argument("--replan-every", type=int, help="env steps between replans")
+    p.add_argument("--horizon", type=int, help="override the default horizon (env steps)")
+    p.add_argument("--samples", type=int, help="override MPPI's samples")
+    p.add_argument("--iterations", type=int, help="override iterations per replan")
+    p.add_argument("--threads", type=int, help="C++ rollout threads")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    import gymnasium as gym
+
+    import softrom_gym  # noqa: F401  (registers the envs)
+
+    from .episode import run_episode
+
+    env_id = args.env_id if "/" in args.env_id else f"softrom_gym/{args.env_id}"
+    kwargs = {}
+    if args.control_basis is not None:
+        try:
+            b_c = np.load(args.control_basis)
+        except (OSError, ValueError) as exc:
+            parser.error(f"--control-basis {args.control_basis}: {exc}")
+        kwargs.update(control_basis=b_c, control_dim=b_c.shape[1] if b_c.ndim == 2 else 0)
+    if args.video is not None:
+        kwargs["render_mode"] = "rgb_array"
+    changes = {k: v for k, v in (("horizon", args.horizon), ("samples", args.samples),
+                                 ("iterations", args.iterations), ("threads", args.threads))
+               if v is not None}  # fmt: skip
+    try:
+        if args.planner != "mppi" and "samples" in changes:
+            raise ValueError("--samples applies to --planner mppi only")
+        if "horizon" in changes:
+            changes["window"] = None
+        planner, replan_every = default_planner(env_id, args.planner, **changes)
+        env = gym.make(env_id, **kwargs)
+    except (ValueError, TypeError, gym.error.Error) as exc:
+        parser.error(str(exc))
+    if args.replan_every is not None:
+        if args.replan_every < 1:
+            parser.error(f"--replan-every must be >= 1, got {args.replan_every}")
+        replan_every = args.replan_every
+    start = time.perf_counter()
+    result = run_episode(env, planner, args.seconds, replan_every=replan_every, seed=args.seed,
+                         progress=not args.no_progress, video=args.video)  # fmt: skip
+    wall = time.perf_counter() - start
+    rtf = result.realtime_factor(replan_every)
+    print(f"{env_id.split('/')[-1]} {result.summary()}; real-time factor {rtf:.3f}, "
+          f"episode wall {wall:.0f} s")  # fmt: skip
+    env.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

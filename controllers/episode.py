@@ -1,0 +1,202 @@
+"""``run_episode``: a planner in closed loop on an env, recorded step by step."""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .planner import EnvAPI, Planner
+
+__all__ = ["EpisodeResult", "run_episode"]
+
+
+@dataclass
+class EpisodeResult:
+    """One closed-loop episode.
+
+    Per env step t = 1..T (arrays of length T), as ``env.step`` reported them: ``rewards``
+    (R per step, m), ``orientation`` (rad), ``lateral`` (m), ``effort`` (|f_c / a|^2),
+    ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and ``distance`` (T + 1,) along d
+    since reset (m), ``states`` (ReducedState copies). Per replan: ``replan_steps`` (the step
+    it ran at) and ``replan_wall_s``. ``stop_reason`` says why the episode ended.
+    """
+
+    planner: str
+    dt: float
+    body_length: float
+    rewards: np.ndarray
+    orientation: np.ndarray
+    lateral: np.ndarray
+    effort: np.ndarray
+    actions: np.ndarray
+    com: np.ndarray
+    distance: np.ndarray
+    states: list = field(repr=False)
+    replan_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    replan_wall_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    stop_reason: str = ""
+    seed_gait: str | None = None
+
+    @property
+    def seconds(self) -> float:
+        """Simulated time (s)."""
+        return self.rewards.size * self.dt
+
+    @property
+    def R(self) -> float:
+        """The task reward: distance along d over the episode (m), without Λ."""
+        return float(self.rewards.sum())
+
+    @property
+    def replans(self) -> int:
+        return int(self.replan_wall_s.size)
+
+    def distance_between(self, t0: float, t1: float | None = None) -> float:
+        """Distance along d between times t0 and t1 (default: the end), m."""
+        n = self.rewards.size
+        i0 = round(t0 / self.dt)
+        i1 = n if t1 is None else round(t1 / self.dt)
+        if not 0 <= i0 <= i1 <= n:
+            raise ValueError(f"times ({t0}, {t1}) must lie in [0, {self.seconds:g}] s, in order")
+        return float(self.distance[i1] - self.distance[i0])
+
+    def realtime_factor(self, replan_every: int) -> float:
+        """Simulated seconds advanced per replan / wall seconds per replan."""
+        if not self.replans:
+            return float("nan")
+        return replan_every * self.dt / float(np.mean(self.replan_wall_s))
+
+    def summary(self, start: float = 2.0) -> str:
+        t0 = min(start, self.seconds)
+        d = self.distance_between(t0)
+        wall = float(np.mean(self.replan_wall_s)) if self.replans else float("nan")
+        return (
+            f"{self.planner}: {self.seconds:g} s, distance t={t0:g}..{self.seconds:g} s "
+            f"{d:+.3f} m ({d / self.body_length:+.2f} body lengths), R {self.R:+.3f} m, "
+            f"mean orientation {self.orientation.mean():.3f} rad, lateral "
+            f"{self.lateral.sum():.3f} m, effort {self.effort.mean():.2f}, {self.replans} "
+            f"replans at {wall:.2f} s wall each ({self.stop_reason})"
+        )
+
+
+def run_episode(
+    env: Any,
+    planner: Planner,
+    seconds: float,
+    replan_every: int = 1,
+    seed: int | None = 0,
+    progress: bool = True,
+    video: str | os.PathLike | None = None,
+) -> EpisodeResult:
+    """Run ``planner`` on ``env`` in closed loop for ``seconds`` of simulated time.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A softrom env (wrapped or not); ``render_mode="rgb_array"`` for a video.
+    planner : Planner
+    seconds : float
+        Simulated time; the episode stops early if the simulation diverges or the env's
+        time limit truncates it.
+    replan_every : int
+        Env steps between replans (1: every control period).
+    seed : int or None
+        Seeds both ``env.reset`` and the planner.
+    progress : bool
+        Show a tqdm progress bar.
+    video : path, optional
+        Write the episode as a video (needs imageio with ffmpeg, and an rgb_array env).
+    """
+    if not isinstance(planner, Planner):
+        raise TypeError(f"planner must be a controllers.Planner, got {type(planner).__name__}")
+    if (
+        isinstance(replan_every, bool)
+        or not isinstance(replan_every, (int, np.integer))
+        or (replan_every < 1)
+    ):
+        raise ValueError(f"replan_every must be a positive integer, got {replan_every!r}")
+    if not (isinstance(seconds, (int, float, np.number)) and np.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"seconds must be a positive number, got {seconds!r}")
+    if video is not None and getattr(env, "render_mode", None) != "rgb_array":
+        raise ValueError("video needs an env made with render_mode='rgb_array'")
+    api = EnvAPI(env)
+    steps = max(1, round(seconds / api.dt))
+    env.reset(seed=seed)
+    planner.reset(env, seed=seed)
+    record: dict[str, list] = {k: [] for k in ("rewards", "orientation", "lateral", "effort",
+                                               "actions")}  # fmt: skip
+    com = [api.center_of_mass()]
+    states = [api.get_state()]
+    replan_steps, wall = [], []
+    frames = [env.render()] if video is not None else []
+    bar = _progress(steps, progress, planner.name)
+    stop = "time"
+    for t in range(steps):
+        if t % replan_every == 0:
+            start = time.perf_counter()
+            planner.plan(env)
+            wall.append(time.perf_counter() - start)
+            replan_steps.append(t)
+        action = planner.action(env)
+        _, reward, terminated, truncated, info = env.step(action)
+        for key, value in (("rewards", reward), ("orientation", info["orientation"]),
+                           ("lateral", info["lateral"]), ("effort", info["effort"]),
+                           ("actions", action)):  # fmt: skip
+            record[key].append(value)
+        com.append(np.asarray(info["com"], dtype=float))
+        states.append(api.get_state())
+        if video is not None:
+            frames.append(env.render())
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(distance=f"{info['distance']:+.3f} m", refresh=False)
+        if terminated:
+            stop = "diverged"
+            break
+        if truncated:
+            stop = "truncated by the time limit"
+            break
+    if bar is not None:
+        bar.close()
+    com_arr = np.array(com)
+    if video is not None:
+        _write_video(video, frames, round(1.0 / api.dt))
+    return EpisodeResult(
+        planner=planner.name,
+        dt=api.dt,
+        body_length=float(env.get_wrapper_attr("body_length")),
+        rewards=np.array(record["rewards"], dtype=float),
+        orientation=np.array(record["orientation"], dtype=float),
+        lateral=np.array(record["lateral"], dtype=float),
+        effort=np.array(record["effort"], dtype=float),
+        actions=np.array(record["actions"], dtype=float).reshape(-1, api.control_dim),
+        com=com_arr,
+        distance=(com_arr - com_arr[0]) @ api.direction,
+        states=states,
+        replan_steps=np.array(replan_steps, dtype=int),
+        replan_wall_s=np.array(wall),
+        stop_reason=stop,
+        seed_gait=getattr(planner, "seed_", {}).get("gait"),
+    )
+
+
+def _progress(total: int, enabled: bool, name: str):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=name, unit="step", leave=False)
+
+
+def _write_video(path: str | os.PathLike, frames: list[np.ndarray], fps: int) -> None:
+    try:
+        import imageio.v2 as imageio
+    except ImportError:
+        raise ImportError(
+            "writing a video needs imageio: pip install imageio imageio-ffmpeg"
+        ) from None
+    imageio.mimwrite(os.fspath(path), frames, fps=fps)

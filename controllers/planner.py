@@ -1,0 +1,231 @@
+"""The planner interface (as MuJoCo MPC's): ``reset``, ``plan``, ``action``; shared settings.
+
+A planner owns a :class:`SplinePlan` of normalised knots (units of the action bound a) and
+reaches the env only through its public MPC API (``get_state``, ``rollout``,
+``action_bound``, ``dt``, found with ``env.get_wrapper_attr`` through any wrappers).
+
+Receding-horizon use::
+
+    planner.reset(env, seed=0)
+    for t in range(steps):
+        if t % replan_every == 0:
+            planner.plan(env)          # optimise the knots from the env's current state
+        env.step(planner.action(env))  # f_c now; the plan's clock advances one step
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from .cost import CostWeights, Evaluation, evaluate
+from .gaits import gait_grid
+from .spline import KINDS, SplinePlan
+
+__all__ = ["EnvAPI", "Planner", "PlannerSettings"]
+
+
+def _check_int(name: str, value: Any, low: int = 1) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+
+
+def _check_positive(name: str, value: Any, allow_zero: bool = False) -> None:
+    ok = isinstance(value, (int, float, np.number)) and not isinstance(value, bool)
+    ok = ok and np.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+    if not ok:
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be a finite number {bound}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """Settings shared by the planners (times in env steps of the control period dt).
+
+    Attributes
+    ----------
+    horizon : int
+        H, env steps planned ahead.
+    knots : int
+        K, spline knots per control dimension (over the horizon, or over one period).
+    period : int or None
+        P, env steps of one gait cycle for a periodic plan (the H steps repeat it); None for
+        an open plan whose knots span the horizon.
+    kind : {"cubic", "linear"}
+        Spline between the knots.
+    window : int or None
+        Count R over the last ``window`` steps of the horizon only (None: all of it).
+    weights : CostWeights
+        Λ's weights.
+    gait_seed : bool
+        At reset, seed the plan with the best sinusoid gait (phase orders x
+        ``seed_amplitudes``, at the period's frequency) scored by R - Λ over
+        ``seed_horizon`` steps from the reset state, all in one batched rollout. Needs a period.
+    seed_amplitudes : tuple of float
+        Fractions of the bound tried by the gait seed.
+    seed_horizon : int or None
+        Steps over which seeds are scored (None: the horizon).
+    threads : int or None
+        C++ rollout threads (None: all cores). Results do not depend on it.
+    """
+
+    horizon: int = 40
+    knots: int = 6
+    period: int | None = None
+    kind: str = "cubic"
+    window: int | None = None
+    weights: CostWeights = field(default_factory=CostWeights)
+    gait_seed: bool = False
+    seed_amplitudes: tuple[float, ...] = (0.5, 1.0)
+    seed_horizon: int | None = None
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        _check_int("horizon", self.horizon)
+        _check_int("knots", self.knots)
+        if self.period is not None:
+            _check_int("period", self.period)
+            if self.knots > self.period:
+                raise ValueError(f"knots = {self.knots} exceeds the period ({self.period} steps)")
+        elif self.knots > self.horizon:
+            raise ValueError(f"knots = {self.knots} exceeds the horizon ({self.horizon} steps)")
+        if self.kind not in KINDS:
+            raise ValueError(f"kind must be one of {list(KINDS)}, got {self.kind!r}")
+        if self.window is not None:
+            _check_int("window", self.window)
+            if self.window > self.horizon:
+                raise ValueError(f"window = {self.window} exceeds the horizon ({self.horizon})")
+        if not isinstance(self.weights, CostWeights):
+            raise TypeError(f"weights must be a CostWeights, got {type(self.weights).__name__}")
+        if self.gait_seed and self.period is None:
+            raise ValueError("gait_seed needs a periodic plan (period = None)")
+        amps = np.asarray(self.seed_amplitudes, dtype=float)
+        if amps.ndim != 1 or amps.size == 0 or not np.all(np.isfinite(amps) & (amps > 0)):
+            raise ValueError(
+                f"seed_amplitudes must be positive numbers, got {self.seed_amplitudes}"
+            )
+        if self.seed_horizon is not None:
+            _check_int("seed_horizon", self.seed_horizon)
+        if self.threads is not None:
+            _check_int("threads", self.threads)
+
+    def replace(self, **changes: Any):
+        """A copy with some fields changed (validated again)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values.update(changes)
+        return type(self)(**values)
+
+
+class EnvAPI:
+    """The env's MPC API reached through any gymnasium wrappers."""
+
+    def __init__(self, env: Any) -> None:
+        try:
+            get = env.get_wrapper_attr
+        except AttributeError:
+            raise TypeError(f"env must be a gymnasium Env, got {type(env).__name__}") from None
+        for name in ("get_state", "rollout", "action_bound", "dt", "direction", "center_of_mass"):
+            try:
+                get(name)
+            except AttributeError:
+                raise TypeError(
+                    f"env has no {name!r}: planners need a softrom_gym env (get_state, "
+                    "set_state, rollout, action_bound)"
+                ) from None
+        self.get_state = get("get_state")
+        self.rollout = get("rollout")
+        self.bound = float(get("action_bound"))
+        self.dt = float(get("dt"))
+        self.direction = np.asarray(get("direction"), dtype=float)
+        self.control_dim = int(env.action_space.shape[0])
+        self.center_of_mass = get("center_of_mass")
+
+
+class Planner(ABC):
+    """Receding-horizon planner over a spline of knots in control space.
+
+    Subclasses implement :meth:`_optimise` (one replan's update of ``self.plan_``'s knots).
+    After :meth:`plan`, ``last_`` holds the replan's record (objective before and after,
+    rollouts run, wall time).
+    """
+
+    name = "planner"
+
+    def __init__(self, settings: PlannerSettings) -> None:
+        if not isinstance(settings, PlannerSettings):
+            raise TypeError(f"settings must be a PlannerSettings, got {type(settings).__name__}")
+        self.settings = settings
+        self.plan_: SplinePlan | None = None
+        self.last_: dict[str, Any] = {}
+
+    # ----------------------------------------------------------------- interface
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        """Start a new episode: an empty (or gait-seeded) plan and a fresh random stream."""
+        s = self.settings
+        self.api_ = EnvAPI(env)
+        self.rng_ = np.random.default_rng(seed)
+        self.plan_ = SplinePlan(s.horizon, s.knots, self.api_.control_dim, s.kind, s.period)
+        self.last_ = {}
+        if s.gait_seed:
+            self._seed_gait()
+
+    def plan(self, env: Any) -> None:
+        """One replan from the env's current state: shift-warm-started, then optimised."""
+        self._require_reset()
+        start = time.perf_counter()
+        state = self.api_.get_state()
+        self.last_ = {"rollouts": 0}
+        self._optimise(state)
+        self.last_["wall_s"] = time.perf_counter() - start
+
+    def action(self, env: Any) -> np.ndarray:
+        """f_c (C,) for the env's current step; the plan's clock then advances one step."""
+        self._require_reset()
+        f_c = self.api_.bound * np.clip(self.plan_.value(0.0), -1.0, 1.0)
+        self.plan_.shift(1)
+        return f_c
+
+    # ----------------------------------------------------------------- helpers
+    @abstractmethod
+    def _optimise(self, state: Any) -> None: ...
+
+    def _require_reset(self) -> None:
+        if self.plan_ is None:
+            raise RuntimeError(f"{type(self).__name__}.reset(env, seed) must be called first")
+
+    def _evaluate(self, state: Any, knots: np.ndarray, horizon: int | None = None) -> Evaluation:
+        """R - Λ of a batch of knots (B, K, C) from ``state``, in one batched rollout."""
+        plan = self.plan_
+        if horizon is not None and horizon != plan.horizon:
+            plan = SplinePlan(horizon, plan.num_knots, plan.control_dim, plan.kind, plan.period)
+            plan.offset = self.plan_.offset
+        u = np.clip(plan.controls(knots), -1.0, 1.0)
+        out = self.api_.rollout(state, self.api_.bound * u, threads=self.settings.threads)
+        self.last_["rollouts"] = self.last_.get("rollouts", 0) + u.shape[0]
+        window = self.settings.window
+        if horizon is not None and window is not None:
+            window = min(window, horizon)
+        return evaluate(out, u, self.api_.center_of_mass(state), self.api_.direction, self.api_.dt,
+                        self.settings.weights, window)  # fmt: skip
+
+    def _seed_gait(self) -> None:
+        """Replace the knots by the best sinusoid at the period's frequency."""
+        s, plan = self.settings, self.plan_
+        frequency = 1.0 / (s.period * self.api_.dt)
+        gaits = gait_grid(plan.control_dim, (frequency,), tuple(s.seed_amplitudes))
+        # Knots that interpolate each sinusoid (the cubic passes through its knots).
+        times = plan.spacing * np.arange(plan.num_knots) * self.api_.dt
+        knots = np.stack([
+            np.clip(g.amplitude * np.sin(2 * np.pi * frequency * times[:, None]
+                                         + np.asarray(g.phases)), -1.0, 1.0)
+            for g in gaits
+        ])  # fmt: skip
+        self.last_ = {}
+        ev = self._evaluate(self.api_.get_state(), knots, s.seed_horizon)
+        best = int(np.argmax(ev.objective))
+        plan.knots = knots[best].copy()
+        self.seed_ = {"gait": gaits[best].label(), "objective": float(ev.objective[best])}

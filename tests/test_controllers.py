@@ -1,0 +1,210 @@
+"""Planners: finite-difference Jacobian, monotone Gauss-Newton, MPPI, episodes, validation.
+
+Small robots (a 28-node beam, 6 modes) and short horizons keep these fast."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import softrom_gym
+from controllers import (
+    MPPI,
+    CostWeights,
+    GaussNewtonSettings,
+    GaussNewtonShooting,
+    MPPISettings,
+    PlannerSettings,
+    default_planner,
+    default_settings,
+    run_episode,
+)
+from controllers.__main__ import main as cli_main
+
+
+def small_env(task="walk", **kwargs):
+    return gym.make("softrom_gym/SoftRobot-v0", robot="beam", task=task, sim_dim=6,
+                    resolution=6, **kwargs)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def swimmer():
+    env = small_env("swim")
+    env.reset(seed=0)
+    return env
+
+
+@pytest.fixture(scope="module")
+def walker():
+    env = small_env("walk")
+    env.reset(seed=0)
+    return env
+
+
+def test_fd_jacobian_matches_central_differences(swimmer):
+    settings = GaussNewtonSettings(horizon=6, knots=2, fd_step=1e-3,
+                                   weights=CostWeights(orientation=1.0, lateral=1.0))  # fmt: skip
+    gn = GaussNewtonShooting(settings)
+    gn.reset(swimmer, seed=0)
+    rng = np.random.default_rng(0)
+    gn.plan_.knots = rng.uniform(-0.5, 0.5, gn.plan_.knots.shape)
+    state = swimmer.get_wrapper_attr("get_state")()
+    _, grad, jac = gn.jacobian(state)
+    x = gn.plan_.knots.ravel()
+    h = 1e-3
+    plus = np.repeat(x[None], x.size, 0) + h * np.eye(x.size)
+    minus = np.repeat(x[None], x.size, 0) - h * np.eye(x.size)
+    ep = gn._evaluate(state, plus.reshape(-1, 2, 3))
+    em = gn._evaluate(state, minus.reshape(-1, 2, 3))
+    ref_grad = (ep.reward - em.reward) / (2 * h)
+    ref_jac = ((ep.residuals - em.residuals) / (2 * h)).T
+    assert np.abs(ref_grad).max() > 1e-7  # the knots do move the swimmer
+    np.testing.assert_allclose(grad, ref_grad, rtol=0, atol=1e-2 * np.abs(ref_grad).max())
+    np.testing.assert_allclose(jac, ref_jac, rtol=0, atol=1e-2 * np.abs(ref_jac).max())
+
+
+def test_gauss_newton_iterations_never_lower_the_objective(walker):
+    settings = GaussNewtonSettings(horizon=8, knots=3, iterations=4, damping=1e-4)
+    gn = GaussNewtonShooting(settings)
+    gn.reset(walker, seed=0)
+    gn.plan(walker)
+    history = gn.last_["objectives"]
+    assert len(history) == 4
+    starts = [h[0] for h in history]
+    ends = [h[1] for h in history]
+    assert all(e >= s for s, e in history)
+    assert starts[1:] == ends[:-1]  # the next iteration starts where the last one ended
+    assert ends[-1] > starts[0]  # and the plan did improve
+    state = walker.get_wrapper_attr("get_state")()
+    again = gn._evaluate(state, gn.plan_.knots[None])
+    assert again.objective[0] == ends[-1]
+
+
+def test_mppi_with_zero_noise_returns_its_warm_start(walker):
+    mppi = MPPI(MPPISettings(horizon=6, knots=3, samples=4, noise=0.0))
+    mppi.reset(walker, seed=0)
+    knots = np.random.default_rng(3).uniform(-1, 1, mppi.plan_.knots.shape)
+    mppi.plan_.knots = knots.copy()
+    mppi.plan(walker)
+    np.testing.assert_array_equal(mppi.plan_.knots, knots)
+
+
+def test_mppi_beats_zero_control_on_a_short_horizon(walker):
+    mppi = MPPI(MPPISettings(horizon=10, knots=3, samples=12, noise=0.5, iterations=3))
+    mppi.reset(walker, seed=0)
+    mppi.plan(walker)
+    assert mppi.last_["rollouts"] == 36  # 3 iterations of 12 samples
+    state = walker.get_wrapper_attr("get_state")()
+    ev = mppi._evaluate(state, np.stack([mppi.plan_.knots, np.zeros_like(mppi.plan_.knots)]))
+    assert ev.objective[0] > ev.objective[1] + 1e-3
+
+
+@pytest.mark.parametrize("planner", ["mppi", "gn"])
+def test_same_seed_same_episode_whatever_the_thread_count(planner):
+    results = []
+    for threads in (1, 2, 1):
+        env = small_env("walk")
+        settings = dict(horizon=6, knots=2, threads=threads)
+        if planner == "mppi":
+            p = MPPI(MPPISettings(samples=4, **settings))
+        else:
+            p = GaussNewtonShooting(GaussNewtonSettings(**settings))
+        results.append(run_episode(env, p, 0.1, replan_every=2, seed=5, progress=False))
+    a, b, c = results
+    for key in ("rewards", "actions", "com", "orientation"):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key))
+    np.testing.assert_array_equal(a.states[-1].q, b.states[-1].q)
+    np.testing.assert_array_equal(a.actions, c.actions)
+    assert np.any(a.actions != 0)
+
+
+def test_episode_result_records_the_episode(walker, tmp_path):
+    env = small_env("walk", render_mode="rgb_array")
+    p = MPPI(MPPISettings(horizon=4, knots=2, samples=3))
+    video = tmp_path / "walk.mp4"
+    res = run_episode(env, p, 0.1, replan_every=2, seed=0, progress=True, video=video)
+    assert res.rewards.shape == (4,) and res.actions.shape == (4, 3) and res.com.shape == (5, 3)
+    assert len(res.states) == 5 and res.replans == 2 and list(res.replan_steps) == [0, 2]
+    assert res.stop_reason == "time"
+    assert res.R == pytest.approx(res.distance[-1], abs=1e-12)
+    assert res.distance_between(0.05) == pytest.approx(res.distance[4] - res.distance[2])
+    bound = env.get_wrapper_attr("action_bound")
+    assert np.all(np.abs(res.actions) <= bound)
+    assert "replans" in res.summary() and video.stat().st_size > 500
+    with pytest.raises(ValueError, match=r"times \(0.5, None\) must lie in \[0, 0.1\] s"):
+        res.distance_between(0.5)
+
+
+def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
+    settings = MPPISettings(horizon=8, knots=4, period=8, window=4, gait_seed=True, samples=2,
+                            noise=0.0)  # fmt: skip
+    p = MPPI(settings)
+    p.reset(walker, seed=0)
+    assert p.seed_["gait"].startswith("5Hz")
+    u = p.plan_.controls()
+    assert np.abs(u).max() > 0.4
+    first = p.action(walker)
+    np.testing.assert_allclose(first / walker.get_wrapper_attr("action_bound"), u[0])
+    np.testing.assert_allclose(p.plan_.controls()[:7], u[1:], atol=1e-14)
+
+
+@pytest.mark.parametrize(
+    ("cls", "kwargs", "message"),
+    [
+        (PlannerSettings, {"horizon": 0}, "horizon must be an integer >= 1, got 0"),
+        (PlannerSettings, {"horizon": 4, "knots": 5}, r"knots = 5 exceeds the horizon \(4"),
+        (PlannerSettings, {"knots": 0}, "knots must be an integer >= 1, got 0"),
+        (PlannerSettings, {"period": 4, "knots": 6}, r"knots = 6 exceeds the period \(4"),
+        (PlannerSettings, {"window": 50}, r"window = 50 exceeds the horizon \(40\)"),
+        (PlannerSettings, {"gait_seed": True}, "gait_seed needs a periodic plan"),
+        (MPPISettings, {"samples": 0}, "samples must be an integer >= 1, got 0"),
+        (MPPISettings, {"samples": 2.5}, "samples must be an integer >= 1, got 2.5"),
+        (MPPISettings, {"temperature": 0.0}, "temperature must be a finite number > 0, got 0.0"),
+        (MPPISettings, {"temperature": float("nan")}, "temperature must be .* got nan"),
+        (MPPISettings, {"noise": -0.1}, "noise must be a finite number >= 0, got -0.1"),
+        (GaussNewtonSettings, {"fd_step": 0.0}, "fd_step must be a finite number > 0, got 0.0"),
+        (GaussNewtonSettings, {"line_search": ()}, r"line_search must be positive numbers"),
+    ],
+)
+def test_invalid_settings_raise_value_errors_naming_the_value(cls, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        cls(**kwargs)
+
+
+def test_invalid_weights_and_inputs_raise_clear_errors(walker):
+    with pytest.raises(ValueError, match="weight lateral must be finite and >= 0, got -1.0"):
+        CostWeights(lateral=-1.0)
+    with pytest.raises(ValueError, match="weight effort must be finite and >= 0, got inf"):
+        CostWeights(effort=float("inf"))
+    with pytest.raises(TypeError, match="weights must be a CostWeights, got dict"):
+        PlannerSettings(weights={"lateral": 1.0})
+    with pytest.raises(TypeError, match="settings must be MPPISettings, got GaussNewtonSettings"):
+        MPPI(GaussNewtonSettings())
+    with pytest.raises(RuntimeError, match=r"MPPI.reset\(env, seed\) must be called first"):
+        MPPI().plan(walker)
+    with pytest.raises(ValueError, match="replan_every must be a positive integer, got 0"):
+        run_episode(walker, MPPI(), 1.0, replan_every=0)
+    with pytest.raises(ValueError, match="no defaults for 'softrom_gym/SoftRobot-v0'"):
+        default_settings("softrom_gym/SoftRobot-v0", "mppi")
+    with pytest.raises(ValueError, match=r"unknown planner 'ilqr'; valid: \['gn', 'mppi'\]"):
+        default_planner("CrossWalk-v0", "ilqr")
+    with pytest.raises(TypeError, match="planners need a softrom_gym env"):
+        MPPI().reset(gym.make("CartPole-v1"))
+
+
+def test_defaults_are_valid_for_every_benchmark():
+    for name in softrom_gym.BENCHMARKS:
+        for planner in ("mppi", "gn"):
+            settings, every = default_settings(f"softrom_gym/{name}", planner)
+            assert settings.horizon * 0.025 >= 1.0  # a gait cycle or more
+            assert 1 <= every <= settings.horizon
+
+
+def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
+    assert cli_main(["BeamWalk-v0", "--planner", "gn", "--seconds", "0.05", "--horizon", "4",
+                     "--iterations", "1", "--no-progress"]) == 0  # fmt: skip
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("BeamWalk-v0 gn: 0.05 s") and "real-time factor" in line
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["BeamWalk-v0", "--samples", "0"])
+    assert exc.value.code == 2
+    assert "samples must be an integer >= 1, got 0" in capsys.readouterr().err

@@ -1,0 +1,75 @@
+"""SplinePlan: the interpolation matrix S and the warm-start shift."""
+
+import numpy as np
+import pytest
+
+from controllers import SplinePlan
+
+
+@pytest.mark.parametrize("kind", ["cubic", "linear"])
+@pytest.mark.parametrize("knots", [1, 2, 3, 5, 9])
+def test_S_reproduces_constant_and_linear_signals_exactly(kind, knots):
+    plan = SplinePlan(horizon=33, knots=knots, control_dim=2, kind=kind)
+    times = plan.spacing * np.arange(knots) if knots > 1 else np.zeros(1)
+    level, slope = np.array([0.3, -0.7]), np.array([0.01, -0.02])
+    plan.knots = np.tile(level, (knots, 1))
+    np.testing.assert_allclose(plan.controls(), np.tile(level, (33, 1)), rtol=0, atol=1e-15)
+    if knots > 1:
+        plan.knots = level + times[:, None] * slope
+        expected = level + np.arange(33)[:, None] * slope
+        np.testing.assert_allclose(plan.controls(), expected, rtol=0, atol=1e-14)
+    # The paper's S (HC x KC) acts on the row-major stacked knots.
+    s = plan.full_matrix()
+    assert s.shape == (33 * 2, knots * 2)
+    np.testing.assert_allclose(s @ plan.knots.ravel(), plan.controls().ravel(), atol=1e-14)
+
+
+def test_cubic_passes_through_its_knots_and_periodic_plans_repeat():
+    rng = np.random.default_rng(0)
+    plan = SplinePlan(horizon=41, knots=5, control_dim=3)
+    plan.knots = rng.uniform(-1, 1, (5, 3))
+    np.testing.assert_allclose(plan.controls()[::10], plan.knots, atol=1e-15)
+    periodic = SplinePlan(horizon=50, knots=8, control_dim=3, period=20)
+    periodic.knots = rng.uniform(-1, 1, (8, 3))
+    u = periodic.controls()
+    np.testing.assert_allclose(u[20:40], u[:20], atol=1e-14)
+    np.testing.assert_allclose(u[0:20:5][:, 0], periodic.knots[0:8:2, 0], atol=1e-14)
+
+
+def test_shift_keeps_the_future_values():
+    rng = np.random.default_rng(1)
+    periodic = SplinePlan(horizon=40, knots=6, control_dim=2, period=24)
+    periodic.knots = rng.uniform(-1, 1, (6, 2))
+    before = periodic.controls()
+    after = periodic.copy()
+    after.shift(7)
+    np.testing.assert_allclose(after.controls()[:33], before[7:], atol=1e-14)
+    # A linear open plan shifted by whole knot intervals: exact, then the last value held.
+    linear = SplinePlan(horizon=41, knots=5, control_dim=2, kind="linear")
+    linear.knots = rng.uniform(-1, 1, (5, 2))
+    before = linear.controls()
+    linear.shift(20)
+    np.testing.assert_allclose(linear.controls()[:21], before[20:], atol=1e-14)
+    np.testing.assert_allclose(linear.controls()[21:], np.tile(before[-1], (20, 1)), atol=1e-14)
+    # A cubic open plan keeps its values at the new knot times.
+    cubic = SplinePlan(horizon=41, knots=5, control_dim=2)
+    cubic.knots = rng.uniform(-1, 1, (5, 2))
+    before = cubic.controls()
+    cubic.shift(13)
+    np.testing.assert_allclose(cubic.controls()[[0, 10, 20]], before[[13, 23, 33]], atol=1e-14)
+    np.testing.assert_allclose(cubic.value(0.0), before[13], atol=1e-14)
+
+
+def test_bad_plans_raise_errors_naming_the_value():
+    with pytest.raises(ValueError, match="horizon must be a positive integer, got 0"):
+        SplinePlan(0, 2, 3)
+    with pytest.raises(ValueError, match=r"knots = 9 exceeds the horizon \(8 steps\)"):
+        SplinePlan(8, 9, 3)
+    with pytest.raises(ValueError, match=r"knots = 9 exceeds the period \(6 steps\)"):
+        SplinePlan(20, 9, 3, period=6)
+    with pytest.raises(
+        ValueError, match="kind must be one of \\['cubic', 'linear'\\], got 'quintic'"
+    ):
+        SplinePlan(8, 2, 3, kind="quintic")
+    with pytest.raises(ValueError, match="steps must be a finite number >= 0, got -1"):
+        SplinePlan(8, 2, 3).shift(-1)

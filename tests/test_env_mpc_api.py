@@ -1,0 +1,77 @@
+"""The env's MPC API as planners see it: through gym.make's wrappers, exact replay, per-step
+terms and the price of divergence."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import softrom_gym
+
+IDS = [f"softrom_gym/{name}" for name in softrom_gym.BENCHMARKS] + ["softrom_gym/SoftRobot-v0"]
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_a_plan_replays_bit_for_bit_through_step(env_id):
+    env = gym.make(env_id)
+    env.reset(seed=1)
+    get_state = env.get_wrapper_attr("get_state")
+    set_state = env.get_wrapper_attr("set_state")
+    rollout = env.get_wrapper_attr("rollout")
+    bound = env.get_wrapper_attr("action_bound")
+    start = get_state()
+    rng = np.random.default_rng(0)
+    # Beyond the bound on purpose: clipping must be the same on both paths.
+    controls = rng.uniform(-1.2, 1.2, (2, 4, 3)) * bound
+    out = rollout(start, controls)
+    for dtype in (np.float32, np.float64):
+        set_state(start)
+        for t in range(controls.shape[1]):
+            _, reward, terminated, _, info = env.step(controls[1, t].astype(dtype))
+            assert reward == out["rewards"][1, t]
+            np.testing.assert_array_equal(info["com"], out["com"][1, t])
+            assert info["orientation"] == out["orientation"][1, t]
+            assert info["lateral"] == out["lateral"][1, t]
+            assert info["effort"] == out["effort"][1, t]
+            assert not terminated
+        state = get_state()
+        for name in ("q", "qdot", "impulses"):
+            np.testing.assert_array_equal(getattr(state, name), out[name][1], err_msg=name)
+    env.close()
+
+
+def test_per_step_terms_have_their_documented_shapes_and_meaning():
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    rollout = env.get_wrapper_attr("rollout")
+    state = env.get_wrapper_attr("get_state")()
+    observe = np.eye(state.q.size)[:2]
+    controls = np.full((3, 5, 3), 0.5 * env.get_wrapper_attr("action_bound"))
+    out = rollout(state, controls, observe=observe)
+    assert out["com"].shape == (3, 5, 3) and out["theta"].shape == (3, 5, 3)
+    for key in ("rewards", "orientation", "lateral", "effort", "lost"):
+        assert out[key].shape == (3, 5), key
+    np.testing.assert_array_equal(out["orientation"], np.linalg.norm(out["theta"], axis=-1))
+    # R per step is the COM's advance along d (the paper's d^T v dt, summed over sub-steps).
+    com0 = env.unwrapped.model.com(state.q)
+    advance = np.diff(np.concatenate([np.broadcast_to(com0, (3, 1, 3)), out["com"]], 1), axis=1)
+    np.testing.assert_allclose(out["rewards"], advance[..., 0], rtol=1e-9, atol=1e-12)
+    assert out["observed"].shape == (3, 5, 2)
+    np.testing.assert_array_equal(out["observed"][:, -1], out["q"][:, :2])
+    assert not out["lost"].any()
+    assert env.get_wrapper_attr("dt") == pytest.approx(5 / 200)
+    assert env.get_wrapper_attr("body_length") == pytest.approx(0.8)
+    with pytest.raises(ValueError, match=r"observe has shape \(2, 3\), expected \(P, 26\)"):
+        rollout(state, controls, observe=np.zeros((2, 3)))
+
+
+def test_divergence_is_marked_as_lost_steps_from_the_diverging_step_on():
+    # A huge action bound lets one step blow the simulation up on purpose.
+    env = gym.make("softrom_gym/SoftRobot-v0", robot="beam", action_scale=1e9)
+    env.reset(seed=0)
+    bound = env.get_wrapper_attr("action_bound")
+    controls = np.zeros((2, 6, 3))
+    controls[1, 3:] = bound
+    out = env.get_wrapper_attr("rollout")(env.get_wrapper_attr("get_state")(), controls)
+    assert list(out["diverged"]) == [False, True]
+    np.testing.assert_array_equal(out["lost"], [[0] * 6, [0, 0, 0, 1, 1, 1]])
+    np.testing.assert_array_equal(out["rewards"][1, 3:], 0.0)
