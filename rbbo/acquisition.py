@@ -29,7 +29,7 @@ from pymanopt.manifolds import Grassmann
 from pymanopt.optimizers import ConjugateGradient
 from pymanopt.optimizers.optimizer import OptimizerResult
 
-from .gp import GrassmannGP
+from .gp import GrassmannGP, single_threaded_blas
 from .grassmann import _check_dims, random_points
 from .optimizers import LRBFGS
 
@@ -206,7 +206,14 @@ def maximize_on_grassmann(
     m, c = _check_dims(sim_dim, control_dim)
     if optimizer not in OPTIMIZERS:
         raise ValueError(f"unknown optimizer {optimizer!r}; valid: {list(OPTIMIZERS)}")
-    rng = np.random.default_rng(rng)
+    with single_threaded_blas():
+        return _maximize(function, m, c, incumbents, np.random.default_rng(rng), optimizer,
+                         n_random, n_perturbations, perturbation_scale, n_starts,
+                         max_iterations, min_gradient_norm)  # fmt: skip
+
+
+def _maximize(function, m, c, incumbents, rng, optimizer, n_random, n_perturbations,
+              perturbation_scale, n_starts, max_iterations, min_gradient_norm):  # fmt: skip
     candidates = [random_points(m, c, n_random, rng)] if n_random > 0 else []
     if incumbents is not None and len(incumbents):
         inc = np.asarray(incumbents, dtype=float).reshape(-1, m, c)
