@@ -77,9 +77,12 @@ class Evaluation:
     worker : str
         Which worker ran it.
     kind : str
-        "initial", "acquisition" or "confirm".
+        "initial", "random", "acquisition", or "confirm-init" / "confirm-best" (the identity
+        baseline and the recommendation evaluated on fresh seeds at the end of a run).
     error : str or None
         Why it failed.
+    R_seeds : list of float
+        R for each seed (their mean is R).
     """
 
     index: int
@@ -93,6 +96,7 @@ class Evaluation:
     worker: str = ""
     kind: str = "acquisition"
     error: str | None = None
+    R_seeds: list[float] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -106,6 +110,8 @@ class Evaluation:
     def to_json(self) -> str:
         record = asdict(self)
         record["basis"] = self.basis.tolist()
+        record["seeds"] = [int(s) for s in self.seeds]
+        record["R_seeds"] = [float(r) for r in self.R_seeds]
         return json.dumps(record, allow_nan=False)
 
     @classmethod
