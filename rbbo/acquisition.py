@@ -24,11 +24,8 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
-import pymanopt
-from pymanopt.manifolds import Grassmann
-from pymanopt.optimizers import ConjugateGradient
-from pymanopt.optimizers.optimizer import OptimizerResult
 
+from ._pymanopt import ConjugateGradient, Grassmann, OptimizerResult, pymanopt
 from .gp import GrassmannGP, single_threaded_blas
 from .grassmann import _check_dims, random_points
 from .optimizers import LRBFGS

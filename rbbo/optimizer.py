@@ -220,13 +220,15 @@ class RBBO:
         return cls(config, store=RunStore.create(path, document), objective_spec=objective_spec)
 
     @classmethod
-    def resume(cls, path) -> RBBO:
+    def resume(cls, path, *, read_only: bool = False) -> RBBO:
         """Rebuild the optimiser of run directory ``path`` from its history.
 
         Evaluations that were in flight when the run stopped are lost (they have no record);
-        everything recorded is kept. A truncated last line is dropped with a warning.
+        everything recorded is kept. A truncated last line is dropped with a warning (with
+        ``read_only``, for looking at a run that may still be going, it is skipped and the
+        directory is left untouched).
         """
-        store = RunStore.open(path)
+        store = RunStore.open(path, repair=not read_only)
         settings = store.config.get("rbbo")
         if not isinstance(settings, dict):
             raise RunDirectoryError(f"{store.path}/config.json has no 'rbbo' settings")

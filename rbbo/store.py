@@ -187,8 +187,12 @@ class RunStore:
         return cls(path, config)
 
     @classmethod
-    def open(cls, path: str | os.PathLike) -> RunStore:
-        """Open an existing run directory, repairing a truncated last history line."""
+    def open(cls, path: str | os.PathLike, *, repair: bool = True) -> RunStore:
+        """Open an existing run directory.
+
+        With ``repair`` (for resuming) a truncated last history line is cut with a warning;
+        without (for reading a run that may still be writing) it is only skipped.
+        """
         path = Path(path)
         if not path.is_dir():
             raise RunDirectoryError(f"{path} is not a directory")
@@ -201,7 +205,8 @@ class RunStore:
         if not isinstance(config, dict):
             raise RunDirectoryError(f"{path / CONFIG} does not hold a JSON object")
         store = cls(path, config)
-        store._repair_tail()
+        if repair:
+            store._repair_tail()
         return store
 
     def _repair_tail(self) -> None:
@@ -247,8 +252,7 @@ class RunStore:
                 lines = f.read().split("\n")
             except UnicodeDecodeError as exc:
                 raise RunDirectoryError(f"{self.history_path} is not UTF-8 text: {exc}") from exc
-        if lines and lines[-1] == "":
-            lines.pop()
+        lines.pop()  # "" after the final newline, or a partial line still being written
         for number, line in enumerate(lines, start=1):
             try:
                 out.append(Evaluation.from_json(line))

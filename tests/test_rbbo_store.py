@@ -44,6 +44,17 @@ def test_truncated_last_line_is_dropped_with_a_warning(tmp_path):
     assert [e.index for e in RunStore.open(tmp_path).history()] == [0, 1, 2, 4]
 
 
+def test_read_only_open_skips_a_line_being_written_and_changes_nothing(tmp_path):
+    store = RunStore.create(tmp_path, {})
+    store.append(_evaluation(0))
+    with open(store.history_path, "a") as f:
+        f.write('{"index": 1, "bas')  # another process is writing this line right now
+    before = store.history_path.read_bytes()
+    reader = RunStore.open(tmp_path, repair=False)
+    assert [e.index for e in reader.history()] == [0]
+    assert store.history_path.read_bytes() == before
+
+
 def test_corrupted_line_in_the_middle_is_an_error(tmp_path):
     store = RunStore.create(tmp_path, {})
     store.append(_evaluation(0))

@@ -33,7 +33,8 @@ import time
 from collections import deque
 
 import numpy as np
-from pymanopt.optimizers.optimizer import Optimizer, OptimizerResult
+
+from .._pymanopt import Optimizer, OptimizerResult
 
 __all__ = ["LRBFGS"]
 
