@@ -348,25 +348,33 @@ def cmd_rollout(args) -> int:
 
 
 def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> int:
-    import shutil
-    import tempfile
+    import inspect
 
-    from gymnasium.wrappers import RecordVideo
+    import controllers
 
     from .objective import settled_reward_rate
 
+    video.parent.mkdir(parents=True, exist_ok=True)
     env = objective.make_env(basis, render_mode="rgb_array")
-    with tempfile.TemporaryDirectory() as folder:
-        env = RecordVideo(env, folder, episode_trigger=lambda _: True, name_prefix="rollout",
-                          disable_logger=True)  # fmt: skip
-        result = objective.episode(basis, seconds, seed, env=env)
-        env.close()
-        clips = sorted(Path(folder).glob("*.mp4"))
-        if not clips:
-            raise UsageError("no video was written (does the env render rgb_array frames?)")
-        video.parent.mkdir(parents=True, exist_ok=True)
-        shutil.move(str(clips[0]), video)
-    r = settled_reward_rate(result, objective.step_seconds(env), objective.settle_time, seconds)
+    if "video" in inspect.signature(controllers.run_episode).parameters:
+        result = objective.episode(basis, seconds, seed, env=env, video=str(video))
+    else:  # record through Gymnasium's wrapper
+        import shutil
+        import tempfile
+
+        from gymnasium.wrappers import RecordVideo
+
+        with tempfile.TemporaryDirectory() as folder:
+            wrapped = RecordVideo(env, folder, episode_trigger=lambda _: True,
+                                  name_prefix="rollout", disable_logger=True)  # fmt: skip
+            result = objective.episode(basis, seconds, seed, env=wrapped)
+            wrapped.close()
+            clips = sorted(Path(folder).glob("*.mp4"))
+            if not clips:
+                raise UsageError("no video was written (does the env render rgb_array frames?)")
+            shutil.move(str(clips[0]), video)
+    dt = getattr(result, "dt", None) or objective.step_seconds(env)
+    r = settled_reward_rate(result, dt, objective.settle_time, seconds)
     print(f"R = {r:.6g} per second; video: {video}")
     return 0
 

@@ -124,7 +124,8 @@ class SyntheticObjective:
 class EnvObjective:
     """R(B_c, T, seed): the MPC controller's task reward on a softrom env, per second.
 
-    Runs ``controllers.run_episode(env, planner, T, seed=seed)`` with the env built for B_c,
+    Runs ``controllers.run_episode(env, planner, T, seed=seed, progress=False)`` with the env
+    built for B_c and the controller's default planner for the benchmark,
     and returns the reward R (the task term only, not the regulariser Lambda) collected from
     the settle time on, divided by the time it covers:
 
@@ -203,18 +204,34 @@ class EnvObjective:
         self._env = self.make_env(basis)
         return self._env
 
-    def planner(self, env):
+    def planner(self):
+        """The MPC planner and its replan interval (env steps).
+
+        ``controllers.default_planner(env_id, controller, **planner_kwargs)`` (the
+        benchmark's tuned settings) when the controllers provide it for this env, else the
+        planner class with default settings, replanning every step.
+        """
         import controllers
 
+        default = getattr(controllers, "default_planner", None)
+        if default is not None:
+            try:
+                return default(self.env_id, self.controller, **self.planner_kwargs)
+            except ValueError:  # no tuned defaults for this env id
+                pass
         cls = controllers.MPPI if self.controller == "mppi" else controllers.GaussNewtonShooting
-        return cls(env, **self.planner_kwargs)
+        return cls(**self.planner_kwargs), 1
 
-    def episode(self, basis: np.ndarray, T: float, seed: int, env=None):
+    def episode(self, basis: np.ndarray, T: float, seed: int, env=None, **kwargs):
         """Run one MPC episode of T seconds; returns the controllers' EpisodeResult."""
         import controllers
 
         env = self._env_for(basis) if env is None else env
-        return controllers.run_episode(env, self.planner(env), float(T), seed=int(seed))
+        planner, replan_every = self.planner()
+        if replan_every != 1:
+            kwargs["replan_every"] = replan_every
+        return controllers.run_episode(env, planner, float(T), seed=int(seed), progress=False,
+                                       **kwargs)  # fmt: skip
 
     @staticmethod
     def step_seconds(env) -> float:
@@ -231,7 +248,8 @@ class EnvObjective:
             raise ValueError(f"T = {T} s must exceed the settle time {self.settle_time} s")
         env = self._env_for(basis)
         result = self.episode(basis, T, seed, env)
-        return settled_reward_rate(result, self.step_seconds(env), self.settle_time, T)
+        dt = getattr(result, "dt", None) or self.step_seconds(env)
+        return settled_reward_rate(result, dt, self.settle_time, T)
 
     def spec(self) -> dict[str, Any]:
         return {

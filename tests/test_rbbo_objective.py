@@ -46,14 +46,15 @@ def _fake_controllers(calls):
     module = types.ModuleType("controllers")
 
     class MPPI:
-        def __init__(self, env, **kwargs):
-            self.env = env
+        def __init__(self, settings=None):
+            self.settings = settings
 
     module.MPPI = MPPI
     module.GaussNewtonShooting = MPPI
 
-    def run_episode(env, planner, seconds, seed=None, progress=False):
-        calls.append((seconds, seed))
+    def run_episode(env, planner, seconds, replan_every=1, seed=0, progress=True, video=None):
+        assert isinstance(planner, MPPI) and not progress
+        calls.append((seconds, seed) if replan_every == 1 else (seconds, seed, replan_every))
         steps = round(seconds / STEP)
         t = np.arange(steps) * STEP
         lean = np.where(t < 2.0, 1.0, 0.0)
@@ -78,6 +79,22 @@ def test_env_objective_measures_reward_per_second_after_settling(controllers):
     assert objective(basis, 6.0, seed=3) == pytest.approx(4.0)
     assert controllers == [(6.0, 3)]
     assert objective(np.eye(20)[:, 1:4], 10.0, seed=3) == pytest.approx(0.0)
+
+
+def test_env_objective_uses_the_controllers_tuned_defaults(controllers, monkeypatch):
+    module = sys.modules["controllers"]
+    asked = []
+
+    def default_planner(env_id, planner, **changes):
+        asked.append((env_id, planner, changes))
+        return module.MPPI("tuned"), 10
+
+    monkeypatch.setattr(module, "default_planner", default_planner, raising=False)
+    objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, controller="gn",
+                             planner_kwargs={"samples": 8})  # fmt: skip
+    objective(np.eye(20)[:, :3], 4.0, seed=1)
+    assert asked == [("rbbo_test/StandIn-v0", "gn", {"samples": 8})]
+    assert controllers == [(4.0, 1, 10)]
 
 
 def test_env_objective_pickles_without_its_env(controllers):
