@@ -23,8 +23,8 @@ __all__ = [
 
 _HOMES = {
     "RBBO": "optimizer",
-    "RBBOConfig": "optimizer",
-    "RBBOResult": "optimizer",
+    "RBBOConfig": "config",
+    "RBBOResult": "config",
     "BOCAFidelity": "boca",
     "EnvObjective": "objective",
     "SyntheticObjective": "objective",
