@@ -2,7 +2,8 @@
 
 Table columns (as the paper's Table I): N (nodes of the robot's mesh), M, C, R_init (identity
 basis), R* (RBBO's recommendation), improvement R*/R_init - 1, plus the number of evaluations
-and the wall time. R_init and R* are means over fresh seeds at T_max (see
+and the wall time. R_init and R* are means over fresh seeds at T_max, shown with their
+standard deviation over those seeds when there are several (see
 :mod:`rbbo.optimizer`); a run still in progress shows "-" for them.
 """
 
@@ -33,6 +34,14 @@ def _duration(seconds: float) -> str:
     return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
 
 
+def _sd(values) -> float | None:
+    return float(np.std(values, ddof=1)) if len(values) > 1 else None
+
+
+def _mean_sd(mean, sd) -> str:
+    return _fmt(mean, ".4g") + ("" if mean is None or sd is None else f"±{sd:.2g}")
+
+
 def report_row(opt: RBBO) -> dict[str, Any]:
     """The report's numbers for one run (an RBBO rebuilt from its directory)."""
     result = opt.result()
@@ -45,6 +54,8 @@ def report_row(opt: RBBO) -> dict[str, Any]:
         "C": opt.config.control_dim,
         "R_init": result.R_init,
         "R_star": result.R_star,
+        "R_init_sd": _sd(result.R_init_seeds),
+        "R_star_sd": _sd(result.R_star_seeds),
         "improvement_pct": result.improvement_pct,
         "evaluations": result.evaluations,
         "failed": result.failed,
@@ -62,7 +73,7 @@ def format_table(rows: list[dict[str, Any]]) -> str:
         failed = f" ({r['failed']} failed)" if r["failed"] else ""
         lines.append([
             r["problem"] or "-", _fmt(r["N"], "d"), str(r["M"]), str(r["C"]),
-            _fmt(r["R_init"], ".4g"), _fmt(r["R_star"], ".4g"),
+            _mean_sd(r["R_init"], r.get("R_init_sd")), _mean_sd(r["R_star"], r.get("R_star_sd")),
             _fmt(r["improvement_pct"], ".1f", " %"), f"{r['evaluations']}{failed}",
             _duration(r["wall_s"]),
         ])  # fmt: skip
