@@ -1,0 +1,400 @@
+"""``rbbo``: optimise a control space B_c from the command line.
+
+::
+
+    rbbo optimize softrom_gym/CrossWalk-v0 --control-dim 3 --budget 30m --out runs/cross-walk
+    rbbo resume runs/cross-walk               # after a kill: continues from history.jsonl
+    rbbo report runs/cross-walk               # table (Table I's columns) + convergence.png
+    rbbo rollout runs/cross-walk --video cross.mp4
+
+ENV_ID is a registered Gymnasium id (``CrossWalk-v0`` is short for
+``softrom_gym/CrossWalk-v0``) or ``synthetic[:key=value,...]``, a Grassmann objective with a
+known optimum that needs neither the simulator nor the controllers (keys: seed, noise, bias,
+delay; see :mod:`rbbo.objective`). Bad arguments print one line naming the problem and exit
+with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import re
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main", "parse_duration"]
+
+_DURATION = re.compile(r"^(?:(\d+(?:\.\d*)?)h)?(?:(\d+(?:\.\d*)?)m)?(?:(\d+(?:\.\d*)?)s)?$")
+
+
+class UsageError(Exception):
+    """Bad command-line input: reported in one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, not argparse's usage block
+        raise UsageError(message)
+
+
+def parse_duration(text: str) -> float:
+    """'30m', '2h', '1h30m', '45s' or a plain number of seconds -> seconds."""
+    text = str(text).strip().lower()
+    try:
+        seconds = float(text)
+    except ValueError:
+        match = _DURATION.match(text)
+        if not text or match is None:
+            raise argparse.ArgumentTypeError(
+                f"invalid duration {text!r}; use e.g. 30m, 2h, 1h30m, 45s"
+            ) from None
+        h, m, s = (float(g) if g else 0.0 for g in match.groups())
+        seconds = 3600 * h + 60 * m + s
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise argparse.ArgumentTypeError(f"duration must be positive, got {text!r}")
+    return seconds
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="rbbo", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    opt = sub.add_parser("optimize", help="optimise B_c for an env (or a synthetic objective)")
+    opt.add_argument("env_id", metavar="ENV_ID")
+    opt.add_argument("--control-dim", type=_positive_int, default=3, help="C (default 3)")
+    opt.add_argument("--sim-dim", type=_positive_int, default=20, help="M (default 20)")
+    opt.add_argument("--controller", choices=["mppi", "gn"], default="mppi")
+    opt.add_argument("--budget", type=parse_duration, help="wall time, e.g. 30m, 2h")
+    opt.add_argument("--iterations", type=_positive_int, help="number of evaluations")
+    opt.add_argument("--fidelity", choices=["bo", "boca"], default="bo")
+    opt.add_argument("--t-min", type=_positive_float, default=4.0, help="shortest T, s (BOCA)")
+    opt.add_argument("--t-max", type=_positive_float, default=10.0, help="full T, s")
+    opt.add_argument("--settle-time", type=float, default=2.0,
+                     help="R is measured from this time on, s (default 2)")  # fmt: skip
+    opt.add_argument("--init", type=int, default=5, help="random initial points (default 5)")
+    opt.add_argument("--workers", type=_positive_int, default=1)
+    opt.add_argument("--executor", choices=["process", "ray", "serial"], default="process")
+    opt.add_argument("--address", help="Ray cluster address (with --executor ray)")
+    opt.add_argument("--timeout", type=parse_duration, default=600.0,
+                     help="per-evaluation limit (default 10m)")  # fmt: skip
+    opt.add_argument("--seed", type=int, default=0)
+    opt.add_argument("--seeds", type=_positive_int, default=1,
+                     help="common-random-number seeds per evaluation (default 1)")  # fmt: skip
+    opt.add_argument("--confirm-seeds", type=int, default=3,
+                     help="fresh seeds for R_init and R* (default 3)")  # fmt: skip
+    opt.add_argument("--optimizer", choices=["lrbfgs", "cg"], default="lrbfgs",
+                     help="acquisition maximiser")  # fmt: skip
+    opt.add_argument("--out", type=Path, help="run directory (default runs/<env>-<time>)")
+    opt.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    res = sub.add_parser("resume", help="continue a run from its directory")
+    res.add_argument("run_dir", type=Path, metavar="DIR")
+    res.add_argument("--budget", type=parse_duration, help="new total wall-time budget")
+    res.add_argument("--iterations", type=_positive_int, help="new total number of evaluations")
+    res.add_argument("--workers", type=_positive_int)
+    res.add_argument("--no-progress", action="store_true")
+
+    rep = sub.add_parser("report", help="print the table and write convergence.png")
+    rep.add_argument("run_dirs", type=Path, nargs="+", metavar="DIR")
+    rep.add_argument("--png", type=Path, help="plot path (default DIR/convergence.png)")
+
+    rol = sub.add_parser("rollout", help="replay the best B_c with MPC")
+    rol.add_argument("run_dir", type=Path, metavar="DIR")
+    rol.add_argument("--video", type=Path, help="write an mp4 of the rollout")
+    rol.add_argument("--seconds", type=_positive_float, help="episode length (default T_max)")
+    rol.add_argument("--seed", type=int, default=12345)
+    return parser
+
+
+# -- helpers ------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _bad_input():
+    """Errors raised while validating the user's input are usage errors (exit status 2)."""
+    try:
+        yield
+    except (ValueError, TypeError, ImportError) as exc:
+        raise UsageError(str(exc)) from exc
+
+
+def _resolve_env(env_id: str) -> str:
+    """A registered env id (short names get the softrom_gym/ namespace)."""
+    import gymnasium as gym
+
+    import softrom_gym  # noqa: F401  (registers the envs)
+
+    if env_id not in gym.registry and f"softrom_gym/{env_id}" in gym.registry:
+        env_id = f"softrom_gym/{env_id}"
+    if env_id not in gym.registry:
+        known = sorted(k for k in gym.registry if k.startswith("softrom_gym/"))
+        raise UsageError(f"unknown ENV_ID {env_id!r}; registered: {', '.join(known)}, synthetic")
+    return env_id
+
+
+def _check_controllers() -> None:
+    try:
+        import controllers
+    except ImportError as exc:  # pragma: no cover - part of this package
+        raise UsageError(f"the env objective needs the controllers package: {exc}") from None
+    missing = [n for n in ("run_episode", "MPPI", "GaussNewtonShooting")
+               if not hasattr(controllers, n)]  # fmt: skip
+    if missing:
+        raise UsageError(
+            f"controllers has no {', '.join(missing)} yet (MPC is issue 6); use ENV_ID "
+            "'synthetic' to try rbbo without the simulator"
+        )
+
+
+def _progress(opt, max_evaluations, budget_s, enabled: bool):
+    """A tqdm bar: evaluations, best R at T_max, time left; returns (callback, close)."""
+    if not enabled:
+        return None, lambda: None
+    from tqdm import tqdm
+
+    done = len(opt.evaluations)
+    bar = tqdm(total=max_evaluations, initial=done, unit="eval", dynamic_ncols=True,
+               file=sys.stderr, desc="rbbo")  # fmt: skip
+    best = [max((e.R for e in opt.evaluations if e.status == "ok"), default=-math.inf)]
+
+    def callback(evaluation) -> None:
+        if evaluation.kind.startswith("confirm"):
+            bar.set_description("rbbo (confirming R_init, R*)")
+            return
+        bar.update(1)
+        if evaluation.status == "ok" and math.isclose(evaluation.T, opt.config.t_max):
+            best[0] = max(best[0], evaluation.R)
+        parts = [f"best R {best[0]:.4g}" if math.isfinite(best[0]) else "best R -"]
+        if budget_s is not None:
+            left = max(budget_s - opt.elapsed_s, 0.0)
+            parts.append(f"{int(left // 60)}m{int(left % 60):02d}s left")
+        bar.set_postfix_str(", ".join(parts))
+
+    return callback, bar.close
+
+
+def _execute(opt, objective, execution: dict, max_evaluations, budget_s, progress: bool) -> int:
+    from .executors import make_executor
+    from .report import format_table, plot_convergence, report_row
+
+    with _bad_input():
+        executor = make_executor(execution["executor"], objective, execution["workers"],
+                                 execution["timeout_s"], execution.get("address"))  # fmt: skip
+    callback, close = _progress(opt, max_evaluations, budget_s, progress)
+    try:
+        opt.run(executor=executor, max_evaluations=max_evaluations, budget_s=budget_s,
+                callback=callback)  # fmt: skip
+    except KeyboardInterrupt:
+        close()
+        executor.shutdown(wait=False)
+        print(f"\ninterrupted; continue with: rbbo resume {opt.store.path}", file=sys.stderr)
+        return 130
+    close()
+    executor.shutdown()
+    print(format_table([report_row(opt)]))
+    png = plot_convergence(opt, opt.store.path / "convergence.png")
+    print(f"run directory: {opt.store.path}  (best basis: best_basis.npy, plot: {png.name})")
+    return 0
+
+
+# -- commands -----------------------------------------------------------------------------
+def cmd_optimize(args) -> int:
+    from .objective import make_objective, parse_objective_spec
+    from .optimizer import RBBO, RBBOConfig
+
+    if args.control_dim > args.sim_dim:
+        raise UsageError(f"--control-dim {args.control_dim} exceeds --sim-dim {args.sim_dim}")
+    if args.t_min >= args.t_max and args.fidelity == "boca":
+        raise UsageError(f"--t-min {args.t_min} must be below --t-max {args.t_max}")
+    if args.address and args.executor != "ray":
+        raise UsageError("--address is for --executor ray")
+    budget, iterations = args.budget, args.iterations
+    if budget is None and iterations is None:
+        budget = 30 * 60.0
+    with _bad_input():
+        spec = parse_objective_spec(args.env_id)
+    problem = {"env_id": args.env_id, "N": None}
+    if spec["kind"] == "env":
+        if args.t_min <= args.settle_time and args.fidelity == "boca":
+            raise UsageError(f"--t-min {args.t_min} must exceed --settle-time {args.settle_time}")
+        if args.t_max <= args.settle_time:
+            raise UsageError(f"--t-max {args.t_max} must exceed --settle-time {args.settle_time}")
+        spec["env_id"] = _resolve_env(spec["env_id"])
+        _check_controllers()
+        spec.update(controller=args.controller, settle_time=args.settle_time)
+        problem["env_id"] = spec["env_id"]
+    else:
+        spec["t_max"] = args.t_max
+    with _bad_input():
+        config = RBBOConfig(
+            sim_dim=args.sim_dim, control_dim=args.control_dim, fidelity=args.fidelity,
+            t_min=args.t_min, t_max=args.t_max, n_init=args.init, seeds=args.seeds,
+            seed=args.seed, n_confirm=args.confirm_seeds, max_evaluations=iterations,
+            budget_s=budget, optimizer=args.optimizer,
+        )  # fmt: skip
+        objective = make_objective(spec, args.sim_dim, args.control_dim)
+    if spec["kind"] == "env":
+        problem["N"] = _node_count(objective)
+    out = args.out
+    if out is None:
+        name = args.env_id.split("/")[-1].split(":")[0]
+        out = Path("runs") / f"{name}-{datetime.now():%Y%m%d-%H%M%S}"
+    execution = {"executor": args.executor, "workers": args.workers,
+                 "timeout_s": args.timeout, "address": args.address}  # fmt: skip
+    with _bad_input():
+        opt = RBBO.create(out, config, objective_spec=objective.spec(),
+                          extra={"execution": execution, "problem": problem})  # fmt: skip
+    return _execute(opt, objective, execution, iterations, budget, not args.no_progress)
+
+
+def _node_count(objective) -> int | None:
+    env = objective.make_env(np.eye(objective.sim_dim)[:, : objective.control_dim])
+    try:
+        return int(env.unwrapped.robot.num_nodes)
+    except AttributeError:
+        return None
+    finally:
+        env.close()
+
+
+def _objective_of(opt):
+    from .objective import make_objective
+
+    spec = opt.objective_spec
+    if not isinstance(spec, dict) or "kind" not in spec:
+        raise UsageError(f"{opt.store.path}/config.json does not say what the objective is")
+    if spec["kind"] == "env":
+        _check_controllers()
+    with _bad_input():
+        return make_objective(spec, opt.config.sim_dim, opt.config.control_dim)
+
+
+def cmd_resume(args) -> int:
+    from .optimizer import RBBO
+
+    opt = RBBO.resume(args.run_dir)
+    objective = _objective_of(opt)
+    execution = dict(opt.store.config.get("execution") or {"executor": "process",
+                     "workers": 1, "timeout_s": 600.0})  # fmt: skip
+    if args.workers:
+        execution["workers"] = args.workers
+    iterations = args.iterations or opt.config.max_evaluations
+    budget = args.budget or opt.config.budget_s
+    started = time.monotonic()
+    code = _execute(opt, objective, execution, iterations, budget, not args.no_progress)
+    if code == 0:
+        print(f"resumed for {time.monotonic() - started:.0f} s", file=sys.stderr)
+    return code
+
+
+def cmd_report(args) -> int:
+    from .report import format_table, load, plot_convergence, report_row
+
+    if args.png is not None and len(args.run_dirs) > 1:
+        raise UsageError("--png names one plot: give one DIR")
+    rows = []
+    for run_dir in args.run_dirs:
+        opt = load(run_dir)
+        rows.append(report_row(opt))
+        png = plot_convergence(opt, args.png or Path(run_dir) / "convergence.png")
+        print(f"{run_dir}: plot {png}", file=sys.stderr)
+    print(format_table(rows))
+    return 0
+
+
+def cmd_rollout(args) -> int:
+    from .objective import EnvObjective
+    from .optimizer import RBBO
+
+    opt = RBBO.resume(args.run_dir, read_only=True)
+    basis = opt.store.best_basis()
+    objective = _objective_of(opt)
+    seconds = args.seconds or opt.config.t_max
+    if not isinstance(objective, EnvObjective):
+        if args.video:
+            raise UsageError("--video needs an env run; a synthetic objective has no robot")
+        r = objective(basis, seconds, args.seed)
+        print(f"R = {r:.6g} per second (T = {seconds:g} s, seed {args.seed}); "
+              f"optimum {objective.value(objective.optimum):.6g}")  # fmt: skip
+        return 0
+    if args.video:
+        return _rollout_video(objective, basis, seconds, args.seed, args.video)
+    r = objective(basis, seconds, args.seed)
+    print(f"R = {r:.6g} per second from t = {objective.settle_time:g} s "
+          f"(T = {seconds:g} s, seed {args.seed})")  # fmt: skip
+    return 0
+
+
+def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> int:
+    import inspect
+
+    import controllers
+
+    from .objective import settled_reward_rate
+
+    video.parent.mkdir(parents=True, exist_ok=True)
+    env = objective.make_env(basis, render_mode="rgb_array")
+    if "video" in inspect.signature(controllers.run_episode).parameters:
+        result = objective.episode(basis, seconds, seed, env=env, video=str(video))
+    else:  # record through Gymnasium's wrapper
+        import shutil
+        import tempfile
+
+        from gymnasium.wrappers import RecordVideo
+
+        with tempfile.TemporaryDirectory() as folder:
+            wrapped = RecordVideo(env, folder, episode_trigger=lambda _: True,
+                                  name_prefix="rollout", disable_logger=True)  # fmt: skip
+            result = objective.episode(basis, seconds, seed, env=wrapped)
+            wrapped.close()
+            clips = sorted(Path(folder).glob("*.mp4"))
+            if not clips:
+                raise UsageError("no video was written (does the env render rgb_array frames?)")
+            shutil.move(str(clips[0]), video)
+    dt = getattr(result, "dt", None) or objective.step_seconds(env)
+    r = settled_reward_rate(result, dt, objective.settle_time, seconds)
+    print(f"R = {r:.6g} per second; video: {video}")
+    return 0
+
+
+COMMANDS = {"optimize": cmd_optimize, "resume": cmd_resume, "report": cmd_report,
+            "rollout": cmd_rollout}  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``rbbo`` console script; returns the exit status."""
+    from .store import RunDirectoryError
+
+    try:
+        args = _parser().parse_args(argv)
+        return COMMANDS[args.command](args)
+    except (UsageError, RunDirectoryError) as exc:
+        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        print(f"rbbo: error: {message}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,250 @@
+"""Local process pool: one long-lived worker process per slot, a timeout per evaluation.
+
+Why not ``concurrent.futures.ProcessPoolExecutor``: it cannot stop one hung task (a future
+that is running cannot be cancelled) and one crashed worker breaks the whole pool
+(``BrokenProcessPool``). Here each worker owns a pipe; a supervisor thread hands tasks to
+idle workers, and a worker that dies (segfault, os._exit, OOM kill) or runs past
+``timeout_s`` is killed and replaced, its task resolving as ``status="failed"``. Workers are
+started with the ``spawn`` method (safe with threads, the same on every OS), build the
+objective once and keep it (e.g. its env) for all their tasks. Results still come back as
+``concurrent.futures.Future`` objects.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import threading
+import time
+from collections import deque
+from concurrent.futures import Future
+from dataclasses import dataclass
+from multiprocessing.connection import wait
+
+from .base import EvaluationTask, Executor, evaluate_task, failed
+
+__all__ = ["ProcessExecutor"]
+
+
+def _worker_main(conn, objective, name: str) -> None:
+    """Loop in the worker process: say it is ready, then evaluate tasks as they come."""
+    try:
+        conn.send("ready")  # imports and the objective are loaded: the timeout clock may start
+    except OSError:  # the pool shut down while this worker was starting
+        return
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):
+            return
+        if task is None:
+            return
+        conn.send(evaluate_task(objective, task, name))
+
+
+@dataclass
+class _Slot:
+    number: int
+    process: mp.process.BaseProcess | None = None
+    conn: object = None
+    task: EvaluationTask | None = None
+    future: Future | None = None
+    started: float = 0.0
+    restarts: int = 0
+    ready: bool = False
+    failed_starts: int = 0
+
+    @property
+    def name(self) -> str:
+        return f"process-{self.number}" + (f".{self.restarts}" if self.restarts else "")
+
+
+class ProcessExecutor(Executor):
+    """Evaluate tasks on ``workers`` local processes.
+
+    Parameters
+    ----------
+    objective : callable
+        ``objective(B_c, T, seed) -> float``, picklable (a module-level class instance).
+    workers : int
+        Number of worker processes.
+    timeout_s : float or None
+        Wall-clock limit per task (all its seeds); None for no limit.
+    start_method : str
+        multiprocessing start method ("spawn" by default).
+    """
+
+    def __init__(self, objective, workers: int = 1, timeout_s: float | None = None,
+                 start_method: str = "spawn"):  # fmt: skip
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        if timeout_s is not None and not timeout_s > 0:
+            raise ValueError(f"timeout_s must be > 0 or None, got {timeout_s!r}")
+        self.objective = objective
+        self.workers = workers
+        self.timeout_s = timeout_s
+        self._ctx = mp.get_context(start_method)
+        self._slots = [_Slot(i) for i in range(workers)]
+        self._queue: deque = deque()
+        self._lock = threading.Lock()
+        self._wake_r, self._wake_w = mp.Pipe(duplex=False)
+        self._closing = False
+        self._abort = False
+        self._broken: str | None = None
+        for slot in self._slots:
+            self._start(slot)
+        self._thread = threading.Thread(target=self._supervise, name="rbbo-pool", daemon=True)
+        self._thread.start()
+
+    # -- worker management ----------------------------------------------------------------
+    def _start(self, slot: _Slot) -> None:
+        parent, child = self._ctx.Pipe()
+        process = self._ctx.Process(target=_worker_main, args=(child, self.objective, slot.name),
+                                    name=f"rbbo-{slot.name}", daemon=True)  # fmt: skip
+        process.start()
+        child.close()
+        slot.process, slot.conn, slot.ready = process, parent, False
+
+    def _stop(self, slot: _Slot, kill: bool) -> None:
+        process, slot.process = slot.process, None
+        if slot.conn is not None:
+            slot.conn.close()
+            slot.conn = None
+        if process is None:
+            return
+        if kill and process.is_alive():
+            process.kill()
+        process.join(timeout=5)
+        if process.is_alive():  # pragma: no cover - kill is not ignorable
+            process.kill()
+            process.join()
+
+    def _finish(self, slot: _Slot, outcome) -> None:
+        future, slot.future, slot.task = slot.future, None, None
+        future.set_result(outcome)
+
+    def _fail_and_replace(self, slot: _Slot, error: str) -> None:
+        outcome = failed(slot.task, slot.name, time.monotonic() - slot.started, error)
+        self._stop(slot, kill=True)
+        self._finish(slot, outcome)
+        slot.restarts += 1
+        if not self._closing:
+            self._start(slot)
+
+    # -- supervisor thread ----------------------------------------------------------------
+    def _assign(self) -> None:
+        with self._lock:
+            for slot in self._slots:
+                if slot.task is None and self._queue and slot.ready:
+                    task, future = self._queue.popleft()
+                    if not future.set_running_or_notify_cancel():
+                        continue
+                    slot.task, slot.future, slot.started = task, future, time.monotonic()
+                    try:
+                        slot.conn.send(task)
+                    except (OSError, ValueError) as exc:  # the worker died while idle
+                        self._fail_and_replace(slot, f"could not reach the worker: {exc}")
+
+    def _supervise(self) -> None:
+        while True:
+            if self._abort:
+                for slot in self._slots:
+                    if slot.task is not None:
+                        self._fail_and_replace(slot, "cancelled at shutdown")
+                return
+            self._assign()
+            busy = [s for s in self._slots if s.task is not None]
+            starting = [s for s in self._slots if not s.ready and s.process is not None]
+            with self._lock:
+                if self._closing and not busy and not self._queue:
+                    return
+            waits = [self._wake_r]
+            for slot in busy + starting:
+                waits += [slot.conn, slot.process.sentinel]
+            timeout = 0.5
+            if self.timeout_s is not None and busy:
+                now = time.monotonic()
+                timeout = max(0.0, min(timeout, *(s.started + self.timeout_s - now for s in busy)))
+            ready = wait(waits, timeout)
+            if self._wake_r in ready:
+                while self._wake_r.poll():
+                    self._wake_r.recv_bytes()
+            for slot in starting:
+                self._check_start(slot, ready)
+            for slot in busy:
+                self._check(slot, ready)
+
+    def _check_start(self, slot: _Slot, ready) -> None:
+        try:
+            if (slot.conn in ready or slot.conn.poll()) and slot.conn.recv() == "ready":
+                slot.ready, slot.failed_starts = True, 0
+                return
+        except (EOFError, OSError):
+            pass
+        if slot.process.is_alive():
+            return
+        code = slot.process.exitcode
+        self._stop(slot, kill=True)
+        slot.failed_starts += 1
+        if slot.failed_starts < 3:
+            slot.restarts += 1
+            self._start(slot)
+            return
+        # the objective cannot even be loaded in a worker: no point retrying forever
+        with self._lock:
+            self._broken = f"worker process could not start (exit code {code})"
+            queued, self._queue = list(self._queue), deque()
+        for task, future in queued:
+            if future.set_running_or_notify_cancel():
+                future.set_result(failed(task, slot.name, 0.0, self._broken))
+
+    def _check(self, slot: _Slot, ready) -> None:
+        if slot.conn in ready or slot.conn.poll():
+            try:
+                outcome = slot.conn.recv()
+            except (EOFError, OSError):
+                code = slot.process.exitcode if slot.process else None
+                self._fail_and_replace(slot, f"worker crashed (exit code {code})")
+                return
+            self._finish(slot, outcome)
+        elif not slot.process.is_alive():
+            self._fail_and_replace(slot, f"worker crashed (exit code {slot.process.exitcode})")
+        elif self.timeout_s is not None and time.monotonic() - slot.started >= self.timeout_s:
+            self._fail_and_replace(slot, f"timed out after {self.timeout_s:g} s")
+
+    # -- public API -----------------------------------------------------------------------
+    def submit(self, task: EvaluationTask) -> Future:
+        future: Future = Future()
+        with self._lock:
+            if self._closing:
+                raise RuntimeError("cannot submit to a ProcessExecutor that was shut down")
+            if self._broken:
+                future.set_running_or_notify_cancel()
+                future.set_result(failed(task, "", 0.0, self._broken))
+                return future
+            self._queue.append((task, future))
+        self._wake_w.send_bytes(b"x")
+        return future
+
+    def shutdown(self, wait: bool = True) -> None:
+        """Stop the pool: queued tasks resolve as failed; running ones finish (within their
+        timeout) when ``wait``, else their workers are killed and they fail too."""
+        with self._lock:
+            if self._closing:
+                return
+            self._closing = True
+            self._abort = not wait
+            queued, self._queue = list(self._queue), deque()
+        for task, future in queued:
+            if future.set_running_or_notify_cancel():
+                future.set_result(failed(task, "", 0.0, "cancelled at shutdown"))
+        self._wake_w.send_bytes(b"x")
+        self._thread.join()
+        for slot in self._slots:
+            if slot.conn is not None:
+                try:
+                    slot.conn.send(None)
+                except (OSError, ValueError):
+                    pass
+            self._stop(slot, kill=False)
+        self._wake_r.close()
+        self._wake_w.close()

@@ -1,0 +1,182 @@
+"""Ray executor: the same contract as the process pool, on a Ray cluster (``--executor ray``).
+
+Each worker is a Ray actor holding the objective (so it builds its env once), placed anywhere
+on the cluster. A supervisor thread hands tasks to idle actors and waits on their results; an
+actor that dies or runs past ``timeout_s`` is killed and replaced and its task resolves as
+``status="failed"``. Ray is imported lazily: without it, constructing the executor raises an
+ImportError that names the ``[ray]`` extra.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from concurrent.futures import Future
+from dataclasses import dataclass
+
+from .base import EvaluationTask, Executor, evaluate_task, failed
+
+__all__ = ["RayExecutor", "import_ray"]
+
+
+def import_ray():
+    """Import ray, or raise an ImportError saying how to install it."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise ImportError(
+            "the Ray executor needs ray: pip install 'softrom[ray]' (or pip install ray)"
+        ) from exc
+    return ray
+
+
+class _Worker:
+    """Ray actor body: keeps one objective, evaluates tasks."""
+
+    def __init__(self, objective, name: str):
+        self.objective = objective
+        self.name = name
+
+    def evaluate(self, task: EvaluationTask):
+        return evaluate_task(self.objective, task, self.name)
+
+
+@dataclass
+class _Slot:
+    number: int
+    actor: object = None
+    ref: object = None
+    task: EvaluationTask | None = None
+    future: Future | None = None
+    started: float = 0.0
+    restarts: int = 0
+
+    @property
+    def name(self) -> str:
+        return f"ray-{self.number}" + (f".{self.restarts}" if self.restarts else "")
+
+
+class RayExecutor(Executor):
+    """Evaluate tasks on ``workers`` Ray actors.
+
+    Parameters
+    ----------
+    objective : callable
+        ``objective(B_c, T, seed) -> float``, picklable.
+    workers : int
+        Number of actors (one CPU each).
+    address : str or None
+        An existing cluster (``ray.init(address=...)``, e.g. "auto" or "ray://host:10001");
+        None starts a local Ray with ``workers`` CPUs unless Ray is already initialised.
+    timeout_s : float or None
+        Wall-clock limit per task.
+    """
+
+    def __init__(self, objective, workers: int = 1, address: str | None = None,
+                 timeout_s: float | None = None):  # fmt: skip
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        if timeout_s is not None and not timeout_s > 0:
+            raise ValueError(f"timeout_s must be > 0 or None, got {timeout_s!r}")
+        ray = import_ray()
+        self._ray = ray
+        self._owns_ray = False
+        if not ray.is_initialized():
+            kwargs = {"include_dashboard": False, "log_to_driver": False}
+            if address is None:
+                kwargs["num_cpus"] = workers
+            ray.init(address=address, **kwargs)
+            self._owns_ray = True
+        self.objective = objective
+        self.workers = workers
+        self.timeout_s = timeout_s
+        self._actor_cls = ray.remote(num_cpus=1, max_restarts=0)(_Worker)
+        self._objective_ref = ray.put(objective)
+        self._slots = [_Slot(i) for i in range(workers)]
+        for slot in self._slots:
+            self._start(slot)
+        self._queue: deque = deque()
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._closing = False
+        self._abort = False
+        self._thread = threading.Thread(target=self._supervise, name="rbbo-ray", daemon=True)
+        self._thread.start()
+
+    def _start(self, slot: _Slot) -> None:
+        slot.actor = self._actor_cls.remote(self._objective_ref, slot.name)
+
+    def _finish(self, slot: _Slot, outcome) -> None:
+        future, slot.future, slot.task, slot.ref = slot.future, None, None, None
+        future.set_result(outcome)
+
+    def _fail_and_replace(self, slot: _Slot, error: str) -> None:
+        outcome = failed(slot.task, slot.name, time.monotonic() - slot.started, error)
+        self._ray.kill(slot.actor, no_restart=True)
+        slot.restarts += 1
+        self._start(slot)
+        self._finish(slot, outcome)
+
+    def _supervise(self) -> None:
+        ray = self._ray
+        while True:
+            if self._abort:
+                for slot in self._slots:
+                    if slot.task is not None:
+                        self._fail_and_replace(slot, "cancelled at shutdown")
+                return
+            with self._lock:
+                for slot in self._slots:
+                    if slot.task is None and self._queue:
+                        task, future = self._queue.popleft()
+                        if not future.set_running_or_notify_cancel():
+                            continue
+                        slot.task, slot.future, slot.started = task, future, time.monotonic()
+                        slot.ref = slot.actor.evaluate.remote(task)
+                busy = [s for s in self._slots if s.task is not None]
+                if self._closing and not busy and not self._queue:
+                    return
+            if not busy:
+                self._wake.wait(0.5)
+                self._wake.clear()
+                continue
+            ready, _ = ray.wait([s.ref for s in busy], num_returns=1, timeout=0.2)
+            for slot in busy:
+                if slot.ref in ready:
+                    try:
+                        outcome = ray.get(slot.ref)
+                    except ray.exceptions.RayError as exc:
+                        self._fail_and_replace(slot, f"worker failed: {type(exc).__name__}")
+                        continue
+                    self._finish(slot, outcome)
+                elif (
+                    self.timeout_s is not None and time.monotonic() - slot.started >= self.timeout_s
+                ):
+                    self._fail_and_replace(slot, f"timed out after {self.timeout_s:g} s")
+
+    def submit(self, task: EvaluationTask) -> Future:
+        future: Future = Future()
+        with self._lock:
+            if self._closing:
+                raise RuntimeError("cannot submit to a RayExecutor that was shut down")
+            self._queue.append((task, future))
+        self._wake.set()
+        return future
+
+    def shutdown(self, wait: bool = True) -> None:
+        with self._lock:
+            if self._closing:
+                return
+            self._closing = True
+            self._abort = not wait
+            queued, self._queue = list(self._queue), deque()
+        for task, future in queued:
+            if future.set_running_or_notify_cancel():
+                future.set_result(failed(task, "", 0.0, "cancelled at shutdown"))
+        self._wake.set()
+        self._thread.join()
+        for slot in self._slots:
+            self._ray.kill(slot.actor, no_restart=True)
+        if self._owns_ray:
+            self._ray.shutdown()

@@ -1,0 +1,215 @@
+"""Points of the Grassmannian Gr(M, C) and the extrinsic (projection) distance between them.
+
+A control space B_c is an M x C matrix with orthonormal columns; only its column span matters
+to RBBO, i.e. the point B_c B_c^T of Gr(M, C) (the paper's Sec. "Bilevel Control-Space
+Optimization"). Following the paper (and Lin et al. 2019), two subspaces are compared by the
+Frobenius distance of their orthogonal projectors,
+
+    d(B_i, B_j) = ||B_i B_i^T - B_j B_j^T||_F,   d^2 = 2 C - 2 ||B_i^T B_j||_F^2,
+
+which is invariant under B -> B Q for any orthogonal C x C matrix Q and is computed without
+forming the M x M projectors. Bases travel through scikit-learn as flat rows of M * C numbers
+(row-major, :func:`flatten`), because scikit-learn needs a 2-D ``X``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "canonical",
+    "dimension",
+    "flatten",
+    "identity_basis",
+    "orthonormalize",
+    "projection_distance",
+    "projection_sq_distances",
+    "projectors",
+    "random_points",
+    "unflatten",
+    "validate_basis",
+]
+
+ORTHONORMAL_TOL = 1e-8
+
+
+def _check_dims(sim_dim: int, control_dim: int) -> tuple[int, int]:
+    for name, value in (("sim_dim", sim_dim), ("control_dim", control_dim)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if control_dim > sim_dim:
+        raise ValueError(f"control_dim = {control_dim} exceeds sim_dim = {sim_dim}")
+    return int(sim_dim), int(control_dim)
+
+
+def dimension(sim_dim: int, control_dim: int) -> int:
+    """Dimension C (M - C) of Gr(M, C) as a manifold."""
+    m, c = _check_dims(sim_dim, control_dim)
+    return c * (m - c)
+
+
+def validate_basis(
+    b_c: np.ndarray,
+    sim_dim: int | None = None,
+    control_dim: int | None = None,
+    *,
+    name: str = "B_c",
+    tol: float = ORTHONORMAL_TOL,
+) -> np.ndarray:
+    """Return B_c as a float (M, C) array, or raise naming what is wrong with it.
+
+    Parameters
+    ----------
+    b_c
+        Candidate control basis B_c.
+    sim_dim, control_dim
+        Expected M and C (either may be None to accept any).
+    name
+        How error messages call the argument.
+    tol
+        Largest accepted entry of |B_c^T B_c - I|.
+    """
+    try:
+        b = np.asarray(b_c, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be a real (M, C) array, got {type(b_c).__name__}") from exc
+    if b.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D (M, C) array, got shape {b.shape}")
+    m, c = b.shape
+    if (sim_dim is not None and m != sim_dim) or (control_dim is not None and c != control_dim):
+        raise ValueError(
+            f"{name} has shape {b.shape}, expected (sim_dim, control_dim) = "
+            f"({sim_dim if sim_dim is not None else 'M'}, "
+            f"{control_dim if control_dim is not None else 'C'})"
+        )
+    _check_dims(m, c)
+    if not np.all(np.isfinite(b)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(b))[0])
+        raise ValueError(f"{name} contains non-finite values, e.g. {b[bad]} at {bad}")
+    err = float(np.abs(b.T @ b - np.eye(c)).max())
+    if err > tol:
+        raise ValueError(
+            f"{name} is not orthonormal: max |B_c^T B_c - I| = {err:.3g} (tolerance {tol:g})"
+        )
+    return b
+
+
+def orthonormalize(a: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of the column span of a full-rank M x C matrix (QR, R_ii > 0).
+
+    Used to map an unconstrained M x C matrix (e.g. a CMA-ES sample) onto Gr(M, C).
+    """
+    a = np.asarray(a, dtype=float)
+    if a.ndim != 2 or a.shape[1] > a.shape[0]:
+        raise ValueError(f"orthonormalize needs an M x C matrix with C <= M, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError("orthonormalize got non-finite values")
+    q, r = np.linalg.qr(a)
+    d = np.diag(r)
+    if np.abs(d).min() <= 1e-12 * max(np.abs(d).max(), 1e-300):
+        raise ValueError(f"orthonormalize needs a full-rank matrix; |diag R| = {np.abs(d)}")
+    return q * np.sign(d)
+
+
+def canonical(b_c: np.ndarray) -> np.ndarray:
+    """The canonical orthonormal representative of span(B_c).
+
+    QR of B_c^T gives B_c^T = Q_1 R with Q_1 orthogonal (C x C); R^T = B_c Q_1 spans the same
+    subspace and is lower-trapezoidal. With diag(R) > 0 it depends on span(B_c) only (when
+    the leading C x C minors are non-singular, i.e. for almost every subspace), so B_c and
+    B_c Q map to the same matrix. The identity basis (the first C modes) is its own
+    representative.
+    """
+    b = validate_basis(b_c)
+    _, r = np.linalg.qr(b.T)
+    signs = np.sign(np.diag(r))
+    signs[signs == 0] = 1.0
+    return (r.T * signs).copy()  # columns of R^T scaled: still orthonormal
+
+
+def identity_basis(sim_dim: int, control_dim: int) -> np.ndarray:
+    """The identity baseline B_c = first C columns of I_M (the C most salient modes of B_r)."""
+    m, c = _check_dims(sim_dim, control_dim)
+    return np.eye(m)[:, :c]
+
+
+def random_points(
+    sim_dim: int, control_dim: int, n: int | None = None, rng: np.random.Generator | None = None
+) -> np.ndarray:
+    """Points of Gr(M, C) drawn from the uniform (Haar) distribution.
+
+    Returns an (M, C) basis when ``n`` is None, else an (n, M, C) stack. QR of a Gaussian
+    matrix with the signs of diag(R) fixed is Haar-distributed on the Stiefel manifold, whose
+    span is uniform on the Grassmannian.
+    """
+    m, c = _check_dims(sim_dim, control_dim)
+    rng = np.random.default_rng(rng)
+    k = 1 if n is None else int(n)
+    if k < 0:
+        raise ValueError(f"n must be >= 0, got {n}")
+    g = rng.standard_normal((k, m, c))
+    q, r = np.linalg.qr(g)
+    signs = np.sign(np.diagonal(r, axis1=1, axis2=2))
+    signs[signs == 0] = 1.0
+    q = q * signs[:, None, :]
+    return q[0] if n is None else q
+
+
+def flatten(bases: np.ndarray) -> np.ndarray:
+    """(n, M, C) or (M, C) bases -> (n, M * C) rows (row-major), scikit-learn's ``X``."""
+    b = np.asarray(bases, dtype=float)
+    if b.ndim == 2:
+        b = b[None]
+    if b.ndim != 3:
+        raise ValueError(f"bases must have shape (n, M, C) or (M, C), got {b.shape}")
+    return b.reshape(b.shape[0], -1)
+
+
+def unflatten(x: np.ndarray, sim_dim: int, control_dim: int) -> np.ndarray:
+    """(n, >= M * C) rows -> (n, M, C) bases; columns past M * C (e.g. fidelity) are ignored."""
+    m, c = _check_dims(sim_dim, control_dim)
+    x = np.asarray(x, dtype=float)
+    if x.ndim != 2 or x.shape[1] < m * c:
+        raise ValueError(
+            f"X must have shape (n, >= M * C) = (n, >= {m * c}) for M = {m}, C = {c}, got {x.shape}"
+        )
+    return x[:, : m * c].reshape(-1, m, c)
+
+
+def projectors(bases: np.ndarray) -> np.ndarray:
+    """Flattened projectors vec(B B^T), shape (n, M * M), for a stack of (n, M, C) bases.
+
+    With them ||B_i^T B_j||_F^2 = <vec(P_i), vec(P_j)>, so all pairwise distances are one
+    matrix product (cheaper than pairwise C x C products once n is in the hundreds).
+    """
+    b = np.asarray(bases, dtype=float)
+    if b.ndim == 2:
+        b = b[None]
+    p = np.einsum("nmc,nkc->nmk", b, b)
+    return p.reshape(b.shape[0], -1)
+
+
+def projection_sq_distances(
+    bases_a: np.ndarray, bases_b: np.ndarray | None = None, *, control_dim: int | None = None
+) -> np.ndarray:
+    """Pairwise squared distances 2 C - 2 ||B_i^T B_j||_F^2 between two stacks of bases.
+
+    Inputs are (n, M, C) stacks of orthonormal bases (not validated: this is the hot path);
+    the result is (n_a, n_b), clipped at 0 against round-off.
+    """
+    a = np.asarray(bases_a, dtype=float)
+    b = a if bases_b is None else np.asarray(bases_b, dtype=float)
+    c = a.shape[-1] if control_dim is None else control_dim
+    overlap = projectors(a) @ projectors(b).T
+    return np.maximum(2.0 * c - 2.0 * overlap, 0.0)
+
+
+def projection_distance(b_i: np.ndarray, b_j: np.ndarray) -> float:
+    """The extrinsic distance ||B_i B_i^T - B_j B_j^T||_F between two subspaces.
+
+    Both bases are validated (orthonormal, same shape).
+    """
+    bi = validate_basis(b_i, name="B_i")
+    bj = validate_basis(b_j, *bi.shape, name="B_j")
+    c = bi.shape[1]
+    return float(np.sqrt(max(2.0 * c - 2.0 * float(np.sum((bi.T @ bj) ** 2)), 0.0)))

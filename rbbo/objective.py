@@ -1,0 +1,324 @@
+"""Objectives R(B_c, T, seed) that RBBO maximises: the MPC task reward, or a synthetic one.
+
+An objective is any picklable callable ``objective(B_c, T, seed) -> float`` (B_c an (M, C)
+orthonormal basis, T the trajectory length in seconds, seed the MPC's random seed). The
+executors run it in worker processes (spawn), so it must be a module-level class instance.
+
+Specs (what ``rbbo optimize ENV_ID`` turns into an objective, and what config.json stores so a
+run can be resumed):
+
+- ``softrom_gym/CrossWalk-v0`` (any registered env id): :class:`EnvObjective`, the MPC
+  controller run on the env (needs :mod:`controllers`, imported lazily).
+- ``synthetic[:key=value,...]``: :class:`SyntheticObjective`, a Grassmann objective with known
+  optimum, for tests, benchmarks and trying the CLI without the simulator. Keys: ``seed``
+  (which hidden optimum), ``noise`` (seed-noise scale), ``bias`` (low-fidelity bias),
+  ``delay`` (seconds of sleep per evaluation at T_max, scaled by T / T_max).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from .grassmann import _check_dims, random_points
+
+__all__ = [
+    "EnvObjective",
+    "Objective",
+    "SyntheticObjective",
+    "make_objective",
+    "parse_objective_spec",
+]
+
+
+class Objective(Protocol):
+    def __call__(self, basis: np.ndarray, T: float, seed: int) -> float: ...
+
+
+@dataclass
+class SyntheticObjective:
+    r"""A noisy two-fidelity objective on Gr(M, C) with a known optimum.
+
+    .. math::
+        R(B, T, s) = \|B^T U\|_F^2 / C
+                   - b (1 - T / T_{max}) (1/2 + \|B^T V\|_F^2 / C)
+                   + \epsilon_s + \epsilon_{s, B}
+
+    U (the optimum, R = 1 at T_max) and V are fixed Haar-random subspaces drawn from
+    ``optimum_seed``. The noise has a part common to all bases for a given seed (what common
+    random numbers cancel) of scale ``noise`` and a part particular to (seed, B) of scale
+    ``noise / 2``, both deterministic functions of their arguments.
+
+    Parameters
+    ----------
+    sim_dim, control_dim : int
+        M and C.
+    optimum_seed : int
+        Chooses U and V.
+    noise : float
+        Noise scale.
+    bias : float
+        Low-fidelity bias b.
+    t_max : float
+        The target fidelity T_max (seconds).
+    delay : float
+        Sleep ``delay * T / t_max`` seconds per call (cost proportional to T).
+    """
+
+    sim_dim: int
+    control_dim: int
+    optimum_seed: int = 0
+    noise: float = 0.0
+    bias: float = 0.3
+    t_max: float = 10.0
+    delay: float = 0.0
+    _u: np.ndarray = field(init=False, repr=False)
+    _v: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        _check_dims(self.sim_dim, self.control_dim)
+        for name in ("noise", "bias", "delay"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if not self.t_max > 0:
+            raise ValueError(f"t_max must be > 0, got {self.t_max!r}")
+        rng = np.random.default_rng(self.optimum_seed)
+        self._u, self._v = random_points(self.sim_dim, self.control_dim, 2, rng)
+
+    @property
+    def optimum(self) -> np.ndarray:
+        """U: a basis of the best subspace (R = 1 at T_max without noise)."""
+        return self._u.copy()
+
+    def value(self, basis: np.ndarray, T: float | None = None) -> float:
+        """The noise-free R(B, T) (T defaults to T_max)."""
+        b = np.asarray(basis, dtype=float)
+        c = self.control_dim
+        t = self.t_max if T is None else float(T)
+        hit = float(np.sum((b.T @ self._u) ** 2)) / c
+        side = float(np.sum((b.T @ self._v) ** 2)) / c
+        return hit - self.bias * (1.0 - t / self.t_max) * (0.5 + side)
+
+    def __call__(self, basis: np.ndarray, T: float, seed: int) -> float:
+        if self.delay:
+            time.sleep(self.delay * float(T) / self.t_max)
+        r = self.value(basis, T)
+        if self.noise:
+            common = np.random.default_rng([int(seed), 0]).standard_normal()
+            b = np.asarray(basis, dtype=float)
+            key = np.round(b @ b.T, 8).tobytes()  # the subspace, not its representative
+            digest = int.from_bytes(hashlib.blake2b(key, digest_size=8).digest(), "little")
+            own = np.random.default_rng([int(seed), 1, digest]).standard_normal()
+            r += self.noise * (common + 0.5 * own)
+        return float(r)
+
+    def spec(self) -> dict[str, Any]:
+        return {"kind": "synthetic", **{k: v for k, v in asdict(self).items() if k[0] != "_"}}
+
+
+@dataclass
+class EnvObjective:
+    """R(B_c, T, seed): the MPC controller's task reward on a softrom env, per second.
+
+    Runs ``controllers.run_episode(env, planner, T, seed=seed, progress=False)`` with the env
+    built for B_c and the controller's default planner for the benchmark,
+    and returns the reward R (the task term only, not the regulariser Lambda) collected from
+    the settle time on, divided by the time it covers:
+
+        R = sum_{t_k >= t_settle} r_k / (T - t_settle)
+
+    Why from a settle time: a robot leaning into a held pose gains about 0.2 body lengths in
+    its first second (measured on the walkers), which would dominate short trajectories and
+    rank bases by how far they lean rather than how well they walk; measuring from
+    t_settle = 2 s (issue 6's convention) and normalising per second makes fidelities T
+    comparable. T must exceed t_settle.
+
+    The env is built once per worker process and per B_c (the env has no public way yet to
+    swap B_c on an existing env; when it gains ``set_control_basis`` this uses it).
+
+    Parameters
+    ----------
+    env_id : str
+        A registered Gymnasium id, e.g. ``softrom_gym/CrossWalk-v0``.
+    sim_dim, control_dim : int
+        M and C.
+    controller : str
+        "mppi" or "gn" (Gauss-Newton shooting).
+    settle_time : float
+        t_settle, seconds.
+    env_kwargs, planner_kwargs : dict
+        Passed to ``gym.make`` and to the planner.
+    """
+
+    env_id: str
+    sim_dim: int
+    control_dim: int
+    controller: str = "mppi"
+    settle_time: float = 2.0
+    env_kwargs: dict = field(default_factory=dict)
+    planner_kwargs: dict = field(default_factory=dict)
+
+    CONTROLLERS = ("mppi", "gn")
+
+    def __post_init__(self) -> None:
+        _check_dims(self.sim_dim, self.control_dim)
+        if self.controller not in self.CONTROLLERS:
+            raise ValueError(
+                f"unknown controller {self.controller!r}; valid: {list(self.CONTROLLERS)}"
+            )
+        if not self.settle_time >= 0:
+            raise ValueError(f"settle_time must be >= 0, got {self.settle_time!r}")
+        self._env = None
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_env"] = None  # a worker builds its own env
+        return state
+
+    def make_env(self, basis: np.ndarray, **extra):
+        import gymnasium as gym
+
+        import softrom_gym  # noqa: F401  (registers the envs)
+
+        kwargs = {**self.env_kwargs, **extra}
+        return gym.make(
+            self.env_id,
+            sim_dim=self.sim_dim,
+            control_dim=self.control_dim,
+            control_basis=np.asarray(basis, dtype=float),
+            **kwargs,
+        )
+
+    def _env_for(self, basis: np.ndarray):
+        env = self._env
+        setter = getattr(getattr(env, "unwrapped", None), "set_control_basis", None)
+        if setter is not None:
+            setter(basis)
+            return env
+        if env is not None:
+            env.close()
+        self._env = self.make_env(basis)
+        return self._env
+
+    def planner(self):
+        """The MPC planner and its replan interval (env steps).
+
+        ``controllers.default_planner(env_id, controller, **planner_kwargs)`` (the
+        benchmark's tuned settings) when the controllers provide it for this env, else the
+        planner class with default settings, replanning every step.
+        """
+        import controllers
+
+        default = getattr(controllers, "default_planner", None)
+        if default is not None:
+            try:
+                return default(self.env_id, self.controller, **self.planner_kwargs)
+            except ValueError:  # no tuned defaults for this env id
+                pass
+        cls = controllers.MPPI if self.controller == "mppi" else controllers.GaussNewtonShooting
+        return cls(**self.planner_kwargs), 1
+
+    def episode(self, basis: np.ndarray, T: float, seed: int, env=None, **kwargs):
+        """Run one MPC episode of T seconds; returns the controllers' EpisodeResult."""
+        import controllers
+
+        env = self._env_for(basis) if env is None else env
+        planner, replan_every = self.planner()
+        if replan_every != 1:
+            kwargs["replan_every"] = replan_every
+        return controllers.run_episode(env, planner, float(T), seed=int(seed), progress=False,
+                                       **kwargs)  # fmt: skip
+
+    @staticmethod
+    def step_seconds(env) -> float:
+        """Seconds per env step: ``env.dt`` if the env has it (Gymnasium's convention), else
+        the simulation step times ``frame_skip``."""
+        u = env.unwrapped
+        dt = getattr(u, "dt", None)
+        if dt is None:
+            dt = u.model.dt * getattr(u, "frame_skip", 1)
+        return float(dt)
+
+    def __call__(self, basis: np.ndarray, T: float, seed: int) -> float:
+        if not T > self.settle_time:
+            raise ValueError(f"T = {T} s must exceed the settle time {self.settle_time} s")
+        env = self._env_for(basis)
+        result = self.episode(basis, T, seed, env)
+        dt = getattr(result, "dt", None) or self.step_seconds(env)
+        return settled_reward_rate(result, dt, self.settle_time, T)
+
+    def spec(self) -> dict[str, Any]:
+        return {
+            "kind": "env",
+            "env_id": self.env_id,
+            "sim_dim": self.sim_dim,
+            "control_dim": self.control_dim,
+            "controller": self.controller,
+            "settle_time": self.settle_time,
+            "env_kwargs": self.env_kwargs,
+            "planner_kwargs": self.planner_kwargs,
+        }
+
+
+def settled_reward_rate(result, step_seconds: float, settle_time: float, seconds: float) -> float:
+    """Task reward per second from ``settle_time`` to ``seconds``, from an EpisodeResult.
+
+    Uses ``result.task_rewards`` when the controllers report the task term R separately,
+    else ``result.rewards`` (per env step). Step k covers [k dt, (k + 1) dt); steps starting
+    at or after t_settle count. An episode that ended early (diverged) counts the time it
+    did not survive as zero reward, so a basis that makes the simulation blow up ranks low.
+    """
+    rewards = getattr(result, "task_rewards", None)
+    if rewards is None:
+        rewards = result.rewards
+    r = np.asarray(rewards, dtype=float).ravel()
+    start = int(np.ceil(settle_time / step_seconds - 1e-9))
+    span = float(seconds) - start * step_seconds
+    if span <= 0:
+        raise ValueError(
+            f"an episode of {seconds} s is not longer than the settle time {settle_time} s"
+        )
+    kept = r[start:]
+    return float(kept[np.isfinite(kept)].sum() / span)
+
+
+_SYNTHETIC_KEYS = {"seed": int, "noise": float, "bias": float, "delay": float}
+
+
+def parse_objective_spec(env_id: str) -> dict[str, Any]:
+    """Turn an ENV_ID argument into an objective spec dict (see the module docstring)."""
+    if not isinstance(env_id, str) or not env_id:
+        raise ValueError(f"ENV_ID must be a non-empty string, got {env_id!r}")
+    if env_id == "synthetic" or env_id.startswith("synthetic:"):
+        spec: dict[str, Any] = {"kind": "synthetic"}
+        body = env_id.partition(":")[2]
+        for item in filter(None, body.split(",")):
+            key, sep, value = item.partition("=")
+            if not sep or key not in _SYNTHETIC_KEYS:
+                raise ValueError(
+                    f"bad synthetic option {item!r}; use key=value with keys "
+                    f"{sorted(_SYNTHETIC_KEYS)}"
+                )
+            try:
+                spec["optimum_seed" if key == "seed" else key] = _SYNTHETIC_KEYS[key](value)
+            except ValueError:
+                raise ValueError(f"synthetic option {key} needs a number, got {value!r}") from None
+        return spec
+    return {"kind": "env", "env_id": env_id}
+
+
+def make_objective(spec: dict[str, Any], sim_dim: int, control_dim: int, **kwargs):
+    """Build the objective a spec describes (``kwargs`` fill the spec's missing fields)."""
+    spec = dict(spec)
+    kind = spec.pop("kind", None)
+    spec.pop("sim_dim", None)
+    spec.pop("control_dim", None)
+    if kind == "synthetic":
+        return SyntheticObjective(sim_dim, control_dim, **{**kwargs, **spec})
+    if kind == "env":
+        return EnvObjective(sim_dim=sim_dim, control_dim=control_dim, **{**kwargs, **spec})
+    raise ValueError(f"unknown objective kind {kind!r}; valid: ['synthetic', 'env']")

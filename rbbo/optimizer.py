@@ -1,0 +1,397 @@
+"""RBBO: the paper's Algorithm "RBBO" as an ask/tell optimiser with asynchronous proposals.
+
+::
+
+    opt = RBBO.create("runs/demo", RBBOConfig(sim_dim=20, control_dim=3, max_evaluations=40))
+    result = opt.run(objective, workers=2)          # objective(B_c, T, seed) -> float
+    # or drive it yourself:
+    p = opt.ask(); opt.tell(p.index, objective(p.basis, p.T, p.seeds[0]))
+
+- Initial design: the identity basis (the first C modes of B_r) at T_max, then ``n_init``
+  Haar-random points of Gr(M, C) (with BOCA, alternately at T_min and T_max).
+- Each proposal fits the GP (marginal likelihood, WhiteKernel noise) on all successful
+  evaluations, adds the proposals still in flight as kriging-believer fantasies (observed at
+  their posterior mean, so parallel workers are sent to different places), maximises GP-UCB
+  at the target fidelity on the Grassmannian, and picks T by BOCA (``fidelity="boca"``) or
+  uses T_max (``"bo"``).
+- Every evaluation uses the same seeds (common random numbers), so bases are compared under
+  the same MPC noise. A proposal is handed out as soon as a worker is free.
+- Recommendation: among the bases evaluated at T_max, the one with the highest GP posterior
+  mean (noise-aware, not the luckiest sample). At the end of :meth:`RBBO.run` it and the
+  identity are evaluated on ``n_confirm`` fresh seeds at T_max: R* and R_init.
+- With a run directory every finished evaluation is fsynced to history.jsonl before the next
+  proposal; :meth:`RBBO.resume` rebuilds the optimiser from it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, wait
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from .acquisition import UCBAcquisition, maximize_on_grassmann, ucb_beta
+from .boca import BOCAFidelity
+from .config import CONFIRM_KINDS, FIDELITIES, Proposal, RBBOConfig, RBBOResult
+from .executors import Executor, ProcessExecutor, SerialExecutor
+from .gp import GrassmannGP
+from .grassmann import dimension, identity_basis, random_points
+from .store import Evaluation, RunDirectoryError, RunStore
+
+__all__ = ["FIDELITIES", "RBBO", "Proposal", "RBBOConfig", "RBBOResult"]
+
+CONFIG_VERSION = 1
+
+
+class RBBO:
+    """Riemannian Bayesian bilevel optimisation of the control space B_c (see module doc).
+
+    Parameters
+    ----------
+    config : RBBOConfig
+    store : RunStore or None
+        Where evaluations are recorded (None: in memory only).
+    objective_spec : dict or None
+        What the objective is (for resuming from the command line); stored in config.json.
+    """
+
+    def __init__(self, config: RBBOConfig, *, store: RunStore | None = None,
+                 objective_spec: dict | None = None):  # fmt: skip
+        self.config = config
+        self.store = store
+        self.objective_spec = objective_spec
+        self.history: list[Evaluation] = []
+        self.pending: dict[int, Proposal] = {}
+        self._next_index = 0
+        self._elapsed_offset = 0.0
+        self._t0 = time.monotonic()
+        self._boca = (
+            BOCAFidelity(config.t_min, config.t_max, n_candidates=config.boca_candidates)
+            if config.fidelity == "boca"
+            else None
+        )
+        self._gp: GrassmannGP | None = None
+        self._gp_count = -1
+        self._best_observed = -math.inf
+        self._initial = self._initial_design()
+
+    # -- construction -------------------------------------------------------------------
+    @classmethod
+    def create(cls, path, config: RBBOConfig, *, objective_spec: dict | None = None,
+               extra: dict | None = None) -> RBBO:  # fmt: skip
+        """Start a run in directory ``path`` (config.json written; refuses an existing run)."""
+        document = {"version": CONFIG_VERSION, "rbbo": asdict(config),
+                    "objective": objective_spec, **(extra or {})}  # fmt: skip
+        return cls(config, store=RunStore.create(path, document), objective_spec=objective_spec)
+
+    @classmethod
+    def resume(cls, path, *, read_only: bool = False) -> RBBO:
+        """Rebuild the optimiser of run directory ``path`` from its history.
+
+        Evaluations that were in flight when the run stopped are lost (they have no record);
+        everything recorded is kept. A truncated last line is dropped with a warning (with
+        ``read_only``, for looking at a run that may still be going, it is skipped and the
+        directory is left untouched).
+        """
+        store = RunStore.open(path, repair=not read_only)
+        settings = store.config.get("rbbo")
+        if not isinstance(settings, dict):
+            raise RunDirectoryError(f"{store.path}/config.json has no 'rbbo' settings")
+        try:
+            config = RBBOConfig(**settings)
+        except (TypeError, ValueError) as exc:
+            raise RunDirectoryError(
+                f"{store.path}/config.json has invalid settings: {exc}"
+            ) from exc
+        opt = cls(config, store=store, objective_spec=store.config.get("objective"))
+        history = store.history()
+        for evaluation in history:
+            opt._record(evaluation, persist=False)
+        if history:
+            opt._next_index = max(e.index for e in history) + 1
+            opt._elapsed_offset = max(e.elapsed_s for e in history)
+        return opt
+
+    def _initial_design(self) -> list[tuple[np.ndarray, float, str]]:
+        cfg = self.config
+        rng = np.random.default_rng([cfg.seed, 1])
+        design = [(identity_basis(cfg.sim_dim, cfg.control_dim), cfg.t_max, "initial")]
+        for i in range(cfg.n_init):
+            t = cfg.t_max if cfg.fidelity == "bo" or i % 2 == 1 else cfg.t_min
+            design.append((random_points(cfg.sim_dim, cfg.control_dim, rng=rng), t, "initial"))
+        return design
+
+    # -- bookkeeping --------------------------------------------------------------------
+    @property
+    def elapsed_s(self) -> float:
+        """Run time so far, over all sessions of the run."""
+        return self._elapsed_offset + (time.monotonic() - self._t0)
+
+    @property
+    def evaluations(self) -> list[Evaluation]:
+        """Recorded evaluations of the optimisation proper (confirmations excluded)."""
+        return [e for e in self.history if e.kind not in CONFIRM_KINDS]
+
+    def _observations(self) -> list[Evaluation]:
+        return [e for e in self.evaluations if e.status == "ok"]
+
+    def _record(self, evaluation: Evaluation, persist: bool) -> None:
+        if persist and self.store is not None:
+            self.store.append(evaluation)
+        self.history.append(evaluation)
+        if evaluation.kind in CONFIRM_KINDS:
+            return
+        if self._boca is not None:
+            self._boca.record(evaluation.T)
+        if (
+            evaluation.status == "ok"
+            and math.isclose(evaluation.T, self.config.t_max)
+            and evaluation.R > self._best_observed
+        ):
+            self._best_observed = evaluation.R
+            if persist and self.store is not None:
+                self.store.save_best(evaluation.basis)
+
+    # -- the model ----------------------------------------------------------------------
+    def _z(self, t) -> np.ndarray | None:
+        return None if self._boca is None else np.asarray(self._boca.z(t), dtype=float)
+
+    def fit(self) -> GrassmannGP | None:
+        """The GP on all successful evaluations (None with fewer than 2); refitted only
+        when new data arrived."""
+        data = self._observations()
+        if len(data) < 2:
+            return None
+        if len(data) != self._gp_count:
+            cfg = self.config
+            if self._gp is None:
+                self._gp = GrassmannGP(cfg.sim_dim, cfg.control_dim,
+                                       fidelity=self._boca is not None,
+                                       n_restarts=cfg.gp_restarts)  # fmt: skip
+            self._gp.random_state = cfg.seed * 7919 + len(data)
+            bases = np.stack([e.basis for e in data])
+            y = np.array([e.R for e in data])
+            self._gp.fit(bases, y, self._z([e.T for e in data]))
+            self._gp_count = len(data)
+        return self._gp
+
+    def _with_fantasies(self, gp: GrassmannGP) -> GrassmannGP:
+        pending = [p for p in self.pending.values() if p.kind not in CONFIRM_KINDS]
+        if not pending:
+            return gp
+        bases = np.stack([p.basis for p in pending])
+        z = self._z([p.T for p in pending])
+        mu, _ = gp.predict(bases, 1.0 if z is None else z)
+        return gp.conditioned_on(bases, mu, z)
+
+    def recommend(self) -> Evaluation | None:
+        """The evaluated basis (at T_max) with the highest posterior mean of R."""
+        cands = [e for e in self._observations() if math.isclose(e.T, self.config.t_max)]
+        if not cands:
+            return None
+        gp = self.fit()
+        if gp is None:
+            return max(cands, key=lambda e: e.R)
+        mu, _ = gp.predict(np.stack([e.basis for e in cands]), 1.0)
+        return cands[int(np.argmax(mu))]
+
+    # -- ask / tell ---------------------------------------------------------------------
+    def ask(self) -> Proposal:
+        """The next (B_c, T) to evaluate; it stays pending until :meth:`tell`."""
+        cfg = self.config
+        index = self._next_index
+        info: dict[str, Any] = {}
+        if index < len(self._initial):
+            basis, t, kind = self._initial[index]
+        else:
+            rng = np.random.default_rng([cfg.seed, 2, index])
+            start = time.perf_counter()
+            gp = self.fit()
+            info["fit_s"] = time.perf_counter() - start
+            if gp is None:
+                basis, kind = random_points(cfg.sim_dim, cfg.control_dim, rng=rng), "random"
+                t = cfg.t_max if self._boca is None else cfg.t_min
+            else:
+                start = time.perf_counter()
+                basis, t, value = self._propose(gp, rng)
+                info.update(acq_s=time.perf_counter() - start, acq_value=value)
+                kind = "acquisition"
+        proposal = Proposal(index, basis, float(t), cfg.crn_seeds, kind, info)
+        self.pending[index] = proposal
+        self._next_index += 1
+        return proposal
+
+    def _propose(self, gp: GrassmannGP, rng: np.random.Generator):
+        cfg = self.config
+        believer = self._with_fantasies(gp)
+        n = len(self._observations())
+        acquisition = UCBAcquisition(believer, ucb_beta(n, dimension(cfg.sim_dim, cfg.control_dim)))
+        # incumbents: the observed bases the model rates best at the target fidelity
+        observed = np.stack([e.basis for e in self._observations()])
+        mu, _ = gp.predict_standardized(observed, 1.0)
+        incumbents = observed[np.argsort(-mu)[:3]]
+        result = maximize_on_grassmann(
+            acquisition, cfg.sim_dim, cfg.control_dim, incumbents=incumbents, rng=rng,
+            optimizer=cfg.optimizer, n_random=cfg.acq_random, n_starts=cfg.acq_starts,
+            max_iterations=cfg.acq_max_iterations,
+        )  # fmt: skip
+        u, _, vt = np.linalg.svd(result.basis, full_matrices=False)
+        basis = u @ vt  # orthonormal to round-off, as the env requires
+        t = cfg.t_max if self._boca is None else self._boca.choose(believer, basis).T
+        return basis, t, result.value
+
+    def tell(self, index: int, R: float | None, *, status: str = "ok", wall_s: float = 0.0,
+             worker: str = "", R_seeds=(), error: str | None = None) -> Evaluation:  # fmt: skip
+        """Record the outcome of proposal ``index`` (persisted before returning)."""
+        if index not in self.pending:
+            raise ValueError(f"no pending proposal with index {index}")
+        if status == "ok" and (R is None or not math.isfinite(R)):
+            status, error = "failed", error or f"non-finite R {R!r}"
+        proposal = self.pending.pop(index)
+        evaluation = Evaluation(
+            index=index, basis=proposal.basis, T=proposal.T, R=R if status == "ok" else None,
+            status=status, seeds=list(proposal.seeds), wall_s=float(wall_s),
+            elapsed_s=self.elapsed_s, worker=str(worker), kind=proposal.kind, error=error,
+            R_seeds=[float(r) for r in R_seeds],
+        )  # fmt: skip
+        self._record(evaluation, persist=True)
+        return evaluation
+
+    # -- driving a whole run ------------------------------------------------------------
+    def _can_submit(self, max_evaluations, budget_s) -> bool:
+        started = len(self.evaluations) + sum(
+            p.kind not in CONFIRM_KINDS for p in self.pending.values()
+        )
+        if max_evaluations is not None and started >= max_evaluations:
+            return False
+        return budget_s is None or self.elapsed_s < budget_s
+
+    def run(
+        self,
+        objective: Callable | None = None,
+        *,
+        executor: Executor | None = None,
+        workers: int = 1,
+        timeout_s: float | None = None,
+        max_evaluations: int | None = None,
+        budget_s: float | None = None,
+        confirm: bool = True,
+        callback: Callable[[Evaluation], None] | None = None,
+    ) -> RBBOResult:
+        """Optimise until ``max_evaluations`` or ``budget_s`` (defaults: the config's).
+
+        Parameters
+        ----------
+        objective : callable
+            ``objective(B_c, T, seed) -> float`` (not needed when ``executor`` is given).
+        executor : Executor, optional
+            Where evaluations run; default: in this process for one worker, a
+            :class:`ProcessExecutor` otherwise. An executor passed in is not shut down.
+        workers, timeout_s
+            For the default executor.
+        confirm : bool
+            Measure R_init and R* on fresh seeds at the end.
+        callback : callable, optional
+            Called with each recorded Evaluation.
+        """
+        cfg = self.config
+        max_evaluations = cfg.max_evaluations if max_evaluations is None else max_evaluations
+        budget_s = cfg.budget_s if budget_s is None else budget_s
+        if max_evaluations is None and budget_s is None:
+            raise ValueError("give max_evaluations or budget_s (here or in the config)")
+        own = executor is None
+        if own:
+            if objective is None:
+                raise ValueError("give an objective or an executor")
+            executor = (
+                SerialExecutor(objective)
+                if workers == 1 and timeout_s is None
+                else ProcessExecutor(objective, workers, timeout_s)
+            )
+        ok = False
+        try:
+            in_flight = {}
+            while True:
+                while len(in_flight) < executor.workers and self._can_submit(
+                    max_evaluations, budget_s
+                ):
+                    proposal = self.ask()
+                    in_flight[executor.submit(proposal.task())] = proposal
+                if not in_flight:
+                    break
+                done, _ = wait(list(in_flight), timeout=1.0, return_when=FIRST_COMPLETED)
+                for future in done:
+                    proposal = in_flight.pop(future)
+                    self._tell_outcome(proposal, future.result(), callback)
+            if confirm:
+                self._confirm(executor, callback)
+            ok = True
+        finally:
+            if own:
+                executor.shutdown(wait=ok)
+        result = self.result()
+        if self.store is not None:
+            self.store.write_summary(result.summary())
+            if result.best_basis is not None:
+                self.store.save_best(result.best_basis)
+        return result
+
+    def _tell_outcome(self, proposal: Proposal, outcome, callback) -> Evaluation:
+        evaluation = self.tell(proposal.index, outcome.R, status=outcome.status,
+                               wall_s=outcome.wall_s, worker=outcome.worker,
+                               R_seeds=outcome.R_seeds, error=outcome.error)  # fmt: skip
+        if callback is not None:
+            callback(evaluation)
+        return evaluation
+
+    def _confirm(self, executor: Executor, callback) -> None:
+        """Evaluate the identity and the recommendation on fresh seeds at T_max."""
+        cfg = self.config
+        best = self.recommend()
+        if best is None or cfg.n_confirm == 0:
+            return
+        wanted = {"confirm-init": identity_basis(cfg.sim_dim, cfg.control_dim),
+                  "confirm-best": best.basis}  # fmt: skip
+        done = {e.kind: e for e in self.history if e.kind in CONFIRM_KINDS and e.status == "ok"}
+        futures = {}
+        for kind, basis in wanted.items():
+            if kind in done and np.array_equal(done[kind].basis, basis):
+                continue  # already measured (a resumed, finished run)
+            proposal = Proposal(self._next_index, basis, cfg.t_max, cfg.fresh_seeds, kind)
+            self.pending[proposal.index] = proposal
+            self._next_index += 1
+            futures[executor.submit(proposal.task())] = proposal
+        for future in futures:
+            self._tell_outcome(futures[future], future.result(), callback)
+
+    def result(self) -> RBBOResult:
+        """R_init, R* and the counts so far (R values from the confirmation evaluations)."""
+        best = self.recommend()
+        confirmations = {}
+        for e in self.history:
+            if e.kind in CONFIRM_KINDS and e.status == "ok":
+                confirmations[e.kind] = e
+        r_init = confirmations.get("confirm-init")
+        r_star = confirmations.get("confirm-best")
+        if r_star is not None and (best is None or not np.array_equal(r_star.basis, best.basis)):
+            r_star = None  # measured for an earlier recommendation
+        improvement = None
+        if r_init is not None and r_star is not None and r_init.R > 0:
+            improvement = 100.0 * (r_star.R / r_init.R - 1.0)
+        evaluations = self.evaluations
+        return RBBOResult(
+            best_basis=None if best is None else best.basis,
+            R_star=None if r_star is None else r_star.R,
+            R_init=None if r_init is None else r_init.R,
+            improvement_pct=improvement,
+            evaluations=len(evaluations),
+            failed=sum(e.status == "failed" for e in evaluations),
+            wall_s=max([e.elapsed_s for e in self.history], default=0.0),
+            R_star_seeds=[] if r_star is None else list(r_star.R_seeds),
+            R_init_seeds=[] if r_init is None else list(r_init.R_seeds),
+            best_index=None if best is None else best.index,
+        )

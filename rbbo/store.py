@@ -1,0 +1,293 @@
+"""A run directory: the durable record of one RBBO optimisation.
+
+::
+
+    DIR/config.json       settings (written once, atomically)
+    DIR/history.jsonl     one JSON object per finished evaluation, append-only; each line is
+                          flushed and fsynced before the optimiser moves on, so a kill -9
+                          loses at most the evaluations still in flight
+    DIR/best_basis.npy    the current best B_c (replaced atomically)
+    DIR/summary.json      R_init, R* and the rest of the report (written at the end)
+
+A kill during a write can leave a partial last line; :meth:`RunStore.open` detects it, warns
+(:class:`TruncatedHistoryWarning`), keeps the bytes in ``history.jsonl.truncated`` and cuts
+the file back to its last complete line. Anything else unreadable raises
+:class:`RunDirectoryError` naming the file and line.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import tempfile
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "STATUSES",
+    "Evaluation",
+    "RunDirectoryError",
+    "RunStore",
+    "TruncatedHistoryWarning",
+]
+
+CONFIG = "config.json"
+HISTORY = "history.jsonl"
+BEST = "best_basis.npy"
+SUMMARY = "summary.json"
+STATUSES = ("ok", "failed")
+
+
+class RunDirectoryError(ValueError):
+    """A run directory is missing, not a run directory, or corrupted."""
+
+
+class TruncatedHistoryWarning(UserWarning):
+    """The last line of history.jsonl was incomplete (a write was interrupted) and dropped."""
+
+
+@dataclass
+class Evaluation:
+    """One finished evaluation of the objective R(B_c, T).
+
+    Attributes
+    ----------
+    index : int
+        Order in which the evaluation was proposed (unique within the run).
+    basis : (M, C) ndarray
+        The control basis B_c evaluated.
+    T : float
+        Trajectory length (fidelity), seconds.
+    R : float or None
+        Mean reward over ``seeds`` (None when the evaluation failed).
+    status : str
+        "ok" or "failed" (crash, timeout, non-finite value).
+    seeds : list of int
+        The common random numbers used.
+    wall_s : float
+        Duration of the evaluation, seconds.
+    elapsed_s : float
+        Run time (over all sessions of the run) when the evaluation finished, seconds.
+    worker : str
+        Which worker ran it.
+    kind : str
+        "initial", "random", "acquisition", or "confirm-init" / "confirm-best" (the identity
+        baseline and the recommendation evaluated on fresh seeds at the end of a run).
+    error : str or None
+        Why it failed.
+    R_seeds : list of float
+        R for each seed (their mean is R).
+    """
+
+    index: int
+    basis: np.ndarray
+    T: float
+    R: float | None
+    status: str = "ok"
+    seeds: list[int] = field(default_factory=list)
+    wall_s: float = 0.0
+    elapsed_s: float = 0.0
+    worker: str = ""
+    kind: str = "acquisition"
+    error: str | None = None
+    R_seeds: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"status must be one of {list(STATUSES)}, got {self.status!r}")
+        self.basis = np.asarray(self.basis, dtype=float)
+        if self.basis.ndim != 2:
+            raise ValueError(f"basis must be an (M, C) array, got shape {self.basis.shape}")
+        if self.status == "ok" and (self.R is None or not math.isfinite(self.R)):
+            raise ValueError(f"an 'ok' evaluation needs a finite R, got {self.R!r}")
+
+    def to_json(self) -> str:
+        record = asdict(self)
+        record["basis"] = self.basis.tolist()
+        record["seeds"] = [int(s) for s in self.seeds]
+        record["R_seeds"] = [float(r) for r in self.R_seeds]
+        return json.dumps(record, allow_nan=False)
+
+    @classmethod
+    def from_json(cls, line: str) -> Evaluation:
+        record = json.loads(line)
+        if not isinstance(record, dict):
+            raise ValueError(f"expected a JSON object, got {type(record).__name__}")
+        names = set(cls.__dataclass_fields__)
+        missing = {"index", "basis", "T", "R"} - set(record)
+        if missing:
+            raise ValueError(f"missing keys {sorted(missing)}")
+        return cls(**{k: v for k, v in record.items() if k in names})
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # pragma: no cover - platforms without directory fds
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    _fsync_dir(path.parent)
+
+
+class RunStore:
+    """Reads and writes one run directory (see the module docstring).
+
+    Use :meth:`create` for a new run and :meth:`open` for an existing one.
+    """
+
+    def __init__(self, path: str | os.PathLike, config: dict[str, Any]):
+        self.path = Path(path)
+        self.config = config
+
+    @property
+    def history_path(self) -> Path:
+        return self.path / HISTORY
+
+    @classmethod
+    def create(cls, path: str | os.PathLike, config: dict[str, Any]) -> RunStore:
+        """Start a new run directory (refuses one that already holds a run)."""
+        path = Path(path)
+        if (path / CONFIG).exists() or (path / HISTORY).exists():
+            raise RunDirectoryError(
+                f"{path} already holds a run; resume it (rbbo resume {path}) or choose "
+                "another --out"
+            )
+        if path.exists() and not path.is_dir():
+            raise RunDirectoryError(f"{path} exists and is not a directory")
+        path.mkdir(parents=True, exist_ok=True)
+        try:
+            data = json.dumps(config, indent=2, sort_keys=True, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"config is not JSON-serialisable: {exc}") from exc
+        _atomic_write(path / CONFIG, (data + "\n").encode())
+        (path / HISTORY).touch()
+        _fsync_dir(path)
+        return cls(path, config)
+
+    @classmethod
+    def open(cls, path: str | os.PathLike, *, repair: bool = True) -> RunStore:
+        """Open an existing run directory.
+
+        With ``repair`` (for resuming) a truncated last history line is cut with a warning;
+        without (for reading a run that may still be writing) it is only skipped.
+        """
+        path = Path(path)
+        if not path.is_dir():
+            raise RunDirectoryError(f"{path} is not a directory")
+        if not (path / CONFIG).is_file():
+            raise RunDirectoryError(f"{path} is not an RBBO run directory (no {CONFIG})")
+        try:
+            config = json.loads((path / CONFIG).read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise RunDirectoryError(f"{path / CONFIG} is corrupted: {exc}") from exc
+        if not isinstance(config, dict):
+            raise RunDirectoryError(f"{path / CONFIG} does not hold a JSON object")
+        store = cls(path, config)
+        if repair:
+            store._repair_tail()
+        return store
+
+    def _repair_tail(self) -> None:
+        hist = self.history_path
+        if not hist.exists():
+            hist.touch()
+            return
+        data = hist.read_bytes()
+        if not data:
+            return
+        cut = data.rfind(b"\n") + 1  # end of the last complete line
+        tail = data[cut:]
+        if not tail:
+            return
+        warnings.warn(
+            f"{hist}: dropped a truncated last line ({len(tail)} bytes, an evaluation that "
+            f"was being written when the run stopped); kept in {HISTORY}.truncated",
+            TruncatedHistoryWarning,
+            stacklevel=3,
+        )
+        with open(self.path / f"{HISTORY}.truncated", "ab") as f:
+            f.write(tail + b"\n")
+        with open(hist, "r+b") as f:
+            f.truncate(cut)
+            f.flush()
+            os.fsync(f.fileno())
+
+    def append(self, evaluation: Evaluation) -> None:
+        """Append one evaluation durably (written, flushed and fsynced before returning)."""
+        line = evaluation.to_json() + "\n"
+        with open(self.history_path, "a", encoding="utf-8") as f:
+            f.write(line)
+            f.flush()
+            os.fsync(f.fileno())
+
+    def history(self) -> list[Evaluation]:
+        """All recorded evaluations, in the order they finished."""
+        if not self.history_path.exists():
+            raise RunDirectoryError(f"{self.path} has no {HISTORY}")
+        out = []
+        with open(self.history_path, encoding="utf-8", errors="strict") as f:
+            try:
+                lines = f.read().split("\n")
+            except UnicodeDecodeError as exc:
+                raise RunDirectoryError(f"{self.history_path} is not UTF-8 text: {exc}") from exc
+        lines.pop()  # "" after the final newline, or a partial line still being written
+        for number, line in enumerate(lines, start=1):
+            try:
+                out.append(Evaluation.from_json(line))
+            except (ValueError, TypeError) as exc:
+                # a partial last line was cut on open(); a complete line that does not parse
+                # is corruption, not an interrupted write
+                raise RunDirectoryError(
+                    f"{self.history_path} line {number} is corrupted ({exc}): {line[:80]!r}"
+                ) from exc
+        return out
+
+    def save_best(self, basis: np.ndarray) -> None:
+        """Replace best_basis.npy atomically."""
+        buf = io.BytesIO()
+        np.save(buf, np.asarray(basis, dtype=float))
+        _atomic_write(self.path / BEST, buf.getvalue())
+
+    def best_basis(self) -> np.ndarray:
+        path = self.path / BEST
+        if not path.is_file():
+            raise RunDirectoryError(f"{self.path} has no {BEST} yet")
+        try:
+            return np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise RunDirectoryError(f"{path} is corrupted: {exc}") from exc
+
+    def write_summary(self, summary: dict[str, Any]) -> None:
+        data = json.dumps(summary, indent=2, sort_keys=True, allow_nan=False)
+        _atomic_write(self.path / SUMMARY, (data + "\n").encode())
+
+    def summary(self) -> dict[str, Any] | None:
+        path = self.path / SUMMARY
+        if not path.is_file():
+            return None
+        try:
+            return json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise RunDirectoryError(f"{path} is corrupted: {exc}") from exc

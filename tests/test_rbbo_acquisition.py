@@ -1,0 +1,148 @@
+"""GP-UCB gradients and its maximisation on Gr(M, C) (rbbo.acquisition, rbbo.optimizers)."""
+
+import numpy as np
+import pytest
+from pymanopt.manifolds import Grassmann
+from pymanopt.optimizers import ConjugateGradient
+
+from rbbo import grassmann as gr
+from rbbo.acquisition import (
+    UCBAcquisition,
+    make_problem,
+    maximize_on_grassmann,
+    ucb_beta,
+)
+from rbbo.gp import GrassmannGP
+from rbbo.optimizers import LRBFGS
+
+M, C = 8, 3
+
+
+class TraceQuadratic:
+    """mu(B) = tr(B^T A B): its maximisers span the top-C eigenspace of A."""
+
+    def __init__(self, a):
+        self.a = a
+
+    def value_and_gradient(self, b):
+        ab = self.a @ b
+        return float(np.sum(b * ab)), 2.0 * ab
+
+    def values(self, bases):
+        return np.einsum("nmc,mk,nkc->n", bases, self.a, bases)
+
+
+def _symmetric(rng, m=M):
+    a = rng.standard_normal((m, m))
+    return a + a.T
+
+
+@pytest.fixture(scope="module")
+def gp():
+    rng = np.random.default_rng(7)
+    bases = gr.random_points(M, C, 20, rng)
+    z = rng.uniform(size=20)
+    y = np.sum(bases[:, :C, :] ** 2, axis=(1, 2)) + 0.5 * z + 0.05 * rng.standard_normal(20)
+    return GrassmannGP(M, C, fidelity=True, random_state=0).fit(bases, y, z)
+
+
+@pytest.mark.parametrize("optimizer", ["lrbfgs", "cg"])
+def test_maximiser_finds_top_eigenspace(optimizer, rng):
+    a = _symmetric(rng)
+    eigval, eigvec = np.linalg.eigh(a)
+    top = eigvec[:, -C:]
+    result = maximize_on_grassmann(
+        TraceQuadratic(a), M, C, rng=rng, optimizer=optimizer, n_random=16, n_starts=2,
+        max_iterations=500,
+    )  # fmt: skip
+    assert result.value == pytest.approx(eigval[-C:].sum(), rel=1e-8)
+    assert gr.projection_distance(result.basis, top) < 1e-4
+    assert not result.fallback_used
+    assert all("Terminated" in r.stopping_criterion for r in result.results)
+
+
+def test_lrbfgs_matches_conjugate_gradient_and_needs_fewer_iterations(rng):
+    a = _symmetric(rng, 20)
+    problem = make_problem(TraceQuadratic(a), 20, C)
+    x0 = gr.random_points(20, C, rng=rng)
+    kwargs = {"max_iterations": 1000, "min_gradient_norm": 1e-6, "verbosity": 0}
+    quasi_newton = LRBFGS(**kwargs).run(problem, initial_point=x0)
+    cg = ConjugateGradient(**kwargs).run(problem, initial_point=x0)
+    assert quasi_newton.cost == pytest.approx(cg.cost, rel=1e-9)
+    assert "min grad norm" in quasi_newton.stopping_criterion
+    assert quasi_newton.iterations < cg.iterations
+
+
+def test_lrbfgs_reports_its_stopping_reason(rng):
+    problem = make_problem(TraceQuadratic(_symmetric(rng)), M, C)
+    x0 = gr.random_points(M, C, rng=rng)
+    result = LRBFGS(max_iterations=3).run(problem, initial_point=x0)
+    assert result.iterations == 3
+    assert "max iterations" in result.stopping_criterion
+    gr.validate_basis(result.point, M, C)
+    with pytest.raises(ValueError, match="memory must be a positive integer, got 0"):
+        LRBFGS(memory=0)
+    with pytest.raises(ValueError, match="need 0 < c1 < c2 < 1"):
+        LRBFGS(c1=0.5, c2=0.1)
+
+
+@pytest.mark.parametrize("z", [1.0, 0.3])
+def test_ucb_euclidean_gradient_matches_finite_differences(gp, z, rng):
+    acq = UCBAcquisition(gp, beta=2.0, z=z)
+    b = gr.random_points(M, C, rng=rng)
+    _, grad = acq.value_and_gradient(b)
+    # the Euclidean gradient in the ambient R^(M x C): B need not be orthonormal for this
+    direction = rng.standard_normal((M, C))
+    eps = 1e-6
+    hi, _ = acq.value_and_gradient(b + eps * direction)
+    lo, _ = acq.value_and_gradient(b - eps * direction)
+    assert np.sum(grad * direction) == pytest.approx((hi - lo) / (2 * eps), rel=1e-6)
+
+
+def test_ucb_batch_values_match_pointwise(gp, rng):
+    acq = UCBAcquisition(gp, beta=3.0)
+    bases = gr.random_points(M, C, 6, rng)
+    pointwise = [acq.value_and_gradient(b)[0] for b in bases]
+    np.testing.assert_allclose(acq.values(bases), pointwise, rtol=1e-10)
+
+
+def test_ucb_riemannian_gradient_passes_pymanopt_style_check(gp, rng):
+    """pymanopt's check_gradient test, without its plot (pymanopt 2.2.1's own
+    check_directional_derivative fails under numpy 2: a 1-element array is stored into a
+    float slot): the first-order Taylor error of the cost along a retraction curve falls
+    with slope 2 in log h, and the Riemannian gradient is tangent."""
+    problem = make_problem(UCBAcquisition(gp, beta=2.0), M, C)
+    manifold = problem.manifold
+    x = gr.random_points(M, C, rng=rng)
+    d = manifold.projection(x, rng.standard_normal((M, C)))
+    d /= np.linalg.norm(d)
+    grad = problem.riemannian_gradient(x)
+    f0, df0 = problem.cost(x), manifold.inner_product(x, grad, d)
+    h = np.logspace(-5, -2, 7)
+    error = [abs(problem.cost(manifold.retraction(x, t * d)) - f0 - t * df0) for t in h]
+    slope = np.polyfit(np.log10(h), np.log10(error), 1)[0]
+    assert slope == pytest.approx(2.0, abs=0.1)
+    assert np.linalg.norm(x.T @ grad) < 1e-12
+    assert Grassmann(M, C).norm(x, grad) > 0
+
+
+def test_ucb_maximiser_beats_every_start(gp, rng):
+    acq = UCBAcquisition(gp, beta=ucb_beta(20, gr.dimension(M, C)))
+    incumbents = gp.bases_[np.argsort(-gp.ys_)[:2]]
+    result = maximize_on_grassmann(acq, M, C, incumbents=incumbents, rng=rng, n_random=32)
+    starts = np.concatenate([gr.random_points(M, C, 256, rng), incumbents])
+    assert result.value >= acq.values(starts).max() - 1e-9
+    assert result.value == pytest.approx(acq.value_and_gradient(result.basis)[0])
+
+
+def test_beta_schedule_grows_logarithmically():
+    b = [ucb_beta(t, 51) for t in (1, 10, 100)]
+    assert b[0] < b[1] < b[2]
+    assert b[2] - b[1] == pytest.approx(b[1] - b[0])  # 0.4 * 2 log(10) per decade
+    with pytest.raises(ValueError, match="delta must be in"):
+        ucb_beta(1, 3, delta=2.0)
+
+
+def test_bad_optimizer_name(rng):
+    with pytest.raises(ValueError, match=r"unknown optimizer 'bfgs'; valid: \['lrbfgs', 'cg'\]"):
+        maximize_on_grassmann(TraceQuadratic(np.eye(M)), M, C, optimizer="bfgs")

@@ -1,0 +1,96 @@
+"""BOCA's fidelity rule (rbbo.boca) on a synthetic two-fidelity problem."""
+
+import numpy as np
+import pytest
+
+from rbbo import grassmann as gr
+from rbbo.acquisition import perturb
+from rbbo.boca import BOCAFidelity
+from rbbo.gp import GrassmannGP
+
+M, C = 8, 2
+T_MIN, T_MAX = 4.0, 10.0
+
+
+def two_fidelity(bases, z, u, v):
+    """Target ||B^T U||^2 / C at z = 1; at z = 0 biased by a smooth term in ||B^T V||^2."""
+    hit = np.sum((bases.transpose(0, 2, 1) @ u) ** 2, axis=(1, 2)) / C
+    bias = np.sum((bases.transpose(0, 2, 1) @ v) ** 2, axis=(1, 2)) / C
+    return hit - 0.3 * (1.0 - z) * (1.0 + bias)
+
+
+@pytest.fixture(scope="module")
+def problem():
+    rng = np.random.default_rng(3)
+    u, v = gr.random_points(M, C, 2, rng)
+    return u, v, rng
+
+
+def _boca():
+    # two fidelities only (T_min, T_max) and a fixed kappa: the rule itself, no adaptation
+    return BOCAFidelity(T_MIN, T_MAX, n_candidates=2, kappa=0.5, window=10**6)
+
+
+def test_low_fidelity_first_when_the_gp_knows_little(problem):
+    u, v, rng = problem
+    boca = _boca()
+    bases = gr.random_points(M, C, 4, rng)
+    z = np.array([0.0, 0.0, 1.0, 1.0])
+    gp = GrassmannGP(M, C, fidelity=True, random_state=0).fit(
+        bases, two_fidelity(bases, z, u, v), z
+    )
+    choice = boca.choose(gp, gr.random_points(M, C, rng=rng))
+    assert choice.T == T_MIN
+    assert choice.tau[0] > choice.gamma[0]
+
+
+def test_full_fidelity_once_low_fidelity_has_been_seen_near_the_candidate(problem):
+    u, v, rng = problem
+    boca = _boca()
+    near = np.stack([perturb(u, s, rng) for s in rng.uniform(0.05, 0.4, 25)])
+    far = gr.random_points(M, C, 10, rng)
+    bases = np.concatenate([near, far])
+    z = np.concatenate([np.zeros(25), np.ones(10)])
+    gp = GrassmannGP(M, C, fidelity=True, random_state=0).fit(
+        bases, two_fidelity(bases, z, u, v), z
+    )
+    choice = boca.choose(gp, u)
+    assert choice.T == T_MAX
+    assert choice.tau[0] <= choice.gamma[0]
+    # elsewhere the same GP is still unsure at low fidelity: a cheap look is worth it
+    assert boca.choose(gp, gr.random_points(M, C, rng=rng)).T == T_MIN
+
+
+def test_candidates_respect_the_cost_cap():
+    boca = BOCAFidelity(2.0, 10.0, n_candidates=5, max_cost_ratio=0.9)
+    np.testing.assert_allclose(boca.candidates, [2.0, 4.0, 6.0, 8.0])
+    assert boca.z(10.0) == 1.0 and boca.z(2.0) == 0.0
+
+
+def test_kappa_adapts_to_the_share_of_full_fidelity_choices():
+    boca = BOCAFidelity(T_MIN, T_MAX, window=4, kappa=1.0)
+    kappas = []
+    for t in [T_MAX] * 4 + [T_MIN] * 4:
+        boca.record(t)
+        kappas.append(boca.kappa)
+    # windows: 3 short, 4/4 and 3/4 at T_max (too many: lower), 2/4 and 1/4 (in range),
+    # 0/4 (too few: raise)
+    expected = [1, 1, 1, 1 / 1.1, 1 / 1.1**2, 1 / 1.1**2, 1 / 1.1**2, 1 / 1.1]
+    np.testing.assert_allclose(kappas, expected)
+
+
+def test_bad_fidelity_ranges():
+    with pytest.raises(ValueError, match="T_max = 3.0 must exceed T_min = 4.0"):
+        BOCAFidelity(4.0, 3.0)
+    with pytest.raises(ValueError, match="T_min must be a positive finite number, got 0"):
+        BOCAFidelity(0, 3.0)
+    with pytest.raises(ValueError, match="n_candidates must be >= 2"):
+        BOCAFidelity(1.0, 3.0, n_candidates=1)
+
+
+def test_boca_needs_a_fidelity_gp(problem):
+    rng = problem[2]
+    bases = gr.random_points(M, C, 3, rng)
+    gp = GrassmannGP(M, C).fit(bases, np.arange(3.0))
+    with pytest.raises(ValueError, match="BOCA needs a GP with a fidelity kernel"):
+        _boca().choose(gp, bases[0])

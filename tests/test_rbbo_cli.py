@@ -1,0 +1,132 @@
+"""The ``rbbo`` command line (rbbo.cli): end to end on tiny budgets, and its usage errors."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+# the stand-in env and controllers of the objective tests drive the env path end to end
+from test_rbbo_objective import _fake_controllers
+
+from rbbo.cli import main, parse_duration
+
+TINY = ["--sim-dim", "6", "--control-dim", "2", "--init", "3", "--confirm-seeds", "2",
+        "--no-progress"]  # fmt: skip
+
+
+def _history(run):
+    return [json.loads(line) for line in (run / "history.jsonl").read_text().splitlines()]
+
+
+def test_optimize_report_resume_rollout_on_a_synthetic_objective(tmp_path, capsys):
+    run = tmp_path / "run"
+    code = main(["optimize", "synthetic:noise=0.01", *TINY, "--iterations", "8",
+                 "--executor", "serial", "--out", str(run)])  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "R_init" in out and "improvement" in out and "synthetic:noise=0.01" in out
+    assert (run / "convergence.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == 8
+
+    (run / "convergence.png").unlink()
+    assert main(["report", str(run)]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].split() == ["problem", "N", "M", "C", "R_init", "R*", "improvement",
+                                "evaluations", "wall", "time"]  # fmt: skip
+    row = table[2].split()
+    assert row[2:4] == ["6", "2"] and row[-2] == "8"
+    assert (run / "convergence.png").exists()
+
+    assert main(["resume", str(run), "--iterations", "10", "--no-progress"]) == 0
+    capsys.readouterr()
+    evaluations = [h for h in _history(run) if not h["kind"].startswith("confirm")]
+    assert len(evaluations) == 10
+
+    assert main(["rollout", str(run), "--seed", "7"]) == 0
+    assert capsys.readouterr().out.startswith("R = ")
+
+
+def test_optimize_an_env_with_mpc(tmp_path, capsys, monkeypatch):
+    """The env path: ENV_ID resolution, node count, settled reward per second, config."""
+    monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
+    run = tmp_path / "env-run"
+    code = main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
+                 "--init", "2", "--iterations", "4", "--t-max", "4", "--confirm-seeds", "1",
+                 "--executor", "serial", "--no-progress", "--out", str(run)])  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert " 623 " in out  # N, the robot's node count
+    config = json.loads((run / "config.json").read_text())
+    assert config["objective"] == {
+        "kind": "env", "env_id": "rbbo_test/StandIn-v0", "sim_dim": 6, "control_dim": 2,
+        "controller": "mppi", "settle_time": 2.0, "env_kwargs": {}, "planner_kwargs": {},
+    }  # fmt: skip
+    # R is 0.1 B_c[0, 0] per 0.025 s step after settling: 4 B_c[0, 0] per second
+    for record in _history(run):
+        assert record["R"] == pytest.approx(4.0 * record["basis"][0][0])
+
+
+def _error(capsys, argv):
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1 and err.startswith("rbbo: error: ")
+    return err
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        ([], "the following arguments are required: command"),
+        (["optimize", "synthetic", "--budget", "5q"], "invalid duration '5q'"),
+        (["optimize", "synthetic", "--budget", "0m"], "duration must be positive"),
+        (["optimize", "synthetic", "--control-dim", "25"], "--control-dim 25 exceeds --sim-dim 20"),
+        (["optimize", "synthetic", "--workers", "0"], "expected a positive integer, got '0'"),
+        (["optimize", "synthetic", "--fidelity", "mf"], "invalid choice: 'mf'"),
+        (["optimize", "synthetic:foo=1"], "bad synthetic option 'foo=1'"),
+        (["optimize", "Nope-v0"], "unknown ENV_ID 'Nope-v0'; registered: softrom_gym/BeamWalk-v0"),
+        (["optimize", "synthetic", "--address", "auto"], "--address is for --executor ray"),
+        (["optimize", "synthetic", "--fidelity", "boca", "--t-min", "12"], "--t-min 12.0 must be"),
+        (["optimize", "synthetic", "--init", "-1"], "n_init must be an integer >= 0, got -1"),
+        (["report"], "the following arguments are required: DIR"),
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line(capsys, argv, match):
+    assert match in _error(capsys, argv)
+
+
+def test_env_without_controllers_names_the_missing_piece(capsys, monkeypatch):
+    import types
+
+    monkeypatch.setitem(sys.modules, "controllers", types.ModuleType("controllers"))
+    err = _error(capsys, ["optimize", "CrossWalk-v0"])
+    assert "controllers has no run_episode, MPPI, GaussNewtonShooting yet" in err
+
+
+def test_run_directory_errors(tmp_path, capsys):
+    assert "is not an RBBO run directory" in _error(capsys, ["resume", str(tmp_path)])
+    assert "is not a directory" in _error(capsys, ["report", str(tmp_path / "missing")])
+    run = tmp_path / "run"
+    main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+          "--out", str(run)])  # fmt: skip
+    capsys.readouterr()
+    err = _error(capsys, ["optimize", "synthetic", *TINY, "--iterations", "4", "--out", str(run)])
+    assert "already holds a run; resume it" in err
+    assert "--video needs an env run" in _error(capsys, ["rollout", str(run), "--video", "a.mp4"])
+
+
+def test_console_entry_point_exit_status():
+    """The real process: ``python -m rbbo`` (what the ``rbbo`` script runs) exits with 2."""
+    proc = subprocess.run([sys.executable, "-m", "rbbo", "optimize", "synthetic", "--budget",
+                           "soon"], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "rbbo: error: argument --budget: invalid duration 'soon'; use " \
+        "e.g. 30m, 2h, 1h30m, 45s"  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("text", "seconds"), [("30m", 1800), ("2h", 7200), ("1h30m", 5400), ("45s", 45), ("90", 90)]
+)
+def test_parse_duration(text, seconds):
+    assert parse_duration(text) == seconds

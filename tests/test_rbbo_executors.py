@@ -1,0 +1,124 @@
+"""Executors (rbbo.executors): crashes and hangs fail one evaluation, the run goes on."""
+
+import numpy as np
+import pytest
+
+from rbbo import RBBO, RBBOConfig, SyntheticObjective
+from rbbo.executors import EvaluationTask, ProcessExecutor, SerialExecutor, make_executor
+from rbbo.testing import FaultyObjective
+
+FAST = {"acq_random": 64, "acq_starts": 2, "acq_max_iterations": 30, "gp_restarts": 0}
+
+
+def _task(i, t, seeds=(0,)):
+    return EvaluationTask(i, np.eye(3)[:, :1], float(t), tuple(seeds))
+
+
+@pytest.fixture(scope="module")
+def pool():
+    executor = ProcessExecutor(FaultyObjective(), workers=2, timeout_s=1.5)
+    yield executor
+    executor.shutdown()
+
+
+def test_process_pool_survives_crash_hang_and_exceptions(pool):
+    futures = [pool.submit(_task(i, t)) for i, t in enumerate([1, 2, 3, 4, 5, 1, 1])]
+    outcomes = [f.result(timeout=30) for f in futures]
+    assert [o.status for o in outcomes] == ["ok", "failed", "failed", "failed", "failed", "ok",
+                                            "ok"]  # fmt: skip
+    assert outcomes[0].R == 1.0 and outcomes[0].R_seeds == (1.0,)
+    assert "timed out after 1.5 s" in outcomes[1].error
+    assert "worker crashed (exit code 7)" in outcomes[2].error
+    assert "RuntimeError: MPC diverged" in outcomes[3].error
+    assert "non-finite R" in outcomes[4].error
+    assert [o.index for o in outcomes] == list(range(7))
+
+
+def test_process_pool_averages_over_seeds(pool):
+    outcome = pool.submit(_task(0, 1, seeds=(0, 1, 2))).result(timeout=30)
+    assert outcome.R == pytest.approx(2.0) and outcome.R_seeds == (1.0, 2.0, 3.0)
+
+
+def test_serial_and_process_pool_give_the_same_history_for_one_worker():
+    objective = SyntheticObjective(6, 2, noise=0.05)
+    config = RBBOConfig(6, 2, n_init=3, seeds=2, max_evaluations=7, n_confirm=1, **FAST)
+    serial = RBBO(config)
+    serial.run(executor=SerialExecutor(objective))
+    pooled = RBBO(config)
+    with ProcessExecutor(objective, workers=1) as executor:
+        pooled.run(executor=executor)
+    assert [e.R for e in pooled.history] == [e.R for e in serial.history]
+    for a, b in zip(pooled.history, serial.history, strict=True):
+        np.testing.assert_array_equal(a.basis, b.basis)
+
+
+def test_parallel_run_keeps_every_worker_busy_and_records_all():
+    objective = SyntheticObjective(6, 2, noise=0.01, delay=0.2)
+    opt = RBBO(RBBOConfig(6, 2, n_init=2, max_evaluations=8, n_confirm=0, **FAST))
+    result = opt.run(objective, workers=2, timeout_s=20)
+    assert result.evaluations == 8 and result.failed == 0
+    assert {e.worker for e in opt.history} == {"process-0", "process-1"}
+    assert sorted(e.index for e in opt.history) == list(range(8))
+
+
+def test_run_goes_on_after_failed_evaluations():
+    objective = FlakyEveryThird(6, 2)
+    opt = RBBO(RBBOConfig(6, 2, n_init=2, max_evaluations=9, n_confirm=0, **FAST))
+    result = opt.run(objective)
+    assert result.evaluations == 9 and result.failed == 3
+    assert all(
+        e.error == "RuntimeError: simulated fault" for e in opt.history if e.status == "failed"
+    )
+
+
+class FlakyEveryThird(SyntheticObjective):
+    def __call__(self, basis, T, seed):
+        self.calls = getattr(self, "calls", 0) + 1
+        if self.calls % 3 == 0:
+            raise RuntimeError("simulated fault")
+        return super().__call__(basis, T, seed)
+
+
+@pytest.mark.slow
+def test_ray_executor_matches_the_process_pool():
+    ray = pytest.importorskip("ray")
+    objective = SyntheticObjective(6, 2, noise=0.05)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=6, n_confirm=0, **FAST)
+    pooled = RBBO(config)
+    with ProcessExecutor(objective, workers=1) as executor:
+        pooled.run(executor=executor)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        on_ray = RBBO(config)
+        with make_executor("ray", objective, workers=1, timeout_s=60) as executor:
+            on_ray.run(executor=executor)
+            crashed = executor.submit(_task(99, 3)).result(timeout=60)
+    finally:
+        ray.shutdown()
+    assert [e.R for e in on_ray.history] == [e.R for e in pooled.history]
+    assert {e.worker for e in on_ray.history} == {"ray-0"}
+    assert crashed.status == "failed"
+
+
+def test_executor_arguments_are_checked():
+    with pytest.raises(ValueError, match="workers must be a positive integer, got 0"):
+        ProcessExecutor(FaultyObjective(), workers=0)
+    with pytest.raises(ValueError, match="timeout_s must be > 0 or None, got -1"):
+        ProcessExecutor(FaultyObjective(), timeout_s=-1)
+    with pytest.raises(ValueError, match=r"unknown executor 'dask'; valid: \['process', 'ray'"):
+        make_executor("dask", FaultyObjective())
+
+
+def test_missing_ray_names_the_extra(monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_ray(name, *args, **kwargs):
+        if name == "ray":
+            raise ImportError("No module named 'ray'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    with pytest.raises(ImportError, match=r"pip install 'softrom\[ray\]'"):
+        make_executor("ray", FaultyObjective())

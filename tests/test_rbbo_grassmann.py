@@ -1,0 +1,89 @@
+"""Points of Gr(M, C) and the projection distance (rbbo.grassmann)."""
+
+import numpy as np
+import pytest
+from scipy.stats import ortho_group
+
+from rbbo import grassmann as gr
+
+
+def test_distance_matches_projector_norm(rng):
+    a, b = gr.random_points(9, 3, 2, rng)
+    direct = np.linalg.norm(a @ a.T - b @ b.T)
+    assert gr.projection_distance(a, b) == pytest.approx(direct, rel=1e-12)
+    sq = gr.projection_sq_distances(np.stack([a, b]))
+    np.testing.assert_allclose(sq, [[0, direct**2], [direct**2, 0]], atol=1e-12)
+
+
+def test_distance_is_invariant_under_rotation_of_columns(rng):
+    a, b = gr.random_points(8, 3, 2, rng)
+    q = ortho_group.rvs(3, random_state=1)
+    assert gr.projection_distance(a @ q, b) == pytest.approx(gr.projection_distance(a, b))
+    assert gr.projection_distance(a, a @ q) == pytest.approx(0.0, abs=1e-7)
+
+
+def test_orthogonal_subspaces_are_sqrt_2c_apart():
+    e = np.eye(6)
+    assert gr.projection_distance(e[:, :3], e[:, 3:]) == pytest.approx(np.sqrt(6.0))
+
+
+def test_random_points_are_orthonormal_and_spread(rng):
+    pts = gr.random_points(10, 2, 200, rng)
+    for p in pts[:5]:
+        gr.validate_basis(p, 10, 2)
+    # E ||B^T U||_F^2 = C^2 / M for a uniform subspace against a fixed one
+    u = np.eye(10)[:, :2]
+    mean_overlap = np.mean(np.sum((pts.transpose(0, 2, 1) @ u) ** 2, axis=(1, 2)))
+    assert mean_overlap == pytest.approx(4 / 10, abs=0.06)
+
+
+def test_canonical_depends_on_span_only(rng):
+    b = gr.random_points(7, 3, rng=rng)
+    q = ortho_group.rvs(3, random_state=2)
+    c1, c2 = gr.canonical(b), gr.canonical(b @ q)
+    np.testing.assert_allclose(c1, c2, atol=1e-12)
+    np.testing.assert_allclose(c1 @ c1.T, b @ b.T, atol=1e-12)
+    np.testing.assert_array_equal(gr.canonical(gr.identity_basis(7, 3)), np.eye(7)[:, :3])
+
+
+def test_flatten_roundtrip(rng):
+    pts = gr.random_points(5, 2, 4, rng)
+    x = gr.flatten(pts)
+    assert x.shape == (4, 10)
+    np.testing.assert_array_equal(gr.unflatten(np.column_stack([x, np.ones(4)]), 5, 2), pts)
+
+
+def test_orthonormalize_keeps_span(rng):
+    a = rng.standard_normal((6, 2))
+    q = gr.orthonormalize(a)
+    gr.validate_basis(q, 6, 2)
+    np.testing.assert_allclose(q @ q.T @ a, a, atol=1e-12)
+
+
+def test_dimension():
+    assert gr.dimension(20, 3) == 51
+
+
+@pytest.mark.parametrize(
+    ("b", "kwargs", "match"),
+    [
+        (np.ones(3), {}, r"2-D \(M, C\) array, got shape \(3,\)"),
+        (np.eye(4)[:, :2], {"sim_dim": 5}, r"shape \(4, 2\), expected .* = \(5, C\)"),
+        (np.eye(3), {"control_dim": 2}, r"shape \(3, 3\), expected"),
+        (2 * np.eye(4)[:, :2], {}, r"not orthonormal: max \|B_c\^T B_c - I\| = 3"),
+        (np.full((3, 1), np.nan), {}, "non-finite values"),
+        (np.eye(2, 3), {}, "control_dim = 3 exceeds sim_dim = 2"),
+    ],
+)
+def test_validate_basis_errors(b, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gr.validate_basis(b, **kwargs)
+
+
+def test_bad_dims_and_rank():
+    with pytest.raises(ValueError, match="control_dim must be a positive integer, got 0"):
+        gr.random_points(4, 0)
+    with pytest.raises(ValueError, match="full-rank"):
+        gr.orthonormalize(np.ones((4, 2)))
+    with pytest.raises(TypeError, match="real \\(M, C\\) array"):
+        gr.validate_basis([["a", "b"]])

@@ -1,0 +1,148 @@
+"""Grassmann and fidelity kernels (rbbo.kernels) and the GP built on them (rbbo.gp)."""
+
+import numpy as np
+import pytest
+from scipy.stats import ortho_group
+from sklearn.base import clone
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import ConstantKernel, WhiteKernel
+
+from rbbo import grassmann as gr
+from rbbo.gp import GrassmannGP
+from rbbo.kernels import FidelityKernel, GrassmannKernel
+
+M, C = 7, 2
+
+
+def _x(rng, n=12, fidelity=False):
+    x = gr.flatten(gr.random_points(M, C, n, rng))
+    return np.column_stack([x, rng.uniform(size=n)]) if fidelity else x
+
+
+def _numeric_gradient(kernel, x, eps=1e-6):
+    theta = kernel.theta
+    grads = []
+    for i in range(len(theta)):
+        step = np.zeros_like(theta)
+        step[i] = eps
+        hi = kernel.clone_with_theta(theta + step)(x)
+        lo = kernel.clone_with_theta(theta - step)(x)
+        grads.append((hi - lo) / (2 * eps))
+    return np.stack(grads, axis=-1)
+
+
+@pytest.mark.parametrize(
+    "kernel",
+    [
+        GrassmannKernel(M, C, length_scale=0.7),
+        FidelityKernel(length_scale=0.3),
+        ConstantKernel(2.0) * GrassmannKernel(M, C, 1.3) * FidelityKernel(0.5) + WhiteKernel(0.1),
+    ],
+    ids=["grassmann", "fidelity", "product+white"],
+)
+def test_kernel_gradient_matches_finite_differences(kernel, rng):
+    x = _x(rng, fidelity=True)
+    k, grad = kernel(x, eval_gradient=True)
+    np.testing.assert_allclose(k, kernel(x), rtol=1e-12)
+    assert grad.shape == (len(x), len(x), len(kernel.theta))
+    np.testing.assert_allclose(grad, _numeric_gradient(kernel, x), rtol=1e-5, atol=1e-8)
+
+
+def test_fixed_length_scale_has_no_gradient(rng):
+    x = _x(rng)
+    _, grad = GrassmannKernel(M, C, 1.0, "fixed")(x, eval_gradient=True)
+    assert grad.shape == (len(x), len(x), 0)
+
+
+def test_kernel_is_invariant_under_rotations_of_each_basis(rng):
+    bases = gr.random_points(M, C, 10, rng)
+    rotated = np.stack([b @ ortho_group.rvs(C, random_state=i) for i, b in enumerate(bases)])
+    kernel = GrassmannKernel(M, C, 0.8)
+    np.testing.assert_allclose(kernel(gr.flatten(bases)), kernel(gr.flatten(rotated)), atol=1e-12)
+    other = gr.flatten(gr.random_points(M, C, 3, rng))
+    np.testing.assert_allclose(
+        kernel(gr.flatten(bases), other), kernel(gr.flatten(rotated), other), atol=1e-12
+    )
+
+
+@pytest.mark.parametrize("length_scale", [0.1, 1.0, 10.0])
+def test_gram_matrices_are_positive_semidefinite(length_scale, rng):
+    x = _x(rng, n=40, fidelity=True)
+    for kernel in (
+        GrassmannKernel(M, C, length_scale),
+        GrassmannKernel(M, C, length_scale) * FidelityKernel(0.4),
+    ):
+        k = kernel(x)
+        np.testing.assert_allclose(k, k.T, atol=1e-14)
+        assert np.linalg.eigvalsh(k).min() > -1e-10
+        np.testing.assert_array_equal(kernel.diag(x), np.ones(len(x)))
+
+
+def test_kernel_values_follow_projection_distance(rng):
+    a, b = gr.random_points(M, C, 2, rng)
+    d = gr.projection_distance(a, b)
+    k = GrassmannKernel(M, C, 0.9)(gr.flatten(a), gr.flatten(b))[0, 0]
+    assert k == pytest.approx(np.exp(-(d**2) / (2 * 0.9**2)))
+
+
+def test_kernel_works_with_sklearn_clone_and_bounds():
+    kernel = GrassmannKernel(M, C, 2.0, (0.1, 10.0))
+    copy = clone(kernel)
+    assert copy.get_params() == kernel.get_params()
+    np.testing.assert_allclose(kernel.bounds, np.log([[0.1, 10.0]]))
+    assert [h.name for h in kernel.hyperparameters] == ["length_scale"]
+
+
+def test_kernel_rejects_bad_input(rng):
+    with pytest.raises(ValueError, match=r"X must have shape \(n, >= M \* C\) = \(n, >= 14\)"):
+        GrassmannKernel(M, C)(np.ones((3, 5)))
+    with pytest.raises(ValueError, match="length_scale must be a positive scalar, got -1"):
+        GrassmannKernel(M, C, -1.0)(_x(rng))
+    with pytest.raises(ValueError, match="control_dim = 9 exceeds sim_dim = 7"):
+        GrassmannKernel(M, 9)(_x(rng))
+    with pytest.raises(ValueError, match="Gradient can only be evaluated when Y is None"):
+        GrassmannKernel(M, C)(_x(rng), _x(rng), eval_gradient=True)
+
+
+def test_gp_posterior_matches_sklearn(rng):
+    bases = gr.random_points(M, C, 15, rng)
+    z = rng.uniform(size=15)
+    y = np.sum((bases[:, :C, :]) ** 2, axis=(1, 2)) + 0.3 * z + 0.01 * rng.standard_normal(15)
+    gp = GrassmannGP(M, C, fidelity=True, random_state=0).fit(bases, y, z)
+    hp = gp.hyperparameters
+    assert hp.noise_variance > 0 and hp.fidelity_length_scale is not None
+
+    x = np.column_stack([gr.flatten(bases), z])
+    ys = (y - gp.y_mean_) / gp.y_std_
+    ref = GaussianProcessRegressor(gp.kernel_, optimizer=None, alpha=1e-10).fit(x, ys)
+    query = gr.random_points(M, C, 5, rng)
+    mu_ref, sd_ref = ref.predict(np.column_stack([gr.flatten(query), np.ones(5)]), True)
+    mu, sd = gp.predict_standardized(query, 1.0)
+    np.testing.assert_allclose(mu, mu_ref, atol=1e-7)
+    # sklearn's predictive sd includes the WhiteKernel noise; ours is the latent sd
+    np.testing.assert_allclose(sd**2 + hp.noise_variance, sd_ref**2, atol=1e-7)
+    mu_orig, sd_orig = gp.predict(query, 1.0)
+    np.testing.assert_allclose(mu_orig, gp.y_mean_ + gp.y_std_ * mu)
+    np.testing.assert_allclose(sd_orig, gp.y_std_ * sd)
+
+
+def test_gp_fantasy_shrinks_uncertainty(rng):
+    bases = gr.random_points(M, C, 8, rng)
+    y = rng.standard_normal(8)
+    gp = GrassmannGP(M, C, random_state=0).fit(bases, y)
+    pending = gr.random_points(M, C, rng=rng)
+    mu0, sd0 = gp.predict(pending)
+    fantasy = gp.conditioned_on(pending[None], mu0)
+    mu1, sd1 = fantasy.predict(pending)
+    assert sd1[0] < sd0[0]
+    np.testing.assert_allclose(mu1, mu0, atol=1e-8)
+
+
+def test_gp_rejects_bad_data(rng):
+    bases = gr.random_points(M, C, 4, rng)
+    with pytest.raises(ValueError, match="y must hold 4 finite values"):
+        GrassmannGP(M, C).fit(bases, [1.0, 2.0, np.nan, 0.0])
+    with pytest.raises(ValueError, match=r"bases must have shape \(n, 7, 2\)"):
+        GrassmannGP(M, C).fit(bases[:, :5], np.zeros(4))
+    with pytest.raises(ValueError, match="pass z"):
+        GrassmannGP(M, C, fidelity=True).fit(bases, np.zeros(4))

@@ -1,0 +1,152 @@
+"""Objectives (rbbo.objective): the env objective against a stand-in env and controllers."""
+
+import pickle
+import sys
+import types
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+
+from rbbo.objective import (
+    EnvObjective,
+    SyntheticObjective,
+    make_objective,
+    parse_objective_spec,
+    settled_reward_rate,
+)
+
+STEP = 0.025  # seconds per env step (dt = 1/200 s, frame_skip = 5), as the softrom envs
+
+
+class StandInEnv(gym.Env):
+    """Takes the softrom env's B_c arguments; each step rewards 1.0 for the first 2 s (the
+    lean into a held pose) and then 0.1 * (first entry of B_c) per step."""
+
+    def __init__(self, sim_dim=20, control_dim=3, control_basis=None, render_mode=None):
+        self.control_basis = np.asarray(control_basis)
+        self.model = types.SimpleNamespace(dt=1 / 200)
+        self.frame_skip = 5
+        self.robot = types.SimpleNamespace(num_nodes=623)
+        self.action_space = spaces.Box(-1, 1, (control_dim,))
+        self.observation_space = spaces.Box(-1, 1, (1,))
+
+
+gym.register("rbbo_test/StandIn-v0", entry_point=StandInEnv)
+
+
+@dataclass
+class EpisodeResult:
+    rewards: np.ndarray
+
+
+def _fake_controllers(calls):
+    module = types.ModuleType("controllers")
+
+    class MPPI:
+        def __init__(self, settings=None):
+            self.settings = settings
+
+    module.MPPI = MPPI
+    module.GaussNewtonShooting = MPPI
+
+    def run_episode(env, planner, seconds, replan_every=1, seed=0, progress=True, video=None):
+        assert isinstance(planner, MPPI) and not progress
+        calls.append((seconds, seed) if replan_every == 1 else (seconds, seed, replan_every))
+        steps = round(seconds / STEP)
+        t = np.arange(steps) * STEP
+        lean = np.where(t < 2.0, 1.0, 0.0)
+        walk = np.where(t >= 2.0, 0.1 * env.unwrapped.control_basis[0, 0], 0.0)
+        return EpisodeResult(lean + walk)
+
+    module.run_episode = run_episode
+    return module
+
+
+@pytest.fixture
+def controllers(monkeypatch):
+    calls = []
+    monkeypatch.setitem(sys.modules, "controllers", _fake_controllers(calls))
+    return calls
+
+
+def test_env_objective_measures_reward_per_second_after_settling(controllers):
+    objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, settle_time=2.0)
+    basis = np.eye(20)[:, :3]
+    # 0.1 per 0.025 s step = 4 per second from t = 2 s on; the 1.0-per-step lean is ignored
+    assert objective(basis, 6.0, seed=3) == pytest.approx(4.0)
+    assert controllers == [(6.0, 3)]
+    assert objective(np.eye(20)[:, 1:4], 10.0, seed=3) == pytest.approx(0.0)
+
+
+def test_env_objective_uses_the_controllers_tuned_defaults(controllers, monkeypatch):
+    module = sys.modules["controllers"]
+    asked = []
+
+    def default_planner(env_id, planner, **changes):
+        asked.append((env_id, planner, changes))
+        return module.MPPI("tuned"), 10
+
+    monkeypatch.setattr(module, "default_planner", default_planner, raising=False)
+    objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, controller="gn",
+                             planner_kwargs={"samples": 8})  # fmt: skip
+    objective(np.eye(20)[:, :3], 4.0, seed=1)
+    assert asked == [("rbbo_test/StandIn-v0", "gn", {"samples": 8})]
+    assert controllers == [(4.0, 1, 10)]
+
+
+def test_env_objective_pickles_without_its_env(controllers):
+    objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3)
+    objective(np.eye(20)[:, :3], 4.0, 0)
+    clone = pickle.loads(pickle.dumps(objective))
+    assert clone._env is None and clone.spec() == objective.spec()
+
+
+def test_env_objective_rejects_bad_input():
+    with pytest.raises(ValueError, match=r"unknown controller 'ilqr'; valid: \['mppi', 'gn'\]"):
+        EnvObjective("x", 20, 3, controller="ilqr")
+    objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, settle_time=2.0)
+    with pytest.raises(ValueError, match="T = 1.5 s must exceed the settle time 2.0 s"):
+        objective(np.eye(20)[:, :3], 1.5, 0)
+
+
+def test_settled_reward_counts_a_short_episode_as_zero_for_the_rest():
+    result = EpisodeResult(np.full(120, 0.1))  # diverged at 3 s of a 6 s episode
+    assert settled_reward_rate(result, STEP, 2.0, 6.0) == pytest.approx(0.1 * 40 / 4.0)
+
+
+def test_synthetic_objective_is_deterministic_and_rotation_invariant():
+    objective = SyntheticObjective(6, 2, noise=0.1)
+    u = objective.optimum
+    assert objective.value(u) == pytest.approx(1.0)
+    q = np.array([[0.0, 1.0], [1.0, 0.0]])
+    assert objective(u, 10.0, 4) == pytest.approx(objective(u @ q, 10.0, 4))
+    assert objective(u, 10.0, 4) != objective(u, 10.0, 5)
+    # common random numbers: the seed's shared part cancels in differences between bases
+    b = np.eye(6)[:, :2]
+    diffs = [objective(u, 10.0, s) - objective(b, 10.0, s) for s in range(20)]
+    assert np.std(diffs) < 0.1
+    assert objective(u, 4.0, 0) < objective(u, 10.0, 0)  # low fidelity is biased low
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("synthetic", {"kind": "synthetic"}),
+        ("synthetic:noise=0.1,seed=3", {"kind": "synthetic", "noise": 0.1, "optimum_seed": 3}),
+        ("softrom_gym/CrossWalk-v0", {"kind": "env", "env_id": "softrom_gym/CrossWalk-v0"}),
+    ],
+)
+def test_objective_specs(text, expected):
+    assert parse_objective_spec(text) == expected
+
+
+def test_bad_objective_specs():
+    with pytest.raises(ValueError, match=r"bad synthetic option 'foo=1'; use key=value"):
+        parse_objective_spec("synthetic:foo=1")
+    with pytest.raises(ValueError, match="synthetic option noise needs a number, got 'x'"):
+        parse_objective_spec("synthetic:noise=x")
+    with pytest.raises(ValueError, match="unknown objective kind 'csv'"):
+        make_objective({"kind": "csv"}, 4, 2)

@@ -1,0 +1,172 @@
+"""The RBBO loop (rbbo.optimizer): ask/tell, quality vs random search, BOCA, resume."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+from rbbo import RBBO, RBBOConfig, SyntheticObjective
+from rbbo.baselines import random_search
+from rbbo.grassmann import identity_basis, projection_distance, validate_basis
+from rbbo.store import RunDirectoryError
+
+# small, fast settings: tiny GPs, few acquisition starts
+FAST = {"acq_random": 64, "acq_starts": 2, "acq_max_iterations": 30, "gp_restarts": 0}
+
+
+def test_rbbo_beats_random_search_at_equal_evaluations():
+    m, c, n = 10, 2, 20
+    rbbo_values, random_values = [], []
+    for seed in range(5):
+        objective = SyntheticObjective(m, c, optimum_seed=100 + seed, noise=0.02)
+        config = RBBOConfig(m, c, n_init=4, seed=seed, max_evaluations=n, n_confirm=0, **FAST)
+        result = RBBO(config).run(objective)
+        assert result.evaluations == n
+        rbbo_values.append(objective.value(result.best_basis))
+        # random search's pick: its best *observed* (noisy) value, judged noise-free
+        evaluated = random_search(objective, m, c, n, T=10.0, rng=[seed, 99])
+        best = max(evaluated, key=lambda e: e[1])[0]
+        random_values.append(objective.value(best))
+    assert np.mean(rbbo_values) > np.mean(random_values) + 0.1, (rbbo_values, random_values)
+
+
+def test_ask_starts_with_the_identity_and_tell_records():
+    opt = RBBO(RBBOConfig(6, 2, n_init=2, seeds=3, seed=5, **FAST))
+    first = opt.ask()
+    assert first.kind == "initial" and first.T == 10.0 and first.seeds == (5, 6, 7)
+    np.testing.assert_array_equal(first.basis, identity_basis(6, 2))
+    evaluation = opt.tell(first.index, 0.5, R_seeds=[0.4, 0.5, 0.6], worker="w")
+    assert evaluation.R == 0.5 and opt.history == [evaluation] and not opt.pending
+    with pytest.raises(ValueError, match="no pending proposal with index 0"):
+        opt.tell(0, 1.0)
+    second = opt.ask()
+    failed = opt.tell(second.index, float("nan"))
+    assert failed.status == "failed" and "non-finite" in failed.error
+
+
+def test_pending_points_get_fantasies_so_parallel_proposals_differ():
+    objective = SyntheticObjective(6, 2, optimum_seed=1)
+    opt = RBBO(RBBOConfig(6, 2, n_init=4, **FAST))
+    for _ in range(5):
+        p = opt.ask()
+        opt.tell(p.index, objective(p.basis, p.T, 0))
+    a, b, c = opt.ask(), opt.ask(), opt.ask()  # three workers asking before any answer
+    assert {a.kind, b.kind, c.kind} == {"acquisition"}
+    for p, q in ((a, b), (a, c), (b, c)):
+        assert projection_distance(p.basis, q.basis) > 0.05
+    for p in (a, b, c):
+        validate_basis(p.basis, 6, 2)
+
+
+def test_boca_looks_cheaply_early_and_at_full_length_for_the_final_candidates():
+    m, c = 6, 2
+    late_full, early_low = [], []
+    for seed in range(3):
+        objective = SyntheticObjective(m, c, optimum_seed=seed, noise=0.0, bias=0.3)
+        config = RBBOConfig(m, c, fidelity="boca", t_min=4.0, t_max=10.0, n_init=4, seed=seed,
+                            max_evaluations=30, n_confirm=0, boca_candidates=2, **FAST)  # fmt: skip
+        opt = RBBO(config)
+        opt.run(objective)
+        chosen = [e.T for e in opt.evaluations if e.kind == "acquisition"]
+        early_low.append(np.mean(np.array(chosen[:8]) == 4.0))
+        late_full.append(np.mean(np.array(chosen[-5:]) == 10.0))
+        assert objective.value(opt.recommend().basis) > 0.8
+    assert np.mean(early_low) >= 0.5, early_low
+    assert np.mean(late_full) >= 0.7, late_full
+
+
+def test_run_directory_records_everything(tmp_path):
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=8, n_confirm=2, **FAST)
+    opt = RBBO.create(tmp_path / "run", config, objective_spec=objective.spec())
+    result = opt.run(objective)
+    lines = (tmp_path / "run" / "history.jsonl").read_text().splitlines()
+    assert len(lines) == 8 + 2  # evaluations and the two confirmations
+    kinds = [json.loads(line)["kind"] for line in lines]
+    assert kinds[-2:] == ["confirm-init", "confirm-best"] or kinds[-2:] == [
+        "confirm-best", "confirm-init"
+    ]  # fmt: skip
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["evaluations"] == 8 and summary["R_star"] == result.R_star
+    assert len(summary["R_init_seeds"]) == 2
+    np.testing.assert_array_equal(np.load(tmp_path / "run" / "best_basis.npy"), result.best_basis)
+    config_json = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config_json["objective"]["kind"] == "synthetic"
+
+
+KILL_SCRIPT = textwrap.dedent(
+    """
+    import sys
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+    objective = SyntheticObjective(6, 2, noise=0.01, delay=0.05)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=200, n_confirm=0,
+                        acq_random=64, acq_starts=2, acq_max_iterations=30, gp_restarts=0)
+    RBBO.create(sys.argv[1], config, objective_spec=objective.spec()).run(objective)
+    """
+)
+
+
+def test_resume_after_sigkill_loses_no_recorded_evaluation(tmp_path):
+    run = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-c", KILL_SCRIPT, str(run)])
+    history = run / "history.jsonl"
+    deadline = time.monotonic() + 60
+    try:
+        while time.monotonic() < deadline:
+            if history.exists() and history.read_text().count("\n") >= 6:
+                break
+            time.sleep(0.05)
+        else:
+            pytest.fail("the optimisation did not record 6 evaluations in 60 s")
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    before = history.read_bytes()
+    complete = before[: before.rfind(b"\n") + 1].decode().splitlines()
+
+    if before.endswith(b"\n"):
+        opt = RBBO.resume(run)
+    else:  # killed mid-write: the partial line goes, with a warning
+        with pytest.warns(UserWarning, match="truncated last line"):
+            opt = RBBO.resume(run)
+    recorded = [json.loads(line)["index"] for line in complete]
+    assert [e.index for e in opt.history] == recorded
+    opt.run(SyntheticObjective(6, 2, noise=0.01), max_evaluations=len(recorded) + 3)
+    after = history.read_text().splitlines()
+    assert after[: len(complete)] == complete  # nothing recorded was lost or rewritten
+    assert len(after) == len(complete) + 3
+    indices = [json.loads(line)["index"] for line in after]
+    assert len(set(indices)) == len(indices)
+
+
+def test_resume_rejects_bad_settings(tmp_path):
+    (tmp_path / "config.json").write_text(json.dumps({"rbbo": {"sim_dim": 4, "control_dim": 9}}))
+    with pytest.raises(RunDirectoryError, match="invalid settings: control_dim = 9 exceeds"):
+        RBBO.resume(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"fidelity": "mf"}, r"unknown fidelity 'mf'; valid: \['bo', 'boca'\]"),
+        ({"fidelity": "boca", "t_min": 12.0}, "need 0 < t_min < t_max for BOCA"),
+        ({"seeds": 0}, "seeds must be an integer >= 1, got 0"),
+        ({"budget_s": -1.0}, "budget_s must be > 0 seconds"),
+        ({"optimizer": "adam"}, "unknown optimizer 'adam'"),
+    ],
+)
+def test_config_validation(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        RBBOConfig(6, 2, **kwargs)
+
+
+def test_run_needs_a_stopping_rule():
+    with pytest.raises(ValueError, match="give max_evaluations or budget_s"):
+        RBBO(RBBOConfig(4, 2)).run(SyntheticObjective(4, 2))

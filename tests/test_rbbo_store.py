@@ -1,0 +1,101 @@
+"""Run directories (rbbo.store): durable history, truncation repair, clear corruption errors."""
+
+import json
+
+import numpy as np
+import pytest
+
+from rbbo.store import Evaluation, RunDirectoryError, RunStore, TruncatedHistoryWarning
+
+
+def _evaluation(i, r=1.0, status="ok"):
+    return Evaluation(
+        index=i, basis=np.eye(4)[:, :2] * (1 + 1e-17 * i), T=5.0, R=r if status == "ok" else None,
+        status=status, seeds=[0, 1], wall_s=0.5, elapsed_s=float(i), worker="w0",
+    )  # fmt: skip
+
+
+def test_roundtrip_is_exact(tmp_path):
+    store = RunStore.create(tmp_path / "run", {"sim_dim": 4, "control_dim": 2})
+    basis = np.linalg.qr(np.random.default_rng(0).standard_normal((4, 2)))[0]
+    store.append(Evaluation(0, basis, 4.5, 0.123456789012345678, seeds=[3], kind="initial"))
+    store.append(_evaluation(1, status="failed"))
+    again = RunStore.open(tmp_path / "run")
+    assert again.config == {"sim_dim": 4, "control_dim": 2}
+    hist = again.history()
+    np.testing.assert_array_equal(hist[0].basis, basis)
+    assert hist[0].R == 0.123456789012345678 and hist[0].kind == "initial"
+    assert hist[1].status == "failed" and hist[1].R is None
+    store.save_best(basis)
+    np.testing.assert_array_equal(again.best_basis(), basis)
+
+
+def test_truncated_last_line_is_dropped_with_a_warning(tmp_path):
+    store = RunStore.create(tmp_path, {})
+    for i in range(3):
+        store.append(_evaluation(i))
+    with open(store.history_path, "a") as f:
+        f.write(_evaluation(3).to_json()[:40])  # a write cut short by kill -9
+    with pytest.warns(TruncatedHistoryWarning, match="dropped a truncated last line"):
+        reopened = RunStore.open(tmp_path)
+    assert [e.index for e in reopened.history()] == [0, 1, 2]
+    assert (tmp_path / "history.jsonl.truncated").read_text().startswith('{"index": 3')
+    reopened.append(_evaluation(4))  # appends land on a clean line
+    assert [e.index for e in RunStore.open(tmp_path).history()] == [0, 1, 2, 4]
+
+
+def test_read_only_open_skips_a_line_being_written_and_changes_nothing(tmp_path):
+    store = RunStore.create(tmp_path, {})
+    store.append(_evaluation(0))
+    with open(store.history_path, "a") as f:
+        f.write('{"index": 1, "bas')  # another process is writing this line right now
+    before = store.history_path.read_bytes()
+    reader = RunStore.open(tmp_path, repair=False)
+    assert [e.index for e in reader.history()] == [0]
+    assert store.history_path.read_bytes() == before
+
+
+def test_corrupted_line_in_the_middle_is_an_error(tmp_path):
+    store = RunStore.create(tmp_path, {})
+    store.append(_evaluation(0))
+    with open(store.history_path, "a") as f:
+        f.write("{not json}\n")
+    store.append(_evaluation(2))
+    with pytest.raises(RunDirectoryError, match=r"history.jsonl line 2 is corrupted"):
+        RunStore.open(tmp_path).history()
+
+
+@pytest.mark.parametrize(
+    ("setup", "match"),
+    [
+        (lambda p: None, "not an RBBO run directory \\(no config.json\\)"),
+        (lambda p: (p / "config.json").write_text("{oops"), "config.json is corrupted"),
+        (lambda p: (p / "config.json").write_text("[1, 2]"), "does not hold a JSON object"),
+    ],
+)
+def test_bad_directories_give_clear_errors(tmp_path, setup, match):
+    setup(tmp_path)
+    with pytest.raises(RunDirectoryError, match=match):
+        RunStore.open(tmp_path)
+
+
+def test_missing_directory_and_existing_run(tmp_path):
+    with pytest.raises(RunDirectoryError, match="is not a directory"):
+        RunStore.open(tmp_path / "nope")
+    RunStore.create(tmp_path / "run", {})
+    with pytest.raises(RunDirectoryError, match="already holds a run; resume it"):
+        RunStore.create(tmp_path / "run", {})
+
+
+def test_history_record_has_the_documented_keys(tmp_path):
+    store = RunStore.create(tmp_path, {})
+    store.append(_evaluation(0))
+    record = json.loads(store.history_path.read_text())
+    assert {"basis", "T", "R", "wall_s", "elapsed_s", "worker", "status", "seeds"} <= set(record)
+
+
+def test_evaluation_validation():
+    with pytest.raises(ValueError, match="status must be one of"):
+        _evaluation(0, status="weird")
+    with pytest.raises(ValueError, match="an 'ok' evaluation needs a finite R, got nan"):
+        Evaluation(0, np.eye(2), 1.0, float("nan"))
