@@ -52,9 +52,9 @@ class PlannerSettings:
         H, env steps planned ahead.
     knots : int
         K, spline knots per control dimension (over the horizon, or over one period).
-    period : int or None
-        P, env steps of one gait cycle for a periodic plan (the H steps repeat it); None for
-        an open plan whose knots span the horizon.
+    period : float or None
+        P, env steps of one gait cycle for a periodic plan (the H steps repeat it; 1 / (P dt)
+        is the gait's frequency); None for an open plan whose knots span the horizon.
     kind : {"cubic", "linear"}
         Spline between the knots.
     window : int or None
@@ -75,7 +75,7 @@ class PlannerSettings:
 
     horizon: int = 40
     knots: int = 6
-    period: int | None = None
+    period: float | None = None
     kind: str = "cubic"
     window: int | None = None
     weights: CostWeights = field(default_factory=CostWeights)
@@ -88,7 +88,7 @@ class PlannerSettings:
         _check_int("horizon", self.horizon)
         _check_int("knots", self.knots)
         if self.period is not None:
-            _check_int("period", self.period)
+            _check_positive("period", self.period)
             if self.knots > self.period:
                 raise ValueError(f"knots = {self.knots} exceeds the period ({self.period} steps)")
         elif self.knots > self.horizon:

@@ -38,6 +38,13 @@ def _positive_int(name: str, value: object) -> int:
     return int(value)
 
 
+def _positive_number(name: str, value: object) -> float:
+    ok = isinstance(value, (int, float, np.number)) and not isinstance(value, bool)
+    if not (ok and np.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return float(value)
+
+
 class SplinePlan:
     """K knots per control dimension mapped to H env steps of controls.
 
@@ -50,8 +57,9 @@ class SplinePlan:
     control_dim : int
         C.
     kind : {"cubic", "linear"}
-    period : int, optional
-        P, env steps of one cycle of a periodic plan; None for an open plan.
+    period : float, optional
+        P, env steps of one cycle of a periodic plan (need not be whole: 40 Hz control and a
+        3 Hz gait give 13.33); None for an open plan.
 
     Attributes
     ----------
@@ -67,7 +75,7 @@ class SplinePlan:
         knots: int,
         control_dim: int,
         kind: str = "cubic",
-        period: int | None = None,
+        period: float | None = None,
     ) -> None:
         self.horizon = _positive_int("horizon", horizon)
         k = _positive_int("knots", knots)
@@ -75,10 +83,10 @@ class SplinePlan:
         if kind not in KINDS:
             raise ValueError(f"kind must be one of {list(KINDS)}, got {kind!r}")
         self.kind = kind
-        self.period = None if period is None else _positive_int("period", period)
+        self.period = None if period is None else _positive_number("period", period)
         limit, what = (self.horizon, "horizon") if period is None else (self.period, "period")
         if k > limit:
-            raise ValueError(f"knots = {k} exceeds the {what} ({limit} steps)")
+            raise ValueError(f"knots = {k} exceeds the {what} ({limit:g} steps)")
         self.knots = np.zeros((k, self.control_dim))
         self.offset = 0.0
 
