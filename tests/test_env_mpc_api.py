@@ -75,3 +75,27 @@ def test_divergence_is_marked_as_lost_steps_from_the_diverging_step_on():
     assert list(out["diverged"]) == [False, True]
     np.testing.assert_array_equal(out["lost"], [[0] * 6, [0, 0, 0, 1, 1, 1]])
     np.testing.assert_array_equal(out["rewards"][1, 3:], 0.0)
+
+
+def test_control_basis_is_swapped_in_place_and_validated():
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    base = env.unwrapped
+    model, subspace = base.model, base.subspace
+    rng = np.random.default_rng(0)
+    b, _ = np.linalg.qr(rng.standard_normal((20, 3)))
+    base.set_control_basis(b)
+    assert base.model is model and base.subspace is subspace  # nothing rebuilt
+    np.testing.assert_array_equal(base.control_basis, b)
+    np.testing.assert_array_equal(model.control_basis, b)
+    # The swapped basis is the one that acts: a fresh env built with it steps identically.
+    other = gym.make("softrom_gym/BeamWalk-v0", control_basis=b).unwrapped
+    env.reset(seed=1)
+    other.reset(seed=1)
+    u = np.array([5.0, -3.0, 2.0], dtype=np.float32)
+    np.testing.assert_array_equal(env.step(u)[0], other.step(u)[0])
+    with pytest.raises(ValueError, match=r"control_basis has shape \(20, 2\)"):
+        base.set_control_basis(b[:, :2])
+    with pytest.raises(ValueError, match="not orthonormal"):
+        base.set_control_basis(2.0 * b)
+    base.set_control_basis(2.0 * b, orthonormalize=True)
+    np.testing.assert_allclose(base.control_basis, b, atol=1e-12)

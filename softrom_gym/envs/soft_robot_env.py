@@ -326,6 +326,19 @@ class SoftRobotEnv(gym.Env):
                           diverged, float(out["orientation"][0, 0]))  # fmt: skip
         return self._obs(self._state), reward, diverged, False, info
 
+    # ---------------------------------------------------------------- control space
+    def set_control_basis(self, control_basis: np.ndarray, orthonormalize: bool = False) -> None:
+        """Swap the control space B_c (M x C, the same C) on this env, keeping its simulation
+        space, cubature and state: the public way to evaluate many bases with one env.
+
+        Raises ValueError naming the problem for a wrong shape, non-finite entries, or a
+        non-orthonormal B_c (pass ``orthonormalize=True`` to accept any full-rank matrix).
+        """
+        m, c = self.control_basis.shape
+        b = _control_basis(control_basis, m, c, orthonormalize)
+        self.model.control_basis = b
+        self.control_basis = b
+
     # ---------------------------------------------------------------- MPC API
     def get_state(self) -> cpp_sim.ReducedState:
         """A copy of the full simulation state (q_r, qdot_r and contact warm-start)."""
