@@ -25,17 +25,24 @@ def box():
     return from_mesh(trimesh.creation.box((0.2, 0.2, 0.1)), 8, youngs_modulus=1e6)
 
 
+def full_basis(robot) -> Subspace:
+    """A B_r spanning all 3N directions: rigid modes, then the rest mass-orthonormalised."""
+    mass = robot.fem_model().mass
+    rigid = _rigid_modes(robot.nodes, mass)
+    rest = _mass_gram_schmidt(list(np.eye(3 * robot.num_nodes)), np.repeat(mass, 3), rigid)
+    basis = np.column_stack([rigid, *rest])
+    return Subspace(basis, np.ones(basis.shape[1] - 6), basis.shape[1] - 6)
+
+
 def test_full_basis_reproduces_full_space_trajectory():
     # Small block; B_r spans all 3N directions (rigid motions + everything else).
     nodes, tets = voxels_to_tets(np.ones((2, 1, 1), dtype=bool), 0.1)
     robot = Robot("block", nodes, tets, youngs_modulus=1e4)
     fem = robot.fem_model()
     m3 = np.repeat(fem.mass, 3)
-    rigid = _rigid_modes(nodes, fem.mass)
-    rest = _mass_gram_schmidt(list(np.eye(3 * robot.num_nodes)), m3, rigid)
-    basis = np.column_stack([rigid, *rest])
+    sub = full_basis(robot)
+    basis = sub.basis
     assert basis.shape == (36, 36)
-    sub = Subspace(basis, np.ones(30), 30)
     model = build_reduced_model(
         robot, forces="exact", subspace=sub, contact="none", damping_beta=0.0, dt=0.01,
         newton_tolerance=1e-10, max_newton_iterations=30,
@@ -304,11 +311,7 @@ def test_full_basis_with_ground_contact_matches_clamped_full_space_at_rest(solve
     nodes, tets = voxels_to_tets(np.ones((3, 1, 1), dtype=bool), 0.1)
     robot = Robot("block", nodes, tets, youngs_modulus=1e4)
     fem = robot.fem_model()
-    m3 = np.repeat(fem.mass, 3)
-    rigid = _rigid_modes(nodes, fem.mass)
-    rest = _mass_gram_schmidt(list(np.eye(3 * robot.num_nodes)), m3, rigid)
-    basis = np.column_stack([rigid, *rest])
-    sub = Subspace(basis, np.ones(basis.shape[1] - 6), basis.shape[1] - 6)
+    sub = full_basis(robot)
     model = build_reduced_model(
         robot, forces="exact", subspace=sub, friction=5.0, damping_alpha=5.0, dt=0.01,
         solver=solver,

@@ -30,6 +30,17 @@ void ReducedModel::external_forces(const StepInputs& in, const double* fc, VecX&
     f_ext.tail(nd).noalias() += in.control_basis * Eigen::Map<const VecX>(fc, c);
 }
 
+// The loads of a step that do not depend on the new velocity: f_ext (gravity, actuation) and,
+// when swimming, the drag and its velocity Jacobian at the start of the step.
+void ReducedModel::step_loads(const StepInputs& in, const ReducedState& s, const double* fc,
+                              Workspace& ws, StepInfo& info) const {
+  external_forces(in, fc, ws.f_ext);
+  if (in.config.fluid_density > 0.0) {
+    ScopedTimer timer(in.config.profile ? &info.time_drag : nullptr);
+    drag(in.config, s.q, s.qdot, ws.f_drag, ws.j_drag);
+  }
+}
+
 StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double* fc,
                             Workspace& ws) const {
   // Penalty contact is not a potential force (damping, friction), so it keeps the Newton
@@ -53,13 +64,9 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
   const double sqrt_m = std::sqrt(total_mass_);
   const bool fast_kernels = cfg.solver == Solver::Fast;
 
-  VecX& f_ext = ws.f_ext;
-  external_forces(in, fc, f_ext);
+  const VecX& f_ext = ws.f_ext;
   const bool swim = cfg.fluid_density > 0.0;
-  if (swim) {
-    ScopedTimer timer(cfg.profile ? &info.time_drag : nullptr);
-    drag(cfg, s.q, s.qdot, ws.f_drag, ws.j_drag);
-  }
+  step_loads(in, s, fc, ws, info);
   ScopedTimer dyn_timer(cfg.profile ? &info.time_dynamics : nullptr);
 
   VecX v = s.qdot;
@@ -181,12 +188,8 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
   const double sqrt_m = std::sqrt(total_mass_);
   const bool swim = cfg.fluid_density > 0.0;
 
-  VecX& f_ext = ws.f_ext;
-  external_forces(in, fc, f_ext);
-  if (swim) {
-    ScopedTimer timer(cfg.profile ? &info.time_drag : nullptr);
-    drag(cfg, s.q, s.qdot, ws.f_drag, ws.j_drag);
-  }
+  const VecX& f_ext = ws.f_ext;
+  step_loads(in, s, fc, ws, info);
   ScopedTimer dyn_timer(cfg.profile ? &info.time_dynamics : nullptr);
 
   // A = I + h^2 K + h beta K_0 + h alpha I - h J_d for a stiffness K (K_0 at first).

@@ -189,6 +189,8 @@ class ReducedModel {
   StepInfo step_fast(const StepInputs& in, ReducedState& s, const double* fc,
                      Workspace& ws) const;
   void external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const;
+  void step_loads(const StepInputs& in, const ReducedState& s, const double* fc, Workspace& ws,
+                  StepInfo& info) const;
   bool finish_step(const StepInputs& in, ReducedState& s, VecX& v, const MatX& a,
                    const Eigen::LLT<MatX>& a_llt, StepInfo& info) const;
 
