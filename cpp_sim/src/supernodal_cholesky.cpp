@@ -19,6 +19,9 @@ void SupernodalLLT::analyze(const SpMat& upper) {
   n_ = n;
   const int* ap = upper.outerIndexPtr();
   const int* ai = upper.innerIndexPtr();
+  for (int c = 0; c < n; ++c)
+    for (int p = ap[c]; p < ap[c + 1]; ++p)
+      if (ai[p] > c) throw std::invalid_argument("SupernodalLLT: entry below the diagonal");
 
   // Elimination tree (Liu's algorithm with path compression). Column k of `upper` is row k of
   // the lower triangle.

@@ -5,6 +5,12 @@
 // dense column-major panels, so the factorisation runs as dense matrix products (Eigen's
 // blocked GEMM, LLT and triangular solves) instead of the scalar, indirectly indexed updates
 // of a simplicial factorisation. The matrix is taken as already fill-reduce ordered.
+//
+// Why our own: CHOLMOD would be the usual choice, but scikit-sparse ships no wheels (its sdist
+// builds against a system SuiteSparse) and Eigen's CholmodSupport / PardisoSupport link
+// external libraries, none of which a pip-only install has. Measured on the quadruped's Newton
+// matrix (4,236 DOFs, AMD), one thread: Eigen SimplicialLDLT / LLT ~33 ms per factorisation,
+// CHOLMOD supernodal with OpenBLAS (AVX2) ~22 ms, this class ~11 ms.
 #pragma once
 
 #include <Eigen/Dense>
