@@ -14,14 +14,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 
-import softrom_gym  # noqa: F401
-from controllers import default_planner
+from controllers.studies import gn_cost_against_c
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _results import plot_lines, write_csv
@@ -37,36 +34,19 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/study_cost_vs_c"))
     args = p.parse_args(argv)
-    changes = {"threads": args.threads, "iterations": 1, "gait_seed": False}
+    changes = {}
     if args.horizon is not None:
         changes.update(horizon=args.horizon, window=None)
     if args.knots is not None:
         changes["knots"] = args.knots
-    rows = []
     print(f"{'C':>3} {'rollouts':>9} {'GN iteration s':>15} {'per rollout ms':>15}")
-    for c in args.cs:
-        env = gym.make(args.env_id, control_dim=c)
-        env.reset(seed=0)
-        planner, _ = default_planner(args.env_id, "gn", **changes)
-        walls = []
-        for _ in range(args.repeats):
-            planner.reset(env, seed=0)
-            start = time.perf_counter()
-            planner.plan(env)
-            walls.append(time.perf_counter() - start)
-        rollouts = planner.last_["rollouts"]
-        row = {
-            "C": c,
-            "K": planner.settings.knots,
-            "H": planner.settings.horizon,
-            "rollouts": rollouts,
-            "iteration_s": min(walls),
-            "threads": args.threads,
-        }
-        rows.append(row)
-        print(f"{c:>3} {rollouts:>9} {row['iteration_s']:>15.3f} "
-              f"{1e3 * row['iteration_s'] / rollouts:>15.2f}", flush=True)  # fmt: skip
-        env.close()
+
+    def show(row: dict) -> None:
+        print(f"{row['C']:>3} {row['rollouts']:>9} {row['iteration_s']:>15.3f} "
+              f"{1e3 * row['iteration_s'] / row['rollouts']:>15.2f}", flush=True)  # fmt: skip
+
+    rows = gn_cost_against_c(args.env_id, args.cs, repeats=args.repeats, threads=args.threads,
+                             planner_changes=changes, on_row=show)  # fmt: skip
     write_csv(rows, args.out / "cost_vs_c.csv")
     cs = [r["C"] for r in rows]
     walls = [r["iteration_s"] for r in rows]

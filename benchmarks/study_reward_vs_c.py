@@ -15,11 +15,9 @@ import argparse
 import sys
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 
-import softrom_gym  # noqa: F401
-from controllers import default_planner, run_episode
+from controllers.studies import reward_against_c
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _results import plot_lines, write_csv
@@ -37,23 +35,19 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--out", type=Path, default=Path("runs/study_reward_vs_c"))
     args = p.parse_args(argv)
     start = args.start if args.seconds > args.start else 0.0
-    rows = []
     print(f"{'C':>3} {'R mean (m)':>11} {'std':>8}  per seed")
-    for c in args.cs:
-        per_seed = []
-        for seed in args.seeds:
-            env = gym.make(args.env_id, control_dim=c)
-            planner, every = default_planner(args.env_id, args.planner, threads=args.threads)
-            res = run_episode(env, planner, args.seconds, replan_every=every, seed=seed,
-                              progress=False)  # fmt: skip
-            r = res.distance_between(start)
-            per_seed.append(r)
-            rows.append({"C": c, "seed": seed, "R_m": r, "R_bl": r / res.body_length,
-                         "R_total_m": res.R, "planner": args.planner,
-                         "seconds": res.seconds, "start": start})  # fmt: skip
-            env.close()
-        print(f"{c:>3} {np.mean(per_seed):>11.4f} {np.std(per_seed):>8.4f}  "
-              + " ".join(f"{r:+.4f}" for r in per_seed), flush=True)  # fmt: skip
+    per_seed: list[float] = []
+
+    def show(row: dict) -> None:
+        per_seed.append(row["R_m"])
+        if len(per_seed) == len(args.seeds):
+            print(f"{row['C']:>3} {np.mean(per_seed):>11.4f} {np.std(per_seed):>8.4f}  "
+                  + " ".join(f"{r:+.4f}" for r in per_seed), flush=True)  # fmt: skip
+            per_seed.clear()
+
+    rows = reward_against_c(args.env_id, args.cs, args.seeds, planner=args.planner,
+                            seconds=args.seconds, start=start, threads=args.threads,
+                            on_row=show)  # fmt: skip
     write_csv(rows, args.out / "reward_vs_c.csv")
     cs = list(dict.fromkeys(r["C"] for r in rows))
     mean = [np.mean([r["R_m"] for r in rows if r["C"] == c]) for c in cs]

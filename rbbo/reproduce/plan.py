@@ -1,0 +1,185 @@
+"""What ``rbbo reproduce`` is set to run (:class:`ReproducePlan`, stored in reproduce.json)
+and the paper's numbers it is compared with (:data:`PAPER_TABLE1`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+__all__ = ["BENCHMARKS", "PAPER_DIRECTIONS", "PAPER_TABLE1", "ReproducePlan"]
+
+BENCHMARKS = ("CrossSwim-v0", "CrossWalk-v0", "BeamWalk-v0", "QuadrupedWalk-v0", "TripodWalk-v0")
+
+# The paper's Table I: robot, task, N, M, C, R_init, R*, improvement (%). Its R is the
+# distance moved in its own units over its own episode, so only the improvement compares.
+PAPER_TABLE1: dict[str, dict[str, Any]] = {
+    "CrossSwim-v0": {"robot": "Cross", "task": "Swim", "N": 623, "M": 20, "C": 3,
+                     "R_init": 2.24, "R_star": 5.43, "improvement_pct": 142.21},
+    "CrossWalk-v0": {"robot": "Cross", "task": "Walk", "N": 623, "M": 20, "C": 3,
+                     "R_init": 0.66, "R_star": 4.28, "improvement_pct": 544.32},
+    "BeamWalk-v0": {"robot": "Beam", "task": "Walk", "N": 426, "M": 20, "C": 3,
+                    "R_init": 1.34, "R_star": 4.52, "improvement_pct": 236.91},
+    "QuadrupedWalk-v0": {"robot": "Quadruped", "task": "Walk", "N": 1315, "M": 20, "C": 3,
+                         "R_init": 1.86, "R_star": 5.26, "improvement_pct": 183.35},
+    "TripodWalk-v0": {"robot": "Tripod", "task": "Walk", "N": 1417, "M": 20, "C": 3,
+                      "R_init": 2.16, "R_star": 3.03, "improvement_pct": 40.66},
+}  # fmt: skip
+# The paper's direction studies (its Figs. 8Dir and DirPerturb).
+PAPER_DIRECTIONS = {"min_improvement_pct": 46.45, "max_improvement_pct": 853.50,
+                    "fraction_within_10deg": 0.80}  # fmt: skip
+
+_STAGES = ("table", "bo", "directions", "perturbation", "studies")
+
+
+def _short(env_id: str) -> str:
+    return env_id.split("/")[-1]
+
+
+@dataclass
+class ReproducePlan:
+    """The settings of one ``rbbo reproduce`` run.
+
+    Attributes
+    ----------
+    benchmarks : list of str
+        Benchmarks of Table I (short names, e.g. "CrossWalk-v0").
+    budget_s : float
+        Wall-time budget of each benchmark's Table I run (BOCA), seconds; the BO run of the
+        BO-vs-BOCA figure gets the same budget.
+    iterations : int or None
+        Optional cap on the evaluations of each optimisation run.
+    workers : int
+        Evaluation workers (processes) per run.
+    executor : str
+        "process" (default), "serial" or "ray".
+    controller : str
+        Low-level MPC, "mppi" or "gn".
+    sim_dim, control_dim : int
+        M and C.
+    t_min, t_max, settle_time : float
+        BOCA's shortest and full trajectory lengths and the time R is measured from (s).
+    n_init : int
+        Random initial points of each run besides the identity.
+    confirm_seeds : int
+        Fresh MPC seeds on which R_init and R* are measured (>= 2 for an interval; the issue
+        asks for >= 5).
+    seed : int
+        Seeds every run.
+    stages : list of str
+        Which parts to run: "table" (Table I, BOCA), "bo" (the BO run beside each BOCA run),
+        "directions", "perturbation", "studies".
+    direction_env : str
+        The robot of the direction studies (the paper: the cross walking).
+    directions : int
+        Directions of the polar study, evenly spaced from d = +x.
+    direction_budget_s : float
+        Budget of each direction's RBBO run, seconds.
+    perturbations_deg : list of float
+        Offsets of the perturbation study, degrees (each is run at + and -).
+    cost_cs, reward_cs : list of int
+        C values of the cost-vs-C and reward-vs-C studies.
+    study_seeds : int
+        Seeds per C of the reward-vs-C study.
+    study_seconds : float
+        Episode length of the reward-vs-C study, seconds.
+    planner_kwargs : dict
+        Overrides of the controller's default settings (e.g. a tiny horizon for a test).
+    timeout_s : float
+        Per-evaluation limit, seconds.
+    """
+
+    benchmarks: list[str] = field(default_factory=lambda: list(BENCHMARKS))
+    budget_s: float = 45 * 60.0
+    iterations: int | None = None
+    workers: int = 2
+    executor: str = "process"
+    controller: str = "mppi"
+    sim_dim: int = 20
+    control_dim: int = 3
+    t_min: float = 4.0
+    t_max: float = 10.0
+    settle_time: float = 2.0
+    n_init: int = 5
+    confirm_seeds: int = 5
+    seed: int = 0
+    stages: list[str] = field(default_factory=lambda: list(_STAGES))
+    direction_env: str = "CrossWalk-v0"
+    directions: int = 8
+    direction_budget_s: float = 15 * 60.0
+    perturbations_deg: list[float] = field(default_factory=lambda: [5.0, 10.0, 20.0, 30.0])
+    cost_cs: list[int] = field(default_factory=lambda: list(range(1, 21)))
+    reward_cs: list[int] = field(default_factory=lambda: list(range(1, 11)))
+    study_seeds: int = 3
+    study_seconds: float = 10.0
+    planner_kwargs: dict[str, Any] = field(default_factory=dict)
+    timeout_s: float = 1800.0
+
+    def __post_init__(self) -> None:
+        self.benchmarks = [_short(b) for b in self.benchmarks]
+        unknown = [b for b in self.benchmarks if b not in BENCHMARKS]
+        if unknown or not self.benchmarks:
+            raise ValueError(f"unknown benchmark(s) {unknown or self.benchmarks}; "
+                             f"valid: {', '.join(BENCHMARKS)}")  # fmt: skip
+        self.direction_env = _short(self.direction_env)
+        if self.direction_env not in BENCHMARKS:
+            raise ValueError(f"unknown direction_env {self.direction_env!r}")
+        bad = [s for s in self.stages if s not in _STAGES]
+        if bad:
+            raise ValueError(f"unknown stage(s) {bad}; valid: {', '.join(_STAGES)}")
+        for name in ("budget_s", "direction_budget_s", "t_max", "timeout_s", "study_seconds"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        for name, low in (("workers", 1), ("sim_dim", 1), ("control_dim", 1), ("n_init", 0),
+                          ("confirm_seeds", 2), ("seed", 0), ("directions", 1),
+                          ("study_seeds", 1)):  # fmt: skip
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if self.iterations is not None and (not isinstance(self.iterations, int)
+                                            or self.iterations < 1):  # fmt: skip
+            raise ValueError(f"iterations must be an integer >= 1, got {self.iterations!r}")
+        if not self.settle_time < self.t_min < self.t_max:
+            raise ValueError(f"need settle_time < t_min < t_max, got {self.settle_time}, "
+                             f"{self.t_min}, {self.t_max}")  # fmt: skip
+        if self.control_dim > self.sim_dim:
+            raise ValueError(f"control_dim {self.control_dim} exceeds sim_dim {self.sim_dim}")
+        if any(not (math.isfinite(p) and 0 < p < 180) for p in self.perturbations_deg):
+            raise ValueError(f"perturbations must lie in (0, 180) degrees, got "
+                             f"{self.perturbations_deg}")  # fmt: skip
+        for name in ("cost_cs", "reward_cs"):
+            cs = getattr(self, name)
+            if not cs or any(not isinstance(c, int) or not 1 <= c <= self.sim_dim for c in cs):
+                raise ValueError(f"{name} must be integers in 1..{self.sim_dim}, got {cs!r}")
+        if self.controller not in ("mppi", "gn"):
+            raise ValueError(f"controller must be 'mppi' or 'gn', got {self.controller!r}")
+        if self.executor not in ("process", "serial", "ray"):
+            raise ValueError(f"unknown executor {self.executor!r}")
+
+    # Settings that may change between sessions of one reproduction (how long and how wide
+    # it runs); everything else defines the experiment and must stay the same.
+    RESUMABLE = ("budget_s", "direction_budget_s", "iterations", "workers", "executor",
+                 "timeout_s", "stages")  # fmt: skip
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ReproducePlan:
+        names = {f.name for f in fields(cls)}
+        unknown = set(data) - names
+        if unknown:
+            raise ValueError(f"reproduce.json has unknown settings {sorted(unknown)}")
+        return cls(**data)
+
+    def differences(self, other: ReproducePlan) -> list[str]:
+        """Names of the experiment-defining settings in which ``other`` differs."""
+        mine, theirs = self.to_dict(), other.to_dict()
+        return [k for k in mine if k not in self.RESUMABLE and mine[k] != theirs[k]]
+
+    def env_id(self, benchmark: str) -> str:
+        return f"softrom_gym/{_short(benchmark)}"
+
+    def direction_angles_deg(self) -> list[float]:
+        return [360.0 * k / self.directions for k in range(self.directions)]

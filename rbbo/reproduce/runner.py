@@ -1,0 +1,279 @@
+"""``reproduce``: run every experiment of the paper's results section into one directory.
+
+Layout of ``OUT`` (every part resumable: rerunning the same command continues it)::
+
+    reproduce.json            the plan, and one entry per session (command, wall time)
+    runs/<bench>-boca/        Table I's RBBO run (BOCA), one per benchmark
+    runs/<bench>-bo/          the plain-BO run beside it (the BO-vs-BOCA figure)
+    runs/<env>-dir<deg>/      one RBBO run per walking direction
+    perturbation.csv          the direction-0 B_c evaluated off its direction
+    studies/                  cost_vs_c.csv, reward_vs_c.csv
+    table1.csv, table1.md, *.png, REPORT.md
+
+Every optimisation run is an ordinary RBBO run directory (``rbbo report`` reads it); a
+session killed at any moment loses at most the evaluations in flight.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import RBBOConfig
+from ..executors import EvaluationTask, make_executor
+from ..objective import EnvObjective
+from ..optimizer import RBBO
+from ..store import RunDirectoryError, _atomic_write
+from .plan import ReproducePlan
+
+__all__ = ["reproduce"]
+
+Log = Callable[[str], None]
+
+
+def _log_stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _objective(plan: ReproducePlan, benchmark: str, direction_deg: float | None = None):
+    env_kwargs = {} if direction_deg is None else {"direction": math.radians(direction_deg)}
+    return EnvObjective(plan.env_id(benchmark), plan.sim_dim, plan.control_dim,
+                        controller=plan.controller, settle_time=plan.settle_time,
+                        env_kwargs=env_kwargs,
+                        planner_kwargs=dict(plan.planner_kwargs))  # fmt: skip
+
+
+def _node_count(objective: EnvObjective) -> int:
+    env = objective.make_env(np.eye(objective.sim_dim)[:, : objective.control_dim])
+    try:
+        return int(env.unwrapped.robot.num_nodes)
+    finally:
+        env.close()
+
+
+def _config(plan: ReproducePlan, fidelity: str, budget_s: float) -> RBBOConfig:
+    return RBBOConfig(sim_dim=plan.sim_dim, control_dim=plan.control_dim, fidelity=fidelity,
+                      t_min=plan.t_min, t_max=plan.t_max, n_init=plan.n_init, seed=plan.seed,
+                      n_confirm=plan.confirm_seeds, max_evaluations=plan.iterations,
+                      budget_s=budget_s)  # fmt: skip
+
+
+def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity: str,
+             budget_s: float, progress: bool, log: Log) -> Path:  # fmt: skip
+    """Create or resume the RBBO run at ``path`` and run it to its budget and confirmation."""
+    config = _config(plan, fidelity, budget_s)
+    if (path / "config.json").exists():
+        opt = RBBO.resume(path)
+        stored = opt.config
+        for name in ("sim_dim", "control_dim", "fidelity", "t_min", "t_max", "seed", "n_init",
+                     "n_confirm"):  # fmt: skip
+            if getattr(stored, name) != getattr(config, name):
+                raise RunDirectoryError(f"{path} was made with {name} = "
+                                        f"{getattr(stored, name)!r}, this plan has "
+                                        f"{getattr(config, name)!r}")  # fmt: skip
+        if opt.objective_spec != objective.spec():
+            raise RunDirectoryError(f"{path} optimises another objective: {opt.objective_spec}")
+    else:
+        problem = {"env_id": objective.env_id, "N": _node_count(objective)}
+        execution = {"executor": plan.executor, "workers": plan.workers,
+                     "timeout_s": plan.timeout_s}  # fmt: skip
+        opt = RBBO.create(path, config, objective_spec=objective.spec(),
+                          extra={"execution": execution, "problem": problem})  # fmt: skip
+    log(f"[{path.name}] {fidelity.upper()}, budget {budget_s / 60:.1f} min, "
+        f"{len(opt.evaluations)} evaluations so far")  # fmt: skip
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(desc=path.name, unit="eval", initial=len(opt.evaluations), file=sys.stderr,
+                   dynamic_ncols=True, leave=False)  # fmt: skip
+    executor = make_executor(plan.executor, objective, plan.workers, plan.timeout_s)
+    try:
+        callback = (lambda e: bar.update(1)) if bar is not None else None
+        result = opt.run(executor=executor, max_evaluations=plan.iterations, budget_s=budget_s,
+                         callback=callback)  # fmt: skip
+    finally:
+        executor.shutdown()
+        if bar is not None:
+            bar.close()
+    log(f"[{path.name}] done: {result.evaluations} evaluations, R_init {result.R_init}, "
+        f"R* {result.R_star} ({result.wall_s / 60:.1f} min)")  # fmt: skip
+    return path
+
+
+def _read_rows(path: Path) -> list[dict[str, str]]:
+    if not path.exists():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _append_row(path: Path, row: dict[str, Any]) -> None:
+    """Append one CSV row and fsync it (a finished measurement is never lost)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    new = not path.exists()
+    with open(path, "a", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(row))
+        if new:
+            writer.writeheader()
+        writer.writerow(row)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _evaluate_seeds(plan: ReproducePlan, objective: EnvObjective, basis: np.ndarray,
+                    seeds: tuple[int, ...]) -> list[float]:  # fmt: skip
+    """R of ``basis`` at T_max on each seed, the seeds spread over the workers."""
+    executor = make_executor(plan.executor, objective, plan.workers, plan.timeout_s)
+    try:
+        futures = [executor.submit(EvaluationTask(i, basis, plan.t_max, (s,)))
+                   for i, s in enumerate(seeds)]  # fmt: skip
+        outcomes = [f.result() for f in futures]
+    finally:
+        executor.shutdown()
+    return [o.R if o.status == "ok" else math.nan for o in outcomes]
+
+
+def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Path:
+    """The direction-0 B_c walking at offsets ±p from its direction (perturbation.csv)."""
+    path = out / "perturbation.csv"
+    opt = RBBO.resume(base_run, read_only=True)
+    basis = opt.store.best_basis()
+    if basis is None:
+        raise RunDirectoryError(f"{base_run} has no best basis yet")
+    base_deg = math.degrees(float((opt.objective_spec.get("env_kwargs") or {})
+                                  .get("direction", 0.0)))  # fmt: skip
+    seeds = opt.config.fresh_seeds
+    done = {float(r["offset_deg"]) for r in _read_rows(path)}
+    offsets = [0.0] + [s * p for p in plan.perturbations_deg for s in (-1.0, 1.0)]
+    for offset in offsets:
+        if offset in done:
+            continue
+        objective = _objective(plan, plan.direction_env, base_deg + offset)
+        start = time.perf_counter()
+        values = _evaluate_seeds(plan, objective, basis, seeds)
+        _append_row(path, {"offset_deg": offset, "direction_deg": base_deg + offset,
+                           "R_mean": float(np.nanmean(values)),
+                           "R_seeds": " ".join(f"{v:.6g}" for v in values),
+                           "wall_s": time.perf_counter() - start,
+                           "run": str(base_run)})  # fmt: skip
+        log(f"[perturbation] {offset:+g} deg: R = {np.nanmean(values):.4g}")
+    return path
+
+
+def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
+    """Cost-vs-C and reward-vs-C on the direction robot, appended row by row (resumable)."""
+    from controllers import GaussNewtonSettings
+    from controllers.studies import gn_cost_against_c, reward_against_c
+
+    folder = out / "studies"
+    env_id = plan.env_id(plan.direction_env)
+    cost_path = folder / "cost_vs_c.csv"
+    done = {int(r["C"]) for r in _read_rows(cost_path)}
+    todo = [c for c in plan.cost_cs if c not in done]
+    if todo:
+        # The cost study times Gauss-Newton whatever the plan's controller: pass on only the
+        # overrides that are Gauss-Newton settings (horizon, knots, ...; not MPPI's samples).
+        gn_fields = {f.name for f in fields(GaussNewtonSettings)}
+        gn_changes = {k: v for k, v in plan.planner_kwargs.items() if k in gn_fields}
+        gn_cost_against_c(env_id, todo, threads=plan.workers, planner_changes=gn_changes,
+                          on_row=lambda r: (_append_row(cost_path, r),
+                                            log(f"[cost vs C] C = {r['C']}: "
+                                                f"{r['iteration_s']:.3f} s")))  # fmt: skip
+    reward_path = folder / "reward_vs_c.csv"
+    done_pairs = {(int(r["C"]), int(r["seed"])) for r in _read_rows(reward_path)}
+    for c in plan.reward_cs:
+        seeds = [s for s in range(plan.study_seeds) if (c, s) not in done_pairs]
+        if seeds:
+            reward_against_c(env_id, [c], seeds, planner=plan.controller,
+                             seconds=plan.study_seconds, start=plan.settle_time,
+                             threads=plan.workers, planner_changes=dict(plan.planner_kwargs),
+                             on_row=lambda r: (_append_row(reward_path, r),
+                                               log(f"[reward vs C] C = {r['C']} seed "
+                                                   f"{r['seed']}: {r['R_m']:+.4f} m")))  # fmt: skip
+    return folder
+
+
+def _load_plan(out: Path, plan: ReproducePlan) -> dict[str, Any]:
+    path = out / "reproduce.json"
+    if not path.exists():
+        return {"plan": plan.to_dict(), "sessions": []}
+    try:
+        document = json.loads(path.read_text())
+        stored = ReproducePlan.from_dict(document["plan"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise RunDirectoryError(f"{path} is not a reproduce plan: {exc}") from None
+    differing = stored.differences(plan)
+    if differing:
+        raise RunDirectoryError(
+            f"{out} was started with other settings ({', '.join(differing)}); use a new --out "
+            "or the same settings (budgets, workers and stages may change)"
+        )
+    document["plan"] = plan.to_dict()
+    return document
+
+
+def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = True,
+              log: Log = _log_stderr, command: str | None = None) -> dict[str, Any]:  # fmt: skip
+    """Run (or continue) every stage of ``plan`` into ``out`` and write the report.
+
+    Returns a dict with the Table I rows and the paths written (see :mod:`.document`).
+    """
+    from .document import write_report
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    document = _load_plan(out, plan)
+    session = {"command": command or " ".join(sys.argv), "started": time.time(), "wall_s": 0.0}
+    document["sessions"].append(session)
+    started = time.perf_counter()
+
+    def save() -> None:
+        session["wall_s"] = time.perf_counter() - started
+        _atomic_write(out / "reproduce.json", json.dumps(document, indent=2).encode())
+
+    save()
+    runs = out / "runs"
+    stages = set(plan.stages)
+    try:
+        for bench in plan.benchmarks:
+            objective = _objective(plan, bench)
+            if "table" in stages:
+                optimise(runs / f"{bench}-boca", plan, objective, "boca", plan.budget_s,
+                         progress, log)  # fmt: skip
+            if "bo" in stages:
+                optimise(runs / f"{bench}-bo", plan, objective, "bo", plan.budget_s, progress,
+                         log)  # fmt: skip
+            save()
+        if "directions" in stages:
+            for deg in plan.direction_angles_deg():
+                optimise(runs / f"{plan.direction_env}-dir{deg:03.0f}", plan,
+                         _objective(plan, plan.direction_env, deg), "boca",
+                         plan.direction_budget_s, progress, log)  # fmt: skip
+                save()
+        if "perturbation" in stages:
+            base = runs / f"{plan.direction_env}-dir000"
+            if not (base / "best_basis.npy").exists():
+                base = runs / f"{plan.direction_env}-boca"
+            if not (base / "best_basis.npy").exists():
+                raise RunDirectoryError(
+                    f"the perturbation study needs a finished {plan.direction_env} run "
+                    "(stage 'directions' or 'table')"
+                )
+            perturbation(out, plan, base, log)
+            save()
+        if "studies" in stages:
+            studies(out, plan, log)
+    finally:
+        save()
+    return write_report(out, plan, document)

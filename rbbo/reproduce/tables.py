@@ -1,0 +1,158 @@
+"""Table I from run directories: means over fresh seeds with 95 % t-intervals; CSV and
+Markdown out, and the Markdown parsed back (so a test can check the report against the runs).
+
+R_init and R* are the means of the confirmation evaluations (the identity basis and the
+recommendation, each on the run's fresh seeds at T_max, see :mod:`rbbo.optimizer`); the
+interval is mean ± t_{0.975, n-1} s / sqrt(n) over those n seeds. "apart" is true when R*'s
+interval lies wholly above R_init's.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .plan import PAPER_TABLE1
+
+__all__ = ["confidence_interval", "format_markdown", "parse_markdown", "table_row",
+           "write_csv"]  # fmt: skip
+
+COLUMNS = ["robot", "task", "N", "M", "C", "R_init", "R*", "improvement", "evaluations",
+           "wall time", "apart", "paper"]  # fmt: skip
+
+
+def confidence_interval(values, level: float = 0.95) -> tuple[float, float]:
+    """Mean and half-width of the two-sided t-interval of ``values`` (half-width nan for n < 2)."""
+    from scipy import stats
+
+    x = np.asarray(values, dtype=float)
+    if x.size == 0:
+        return math.nan, math.nan
+    mean = float(x.mean())
+    if x.size < 2:
+        return mean, math.nan
+    half = float(stats.t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size))
+    return mean, half
+
+
+def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
+    """Table I's numbers for one benchmark from its (BOCA) run directory."""
+    from ..report import load
+
+    opt = load(run_dir)
+    result = opt.result()
+    problem = opt.store.config.get("problem") or {}
+    paper = PAPER_TABLE1[benchmark]
+    r_init, h_init = confidence_interval(result.R_init_seeds)
+    r_star, h_star = confidence_interval(result.R_star_seeds)
+    done = bool(result.R_init_seeds) and bool(result.R_star_seeds)
+    improvement = 100.0 * (r_star / r_init - 1.0) if done and r_init > 0 else math.nan
+    apart = done and math.isfinite(h_init + h_star) and r_star - h_star > r_init + h_init
+    return {
+        "benchmark": benchmark,
+        "robot": paper["robot"],
+        "task": paper["task"],
+        "N": problem.get("N"),
+        "M": opt.config.sim_dim,
+        "C": opt.config.control_dim,
+        "R_init": r_init,
+        "R_init_ci95": h_init,
+        "R_star": r_star,
+        "R_star_ci95": h_star,
+        "seeds": len(result.R_init_seeds),
+        "improvement_pct": improvement,
+        "apart": apart,
+        "evaluations": result.evaluations,
+        "failed": result.failed,
+        "wall_s": result.wall_s,
+        "fidelity": opt.config.fidelity,
+        "paper_improvement_pct": paper["improvement_pct"],
+        "run": str(run_dir),
+    }
+
+
+def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def _num(value: float, spec: str = ".4g") -> str:
+    return "-" if value is None or not math.isfinite(value) else f"{value:{spec}}"
+
+
+def _interval(mean: float, half: float) -> str:
+    if not math.isfinite(mean):
+        return "-"
+    return _num(mean) + ("" if not math.isfinite(half) else f" ± {half:.2g}")
+
+
+def _duration(seconds: float) -> str:
+    m, s = divmod(round(seconds), 60)
+    return f"{m}m{s:02d}s"
+
+
+def format_markdown(rows: list[dict[str, Any]]) -> str:
+    """Table I as a Markdown table, with an average-improvement row (ours and the paper's)."""
+    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    for r in rows:
+        cells = [r["robot"], r["task"], _num(r["N"], "d") if r["N"] else "-", str(r["M"]),
+                 str(r["C"]), _interval(r["R_init"], r["R_init_ci95"]),
+                 _interval(r["R_star"], r["R_star_ci95"]),
+                 _num(r["improvement_pct"], "+.1f") + ("" if not math.isfinite(
+                     r["improvement_pct"]) else " %"),
+                 str(r["evaluations"]), _duration(r["wall_s"]), "yes" if r["apart"] else "no",
+                 f"+{r['paper_improvement_pct']:.1f} %"]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    ours = [r["improvement_pct"] for r in rows if math.isfinite(r["improvement_pct"])]
+    paper = [r["paper_improvement_pct"] for r in rows]
+    average = f"{np.mean(ours):+.1f} %" if ours else "-"
+    lines.append("| average | | | | | | | " + average + " | | | | "
+                 f"+{np.mean(paper):.1f} % |")  # fmt: skip
+    return "\n".join(lines)
+
+
+_CELL = re.compile(r"^\s*([-+]?[0-9.eE+-]+)(?:\s*±\s*([0-9.eE+-]+))?\s*%?\s*$")
+
+
+def parse_markdown(text: str) -> list[dict[str, Any]]:
+    """The rows of a Table I written by :func:`format_markdown` (found anywhere in ``text``).
+
+    Returns robot, task, N, M, C, R_init (and R_init_ci95), R_star (and R_star_ci95),
+    improvement_pct, evaluations and apart per benchmark row; the average row is skipped.
+    """
+    header = "| " + " | ".join(COLUMNS) + " |"
+    lines = text.splitlines()
+    try:
+        start = lines.index(header)
+    except ValueError:
+        raise ValueError("no Table I (its header row) in the text") from None
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if cells[0] == "average":
+            continue
+        row: dict[str, Any] = {"robot": cells[0], "task": cells[1]}
+        row["N"] = None if cells[2] == "-" else int(cells[2])
+        row["M"], row["C"] = int(cells[3]), int(cells[4])
+        for key, cell in (("R_init", cells[5]), ("R_star", cells[6]),
+                          ("improvement_pct", cells[7])):  # fmt: skip
+            match = _CELL.match(cell)
+            row[key] = float(match.group(1)) if match else math.nan
+            if key != "improvement_pct":
+                half = match.group(2) if match else None
+                row[f"{key}_ci95"] = float(half) if half else math.nan
+        row["evaluations"] = int(cells[8])
+        row["apart"] = cells[10] == "yes"
+        rows.append(row)
+    return rows
