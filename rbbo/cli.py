@@ -6,6 +6,7 @@
     rbbo resume runs/cross-walk               # after a kill: continues from history.jsonl
     rbbo report runs/cross-walk               # table (Table I's columns) + convergence.png
     rbbo rollout runs/cross-walk --video cross.mp4
+    rbbo reproduce --budget-per-benchmark 45m # the paper's results, into runs/reproduce
 
 ENV_ID is a registered Gymnasium id (``CrossWalk-v0`` is short for
 ``softrom_gym/CrossWalk-v0``) or ``synthetic[:key=value,...]``, a Grassmann objective with a
@@ -127,6 +128,31 @@ def _parser() -> argparse.ArgumentParser:
     rol.add_argument("--video", type=Path, help="write an mp4 of the rollout")
     rol.add_argument("--seconds", type=_positive_float, help="episode length (default T_max)")
     rol.add_argument("--seed", type=int, default=12345)
+
+    bas = sub.add_parser("baselines", help="PPO and SAC (Stable-Baselines3) beside the MPC")
+    bas.add_argument("env_id", metavar="ENV_ID")
+    bas.add_argument("--algo", default="ppo,sac", help="comma list of ppo, sac (default both)")
+    bas.add_argument("--steps", type=_positive_int, default=20_000,
+                     help="env steps to train each (default 20000)")  # fmt: skip
+    bas.add_argument("--control-basis", default="identity",
+                     help="comma list of identity, best (of --run) or PATH.npy")  # fmt: skip
+    bas.add_argument("--run", type=Path, metavar="DIR", help="RBBO run directory (for best)")
+    bas.add_argument("--out", type=Path, help="output directory (default runs/baselines-<env>)")
+    bas.add_argument("--eval-seeds", type=_positive_int, default=5,
+                     help="evaluation episodes (default 5)")  # fmt: skip
+    bas.add_argument("--seconds", type=_positive_float, default=10.0,
+                     help="evaluation episode length, s (default 10)")  # fmt: skip
+    bas.add_argument("--settle-time", type=float, default=2.0,
+                     help="distance is measured from this time on, s (default 2)")  # fmt: skip
+    bas.add_argument("--seed", type=int, default=0, help="training seed")
+    bas.add_argument("--checkpoint-every", type=_positive_int,
+                     help="env steps between checkpoints (default a fifth of --steps)")  # fmt: skip
+    bas.add_argument("--no-mpc", action="store_true", help="RL only")
+    bas.add_argument("--no-progress", action="store_true")
+
+    from .reproduce.cli import add_parser as add_reproduce
+
+    add_reproduce(sub, parse_duration, _positive_int, _positive_float)
     return parser
 
 
@@ -379,8 +405,47 @@ def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> 
     return 0
 
 
+def cmd_baselines(args) -> int:
+    from . import rl
+
+    env_id = _resolve_env(args.env_id)
+    algos = [a.strip().lower() for a in args.algo.split(",")]
+    bad = [a for a in algos if a not in rl.ALGOS]
+    if bad:
+        raise UsageError(f"unknown --algo {bad[0]!r}; valid: {', '.join(rl.ALGOS)}")
+    if not 0 <= args.settle_time < args.seconds:
+        raise UsageError(f"--settle-time {args.settle_time} must lie in [0, --seconds)")
+    if not args.no_mpc:
+        _check_controllers()
+    with _bad_input():
+        rl.require_sb3()
+        bases, env_kwargs = rl.resolve_bases(args.control_basis.split(","), env_id, args.run)
+    out = args.out or Path("runs") / f"baselines-{env_id.split('/')[-1]}"
+    try:
+        rows = rl.run_baselines(
+            env_id, bases, out, algos=tuple(dict.fromkeys(algos)), steps=args.steps,
+            checkpoint_every=args.checkpoint_every, eval_seeds=args.eval_seeds,
+            seconds=args.seconds, settle_time=args.settle_time, seed=args.seed,
+            mpc=not args.no_mpc, env_kwargs=env_kwargs, progress=not args.no_progress,
+        )  # fmt: skip
+    except KeyboardInterrupt:
+        print("\ninterrupted; run the same command again to continue from the last "
+              "checkpoint", file=sys.stderr)  # fmt: skip
+        return 130
+    print(rl.format_table(rows))
+    print(f"results: {out / 'baselines.csv'}, {out / 'baselines.md'}", file=sys.stderr)
+    return 0
+
+
+def cmd_reproduce(args) -> int:
+    from .reproduce.cli import command
+
+    return command(args, UsageError)
+
+
 COMMANDS = {"optimize": cmd_optimize, "resume": cmd_resume, "report": cmd_report,
-            "rollout": cmd_rollout}  # fmt: skip
+            "rollout": cmd_rollout, "baselines": cmd_baselines,
+            "reproduce": cmd_reproduce}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -389,6 +454,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         args = _parser().parse_args(argv)
+        args.argv = list(sys.argv[1:] if argv is None else argv)
         return COMMANDS[args.command](args)
     except (UsageError, RunDirectoryError) as exc:
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ..intervals import confidence_interval
 from .plan import PAPER_TABLE1
 
 __all__ = ["confidence_interval", "format_markdown", "parse_markdown", "table_row",
@@ -24,20 +25,6 @@ __all__ = ["confidence_interval", "format_markdown", "parse_markdown", "table_ro
 
 COLUMNS = ["robot", "task", "N", "M", "C", "R_init", "R*", "improvement", "evaluations",
            "wall time", "apart", "paper"]  # fmt: skip
-
-
-def confidence_interval(values, level: float = 0.95) -> tuple[float, float]:
-    """Mean and half-width of the two-sided t-interval of ``values`` (half-width nan for n < 2)."""
-    from scipy import stats
-
-    x = np.asarray(values, dtype=float)
-    if x.size == 0:
-        return math.nan, math.nan
-    mean = float(x.mean())
-    if x.size < 2:
-        return mean, math.nan
-    half = float(stats.t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size))
-    return mean, half
 
 
 def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:

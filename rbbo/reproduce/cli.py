@@ -1,0 +1,178 @@
+"""``rbbo reproduce``'s arguments and command (registered by :mod:`rbbo.cli`).
+
+::
+
+    rbbo reproduce --budget-per-benchmark 45m --workers 2 --out runs/reproduce
+    rbbo reproduce --benchmarks CrossSwim-v0 --budget-per-benchmark 5m --stages table,bo
+    rbbo reproduce --out runs/reproduce --report-only     # rewrite REPORT.md from the runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+from .plan import _STAGES, BENCHMARKS, ReproducePlan
+
+__all__ = ["add_parser", "command"]
+
+
+def _int_list(text: str) -> list[int]:
+    """'1-5', '1,2,4' or '1-3,8' -> a list of integers."""
+    out: list[int] = []
+    try:
+        for part in filter(None, text.split(",")):
+            low, sep, high = part.partition("-")
+            out.extend(range(int(low), int(high) + 1) if sep else [int(low)])
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected integers like 1-5 or 1,2,4, got {text!r}"
+        ) from None
+    if not out:
+        raise argparse.ArgumentTypeError(f"expected at least one integer, got {text!r}")
+    return out
+
+
+def _float_list(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in filter(None, text.split(","))]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers like 5,10,20, got {text!r}") from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected finite numbers, got {text!r}")
+    return values
+
+
+def _names(valid: tuple[str, ...]):
+    def parse(text: str) -> list[str]:
+        names = [n.strip() for n in text.split(",") if n.strip()]
+        short = [n.split("/")[-1] for n in names]
+        bad = [n for n in short if n not in valid]
+        if bad or not names:
+            raise argparse.ArgumentTypeError(
+                f"unknown {', '.join(bad) or repr(text)}; valid: {', '.join(valid)}"
+            )
+        return short
+
+    return parse
+
+
+def _value(text: str) -> Any:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return {"true": True, "false": False, "none": None}.get(text.lower(), text)
+
+
+def _settings(text: str) -> dict[str, Any]:
+    """'horizon=8,knots=2' -> {'horizon': 8, 'knots': 2}."""
+    out = {}
+    for item in filter(None, text.split(",")):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise argparse.ArgumentTypeError(f"expected key=value pairs, got {item!r}")
+        out[key.strip()] = _value(value.strip())
+    return out
+
+
+def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.ArgumentParser:
+    """Add the ``reproduce`` subcommand to ``sub`` (rbbo.cli's subparsers)."""
+    p = sub.add_parser("reproduce", help="the paper's results (Table I, BO vs BOCA, "
+                       "directions, studies of C) into one directory with a REPORT.md")  # fmt: skip
+    defaults = ReproducePlan()
+    p.add_argument("--benchmarks", type=_names(BENCHMARKS), default=list(BENCHMARKS),
+                   help="comma list (default: all five)")  # fmt: skip
+    p.add_argument("--budget-per-benchmark", type=parse_duration, default=defaults.budget_s,
+                   help="wall time of each benchmark's RBBO run (default 45m)")  # fmt: skip
+    p.add_argument("--iterations", type=positive_int, help="cap on evaluations per run")
+    p.add_argument("--workers", type=positive_int, default=defaults.workers)
+    p.add_argument("--executor", choices=["process", "serial", "ray"], default="process")
+    p.add_argument("--controller", choices=["mppi", "gn"], default=defaults.controller)
+    p.add_argument("--sim-dim", type=positive_int, default=defaults.sim_dim)
+    p.add_argument("--control-dim", type=positive_int, default=defaults.control_dim)
+    p.add_argument("--t-min", type=positive_float, default=defaults.t_min)
+    p.add_argument("--t-max", type=positive_float, default=defaults.t_max)
+    p.add_argument("--settle-time", type=float, default=defaults.settle_time)
+    p.add_argument("--init", type=int, default=defaults.n_init, help="random initial points")
+    p.add_argument("--confirm-seeds", type=int, default=defaults.confirm_seeds,
+                   help="fresh seeds for R_init and R* (default 5)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=defaults.seed)
+    p.add_argument("--stages", type=_names(_STAGES), default=list(_STAGES),
+                   help=f"comma list of {','.join(_STAGES)} (default: all)")  # fmt: skip
+    p.add_argument("--direction-env", type=_names(BENCHMARKS), default=[defaults.direction_env])
+    p.add_argument("--directions", type=positive_int, default=defaults.directions)
+    p.add_argument("--direction-budget", type=parse_duration, default=defaults.direction_budget_s,
+                   help="wall time of each direction's run (default 15m)")  # fmt: skip
+    p.add_argument("--perturbations", type=_float_list, default=defaults.perturbations_deg,
+                   help="offsets in degrees, each run at + and - (default 5,10,20,30)")  # fmt: skip
+    p.add_argument("--cost-cs", type=_int_list, default=defaults.cost_cs, help="default 1-20")
+    p.add_argument("--reward-cs", type=_int_list, default=defaults.reward_cs, help="default 1-10")
+    p.add_argument("--study-seeds", type=positive_int, default=defaults.study_seeds)
+    p.add_argument("--study-seconds", type=positive_float, default=defaults.study_seconds)
+    p.add_argument("--mpc", type=_settings, default={},
+                   help="MPC setting overrides, e.g. horizon=8,knots=2,samples=4")  # fmt: skip
+    p.add_argument("--timeout", type=parse_duration, default=defaults.timeout_s,
+                   help="per-evaluation limit (default 30m)")  # fmt: skip
+    p.add_argument("--out", type=Path, default=Path("runs/reproduce"))
+    p.add_argument("--report-only", action="store_true",
+                   help="rewrite tables, figures and REPORT.md from the runs in --out")  # fmt: skip
+    p.add_argument("--no-progress", action="store_true")
+    return p
+
+
+def _plan(args) -> ReproducePlan:
+    return ReproducePlan(
+        benchmarks=args.benchmarks, budget_s=args.budget_per_benchmark,
+        iterations=args.iterations, workers=args.workers, executor=args.executor,
+        controller=args.controller, sim_dim=args.sim_dim, control_dim=args.control_dim,
+        t_min=args.t_min, t_max=args.t_max, settle_time=args.settle_time, n_init=args.init,
+        confirm_seeds=args.confirm_seeds, seed=args.seed, stages=args.stages,
+        direction_env=args.direction_env[0], directions=args.directions,
+        direction_budget_s=args.direction_budget, perturbations_deg=args.perturbations,
+        cost_cs=args.cost_cs, reward_cs=args.reward_cs, study_seeds=args.study_seeds,
+        study_seconds=args.study_seconds, planner_kwargs=args.mpc, timeout_s=args.timeout,
+    )  # fmt: skip
+
+
+def command(args, usage_error: type[Exception]) -> int:
+    """Run ``rbbo reproduce``; bad input raises ``usage_error`` (one line, exit status 2)."""
+    import json
+
+    from .document import write_report
+    from .runner import reproduce
+    from .tables import format_markdown
+
+    try:
+        plan = _plan(args)
+        if plan.planner_kwargs:  # checked now, not as a failed evaluation in a worker
+            from controllers import default_planner
+
+            for bench in plan.benchmarks:
+                default_planner(plan.env_id(bench), plan.controller, **plan.planner_kwargs)
+    except (ValueError, TypeError) as exc:
+        raise usage_error(str(exc)) from exc
+    if args.report_only:
+        path = args.out / "reproduce.json"
+        if not path.exists():
+            raise usage_error(f"{args.out} has no reproduce.json: nothing to report")
+        document = json.loads(path.read_text())
+        written = write_report(args.out, ReproducePlan.from_dict(document["plan"]), document)
+    else:
+        command_line = "rbbo " + " ".join(shlex.quote(a) for a in args.argv)
+        try:
+            written = reproduce(args.out, plan, progress=not args.no_progress,
+                                command=command_line)  # fmt: skip
+        except KeyboardInterrupt:
+            print(f"\ninterrupted; continue with the same command (--out {args.out})",
+                  file=sys.stderr)  # fmt: skip
+            return 130
+    if written.get("table"):
+        print(format_markdown(written["table"]))
+    print(f"report: {written['report']}")
+    return 0

@@ -1,0 +1,127 @@
+"""``rbbo reproduce`` end to end on one benchmark with a tiny budget and a tiny MPC horizon:
+every table and figure written, the report's Table I parsed back against the run's history,
+resume without new work, and its usage errors."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from rbbo.cli import main
+from rbbo.reproduce import ReproducePlan, confidence_interval, parse_markdown
+
+TINY = [
+    "reproduce", "--benchmarks", "CrossSwim-v0", "--direction-env", "CrossSwim-v0",
+    "--directions", "2", "--iterations", "3", "--init", "1", "--confirm-seeds", "2",
+    "--t-min", "1.5", "--t-max", "2", "--settle-time", "1", "--executor", "serial",
+    "--workers", "1", "--cost-cs", "1,2", "--reward-cs", "1,2", "--study-seeds", "1",
+    "--study-seconds", "2", "--perturbations", "10", "--no-progress",
+    "--mpc", "horizon=8,period=4,knots=2,window=4,samples=4,seed_horizon=8",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def reproduction(tmp_path_factory):
+    out = tmp_path_factory.mktemp("reproduce")
+    assert main([*TINY, "--out", str(out)]) == 0
+    return out
+
+
+def _history(run_dir):
+    return [json.loads(line) for line in (run_dir / "history.jsonl").read_text().splitlines()]
+
+
+def test_writes_every_table_and_figure(reproduction):
+    out = reproduction
+    for name in ["REPORT.md", "table1.md", "table1.csv", "reproduce.json", "perturbation.csv",
+                 "bo_vs_boca.png", "directions.png", "perturbation.png",
+                 "studies/cost_vs_c.csv", "studies/cost_vs_c.png", "studies/reward_vs_c.csv",
+                 "studies/reward_vs_c.png"]:  # fmt: skip
+        assert (out / name).is_file(), name
+    for run in ["CrossSwim-v0-boca", "CrossSwim-v0-bo", "CrossSwim-v0-dir000",
+                "CrossSwim-v0-dir180"]:  # fmt: skip
+        assert (out / "runs" / run / "convergence.png").is_file(), run
+        assert (out / "runs" / run / "best_basis.npy").is_file(), run
+    assert (out / "perturbation.csv").read_text().count("\n") == 1 + 3  # header, 0 and ±10
+
+
+def test_report_table_matches_the_run_history(reproduction):
+    rows = parse_markdown((reproduction / "REPORT.md").read_text())
+    assert [r["robot"] for r in rows] == ["Cross"] and rows[0]["task"] == "Swim"
+    row = rows[0]
+    history = _history(reproduction / "runs" / "CrossSwim-v0-boca")
+    confirm = {e["kind"]: e for e in history if e["kind"].startswith("confirm")}
+    searched = [e for e in history if not e["kind"].startswith("confirm")]
+    assert row["evaluations"] == len(searched) == 3
+    for key, kind in (("R_init", "confirm-init"), ("R_star", "confirm-best")):
+        mean, half = confidence_interval(confirm[kind]["R_seeds"])
+        assert len(confirm[kind]["R_seeds"]) == 2
+        assert row[key] == pytest.approx(mean, rel=1e-3, abs=1e-12)
+        assert row[f"{key}_ci95"] == pytest.approx(half, rel=0.05)
+    r_init, r_star = row["R_init"], row["R_star"]
+    if r_init > 0:
+        assert row["improvement_pct"] == pytest.approx(100 * (r_star / r_init - 1), abs=0.1)
+    assert row["M"] == 20 and row["C"] == 3 and row["N"] > 0
+
+
+def test_rerun_resumes_without_new_evaluations(reproduction):
+    runs = reproduction / "runs"
+    before = {p.name: len(_history(p)) for p in runs.iterdir()}
+    assert main([*TINY, "--out", str(reproduction)]) == 0
+    after = {p.name: len(_history(p)) for p in runs.iterdir()}
+    assert after == before
+    document = json.loads((reproduction / "reproduce.json").read_text())
+    assert len(document["sessions"]) == 2
+    assert document["sessions"][0]["command"].startswith("rbbo reproduce --benchmarks")
+
+
+def test_report_only_rewrites_the_report(reproduction):
+    (reproduction / "REPORT.md").unlink()
+    assert main(["reproduce", "--out", str(reproduction), "--report-only"]) == 0
+    assert parse_markdown((reproduction / "REPORT.md").read_text())
+
+
+def test_other_settings_on_an_existing_directory_are_refused(reproduction, capsys):
+    argv = [*TINY, "--out", str(reproduction)]
+    argv[argv.index("--t-max") + 1] = "3"
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "t_max" in err[0]
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["--benchmarks", "Nope-v0"], "Nope-v0"),
+        (["--stages", "table,dance"], "dance"),
+        (["--cost-cs", "1-x"], "1-x"),
+        (["--confirm-seeds", "1"], "confirm_seeds"),
+        (["--mpc", "horizon=0"], "horizon"),
+        (["--t-min", "1", "--settle-time", "2"], "settle_time"),
+    ],
+)
+def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys):
+    assert main(["reproduce", "--out", str(tmp_path / "x"), *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rbbo: error:") and needle in err[0]
+    assert not (tmp_path / "x").exists()
+
+
+def test_confidence_interval_is_the_t_interval():
+    mean, half = confidence_interval([1.0, 2.0, 3.0])
+    assert mean == 2.0
+    assert half == pytest.approx(4.302652729911275 / math.sqrt(3))  # t_{0.975, 2} s / sqrt(n)
+    assert math.isnan(confidence_interval([1.0])[1])
+
+
+def test_plan_validates_and_round_trips():
+    plan = ReproducePlan(benchmarks=["softrom_gym/BeamWalk-v0"], budget_s=60.0)
+    assert plan.benchmarks == ["BeamWalk-v0"]
+    assert ReproducePlan.from_dict(plan.to_dict()) == plan
+    assert plan.differences(ReproducePlan(benchmarks=["BeamWalk-v0"], budget_s=99.0)) == []
+    assert plan.differences(ReproducePlan(benchmarks=["BeamWalk-v0"], seed=1)) == ["seed"]
+    np.testing.assert_allclose(ReproducePlan(directions=4).direction_angles_deg(),
+                               [0, 90, 180, 270])  # fmt: skip
+    with pytest.raises(ValueError, match="perturbations"):
+        ReproducePlan(perturbations_deg=[0.0])

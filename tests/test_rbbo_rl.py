@@ -1,0 +1,121 @@
+"""``rbbo baselines``: PPO and SAC beside the MPC, checkpointed, resumable, evaluated."""
+
+import csv
+import json
+import math
+import sys
+
+import numpy as np
+import pytest
+
+from rbbo import rl
+from rbbo.cli import main
+from rbbo.store import RunStore
+
+ENV = "softrom_gym/CrossSwim-v0"  # the cheapest env
+SMALL = ["--steps", "256", "--checkpoint-every", "128", "--eval-seeds", "2", "--seconds", "3",
+         "--settle-time", "1", "--no-progress"]  # fmt: skip
+
+
+def _lines(path):
+    return [json.loads(x) for x in path.read_text().splitlines()]
+
+
+def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
+    import stable_baselines3 as sb3
+
+    out = tmp_path / "bl"
+    assert main(["baselines", "CrossSwim-v0", "--algo", "ppo,sac", "--out", str(out), *SMALL]) == 0
+    table = capsys.readouterr().out
+    assert "mppi" in table and "ppo" in table and "sac" in table and "reached" in table
+    with open(out / "baselines.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    steps = {(r["method"], int(r["env_steps"])) for r in rows}
+    assert steps == {("mppi", 0), ("ppo", 128), ("ppo", 256), ("sac", 128), ("sac", 256)}
+    assert all(math.isfinite(float(r["distance_m"])) for r in rows)
+    assert (out / "baselines.md").read_text().startswith("| env | method |")
+    for algo in ("ppo", "sac"):
+        folder = out / f"{algo}-identity"
+        assert {p.name for p in (folder / "checkpoints").glob("step_*.zip")} == {
+            "step_128.zip", "step_256.zip"}  # fmt: skip
+        assert (folder / "final.zip").is_file()
+        progress = _lines(folder / "progress.jsonl")
+        assert [x["steps"] for x in progress] == [128, 256]
+        assert progress[1]["physics_steps"] == 256 * 5 and len(progress[1]["distance"]) == 2
+    assert [p.name for p in (out / "sac-identity/checkpoints").glob("*.pkl")] == [
+        "step_256_replay.pkl"]  # fmt: skip
+
+    # Same command again: nothing is trained (or planned) again, the table is the same.
+    def refuse(*args, **kwargs):
+        raise AssertionError("retrained a finished run")
+
+    monkeypatch.setattr(sb3.PPO, "learn", refuse)
+    monkeypatch.setattr(sb3.SAC, "learn", refuse)
+    monkeypatch.setattr("controllers.run_episode", refuse)
+    assert main(["baselines", ENV, "--algo", "ppo,sac", "--out", str(out), *SMALL]) == 0
+    assert capsys.readouterr().out == table
+    assert len(_lines(out / "ppo-identity/progress.jsonl")) == 2
+    assert sb3.PPO.load(out / "ppo-identity/final.zip").num_timesteps == 256
+    monkeypatch.undo()
+
+    # More steps: continues from the latest checkpoint, not from scratch.
+    more = [*SMALL, "--no-mpc"]
+    more[1] = "384"
+    assert main(["baselines", ENV, "--algo", "ppo", "--out", str(out), *more]) == 0
+    progress = _lines(out / "ppo-identity/progress.jsonl")
+    assert [x["steps"] for x in progress] == [128, 256, 384]
+    assert progress[2]["wall_s"] > progress[1]["wall_s"]
+    model = sb3.PPO.load(out / "ppo-identity/final.zip")
+    assert model.num_timesteps == 384 and model._n_updates == 3 * model.n_epochs
+    capsys.readouterr()
+    # ... and refuses another seed in the same OUT
+    assert main(["baselines", ENV, "--algo", "ppo", "--out", str(out), *more, "--seed", "1"]) == 2
+    assert "holds another run" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--algo", "dqn"], "dqn"),
+        (["--algo", "ppo,sac,dqn"], "dqn"),
+        (["--control-basis", "best"], "--run"),
+        (["--control-basis", "nope"], "nope"),
+        (["--seconds", "2", "--settle-time", "3"], "--settle-time"),
+        (["--steps", "0"], "--steps"),
+    ],
+)
+def test_bad_arguments(args, message, capsys, tmp_path):
+    assert main(["baselines", ENV, "--out", str(tmp_path), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rbbo: error:") and message in err[0]
+
+
+def test_missing_stable_baselines3(capsys, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)
+    assert main(["baselines", ENV, "--out", str(tmp_path)]) == 2
+    assert "pip install 'softrom[rl]'" in capsys.readouterr().err
+
+
+def test_resolve_bases(tmp_path):
+    run = tmp_path / "run"
+    store = RunStore.create(run, {"rbbo": {"sim_dim": 8, "control_dim": 2},
+                                  "objective": {"kind": "env", "env_id": ENV,
+                                                "env_kwargs": {"friction": 0.5}}})  # fmt: skip
+    best = np.linalg.qr(np.random.default_rng(0).standard_normal((8, 2)))[0]
+    store.save_best(best)
+    np.save(tmp_path / "mine.npy", best[:, :1])
+    bases, kwargs = rl.resolve_bases(["identity", "best", str(tmp_path / "mine.npy")], ENV, run)
+    assert list(bases) == ["identity", "best", "mine"] and kwargs == {"friction": 0.5}
+    np.testing.assert_array_equal(bases["identity"], np.eye(8)[:, :2])
+    np.testing.assert_array_equal(bases["best"], best)
+    with pytest.raises(ValueError, match="CrossWalk"):
+        rl.resolve_bases(["best"], "softrom_gym/CrossWalk-v0", run)
+    with pytest.raises(ValueError, match="no best_basis"):
+        (run / "best_basis.npy").unlink()
+        rl.resolve_bases(["best"], ENV, run)
+
+
+def test_t_interval():
+    mean, half = rl.t_interval([1.0, 2.0, 3.0])
+    assert mean == 2.0 and half == pytest.approx(4.302653 / math.sqrt(3), rel=1e-6)
+    assert math.isnan(rl.t_interval([1.0])[1])
