@@ -56,14 +56,27 @@ def cma_es(
     seeds=(0,),
     seed: int = 0,
     sigma0: float = 0.5,
+    popsize: int | None = None,
 ) -> list[tuple[np.ndarray, float, float]]:
-    """CMA-ES from the identity basis on the flattened M x C matrix (maximising R)."""
+    """CMA-ES from the identity basis on the flattened M x C matrix (maximising R).
+
+    ``popsize`` None sizes the population to the budget: CMA-ES's default 4 + 3 ln(M C), but
+    small enough for at least four generations (and at least 4), because a budget of one
+    generation (the default popsize is 16 on Gr(20, 3)) never updates the search
+    distribution and would make CMA-ES a single Gaussian sample around the identity.
+    """
     try:
         import cma
     except ImportError as exc:
         raise ImportError("the CMA-ES baseline needs cma: pip install cma") from exc
     m, c = _check_dims(sim_dim, control_dim)
-    options = {"seed": seed + 1, "verbose": -9, "maxfevals": n_evaluations}
+    if popsize is None:
+        default = 4 + int(3 * np.log(m * c))
+        popsize = max(4, min(default, n_evaluations // 4))
+    if isinstance(popsize, bool) or not isinstance(popsize, (int, np.integer)) or popsize < 2:
+        raise ValueError(f"popsize must be an integer >= 2, got {popsize!r}")
+    options = {"seed": seed + 1, "verbose": -9, "maxfevals": n_evaluations,
+               "popsize": int(popsize)}  # fmt: skip
     es = cma.CMAEvolutionStrategy(identity_basis(m, c).ravel(), sigma0, options)
     start = time.perf_counter()
     out: list[tuple[np.ndarray, float, float]] = []

@@ -170,3 +170,19 @@ def test_config_validation(kwargs, match):
 def test_run_needs_a_stopping_rule():
     with pytest.raises(ValueError, match="give max_evaluations or budget_s"):
         RBBO(RBBOConfig(4, 2)).run(SyntheticObjective(4, 2))
+
+
+def test_cma_es_baseline_updates_within_a_small_budget():
+    # With the population sized to the budget, CMA-ES runs several generations: it evaluates
+    # exactly the budget, every point is orthonormal, and it improves on its first generation.
+    from rbbo.baselines import cma_es
+
+    objective = SyntheticObjective(10, 2, optimum_seed=3)
+    out = cma_es(objective, 10, 2, 24, T=10.0, seed=0)
+    assert len(out) == 24
+    for basis, _, _ in out:
+        np.testing.assert_allclose(basis.T @ basis, np.eye(2), atol=1e-10)
+    first = max(r for _, r, _ in out[:6])  # popsize max(4, min(13, 24 // 4)) = 6
+    assert max(r for _, r, _ in out[6:]) > first
+    with pytest.raises(ValueError, match="popsize"):
+        cma_es(objective, 10, 2, 8, T=10.0, popsize=1)
