@@ -4,6 +4,7 @@ resume without new work, and its usage errors."""
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -76,10 +77,16 @@ def test_rerun_resumes_without_new_evaluations(reproduction):
     assert document["sessions"][0]["command"].startswith("rbbo reproduce --benchmarks")
 
 
-def test_report_only_rewrites_the_report(reproduction):
+def test_report_only_rewrites_the_report_and_its_copy(reproduction, tmp_path):
     (reproduction / "REPORT.md").unlink()
-    assert main(["reproduce", "--out", str(reproduction), "--report-only"]) == 0
+    copy = tmp_path / "docs" / "REPORT.md"
+    assert main(["reproduce", "--out", str(reproduction), "--report-only",
+                 "--report", str(copy)]) == 0  # fmt: skip
     assert parse_markdown((reproduction / "REPORT.md").read_text())
+    text = copy.read_text()
+    assert parse_markdown(text) == parse_markdown((reproduction / "REPORT.md").read_text())
+    links = re.findall(r"\]\(([^)]+)\)", text)
+    assert links and all((copy.parent / link).is_file() for link in links), links
 
 
 def test_other_settings_on_an_existing_directory_are_refused(reproduction, capsys):

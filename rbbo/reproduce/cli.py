@@ -122,6 +122,9 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--out", type=Path, default=Path("runs/reproduce"))
     p.add_argument("--report-only", action="store_true",
                    help="rewrite tables, figures and REPORT.md from the runs in --out")  # fmt: skip
+    p.add_argument("--report", type=Path, metavar="PATH",
+                   help="also write the report here, its links relative to it "
+                   "(e.g. docs/REPORT.md)")  # fmt: skip
     p.add_argument("--no-progress", action="store_true")
     return p
 
@@ -162,17 +165,19 @@ def command(args, usage_error: type[Exception]) -> int:
         if not path.exists():
             raise usage_error(f"{args.out} has no reproduce.json: nothing to report")
         document = json.loads(path.read_text())
-        written = write_report(args.out, ReproducePlan.from_dict(document["plan"]), document)
+        written = write_report(args.out, ReproducePlan.from_dict(document["plan"]), document,
+                               args.report)  # fmt: skip
     else:
         command_line = "rbbo " + " ".join(shlex.quote(a) for a in args.argv)
         try:
             written = reproduce(args.out, plan, progress=not args.no_progress,
-                                command=command_line)  # fmt: skip
+                                command=command_line, copy_report=args.report)  # fmt: skip
         except KeyboardInterrupt:
             print(f"\ninterrupted; continue with the same command (--out {args.out})",
                   file=sys.stderr)  # fmt: skip
             return 130
     if written.get("table"):
         print(format_markdown(written["table"]))
-    print(f"report: {written['report']}")
+    print(f"report: {written['report']}" + (f" (and {written['copy']})" if "copy" in written
+                                             else ""))  # fmt: skip
     return 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import platform
+import re
 from pathlib import Path
 from typing import Any
 
@@ -71,8 +72,18 @@ def _machine() -> str:
     return f"{platform.processor() or platform.machine()}, {cpus} CPUs, {platform.system()}"
 
 
-def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any]) -> dict[str, Any]:
-    """Write table1.{csv,md}, the figures and REPORT.md into ``out``; returns what it wrote."""
+def _relink(lines: list[str], out: Path, folder: Path) -> list[str]:
+    """Rewrite the report's links (relative to ``out``) to be relative to ``folder``."""
+    prefix = Path(os.path.relpath(out.resolve(), folder.resolve())).as_posix()
+    if prefix == ".":
+        return lines
+    return [re.sub(r"\]\((?![a-z]+:)", f"]({prefix}/", line) for line in lines]
+
+
+def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
+                 copy_to: Path | None = None) -> dict[str, Any]:  # fmt: skip
+    """Write table1.{csv,md}, the figures and REPORT.md into ``out`` (and the same report,
+    its links rewritten, to ``copy_to``); returns what it wrote."""
     from ..report import load, plot_convergence
 
     written: dict[str, Any] = {"figures": []}
@@ -193,6 +204,10 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any]) -> di
               "sample cannot make the improvement.", ""]  # fmt: skip
     (out / "REPORT.md").write_text("\n".join(lines))
     written["report"] = out / "REPORT.md"
+    if copy_to is not None:
+        copy_to.parent.mkdir(parents=True, exist_ok=True)
+        copy_to.write_text("\n".join(_relink(lines, out, copy_to.parent)))
+        written["copy"] = copy_to
     return written
 
 

@@ -224,8 +224,10 @@ def _load_plan(out: Path, plan: ReproducePlan) -> dict[str, Any]:
 
 
 def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = True,
-              log: Log = _log_stderr, command: str | None = None) -> dict[str, Any]:  # fmt: skip
-    """Run (or continue) every stage of ``plan`` into ``out`` and write the report.
+              log: Log = _log_stderr, command: str | None = None,
+              copy_report: str | os.PathLike | None = None) -> dict[str, Any]:  # fmt: skip
+    """Run (or continue) every stage of ``plan`` into ``out`` and write the report (also to
+    ``copy_report``, its links rewritten, when given).
 
     Returns a dict with the Table I rows and the paths written (see :mod:`.document`).
     """
@@ -276,4 +278,4 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
             studies(out, plan, log)
     finally:
         save()
-    return write_report(out, plan, document)
+    return write_report(out, plan, document, None if copy_report is None else Path(copy_report))
