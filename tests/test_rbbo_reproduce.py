@@ -17,7 +17,8 @@ TINY = [
     "--directions", "2", "--iterations", "3", "--init", "1", "--confirm-seeds", "2",
     "--t-min", "1.5", "--t-max", "2", "--settle-time", "1", "--executor", "serial",
     "--workers", "1", "--cost-cs", "1,2", "--reward-cs", "1,2", "--study-seeds", "1",
-    "--study-seconds", "2", "--perturbations", "10", "--no-progress",
+    "--study-seconds", "2", "--perturbations", "10", "--no-progress", "--rl-steps", "64",
+    "--rl-algos", "ppo",
     "--mpc", "horizon=8,period=4,knots=2,window=4,samples=4,seed_horizon=8",
 ]  # fmt: skip
 
@@ -45,6 +46,10 @@ def test_writes_every_table_and_figure(reproduction):
         assert (out / "runs" / run / "convergence.png").is_file(), run
         assert (out / "runs" / run / "best_basis.npy").is_file(), run
     assert (out / "perturbation.csv").read_text().count("\n") == 1 + 3  # header, 0 and ±10
+    rl = out / "rl" / "CrossSwim-v0"
+    assert (rl / "baselines.md").is_file() and (rl / "ppo-identity" / "final.zip").is_file()
+    assert len(list(rl.glob("ppo-rbbo-*"))) == 1  # the Table I basis trained too
+    assert "## RL baselines on CrossSwim-v0" in (out / "REPORT.md").read_text()
 
 
 def test_report_table_matches_the_run_history(reproduction):

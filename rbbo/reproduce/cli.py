@@ -115,6 +115,11 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--reward-cs", type=_int_list, default=defaults.reward_cs, help="default 1-10")
     p.add_argument("--study-seeds", type=positive_int, default=defaults.study_seeds)
     p.add_argument("--study-seconds", type=positive_float, default=defaults.study_seconds)
+    p.add_argument("--rl-benchmarks", type=_names(BENCHMARKS), default=defaults.rl_benchmarks,
+                   help="benchmarks of the RL baselines (default CrossSwim-v0)")  # fmt: skip
+    p.add_argument("--rl-algos", type=_names(("ppo", "sac")), default=defaults.rl_algos)
+    p.add_argument("--rl-steps", type=positive_int, default=defaults.rl_steps,
+                   help="env steps per RL method and basis (default 20000)")  # fmt: skip
     p.add_argument("--mpc", type=_settings, default={},
                    help="MPC setting overrides, e.g. horizon=8,knots=2,samples=4")  # fmt: skip
     p.add_argument("--timeout", type=parse_duration, default=defaults.timeout_s,
@@ -139,7 +144,9 @@ def _plan(args) -> ReproducePlan:
         direction_env=args.direction_env[0], directions=args.directions,
         direction_budget_s=args.direction_budget, perturbations_deg=args.perturbations,
         cost_cs=args.cost_cs, reward_cs=args.reward_cs, study_seeds=args.study_seeds,
-        study_seconds=args.study_seconds, planner_kwargs=args.mpc, timeout_s=args.timeout,
+        study_seconds=args.study_seconds, rl_benchmarks=args.rl_benchmarks,
+        rl_algos=args.rl_algos, rl_steps=args.rl_steps, planner_kwargs=args.mpc,
+        timeout_s=args.timeout,
     )  # fmt: skip
 
 
@@ -153,6 +160,13 @@ def command(args, usage_error: type[Exception]) -> int:
 
     try:
         plan = _plan(args)
+        if "rl" in plan.stages and not args.report_only:
+            from ..rl import require_sb3
+
+            try:
+                require_sb3()
+            except ImportError as exc:
+                raise ValueError(f"{exc} (or leave out the stage: --stages without rl)") from None
         if plan.planner_kwargs:  # checked now, not as a failed evaluation in a worker
             from controllers import default_planner
 

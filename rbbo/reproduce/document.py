@@ -189,6 +189,16 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                       f"paper: about {paper:.0%})."]  # fmt: skip
         lines.append("")
     lines += _studies(out, plan, written)
+    for bench in plan.rl_benchmarks:
+        table_md = out / "rl" / bench / "baselines.md"
+        if table_md.exists():
+            lines += [f"## RL baselines on {bench}", "",
+                      f"PPO and SAC (Stable-Baselines3, {plan.rl_steps} env steps each, "
+                      "evaluated at every checkpoint) beside MPPI, on the identity basis and "
+                      "on the Table I B_c (`rbbo-<hash>`), over the same "
+                      f"{plan.confirm_seeds} seeds and {plan.t_max:g}-s episodes, distance "
+                      f"from t = {plan.settle_time:g} s (mean ± 95 % t-interval).", "",
+                      table_md.read_text().strip(), ""]  # fmt: skip
     counts = [r["evaluations"] for r in table]
     lines += ["## Where ours differs from the paper, and why", "",
               "- Our simulator is not theirs: our meshes have other node counts (column N), our "

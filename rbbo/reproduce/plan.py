@@ -29,7 +29,7 @@ PAPER_TABLE1: dict[str, dict[str, Any]] = {
 PAPER_DIRECTIONS = {"min_improvement_pct": 46.45, "max_improvement_pct": 853.50,
                     "fraction_within_10deg": 0.80}  # fmt: skip
 
-_STAGES = ("table", "bo", "directions", "perturbation", "studies")
+_STAGES = ("table", "bo", "directions", "perturbation", "studies", "rl")
 
 
 def _short(env_id: str) -> str:
@@ -83,6 +83,12 @@ class ReproducePlan:
         Seeds per C of the reward-vs-C study.
     study_seconds : float
         Episode length of the reward-vs-C study, seconds.
+    rl_benchmarks : list of str
+        Benchmarks of the RL baselines (stage "rl").
+    rl_algos : list of str
+        Stable-Baselines3 algorithms, among "ppo" and "sac".
+    rl_steps : int
+        Env steps each RL method trains on each basis (identity and the Table I B_c).
     planner_kwargs : dict
         Overrides of the controller's default settings (e.g. a tiny horizon for a test).
     timeout_s : float
@@ -112,6 +118,9 @@ class ReproducePlan:
     reward_cs: list[int] = field(default_factory=lambda: list(range(1, 11)))
     study_seeds: int = 3
     study_seconds: float = 10.0
+    rl_benchmarks: list[str] = field(default_factory=lambda: ["CrossSwim-v0"])
+    rl_algos: list[str] = field(default_factory=lambda: ["ppo", "sac"])
+    rl_steps: int = 20_000
     planner_kwargs: dict[str, Any] = field(default_factory=dict)
     timeout_s: float = 1800.0
 
@@ -121,6 +130,13 @@ class ReproducePlan:
         if unknown or not self.benchmarks:
             raise ValueError(f"unknown benchmark(s) {unknown or self.benchmarks}; "
                              f"valid: {', '.join(BENCHMARKS)}")  # fmt: skip
+        self.rl_benchmarks = [_short(b) for b in self.rl_benchmarks]
+        unknown = [b for b in self.rl_benchmarks if b not in BENCHMARKS]
+        if unknown:
+            raise ValueError(f"unknown RL benchmark(s) {unknown}; valid: {', '.join(BENCHMARKS)}")
+        bad = [a for a in self.rl_algos if a not in ("ppo", "sac")]
+        if bad or not self.rl_algos:
+            raise ValueError(f"unknown RL algorithm(s) {bad or self.rl_algos}; valid: ppo, sac")
         self.direction_env = _short(self.direction_env)
         if self.direction_env not in BENCHMARKS:
             raise ValueError(f"unknown direction_env {self.direction_env!r}")
@@ -133,7 +149,7 @@ class ReproducePlan:
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         for name, low in (("workers", 1), ("sim_dim", 1), ("control_dim", 1), ("n_init", 0),
                           ("confirm_seeds", 2), ("seed", 0), ("directions", 1),
-                          ("study_seeds", 1)):  # fmt: skip
+                          ("study_seeds", 1), ("rl_steps", 1)):  # fmt: skip
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")

@@ -204,6 +204,32 @@ def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
     return folder
 
 
+def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
+    """PPO/SAC on the identity and on each benchmark's Table I B_c, MPC beside them."""
+    import hashlib
+
+    from .. import rl
+
+    folders = []
+    for bench in plan.rl_benchmarks:
+        m, c = plan.sim_dim, plan.control_dim
+        bases = {"identity": np.eye(m)[:, :c]}
+        best = out / "runs" / f"{bench}-boca" / "best_basis.npy"
+        if best.exists():
+            basis = np.load(best)
+            # named by its bytes: a longer Table I run may recommend another B_c, which then
+            # trains afresh instead of being refused by (or resumed into) the older one's run
+            digest = hashlib.blake2b(basis.tobytes(), digest_size=4).hexdigest()
+            bases[f"rbbo-{digest}"] = basis
+        folder = out / "rl" / bench
+        rl.run_baselines(plan.env_id(bench), bases, folder, algos=tuple(plan.rl_algos),
+                         steps=plan.rl_steps, eval_seeds=plan.confirm_seeds,
+                         seconds=plan.t_max, settle_time=plan.settle_time, seed=plan.seed,
+                         progress=progress)  # fmt: skip
+        folders.append(folder)
+    return folders
+
+
 def _load_plan(out: Path, plan: ReproducePlan) -> dict[str, Any]:
     path = out / "reproduce.json"
     if not path.exists():
@@ -247,6 +273,12 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     save()
     runs = out / "runs"
     stages = set(plan.stages)
+    per_bench = sum(s in stages for s in ("table", "bo"))
+    budget = len(plan.benchmarks) * per_bench * plan.budget_s
+    budget += plan.directions * plan.direction_budget_s if "directions" in stages else 0.0
+    log(f"reproduce into {out}: stages {', '.join(plan.stages)}; optimisation budgets add up "
+        f"to {budget / 3600:.1f} h on {plan.workers} workers, plus the confirmations, the "
+        "perturbation and the studies (a rerun of the same command resumes)")  # fmt: skip
     try:
         for bench in plan.benchmarks:
             objective = _objective(plan, bench)
@@ -276,6 +308,9 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
             save()
         if "studies" in stages:
             studies(out, plan, log)
+            save()
+        if "rl" in stages:
+            rl_baselines(out, plan, progress)
     finally:
         save()
     return write_report(out, plan, document, None if copy_report is None else Path(copy_report))
