@@ -137,3 +137,15 @@ def test_plan_validates_and_round_trips():
                                [0, 90, 180, 270])  # fmt: skip
     with pytest.raises(ValueError, match="perturbations"):
         ReproducePlan(perturbations_deg=[0.0])
+
+
+def test_rl_stage_without_stable_baselines3_is_a_usage_error(monkeypatch, tmp_path, capsys):
+    import rbbo.rl
+
+    def missing():
+        raise ImportError("the RL baselines need Stable-Baselines3: pip install 'softrom[rl]'")
+
+    monkeypatch.setattr(rbbo.rl, "require_sb3", missing)
+    assert main(["reproduce", "--out", str(tmp_path / "x"), "--stages", "rl"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "softrom[rl]" in err[0] and "--stages" in err[0]
