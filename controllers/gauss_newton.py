@@ -13,7 +13,9 @@ J(x) = R(x) - |r(x)|^2 - w_d n_lost(x) (see :mod:`controllers.cost`). One iterat
 3. a batched line search: the steps for ``len(line_search)`` damping values
    ``mu * line_search[i]`` run in one rollout, and the best is taken only if it raises J.
    mu then moves to the accepted value (or grows tenfold when none is accepted), so an
-   iteration never lowers the objective.
+   iteration never lowers the objective. With ``max_step`` each step is first scaled into
+   a trust region (no knot moves by more than ``max_step``): a gait then changes gradually
+   from replan to replan, where a full step can trade it for a one-horizon lunge.
 """
 
 from __future__ import annotations
@@ -42,12 +44,16 @@ class GaussNewtonSettings(PlannerSettings):
         Initial Levenberg damping mu (m per unit knot^2).
     line_search : tuple of float
         Multipliers of mu tried in one batched rollout.
+    max_step : float or None
+        Trust region: each trial step is scaled down so that no knot moves by more than
+        this (units of the bound); None: no limit.
     """
 
     iterations: int = 1
     fd_step: float = 0.02
     damping: float = 0.01
     line_search: tuple[float, ...] = (0.1, 1.0, 10.0, 100.0)
+    max_step: float | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -56,6 +62,8 @@ class GaussNewtonSettings(PlannerSettings):
         if self.fd_step > 0.5:
             raise ValueError(f"fd_step must be <= 0.5 (units of the bound), got {self.fd_step}")
         _check_positive("damping", self.damping)
+        if self.max_step is not None:
+            _check_positive("max_step", self.max_step)
         ls = np.asarray(self.line_search, dtype=float)
         if ls.ndim != 1 or ls.size == 0 or not np.all(np.isfinite(ls) & (ls > 0)):
             raise ValueError(f"line_search must be positive numbers, got {self.line_search!r}")
@@ -107,8 +115,11 @@ class GaussNewtonShooting(Planner):
             hess = 2.0 * jac.T @ jac
             mus = self.damping_ * np.asarray(s.line_search, dtype=float)
             eye = np.eye(x.size)
-            trials = np.stack([np.clip(x + np.linalg.solve(hess + mu * eye, g), -1.0, 1.0)
-                               for mu in mus])  # fmt: skip
+            steps = [np.linalg.solve(hess + mu * eye, g) for mu in mus]
+            if s.max_step is not None:
+                steps = [dx * min(1.0, s.max_step / max(np.abs(dx).max(), 1e-300))
+                         for dx in steps]  # fmt: skip
+            trials = np.stack([np.clip(x + dx, -1.0, 1.0) for dx in steps])
             trial = self._evaluate(state, trials.reshape(-1, *shape))
             best = int(np.argmax(trial.objective))
             if trial.objective[best] > j0:

@@ -79,6 +79,20 @@ def test_gauss_newton_iterations_never_lower_the_objective(walker):
     assert again.objective[0] == ends[-1]
 
 
+def test_gauss_newton_trust_region_bounds_every_knot_move(walker):
+    settings = GaussNewtonSettings(horizon=8, knots=3, iterations=3, damping=1e-4,
+                                   max_step=0.05)  # fmt: skip
+    gn = GaussNewtonShooting(settings)
+    gn.reset(walker, seed=0)
+    before = gn.plan_.knots.copy()
+    gn.plan(walker)
+    moved = np.abs(gn.plan_.knots - before).max()
+    assert 0 < moved <= 3 * 0.05 + 1e-12  # three iterations, each inside the region
+    assert all(e >= s for s, e in gn.last_["objectives"])
+    with pytest.raises(ValueError, match="max_step"):
+        GaussNewtonSettings(max_step=0.0)
+
+
 def test_mppi_with_zero_noise_returns_its_warm_start(walker):
     mppi = MPPI(MPPISettings(horizon=6, knots=3, samples=4, noise=0.0))
     mppi.reset(walker, seed=0)
