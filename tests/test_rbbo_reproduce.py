@@ -65,6 +65,11 @@ def test_report_table_matches_the_run_history(reproduction):
         assert len(confirm[kind]["R_seeds"]) == 2
         assert row[key] == pytest.approx(mean, rel=1e-3, abs=1e-12)
         assert row[f"{key}_ci95"] == pytest.approx(half, rel=0.05)
+    gains = np.subtract(confirm["confirm-best"]["R_seeds"], confirm["confirm-init"]["R_seeds"])
+    mean, half = confidence_interval(gains)
+    assert row["delta"] == pytest.approx(mean, rel=1e-3, abs=1e-9)
+    if math.isfinite(half):
+        assert row["delta_ci95"] == pytest.approx(half, rel=0.05, abs=1e-9)
     r_init, r_star = row["R_init"], row["R_star"]
     if r_init > 0:
         assert row["improvement_pct"] == pytest.approx(100 * (r_star / r_init - 1), abs=0.1)

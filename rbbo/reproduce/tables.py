@@ -3,7 +3,10 @@ Markdown out, and the Markdown parsed back (so a test can check the report again
 
 R_init and R* are the means of the confirmation evaluations (the identity basis and the
 recommendation, each on the run's fresh seeds at T_max, see :mod:`rbbo.optimizer`); the
-interval is mean ± t_{0.975, n-1} s / sqrt(n) over those n seeds. "apart" is true when R*'s
+interval is mean ± t_{0.975, n-1} s / sqrt(n) over those n seeds. Both are measured on the
+same seeds (common random numbers), so the paired difference R* - R_init per seed has its own,
+tighter interval ("paired"): the unpaired "apart" test below is the conservative one. "apart"
+is true when R*'s
 interval lies wholly above R_init's.
 """
 
@@ -23,8 +26,8 @@ from .plan import PAPER_TABLE1
 __all__ = ["confidence_interval", "format_markdown", "parse_markdown", "table_row",
            "write_csv"]  # fmt: skip
 
-COLUMNS = ["robot", "task", "N", "M", "C", "R_init", "R*", "improvement", "evaluations",
-           "wall time", "apart", "paper"]  # fmt: skip
+COLUMNS = ["robot", "task", "N", "M", "C", "R_init", "R*", "improvement", "R* - R_init (paired)",
+           "evaluations", "wall time", "apart", "paper"]  # fmt: skip
 
 
 def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
@@ -40,6 +43,10 @@ def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
     done = bool(result.R_init_seeds) and bool(result.R_star_seeds)
     improvement = 100.0 * (r_star / r_init - 1.0) if done and r_init > 0 else math.nan
     apart = done and math.isfinite(h_init + h_star) and r_star - h_star > r_init + h_init
+    paired = len(result.R_star_seeds) == len(result.R_init_seeds)
+    delta, h_delta = confidence_interval(
+        np.subtract(result.R_star_seeds, result.R_init_seeds) if paired and done else []
+    )
     return {
         "benchmark": benchmark,
         "robot": paper["robot"],
@@ -54,6 +61,9 @@ def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
         "seeds": len(result.R_init_seeds),
         "improvement_pct": improvement,
         "apart": apart,
+        "delta": delta,
+        "delta_ci95": h_delta,
+        "paired_apart": bool(math.isfinite(h_delta) and delta - h_delta > 0),
         "evaluations": result.evaluations,
         "failed": result.failed,
         "wall_s": result.wall_s,
@@ -96,13 +106,14 @@ def format_markdown(rows: list[dict[str, Any]]) -> str:
                  _interval(r["R_star"], r["R_star_ci95"]),
                  _num(r["improvement_pct"], "+.1f") + ("" if not math.isfinite(
                      r["improvement_pct"]) else " %"),
+                 _interval(r["delta"], r["delta_ci95"]),
                  str(r["evaluations"]), _duration(r["wall_s"]), "yes" if r["apart"] else "no",
                  f"+{r['paper_improvement_pct']:.1f} %"]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     ours = [r["improvement_pct"] for r in rows if math.isfinite(r["improvement_pct"])]
     paper = [r["paper_improvement_pct"] for r in rows]
     average = f"{np.mean(ours):+.1f} %" if ours else "-"
-    lines.append("| average | | | | | | | " + average + " | | | | "
+    lines.append("| average | | | | | | | " + average + " | | | | | "
                  f"+{np.mean(paper):.1f} % |")  # fmt: skip
     return "\n".join(lines)
 
@@ -139,7 +150,10 @@ def parse_markdown(text: str) -> list[dict[str, Any]]:
             if key != "improvement_pct":
                 half = match.group(2) if match else None
                 row[f"{key}_ci95"] = float(half) if half else math.nan
-        row["evaluations"] = int(cells[8])
-        row["apart"] = cells[10] == "yes"
+        match = _CELL.match(cells[8])
+        row["delta"] = float(match.group(1)) if match else math.nan
+        row["delta_ci95"] = float(match.group(2)) if match and match.group(2) else math.nan
+        row["evaluations"] = int(cells[9])
+        row["apart"] = cells[11] == "yes"
         rows.append(row)
     return rows
