@@ -348,10 +348,34 @@ class RBBO:
             callback(evaluation)
         return evaluation
 
+    def _final_confirmation(self) -> Evaluation | None:
+        """The last successful confirm-best if no search evaluation was recorded after it.
+
+        That basis was the recommendation when the search ended, and it stays the run's
+        answer: a GP refitted when the run is reloaded (from other starting hyperparameters)
+        may rank near-equal candidates differently, which must not unmake a finished run.
+        """
+        for e in reversed(self.history):
+            if e.kind == "confirm-best" and e.status == "ok":
+                return e
+            if e.kind not in CONFIRM_KINDS:
+                return None
+        return None
+
+    def _final_recommendation(self) -> Evaluation | None:
+        """The searched evaluation that a final confirmation measured, else :meth:`recommend`."""
+        final = self._final_confirmation()
+        if final is None:
+            return self.recommend()
+        for e in self._observations():
+            if np.array_equal(e.basis, final.basis) and math.isclose(e.T, self.config.t_max):
+                return e
+        return self.recommend()
+
     def _confirm(self, executor: Executor, callback) -> None:
         """Evaluate the identity and the recommendation on fresh seeds at T_max."""
         cfg = self.config
-        best = self.recommend()
+        best = self._final_recommendation()
         if best is None or cfg.n_confirm == 0:
             return
         wanted = {"confirm-init": identity_basis(cfg.sim_dim, cfg.control_dim),
@@ -370,7 +394,7 @@ class RBBO:
 
     def result(self) -> RBBOResult:
         """R_init, R* and the counts so far (R values from the confirmation evaluations)."""
-        best = self.recommend()
+        best = self._final_recommendation()
         confirmations = {}
         for e in self.history:
             if e.kind in CONFIRM_KINDS and e.status == "ok":
