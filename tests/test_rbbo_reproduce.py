@@ -154,3 +154,28 @@ def test_rl_stage_without_stable_baselines3_is_a_usage_error(monkeypatch, tmp_pa
     assert main(["reproduce", "--out", str(tmp_path / "x"), "--stages", "rl"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "softrom[rl]" in err[0] and "--stages" in err[0]
+
+
+def test_the_committed_report_matches_its_run_histories():
+    # docs/REPORT.md was written by `rbbo reproduce --report docs/REPORT.md` from the runs in
+    # docs/reproduction: every Table I number must be what those histories say.
+    from pathlib import Path
+
+    from rbbo.reproduce import PAPER_TABLE1
+
+    docs = Path(__file__).resolve().parent.parent / "docs"
+    rows = parse_markdown((docs / "REPORT.md").read_text())
+    assert rows
+    names = {(v["robot"], v["task"]): k for k, v in PAPER_TABLE1.items()}
+    for row in rows:
+        history = _history(
+            docs / "reproduction" / "runs" / f"{names[row['robot'], row['task']]}-boca"
+        )
+        confirm = {e["kind"]: e for e in history if e["kind"].startswith("confirm")}
+        assert row["evaluations"] == sum(not e["kind"].startswith("confirm") for e in history)
+        for key, kind in (("R_init", "confirm-init"), ("R_star", "confirm-best")):
+            mean, half = confidence_interval(confirm[kind]["R_seeds"])
+            assert row[key] == pytest.approx(mean, rel=1e-3), (row["robot"], key)
+            assert row[f"{key}_ci95"] == pytest.approx(half, rel=0.05), (row["robot"], key)
+        apart = (row["R_star"] - row["R_star_ci95"]) > (row["R_init"] + row["R_init_ci95"])
+        assert row["apart"] == apart

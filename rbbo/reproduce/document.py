@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from .figures import plot_bo_vs_boca, plot_directions, plot_perturbation, plot_study
-from .plan import PAPER_DIRECTIONS, ReproducePlan
+from .plan import _STAGES, PAPER_DIRECTIONS, ReproducePlan
 from .tables import confidence_interval, format_markdown, table_row, write_csv
 
 __all__ = ["write_report"]
@@ -106,12 +106,16 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
     lines += ["Made by (each session of this reproduction, in order):", "", "```"]
     lines += [s["command"] for s in sessions] + ["```", ""]
     cap = "" if plan.iterations is None else f" or {plan.iterations} evaluations"
+    beside = "; the BO run beside it had the same" if "bo" in plan.stages else ""
     lines += [f"Total wall time {total / 60:.1f} min on {_machine()}. Budget per benchmark "
-              f"{plan.budget_s / 60:g} min{cap} (BOCA; the BO run beside it had the same), "
+              f"{plan.budget_s / 60:g} min{cap} (BOCA{beside}), "
               f"{plan.workers} workers, controller {plan.controller}, M = {plan.sim_dim}, "
               f"C = {plan.control_dim}, T in [{plan.t_min:g}, {plan.t_max:g}] s, R measured "
               f"from t = {plan.settle_time:g} s, R_init and R* each on {plan.confirm_seeds} "
               "fresh MPC seeds (mean ± 95 % t-interval).", ""]  # fmt: skip
+    skipped = [stage for stage in _STAGES if stage not in plan.stages]
+    if skipped:
+        lines += [f"Not run in this reproduction (stages left out): {', '.join(skipped)}.", ""]
     if plan.planner_kwargs:
         lines += [f"MPC settings overridden: `{plan.planner_kwargs}`.", ""]
     if table:
@@ -130,9 +134,10 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                   f"benchmarks; the paired gain's interval excludes zero on {len(paired)} of "
                   f"{len(table)}.", ""]  # fmt: skip
         for r in table:
-            lines.append(f"- {r['benchmark']}: [convergence](runs/{Path(r['run']).name}/"
-                         f"convergence.png), best basis in runs/{Path(r['run']).name}/"
-                         "best_basis.npy")  # fmt: skip
+            run = f"runs/{Path(r['run']).name}"
+            lines.append(f"- {r['benchmark']}: [convergence]({run}/convergence.png), "
+                         f"[best basis]({run}/best_basis.npy), "
+                         f"[history]({run}/history.jsonl)")  # fmt: skip
         lines.append("")
     if panels:
         path = plot_bo_vs_boca(panels, out / "bo_vs_boca.png")
