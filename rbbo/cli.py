@@ -26,8 +26,6 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-import numpy as np
-
 __all__ = ["main", "parse_duration"]
 
 _DURATION = re.compile(r"^(?:(\d+(?:\.\d*)?)h)?(?:(\d+(?:\.\d*)?)m)?(?:(\d+(?:\.\d*)?)s)?$")
@@ -282,7 +280,7 @@ def cmd_optimize(args) -> int:
         )  # fmt: skip
         objective = make_objective(spec, args.sim_dim, args.control_dim)
     if spec["kind"] == "env":
-        problem["N"] = _node_count(objective)
+        problem["N"] = objective.node_count()
     out = args.out
     if out is None:
         name = args.env_id.split("/")[-1].split(":")[0]
@@ -293,16 +291,6 @@ def cmd_optimize(args) -> int:
         opt = RBBO.create(out, config, objective_spec=objective.spec(),
                           extra={"execution": execution, "problem": problem})  # fmt: skip
     return _execute(opt, objective, execution, iterations, budget, not args.no_progress)
-
-
-def _node_count(objective) -> int | None:
-    env = objective.make_env(np.eye(objective.sim_dim)[:, : objective.control_dim])
-    try:
-        return int(env.unwrapped.robot.num_nodes)
-    except AttributeError:
-        return None
-    finally:
-        env.close()
 
 
 def _objective_of(opt):

@@ -233,6 +233,16 @@ class EnvObjective:
         return controllers.run_episode(env, planner, float(T), seed=int(seed), progress=False,
                                        **kwargs)  # fmt: skip
 
+    def node_count(self) -> int | None:
+        """N, the robot's mesh nodes (None for an env without a robot mesh)."""
+        env = self.make_env(np.eye(self.sim_dim)[:, : self.control_dim])
+        try:
+            return int(env.unwrapped.robot.num_nodes)
+        except AttributeError:
+            return None
+        finally:
+            env.close()
+
     @staticmethod
     def step_seconds(env) -> float:
         """Seconds per env step: ``env.dt`` if the env has it (Gymnasium's convention), else

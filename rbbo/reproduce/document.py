@@ -18,7 +18,7 @@ import numpy as np
 
 from .figures import plot_bo_vs_boca, plot_directions, plot_perturbation, plot_study
 from .plan import _STAGES, PAPER_DIRECTIONS, ReproducePlan
-from .tables import confidence_interval, format_markdown, table_row, write_csv
+from .tables import confidence_interval, format_markdown, read_rows, table_row, write_csv
 
 __all__ = ["write_report"]
 
@@ -26,15 +26,6 @@ __all__ = ["write_report"]
 def _runs(out: Path, name: str) -> Path | None:
     path = out / "runs" / name
     return path if (path / "config.json").exists() else None
-
-
-def _rows(path: Path) -> list[dict[str, str]]:
-    import csv
-
-    if not path.exists():
-        return []
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def _directions(out: Path, plan: ReproducePlan) -> list[dict[str, Any]]:
@@ -56,7 +47,7 @@ def _directions(out: Path, plan: ReproducePlan) -> list[dict[str, Any]]:
 
 def _perturbation(out: Path) -> list[dict[str, Any]]:
     rows = [{"offset_deg": float(r["offset_deg"]), "R_mean": float(r["R_mean"])}
-            for r in _rows(out / "perturbation.csv")]  # fmt: skip
+            for r in read_rows(out / "perturbation.csv")]  # fmt: skip
     base = [r["R_mean"] for r in rows if r["offset_deg"] == 0.0]
     for r in rows:
         r["fraction"] = r["R_mean"] / base[0] if base and base[0] > 0 else math.nan
@@ -234,7 +225,7 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
 
 def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[str]:
     lines: list[str] = []
-    cost = _rows(out / "studies" / "cost_vs_c.csv")
+    cost = read_rows(out / "studies" / "cost_vs_c.csv")
     if cost:
         cs = [int(r["C"]) for r in cost]
         walls = [float(r["iteration_s"]) for r in cost]
@@ -250,7 +241,7 @@ def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[st
             slope = float(np.polyfit(np.log(cs), np.log(walls), 1)[0])
             lines += ["", f"log-log slope {slope:.2f} (1 = linear in C)."]
         lines.append("")
-    reward = _rows(out / "studies" / "reward_vs_c.csv")
+    reward = read_rows(out / "studies" / "reward_vs_c.csv")
     if reward:
         cs = sorted({int(r["C"]) for r in reward})
         stats = [confidence_interval([float(r["R_m"]) for r in reward if int(r["C"]) == c])

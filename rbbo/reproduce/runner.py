@@ -35,6 +35,7 @@ from ..objective import EnvObjective
 from ..optimizer import RBBO
 from ..store import RunDirectoryError, _atomic_write
 from .plan import ReproducePlan
+from .tables import read_rows
 
 __all__ = ["reproduce"]
 
@@ -51,14 +52,6 @@ def _objective(plan: ReproducePlan, benchmark: str, direction_deg: float | None 
                         controller=plan.controller, settle_time=plan.settle_time,
                         env_kwargs=env_kwargs,
                         planner_kwargs=dict(plan.planner_kwargs))  # fmt: skip
-
-
-def _node_count(objective: EnvObjective) -> int:
-    env = objective.make_env(np.eye(objective.sim_dim)[:, : objective.control_dim])
-    try:
-        return int(env.unwrapped.robot.num_nodes)
-    finally:
-        env.close()
 
 
 def _config(plan: ReproducePlan, fidelity: str, budget_s: float) -> RBBOConfig:
@@ -84,7 +77,7 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
         if opt.objective_spec != objective.spec():
             raise RunDirectoryError(f"{path} optimises another objective: {opt.objective_spec}")
     else:
-        problem = {"env_id": objective.env_id, "N": _node_count(objective)}
+        problem = {"env_id": objective.env_id, "N": objective.node_count()}
         execution = {"executor": plan.executor, "workers": plan.workers,
                      "timeout_s": plan.timeout_s}  # fmt: skip
         opt = RBBO.create(path, config, objective_spec=objective.spec(),
@@ -109,13 +102,6 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
     log(f"[{path.name}] done: {result.evaluations} evaluations, R_init {result.R_init}, "
         f"R* {result.R_star} ({result.wall_s / 60:.1f} min)")  # fmt: skip
     return path
-
-
-def _read_rows(path: Path) -> list[dict[str, str]]:
-    if not path.exists():
-        return []
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def _append_row(path: Path, row: dict[str, Any]) -> None:
@@ -154,7 +140,7 @@ def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Pa
     base_deg = math.degrees(float((opt.objective_spec.get("env_kwargs") or {})
                                   .get("direction", 0.0)))  # fmt: skip
     seeds = opt.config.fresh_seeds
-    done = {float(r["offset_deg"]) for r in _read_rows(path)}
+    done = {float(r["offset_deg"]) for r in read_rows(path)}
     offsets = [0.0] + [s * p for p in plan.perturbations_deg for s in (-1.0, 1.0)]
     for offset in offsets:
         if offset in done:
@@ -179,7 +165,7 @@ def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
     folder = out / "studies"
     env_id = plan.env_id(plan.direction_env)
     cost_path = folder / "cost_vs_c.csv"
-    done = {int(r["C"]) for r in _read_rows(cost_path)}
+    done = {int(r["C"]) for r in read_rows(cost_path)}
     todo = [c for c in plan.cost_cs if c not in done]
     if todo:
         # The cost study times Gauss-Newton whatever the plan's controller: pass on only the
@@ -191,7 +177,7 @@ def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
                                             log(f"[cost vs C] C = {r['C']}: "
                                                 f"{r['iteration_s']:.3f} s")))  # fmt: skip
     reward_path = folder / "reward_vs_c.csv"
-    done_pairs = {(int(r["C"]), int(r["seed"])) for r in _read_rows(reward_path)}
+    done_pairs = {(int(r["C"]), int(r["seed"])) for r in read_rows(reward_path)}
     for c in plan.reward_cs:
         seeds = [s for s in range(plan.study_seeds) if (c, s) not in done_pairs]
         if seeds:

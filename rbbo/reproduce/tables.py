@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 
 from ..intervals import confidence_interval
+from ..report import _duration
 from .plan import PAPER_TABLE1
 
-__all__ = ["confidence_interval", "format_markdown", "parse_markdown", "table_row",
+__all__ = ["confidence_interval", "format_markdown", "parse_markdown", "read_rows", "table_row",
            "write_csv"]  # fmt: skip
 
 COLUMNS = ["robot", "task", "N", "M", "C", "R_init", "R*", "improvement", "R* - R_init (paired)",
@@ -82,6 +83,15 @@ def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:
     return path
 
 
+def read_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a CSV file written by :func:`write_csv` or appended row by row (none if
+    it does not exist yet)."""
+    if not path.exists():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
 def _num(value: float, spec: str = ".4g") -> str:
     return "-" if value is None or not math.isfinite(value) else f"{value:{spec}}"
 
@@ -90,11 +100,6 @@ def _interval(mean: float, half: float) -> str:
     if not math.isfinite(mean):
         return "-"
     return _num(mean) + ("" if not math.isfinite(half) else f" ± {half:.2g}")
-
-
-def _duration(seconds: float) -> str:
-    m, s = divmod(round(seconds), 60)
-    return f"{m}m{s:02d}s"
 
 
 def format_markdown(rows: list[dict[str, Any]]) -> str:
