@@ -15,7 +15,12 @@ J(x) = R(x) - |r(x)|^2 - w_d n_lost(x) (see :mod:`controllers.cost`). One iterat
    mu then moves to the accepted value (or grows tenfold when none is accepted), so an
    iteration never lowers the objective. With ``max_step`` each step is first scaled into
    a trust region (no knot moves by more than ``max_step``): a gait then changes gradually
-   from replan to replan, where a full step can trade it for a one-horizon lunge.
+   from replan to replan, where a full step can trade it for a one-horizon lunge;
+4. with ``explore > 0`` the same rollout also runs that many random candidates around the
+   plan, under the same acceptance rule. A finite-difference gradient through contact sees
+   one basin of a kinked objective; on the quadruped and the tripod the pure step kept the
+   seed gait's basin (0.14 and 0.38 body lengths, mean of 3 seeds, t = 2..10 s) and 8
+   candidates found gaits an order of magnitude better (see ``controllers/defaults.py``).
 """
 
 from __future__ import annotations
@@ -47,6 +52,13 @@ class GaussNewtonSettings(PlannerSettings):
     max_step : float or None
         Trust region: each trial step is scaled down so that no knot moves by more than
         this (units of the bound); None: no limit.
+    explore : int
+        Random candidates added to the line search's rollout: the plan plus Gaussian noise of
+        ``explore_noise`` (units of the bound), seeded by ``reset``. They compete with the
+        Gauss-Newton steps under the same rule (the best is taken only if it raises J), so
+        a replan can leave a basin that the local step cannot see out of. 0: pure GN.
+    explore_noise : float
+        Standard deviation of the exploration candidates.
     """
 
     iterations: int = 1
@@ -54,6 +66,8 @@ class GaussNewtonSettings(PlannerSettings):
     damping: float = 0.01
     line_search: tuple[float, ...] = (0.1, 1.0, 10.0, 100.0)
     max_step: float | None = None
+    explore: int = 0
+    explore_noise: float = 0.15
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -64,6 +78,8 @@ class GaussNewtonSettings(PlannerSettings):
         _check_positive("damping", self.damping)
         if self.max_step is not None:
             _check_positive("max_step", self.max_step)
+        _check_int("explore", self.explore, low=0)
+        _check_positive("explore_noise", self.explore_noise)
         ls = np.asarray(self.line_search, dtype=float)
         if ls.ndim != 1 or ls.size == 0 or not np.all(np.isfinite(ls) & (ls > 0)):
             raise ValueError(f"line_search must be positive numbers, got {self.line_search!r}")
@@ -119,12 +135,17 @@ class GaussNewtonShooting(Planner):
             if s.max_step is not None:
                 steps = [dx * min(1.0, s.max_step / max(np.abs(dx).max(), 1e-300))
                          for dx in steps]  # fmt: skip
-            trials = np.stack([np.clip(x + dx, -1.0, 1.0) for dx in steps])
+            trials = [np.clip(x + dx, -1.0, 1.0) for dx in steps]
+            if s.explore:
+                noise = s.explore_noise * self.rng_.standard_normal((s.explore, x.size))
+                trials.extend(np.clip(x[None] + noise, -1.0, 1.0))
+            trials = np.stack(trials)
             trial = self._evaluate(state, trials.reshape(-1, *shape))
             best = int(np.argmax(trial.objective))
             if trial.objective[best] > j0:
                 plan.knots = trials[best].reshape(shape)
-                self.damping_ = float(mus[best])
+                if best < len(mus):  # a Gauss-Newton step: its damping carries on
+                    self.damping_ = float(mus[best])
                 history.append((j0, float(trial.objective[best])))
             else:
                 self.damping_ = float(mus[-1] * 10.0)

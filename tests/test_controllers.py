@@ -93,6 +93,29 @@ def test_gauss_newton_trust_region_bounds_every_knot_move(walker):
         GaussNewtonSettings(max_step=0.0)
 
 
+def test_gauss_newton_exploration_competes_under_the_same_acceptance_rule(walker):
+    # Exploration candidates run in the line search's rollout; whichever candidate wins,
+    # an iteration never lowers the objective, and a seed fixes the candidates.
+    settings = GaussNewtonSettings(horizon=8, knots=3, iterations=4, damping=10.0,
+                                   explore=6, explore_noise=0.3)  # fmt: skip
+    runs = []
+    for _ in range(2):
+        gn = GaussNewtonShooting(settings)
+        gn.reset(walker, seed=3)
+        gn.plan(walker)
+        runs.append((gn.plan_.knots.copy(), gn.last_["objectives"], gn.last_["rollouts"]))
+    (knots_a, history, rollouts), (knots_b, _, _) = runs
+    np.testing.assert_array_equal(knots_a, knots_b)
+    assert all(e >= s for s, e in history)
+    assert history[-1][1] > history[0][0]
+    x_size = 3 * 3
+    assert rollouts == 4 * ((x_size + 1) + len(settings.line_search) + 6)
+    with pytest.raises(ValueError, match="explore must be an integer >= 0, got -1"):
+        GaussNewtonSettings(explore=-1)
+    with pytest.raises(ValueError, match="explore_noise must be a finite number > 0, got 0"):
+        GaussNewtonSettings(explore_noise=0)
+
+
 def test_mppi_with_zero_noise_returns_its_warm_start(walker):
     mppi = MPPI(MPPISettings(horizon=6, knots=3, samples=4, noise=0.0))
     mppi.reset(walker, seed=0)

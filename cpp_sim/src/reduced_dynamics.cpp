@@ -232,9 +232,10 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
     return phi;
   };
 
-  auto refresh = [&](const VecX& v) -> bool {
+  auto refresh = [&](const VecX& v, bool restart_inverse) -> bool {
     // Replace K_0 by the stiffness at the current iterate (projected if A would not be
-    // positive definite), and restart the inverse from its exact inverse.
+    // positive definite), and restart the inverse from its exact inverse (not needed for
+    // the contact metric at the step's end, which uses the factor alone).
     tmp_e = s.q.tail(md) + h * v.tail(md);
     elastic_stiffness_fast(tmp_e, ws.k_el, ws);
     ++info.stiffness_evaluations;
@@ -247,7 +248,7 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
       a_llt.compute(a);
       if (a_llt.info() != Eigen::Success) return false;
     }
-    h_inv = a_llt.solve(MatX::Identity(m, m));
+    if (restart_inverse) h_inv = a_llt.solve(MatX::Identity(m, m));
     return true;
   };
 
@@ -281,7 +282,7 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
     if (it >= 1 && step_norm > 0.5 * prev_norm && !refreshed) {
       // Linear convergence too slow for A_0: build the real stiffness once.
       refreshed = true;
-      if (!refresh(v)) {
+      if (!refresh(v, true)) {
         info.diverged = true;
         return info;
       }
@@ -319,7 +320,7 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
   // RMS), with the stiffness at the step's start 3.5x, with the stiffness at its end equal.
   // So a step with contact candidates builds K_r once, at the end; other steps never do.
   if (cfg.contact == ContactModel::Staggered && near_ground(cfg, s.q, v)) {
-    if (!refresh(v)) {
+    if (!refresh(v, false)) {
       info.diverged = true;
       return info;
     }

@@ -65,9 +65,13 @@ double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace
   return en;
 }
 
-// The stiffness as two products: H G (fixed 9-row blocks, no dynamic GEMM per element), then
-// the lower triangle of G^T (H G) as one triangular GEMM.
+// The stiffness as two products: H G, element by element, then the lower triangle of
+// G^T (H G) as one triangular GEMM. An element's 9 rows of the row-major G are, in memory, the
+// column-major (M + 3) x 9 matrix G_k^T, so (H_k G_k)^T = G_k^T H_k (H_k symmetric) is a
+// product whose long dimension is contiguous and vectorises; the row-major 9 x (M + 3) form
+// of the same product measured 1.7x slower (143 elements, M = 20).
 void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace& ws) const {
+  using ColsOf9 = Eigen::Matrix<double, Eigen::Dynamic, 9>;
   const Eigen::Index md = qe.size();
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
   ws.fall.resize(9 * nk);
@@ -77,7 +81,8 @@ void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace
     Eigen::Map<Mat3> f(ws.fall.data() + 9 * k);
     f.diagonal().array() += 1.0;
     const Mat9 dp = wvol_[k] * material_.dpdf(f);
-    ws.hg.middleRows<9>(9 * k).noalias() = dp.lazyProduct(grad_.middleRows<9>(9 * k));
+    const Eigen::Map<const ColsOf9> gk_t(grad_.data() + 9 * k * md, md, 9);
+    Eigen::Map<ColsOf9>(ws.hg.data() + 9 * k * md, md, 9).noalias() = gk_t.lazyProduct(dp);
   }
   stiff.resize(md, md);
   stiff.triangularView<Eigen::Lower>() = grad_.transpose() * ws.hg;
