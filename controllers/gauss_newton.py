@@ -122,7 +122,7 @@ class GaussNewtonShooting(Planner):
     def _optimise(self, state: Any) -> None:
         s, plan = self.settings, self.plan_
         shape = plan.knots.shape
-        history = []
+        history, accepted = [], []
         for _ in range(s.iterations):
             ev, grad, jac = self.jacobian(state)
             j0 = float(ev.objective[0])
@@ -146,13 +146,16 @@ class GaussNewtonShooting(Planner):
                 plan.knots = trials[best].reshape(shape)
                 if best < len(mus):  # a Gauss-Newton step: its damping carries on
                     self.damping_ = float(mus[best])
+                accepted.append("step" if best < len(mus) else "explore")
                 history.append((j0, float(trial.objective[best])))
             else:
                 self.damping_ = float(mus[-1] * 10.0)
+                accepted.append("none")
                 history.append((j0, j0))
         self.last_.update(
             objective_start=history[0][0],
             objective_best=history[-1][1],
             objectives=history,
+            accepted=accepted,  # per iteration: "step", "explore" or "none"
             damping=self.damping_,
         )

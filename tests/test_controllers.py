@@ -108,6 +108,10 @@ def test_gauss_newton_exploration_competes_under_the_same_acceptance_rule(walker
     np.testing.assert_array_equal(knots_a, knots_b)
     assert all(e >= s for s, e in history)
     assert history[-1][1] > history[0][0]
+    assert len(gn.last_["accepted"]) == 4
+    assert set(gn.last_["accepted"]) <= {"step", "explore", "none"}
+    for (start, end), kind in zip(history, gn.last_["accepted"], strict=True):
+        assert (kind == "none") == (end == start)
     x_size = 3 * 3
     assert rollouts == 4 * ((x_size + 1) + len(settings.line_search) + 6)
     with pytest.raises(ValueError, match="explore must be an integer >= 0, got -1"):
