@@ -6,8 +6,7 @@ recommendation, each on the run's fresh seeds at T_max, see :mod:`rbbo.optimizer
 interval is mean ± t_{0.975, n-1} s / sqrt(n) over those n seeds. Both are measured on the
 same seeds (common random numbers), so the paired difference R* - R_init per seed has its own,
 tighter interval ("paired"): the unpaired "apart" test below is the conservative one. "apart"
-is true when R*'s
-interval lies wholly above R_init's.
+is true when R*'s interval lies wholly above R_init's.
 """
 
 from __future__ import annotations
