@@ -68,6 +68,20 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def rl_steps_arg(text: str) -> int | dict[str, int]:
+    """``--steps`` / ``--rl-steps``: N for every algorithm, or ppo=N,sac=N."""
+    from .rl import parse_steps
+
+    try:
+        steps = parse_steps(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    values = steps.values() if isinstance(steps, dict) else [steps]
+    if any(n < 1 for n in values):
+        raise argparse.ArgumentTypeError(f"env steps must be positive, got {text!r}")
+    return steps
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -130,8 +144,8 @@ def _parser() -> argparse.ArgumentParser:
     bas = sub.add_parser("baselines", help="PPO and SAC (Stable-Baselines3) beside the MPC")
     bas.add_argument("env_id", metavar="ENV_ID")
     bas.add_argument("--algo", default="ppo,sac", help="comma list of ppo, sac (default both)")
-    bas.add_argument("--steps", type=_positive_int, default=20_000,
-                     help="env steps to train each (default 20000)")  # fmt: skip
+    bas.add_argument("--steps", type=rl_steps_arg, default=20_000,
+                     help="env steps to train each, N or ppo=N,sac=N (default 20000)")  # fmt: skip
     bas.add_argument("--control-basis", default="identity",
                      help="comma list of identity, best (of --run) or PATH.npy")  # fmt: skip
     bas.add_argument("--run", type=Path, metavar="DIR", help="RBBO run directory (for best)")
@@ -407,6 +421,7 @@ def cmd_baselines(args) -> int:
         _check_controllers()
     with _bad_input():
         rl.require_sb3()
+        rl.steps_per_algo(args.steps, tuple(dict.fromkeys(algos)))
         bases, env_kwargs = rl.resolve_bases(args.control_basis.split(","), env_id, args.run)
     out = args.out or Path("runs") / f"baselines-{env_id.split('/')[-1]}"
     try:

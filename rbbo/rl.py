@@ -3,7 +3,9 @@
 Each (algorithm, basis) trains in ``OUT/<algo>-<basis>/``: ``checkpoints/step_<n>.zip`` every
 ``checkpoint_every`` env steps and at the end (SAC also keeps the latest replay buffer, so a
 resume continues the same run), ``final.zip``, ``run.json`` (what was trained: a re-run with
-the same OUT continues from the latest checkpoint and refuses another env, basis or seed) and
+the same OUT continues from the latest checkpoint and refuses another env, basis or seed; a
+larger ``steps`` trains the same run further, SAC keeping the replay-buffer size it was
+created with, the oldest transitions replaced) and
 ``progress.jsonl`` (append-only: per checkpoint the env steps, the training wall time and the
 evaluation). Every checkpoint is evaluated, so the table shows distance against simulator
 steps spent. The MPC planner (``controllers.default_planner(env_id, "mppi")``) runs beside
@@ -32,12 +34,40 @@ import numpy as np
 
 from .intervals import confidence_interval
 
-__all__ = ["ALGOS", "DEFAULT_STEPS", "evaluate_policy", "format_table", "resolve_bases",
-           "run_baselines", "t_interval"]  # fmt: skip
+__all__ = ["ALGOS", "DEFAULT_STEPS", "evaluate_policy", "format_table", "parse_steps",
+           "resolve_bases", "run_baselines", "steps_per_algo", "t_interval"]  # fmt: skip
 
 ALGOS = ("ppo", "sac")
 DEFAULT_STEPS = 20_000  # a few minutes per algorithm and basis on a 2-core laptop
 EVAL_SEED0 = 1000  # evaluation seeds 1000, 1001, ...: apart from the training seed
+
+
+def steps_per_algo(steps: int | dict[str, int], algos: tuple[str, ...]) -> dict[str, int]:
+    """Env steps of each algorithm: one number for all, or a mapping (PPO usually wants many
+    more samples than SAC, whose gradient steps cost more per sample)."""
+    per = dict.fromkeys(algos, steps) if not isinstance(steps, dict) else dict(steps)
+    missing, extra = set(algos) - set(per), set(per) - set(algos)
+    if missing or extra:
+        raise ValueError(f"steps per algorithm must name exactly {', '.join(algos)}; got "
+                         f"{', '.join(sorted(per)) or 'none'}")  # fmt: skip
+    for algo, n in per.items():
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"steps of {algo} must be a positive integer, got {n!r}")
+    return per
+
+
+def parse_steps(text: str) -> int | dict[str, int]:
+    """``"20000"`` (every algorithm) or ``"ppo=500000,sac=100000"``."""
+    text = text.strip()
+    try:
+        if "=" not in text:
+            return int(text)
+        pairs = [item.split("=", 1) for item in text.split(",") if item.strip()]
+        return {k.strip().lower(): int(v) for k, v in pairs}
+    except ValueError:
+        raise ValueError(f"steps must be N or ALGO=N[,ALGO=N], got {text!r}") from None
+
+
 _COLUMNS = ["env", "method", "basis", "final", "env_steps", "physics_steps", "wall_s", "seeds",
             "distance_m", "ci95_m", "distance_bl", "ci95_bl"]  # fmt: skip
 
@@ -330,7 +360,7 @@ def run_baselines(
     out: str | Path,
     *,
     algos: tuple[str, ...] = ALGOS,
-    steps: int = DEFAULT_STEPS,
+    steps: int | dict[str, int] = DEFAULT_STEPS,
     checkpoint_every: int | None = None,
     eval_seeds: int = 5,
     seconds: float = 10.0,
@@ -353,10 +383,11 @@ def run_baselines(
         Output directory; re-running with the same one continues from its checkpoints.
     algos : tuple of str
         Among ``"ppo"``, ``"sac"``.
-    steps : int
-        Env steps to train each (PPO rounds up to whole rollouts).
+    steps : int or dict of str to int
+        Env steps to train each (PPO rounds up to whole rollouts), or per algorithm
+        (``{"ppo": 500_000, "sac": 100_000}``).
     checkpoint_every : int or None
-        Env steps between checkpoints (default: a fifth of ``steps``).
+        Env steps between checkpoints (default: a fifth of each algorithm's ``steps``).
     eval_seeds, seconds, settle_time : int, float, float
         Evaluation episodes (seeds 1000, 1001, ...), their length and the settle time, s.
     seed : int
@@ -380,8 +411,8 @@ def run_baselines(
         raise ValueError(f"settle time {settle_time} s must lie in [0, {seconds}) s")
     if algos:
         require_sb3()
+    per_algo = steps_per_algo(steps, tuple(algos))
     out, env_kwargs = Path(out), dict(env_kwargs or {})
-    every = checkpoint_every or max(1, steps // 5)
     evaluation = (tuple(range(EVAL_SEED0, EVAL_SEED0 + eval_seeds)), float(seconds),
                   float(settle_time))  # fmt: skip
     for name, basis in bases.items():  # all refusals before any work
@@ -396,8 +427,10 @@ def run_baselines(
                 rows.append(_mpc(env_id, name, basis, out / f"mppi-{name}", env_kwargs,
                                  evaluation, progress))  # fmt: skip
             for algo in algos:
+                n = per_algo[algo]
                 rows += _train(algo, env_id, name, basis, out / f"{algo}-{name}", env_kwargs,
-                               steps, every, evaluation, seed, progress)  # fmt: skip
+                               n, checkpoint_every or max(1, n // 5), evaluation, seed,
+                               progress)  # fmt: skip
     finally:
         if threads is not None:
             _torch_threads(threads)

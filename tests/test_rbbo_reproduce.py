@@ -138,10 +138,18 @@ def test_plan_validates_and_round_trips():
     assert ReproducePlan.from_dict(plan.to_dict()) == plan
     assert plan.differences(ReproducePlan(benchmarks=["BeamWalk-v0"], budget_s=99.0)) == []
     assert plan.differences(ReproducePlan(benchmarks=["BeamWalk-v0"], seed=1)) == ["seed"]
+    longer_rl = ReproducePlan(benchmarks=["BeamWalk-v0"], rl_steps=10**5, rl_algos=["ppo"])
+    assert plan.differences(longer_rl) == []  # RL runs continue from their checkpoints
     np.testing.assert_allclose(ReproducePlan(directions=4).direction_angles_deg(),
                                [0, 90, 180, 270])  # fmt: skip
     with pytest.raises(ValueError, match="perturbations"):
         ReproducePlan(perturbations_deg=[0.0])
+    per_algo = ReproducePlan(rl_steps={"ppo": 500_000, "sac": 100_000})
+    assert ReproducePlan.from_dict(per_algo.to_dict()) == per_algo
+    with pytest.raises(ValueError, match="must name exactly ppo, sac; got ppo"):
+        ReproducePlan(rl_steps={"ppo": 500_000})
+    with pytest.raises(ValueError, match="steps of sac must be a positive integer, got 0"):
+        ReproducePlan(rl_steps={"ppo": 5, "sac": 0})
 
 
 def test_rl_stage_without_stable_baselines3_is_a_usage_error(monkeypatch, tmp_path, capsys):

@@ -60,7 +60,7 @@ def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
 
     # More steps: continues from the latest checkpoint, not from scratch.
     more = [*SMALL, "--no-mpc"]
-    more[1] = "384"
+    more[1] = "ppo=384"  # the per-algorithm form
     assert main(["baselines", ENV, "--algo", "ppo", "--out", str(out), *more]) == 0
     progress = _lines(out / "ppo-identity/progress.jsonl")
     assert [x["steps"] for x in progress] == [128, 256, 384]
@@ -82,6 +82,9 @@ def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
         (["--control-basis", "nope"], "nope"),
         (["--seconds", "2", "--settle-time", "3"], "--settle-time"),
         (["--steps", "0"], "--steps"),
+        (["--steps", "ppo=x"], "--steps"),
+        (["--steps", "ppo=0,sac=5"], "--steps"),
+        (["--algo", "ppo", "--steps", "sac=500"], "ppo"),
     ],
 )
 def test_bad_arguments(args, message, capsys, tmp_path):

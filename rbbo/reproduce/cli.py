@@ -81,6 +81,12 @@ def _settings(text: str) -> dict[str, Any]:
     return out
 
 
+def _rl_steps(text: str) -> int | dict[str, int]:
+    from ..cli import rl_steps_arg
+
+    return rl_steps_arg(text)
+
+
 def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.ArgumentParser:
     """Add the ``reproduce`` subcommand to ``sub`` (rbbo.cli's subparsers)."""
     p = sub.add_parser("reproduce", help="the paper's results (Table I, BO vs BOCA, "
@@ -118,8 +124,9 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--rl-benchmarks", type=_names(BENCHMARKS), default=defaults.rl_benchmarks,
                    help="benchmarks of the RL baselines (default CrossSwim-v0)")  # fmt: skip
     p.add_argument("--rl-algos", type=_names(("ppo", "sac")), default=defaults.rl_algos)
-    p.add_argument("--rl-steps", type=positive_int, default=defaults.rl_steps,
-                   help="env steps per RL method and basis (default 20000)")  # fmt: skip
+    p.add_argument("--rl-steps", type=_rl_steps, default=defaults.rl_steps,
+                   help="env steps per RL method and basis: N, or per method ppo=N,sac=N "
+                   "(default 20000)")  # fmt: skip
     p.add_argument("--mpc", type=_settings, default={},
                    help="MPC setting overrides, e.g. horizon=8,knots=2,samples=4")  # fmt: skip
     p.add_argument("--timeout", type=parse_duration, default=defaults.timeout_s,

@@ -195,7 +195,7 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
         table_md = out / "rl" / bench / "baselines.md"
         if table_md.exists():
             lines += [f"## RL baselines on {bench}", "",
-                      f"PPO and SAC (Stable-Baselines3, {plan.rl_steps} env steps each, "
+                      f"PPO and SAC (Stable-Baselines3, {_rl_budget(plan)}, "
                       "evaluated at every checkpoint) beside MPPI, on the identity basis and "
                       "on the Table I B_c (`rbbo-<hash>`), over the same "
                       f"{plan.confirm_seeds} seeds and {plan.t_max:g}-s episodes, distance "
@@ -260,3 +260,10 @@ def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[st
                   for c, (m, _), sd in zip(cs, stats, sds, strict=True)]  # fmt: skip
         lines.append("")
     return lines
+
+
+def _rl_budget(plan: ReproducePlan) -> str:
+    """The RL budget as the report says it: N env steps each, or per method."""
+    if not isinstance(plan.rl_steps, dict):
+        return f"{plan.rl_steps} env steps each"
+    return " and ".join(f"{a.upper()} {n}" for a, n in plan.rl_steps.items()) + " env steps"

@@ -87,8 +87,9 @@ class ReproducePlan:
         Benchmarks of the RL baselines (stage "rl").
     rl_algos : list of str
         Stable-Baselines3 algorithms, among "ppo" and "sac".
-    rl_steps : int
-        Env steps each RL method trains on each basis (identity and the Table I B_c).
+    rl_steps : int or dict of str to int
+        Env steps each RL method trains on each basis (identity and the Table I B_c): one
+        number for every method, or one per method (``{"ppo": 500000, "sac": 100000}``).
     planner_kwargs : dict
         Overrides of the controller's default settings (e.g. a tiny horizon for a test).
     timeout_s : float
@@ -120,7 +121,7 @@ class ReproducePlan:
     study_seconds: float = 10.0
     rl_benchmarks: list[str] = field(default_factory=lambda: ["CrossSwim-v0"])
     rl_algos: list[str] = field(default_factory=lambda: ["ppo", "sac"])
-    rl_steps: int = 20_000
+    rl_steps: int | dict[str, int] = 20_000
     planner_kwargs: dict[str, Any] = field(default_factory=dict)
     timeout_s: float = 1800.0
 
@@ -137,6 +138,9 @@ class ReproducePlan:
         bad = [a for a in self.rl_algos if a not in ("ppo", "sac")]
         if bad or not self.rl_algos:
             raise ValueError(f"unknown RL algorithm(s) {bad or self.rl_algos}; valid: ppo, sac")
+        from ..rl import steps_per_algo
+
+        steps_per_algo(self.rl_steps, tuple(self.rl_algos))  # raises on a bad value, by name
         self.direction_env = _short(self.direction_env)
         if self.direction_env not in BENCHMARKS:
             raise ValueError(f"unknown direction_env {self.direction_env!r}")
@@ -149,7 +153,7 @@ class ReproducePlan:
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         for name, low in (("workers", 1), ("sim_dim", 1), ("control_dim", 1), ("n_init", 0),
                           ("confirm_seeds", 2), ("seed", 0), ("directions", 1),
-                          ("study_seeds", 1), ("rl_steps", 1)):  # fmt: skip
+                          ("study_seeds", 1)):  # fmt: skip
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
@@ -174,9 +178,11 @@ class ReproducePlan:
             raise ValueError(f"unknown executor {self.executor!r}")
 
     # Settings that may change between sessions of one reproduction (how long and how wide
-    # it runs); everything else defines the experiment and must stay the same.
+    # it runs); everything else defines the experiment and must stay the same. The RL
+    # baselines train in their own folders, each continued from its latest checkpoint, so a
+    # later session may train them longer or on more benchmarks.
     RESUMABLE = ("budget_s", "direction_budget_s", "iterations", "workers", "executor",
-                 "timeout_s", "stages")  # fmt: skip
+                 "timeout_s", "stages", "rl_benchmarks", "rl_algos", "rl_steps")  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
