@@ -85,6 +85,10 @@ def test_rerun_resumes_without_new_evaluations(reproduction):
     document = json.loads((reproduction / "reproduce.json").read_text())
     assert len(document["sessions"]) == 2
     assert document["sessions"][0]["command"].startswith("rbbo reproduce --benchmarks")
+    # every session names the code that ran, and the report says it beside the command
+    assert all(s["source"].startswith("softrom ") for s in document["sessions"])
+    made_by = (reproduction / "REPORT.md").read_text().split("```")[1]
+    assert made_by.count("  # softrom ") == 2
 
 
 def test_report_only_rewrites_the_report_and_its_copy(reproduction, tmp_path):

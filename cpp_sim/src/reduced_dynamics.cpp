@@ -17,6 +17,22 @@
 
 namespace softrom {
 
+StepInputs ReducedModel::inputs() const {
+  StepInputs in{config, control_basis_, MatX()};
+  if (config.solver == Solver::Fast) {
+    const Eigen::Index m = basis_cols_;
+    const int md = elastic_dim();
+    const double h = config.dt;
+    MatX a = MatX::Identity(m, m);
+    a.bottomRightCorner(md, md) += (h * h + h * config.damping_beta) * k_rest_;
+    if (config.damping_alpha > 0.0) a.diagonal().array() += h * config.damping_alpha;
+    Eigen::LLT<MatX> llt(a);
+    // K_0 is positive semi-definite, so A_0 is positive definite for any valid setting.
+    if (llt.info() == Eigen::Success) in.rest_newton_inverse = llt.solve(MatX::Identity(m, m));
+  }
+  return in;
+}
+
 void ReducedModel::external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const {
   // B_r^T M g: uniform gravity only loads the translation columns, as the rotation (about
   // the centre of mass) and deformation columns are mass-orthogonal to them. Actuation acts on
@@ -32,12 +48,18 @@ void ReducedModel::external_forces(const StepInputs& in, const double* fc, VecX&
 
 // The loads of a step that do not depend on the new velocity: f_ext (gravity, actuation) and,
 // when swimming, the drag and its velocity Jacobian at the start of the step.
+// `jacobian`: also form J_d as a matrix (the fast solver uses its factor W alone, and forms
+// J_d only when a Newton matrix needs it).
 void ReducedModel::step_loads(const StepInputs& in, const ReducedState& s, const double* fc,
-                              Workspace& ws, StepInfo& info) const {
+                              bool jacobian, Workspace& ws, StepInfo& info) const {
   external_forces(in, fc, ws.f_ext);
+  ws.drag_cols = 0;
+  ws.drag_jacobian_formed = false;
   if (in.config.fluid_density > 0.0) {
     ScopedTimer timer(in.config.profile ? &info.time_drag : nullptr);
-    drag(in.config, s.q, s.qdot, ws.f_drag, ws.j_drag);
+    drag(in.config, s.q, s.qdot, ws.f_drag, jacobian ? &ws.j_drag : nullptr, ws.drag_w,
+         ws.drag_cols);
+    ws.drag_jacobian_formed = jacobian;
   }
 }
 
@@ -66,7 +88,7 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
 
   const VecX& f_ext = ws.f_ext;
   const bool swim = cfg.fluid_density > 0.0;
-  step_loads(in, s, fc, ws, info);
+  step_loads(in, s, fc, true, ws, info);
   ScopedTimer dyn_timer(cfg.profile ? &info.time_dynamics : nullptr);
 
   VecX v = s.qdot;
@@ -171,8 +193,9 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
   return info;
 }
 
-// Quasi-Newton on Phi: the first matrix is A_0 = I + (h^2 + h beta) K_0 + h alpha I - h J_d,
-// the implicit matrix at rest (its stiffness needs no evaluation), improved by BFGS updates of
+// Quasi-Newton on Phi: the first matrix is A_0 = I + (h^2 + h beta) K_0 + h alpha I, the
+// implicit matrix at rest without drag (it needs no stiffness evaluation and is the same for
+// every step of a call), improved by BFGS updates of
 // its inverse from the gradients the line search computes anyway. The stiffness K_r(q) is
 // evaluated only when the iteration stalls (a step no smaller than half the last), and then
 // replaces K_0. An Armijo backtracking line search on Phi makes every iteration descend; the
@@ -189,22 +212,33 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
   const bool swim = cfg.fluid_density > 0.0;
 
   const VecX& f_ext = ws.f_ext;
-  step_loads(in, s, fc, ws, info);
+  step_loads(in, s, fc, false, ws, info);
   ScopedTimer dyn_timer(cfg.profile ? &info.time_dynamics : nullptr);
 
-  // A = I + h^2 K + h beta K_0 + h alpha I - h J_d for a stiffness K (K_0 at first).
+  // A = I + h^2 K + h beta K_0 + h alpha I - h J_d for a stiffness K. The quasi-Newton solve
+  // starts from the inverse of A_0 (K = K_0, without the drag term): only a preconditioner, it
+  // is formed once per call (StepInputs), and the potential applies J_d = -W W^T as two thin
+  // products, never forming it. The Newton matrices that must be exact (a refresh, the
+  // contact metric) include J_d.
   MatX& a = ws.a;
   auto build_a = [&](const MatX& k) {
     a.setIdentity(m, m);
     a.bottomRightCorner(md, md) += (h * h) * k + (h * cfg.damping_beta) * k_rest_;
     if (cfg.damping_alpha > 0.0) a.diagonal().array() += h * cfg.damping_alpha;
-    if (swim) a -= h * ws.j_drag;
+    if (swim) {
+      if (!ws.drag_jacobian_formed) {
+        drag_jacobian(ws.drag_w, ws.drag_cols, ws.j_drag);
+        ws.drag_jacobian_formed = true;
+      }
+      a -= h * ws.j_drag;
+    }
   };
-  build_a(k_rest_);
-  Eigen::LLT<MatX> a_llt(a);
-  if (a_llt.info() != Eigen::Success) return step_reference(in, s, fc, ws);
+  // The factor of A is formed by refresh() below, the only place that needs it (every step
+  // that can meet the ground ends with one).
+  Eigen::LLT<MatX> a_llt(m);
+  if (in.rest_newton_inverse.rows() != m) return step_reference(in, s, fc, ws);
   MatX& h_inv = ws.h_inv;
-  h_inv = a_llt.solve(MatX::Identity(m, m));
+  h_inv = in.rest_newton_inverse;
 
   VecX tmp_e(md);
   // Phi(v) and its gradient (the reference's residual).
@@ -214,9 +248,12 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
     grad = v - s.qdot;
     double phi = 0.5 * grad.squaredNorm() - h * f_ext.dot(v) + psi;
     if (swim) {
-      const VecX jd = ws.j_drag * grad;
-      phi -= h * ws.f_drag.dot(v) + 0.5 * h * grad.dot(jd);
-      grad -= h * (ws.f_drag + jd);
+      // J_d (v - v_n) = -W (W^T (v - v_n)).
+      const auto w = ws.drag_w.leftCols(ws.drag_cols);
+      const VecX wg = w.transpose() * grad;
+      phi -= h * ws.f_drag.dot(v) - 0.5 * h * wg.squaredNorm();
+      grad -= h * ws.f_drag;
+      grad.noalias() += h * (w * wg);
     }
     grad -= h * f_ext;
     grad.tail(md) -= h * ws.f_el;

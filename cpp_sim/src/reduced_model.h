@@ -106,6 +106,11 @@ struct Workspace {
   RowMatX hg;
   MatX k_el, a, h_inv, j_drag, j_pen, tmp;
   VecX f_pen;
+  // The drag Jacobian as a factor, J_d = -W W^T (W: M x drag_cols, one column per face
+  // advancing into the fluid), for the fast solver's matrix-free products.
+  MatX drag_w;
+  Eigen::Index drag_cols = 0;
+  bool drag_jacobian_formed = false;
 };
 
 // What one call reads from the model besides its constant data: copied at entry, so a call
@@ -113,6 +118,9 @@ struct Workspace {
 struct StepInputs {
   ReducedConfig config;
   MatX control_basis;  // M x C
+  // (I + (h^2 + h beta) K_0 + h alpha I)^-1, the fast solver's starting inverse: formed once
+  // per call, not once per step (empty for the reference solver).
+  MatX rest_newton_inverse;
 };
 
 class ReducedModel {
@@ -143,7 +151,7 @@ class ReducedModel {
   ReducedConfig config;
   void set_control_basis(const MatX& bc) { control_basis_ = bc; }  // M x C, validated by caller
   const MatX& control_basis() const { return control_basis_; }
-  StepInputs inputs() const { return {config, control_basis_}; }
+  StepInputs inputs() const;
 
   ReducedState rest_state() const;
   // One step under control f_c (C). Never throws on divergence: it is reported in StepInfo.
@@ -189,13 +197,17 @@ class ReducedModel {
   StepInfo step_fast(const StepInputs& in, ReducedState& s, const double* fc,
                      Workspace& ws) const;
   void external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const;
-  void step_loads(const StepInputs& in, const ReducedState& s, const double* fc, Workspace& ws,
-                  StepInfo& info) const;
+  void step_loads(const StepInputs& in, const ReducedState& s, const double* fc, bool jacobian,
+                  Workspace& ws, StepInfo& info) const;
   bool finish_step(const StepInputs& in, ReducedState& s, VecX& v, const MatX& a,
                    const Eigen::LLT<MatX>& a_llt, StepInfo& info) const;
 
   bool near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v) const;
-  void drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f, MatX& jac) const;
+  // Drag at (q, qdot): the force f, the factor W of its Jacobian J_d = -W W^T (columns
+  // 0..cols-1 of w), and J_d itself when jac is not null.
+  void drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f, MatX* jac,
+            MatX& w, Eigen::Index& cols) const;
+  void drag_jacobian(const MatX& w, Eigen::Index cols, MatX& jac) const;
   int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                      const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses,
                      StepInfo& info) const;

@@ -95,7 +95,8 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
     sessions = document.get("sessions", [])
     total = sum(s.get("wall_s", 0.0) for s in sessions)
     lines += ["Made by (each session of this reproduction, in order):", "", "```"]
-    lines += [s["command"] for s in sessions] + ["```", ""]
+    lines += [s["command"] + (f"  # {s['source']}" if s.get("source") else "")
+              for s in sessions] + ["```", ""]  # fmt: skip
     cap = "" if plan.iterations is None else f" or {plan.iterations} evaluations"
     beside = "; the BO run beside it had the same" if "bo" in plan.stages else ""
     lines += [f"Total wall time {total / 60:.1f} min on {_machine()}. Budget per benchmark "

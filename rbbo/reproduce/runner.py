@@ -20,6 +20,7 @@ import csv
 import json
 import math
 import os
+import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -216,6 +217,26 @@ def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
     return folders
 
 
+def source_version() -> str:
+    """What code ran: the package version, and the git commit of the source tree when it is
+    a checkout (``+dirty`` when tracked files differ from it), so a report names its code."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        text = f"softrom {version('softrom')}"
+    except PackageNotFoundError:
+        text = "softrom (not installed)"
+    root = Path(__file__).resolve().parents[2]
+    try:
+        run = {"cwd": root, "capture_output": True, "text": True, "timeout": 10, "check": True}
+        commit = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], **run).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               **run).stdout.strip()  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return text
+    return f"{text}, git {commit}{'+dirty' if dirty else ''}" if commit else text
+
+
 def _load_plan(out: Path, plan: ReproducePlan) -> dict[str, Any]:
     path = out / "reproduce.json"
     if not path.exists():
@@ -248,7 +269,8 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     document = _load_plan(out, plan)
-    session = {"command": command or " ".join(sys.argv), "started": time.time(), "wall_s": 0.0}
+    session = {"command": command or " ".join(sys.argv), "started": time.time(), "wall_s": 0.0,
+               "source": source_version()}  # fmt: skip
     document["sessions"].append(session)
     started = time.perf_counter()
 
