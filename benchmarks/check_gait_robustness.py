@@ -9,10 +9,14 @@ in one numerical or physical choice:
 - ``dt / 2``: half the physics step, twice the frame skip (the same control period);
 - ``reference, tol 1e-5``: the exact Newton solver and a 10x tighter contact tolerance;
 - ``penalty contact``: the penalty ground instead of staggered projection;
-- ``friction 0.6``: mu = 0.6 instead of the env's default.
+- ``friction 0.6``: mu = 0.6 instead of the env's default;
+- ``M = 40``: twice the simulation space (its first modes are the same, so the actions are
+  the same forces): is B_r rich enough for this motion?
 
 A gait that the numerics made keeps its distance only in ``as recorded``; a physical one keeps
-it (within the spread of a chaotic contact system) in every row. Also printed, over the
+it (within the spread of a chaotic contact system) in every row. ``--closed-loop-dims 30 40``
+also plans a fresh closed-loop episode in each richer simulation space (the same seed and
+planner defaults): does the ranking of the C values survive a richer model? Also printed, over the
 episode: the smallest det F and the largest principal stretch of any tet (how far the reduced
 model is pushed), the deepest penetration, and the fraction of frames with no node within
 1 mm of the ground (airborne).
@@ -44,6 +48,9 @@ def replay(env_id: str, c: int, actions: np.ndarray, seed: int, start_step: int,
         kwargs.setdefault("frame_skip", round(period / kwargs["dt"]))
     env = gym.make(env_id, control_dim=c, **kwargs)
     try:
+        if "sim_dim" in kwargs and not _same_first_modes(env_id, env, c):
+            print(f"  (the first {c} modes of sim_dim = {kwargs['sim_dim']} differ: not replayed)")
+            return float("nan")
         env.reset(seed=seed)
         if adjust is not None:
             adjust(env)
@@ -58,6 +65,17 @@ def replay(env_id: str, c: int, actions: np.ndarray, seed: int, start_step: int,
         return float(info["distance"] - at_start)
     finally:
         env.close()
+
+
+def _same_first_modes(env_id: str, env: gym.Env, c: int) -> bool:
+    """Whether ``env``'s rigid and first ``c`` deformation columns of B_r are the default
+    env's (the same actions are then the same forces)."""
+    base = gym.make(env_id, control_dim=c)
+    a = np.asarray(base.unwrapped.subspace.basis)[:, : 6 + c]
+    base.close()
+    b = np.asarray(env.unwrapped.subspace.basis)[:, : 6 + c]
+    cosine = np.sum(a * b, axis=0) / (np.linalg.norm(a, axis=0) * np.linalg.norm(b, axis=0))
+    return bool(np.all(cosine > 1.0 - 1e-9))
 
 
 def deformation(env: gym.Env, states: list) -> dict[str, float]:
@@ -87,6 +105,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--start", type=float, default=2.0, help="distance measured from here (s)")
+    p.add_argument("--closed-loop-dims", type=int, nargs="*", default=[],
+                   help="also run the closed loop with these sim_dim (M) values")  # fmt: skip
     args = p.parse_args(argv)
 
     def numerics(env: gym.Env) -> None:
@@ -102,6 +122,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         ("reference, tol 1e-5", {}, numerics),
         ("penalty contact", {"contact": "penalty"}, None),
         ("friction 0.6", {"friction": 0.6}, None),
+        ("M = 40", {"sim_dim": 40}, None),
     ]
     rows = []
     for c in args.cs:
@@ -121,6 +142,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
             r = replay(args.env_id, c, res.actions, args.seed, start_step, kwargs, adjust)
             rows.append({"C": c, "variant": name, "distance_m": r, "closed_loop_m": closed, **d})
             print(f"  {name:<22} {r:+.3f} m  ({r / closed:.2f} of the closed loop)", flush=True)
+        for m in args.closed_loop_dims:
+            env = gym.make(args.env_id, control_dim=c, sim_dim=m)
+            planner, every = default_planner(args.env_id, args.planner, threads=1)
+            other = run_episode(env, planner, args.seconds, replan_every=every, seed=args.seed,
+                                progress=False).distance_between(args.start)  # fmt: skip
+            env.close()
+            rows.append({"C": c, "variant": f"closed loop, M = {m}", "distance_m": other,
+                         "closed_loop_m": closed, **d})  # fmt: skip
+            print(f"  closed loop, M = {m:<5} {other:+.3f} m  ({other / closed:.2f})", flush=True)
     return rows
 
 
