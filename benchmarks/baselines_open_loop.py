@@ -29,7 +29,7 @@ IDS = [f"softrom_gym/{name}" for name in softrom_gym.BENCHMARKS]
 
 
 def measure(env_id: str, args: argparse.Namespace) -> list[dict]:
-    env = gym.make(env_id, control_dim=args.control_dim)
+    env = gym.make(env_id, control_dim=args.control_dim, sim_dim=args.sim_dim)
     dt = env.get_wrapper_attr("dt")
     bound = env.get_wrapper_attr("action_bound")
     length = env.get_wrapper_attr("body_length")
@@ -102,6 +102,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--frequencies", type=float, nargs="+", default=[0.5, 1.0, 2.0, 3.0, 4.0])
     p.add_argument("--amplitudes", type=float, nargs="+", default=[0.5, 1.0])
     p.add_argument("--control-dim", type=int, default=3)
+    p.add_argument("--sim-dim", type=int, default=20, help="M, the simulation space's modes")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/open_loop"))
     p.add_argument("--json", action="store_true", help="one JSON object per benchmark's best")
