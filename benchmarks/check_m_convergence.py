@@ -1,0 +1,94 @@
+"""Does a gait's distance converge in M? Open-loop sinusoids in simulation spaces of growing M.
+
+For each benchmark, every sinusoid of the grid (``controllers.gait_grid``, identity basis,
+C = 3) runs open loop for ``--seconds`` in a simulation space of each ``--sim-dims``; the first
+modes of B_r are the same in every space (checked), so the same actions are the same forces.
+Printed: the three best gaits at the first M, and their distance (body lengths, from
+``--start``) at every M, with the trained cubature and with ``forces="exact"`` (every
+tetrahedron), which separates the truncation of B_r from the cubature's error.
+
+    python benchmarks/check_m_convergence.py [ENV_ID ...] [--sim-dims 20 40]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import gymnasium as gym
+import numpy as np
+
+import softrom_gym  # noqa: F401  (registers the envs)
+from controllers.gaits import gait_grid
+from softrom_gym.rom import build_reduced_model
+
+IDS = ["softrom_gym/CrossSwim-v0", "softrom_gym/CrossWalk-v0", "softrom_gym/BeamWalk-v0"]
+
+
+def distances(env_id: str, m: int, forces: str, gaits: list, seconds: float, start: float,
+              seed: int) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Body lengths travelled by each gait from ``start``, and B_r's rigid + first 3 modes."""
+    env = gym.make(env_id, sim_dim=m)
+    u = env.unwrapped
+    if forces == "exact":
+        settings = {"dt": float(u.model.dt), "direction": u.direction}
+        if u.task == "swim":
+            settings.update(contact="none", gravity=[0.0, 0.0, 0.0],
+                            fluid_density=float(u.model.fluid_density))  # fmt: skip
+        else:
+            settings.update(contact=u.model.contact, friction=float(u.model.friction))
+        u.model = build_reduced_model(u.robot, m, forces="exact", subspace=u.subspace,
+                                      control_basis=u.control_basis, **settings)  # fmt: skip
+    env.reset(seed=seed)
+    steps, first = round(seconds / u.dt), round(start / u.dt)
+    controls = np.stack([g.controls(steps, u.dt, u.action_bound) for g in gaits])
+    out = u.rollout(u.get_state(), controls)
+    moved = (out["com"][:, -1] - out["com"][:, first - 1]) @ u.direction / u.body_length
+    modes = np.asarray(u.subspace.basis)[:, :9]
+    env.close()
+    return np.where(out["diverged"], np.nan, moved), modes
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("env_ids", nargs="*", default=IDS)
+    p.add_argument("--sim-dims", type=int, nargs="+", default=[20, 40])
+    p.add_argument("--frequencies", type=float, nargs="+", default=[1.0, 2.0, 3.0, 4.0])
+    p.add_argument("--amplitudes", type=float, nargs="+", default=[1.0])
+    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--start", type=float, default=2.0)
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+    gaits = gait_grid(3, tuple(args.frequencies), tuple(args.amplitudes))
+    rows = []
+    for env_id in args.env_ids:
+        table: dict[tuple[int, str], np.ndarray] = {}
+        reference_modes = None
+        for m in args.sim_dims:
+            for forces in ("cubature", "exact"):
+                moved, modes = distances(env_id, m, forces, gaits, args.seconds, args.start,
+                                         args.seed)  # fmt: skip
+                if reference_modes is None:
+                    reference_modes = modes
+                cosine = np.sum(modes * reference_modes, axis=0) / (
+                    np.linalg.norm(modes, axis=0) * np.linalg.norm(reference_modes, axis=0)
+                )
+                if not np.all(cosine > 1.0 - 1e-9):
+                    print(f"{env_id}: the first modes at M = {m} differ from M = "
+                          f"{args.sim_dims[0]}'s; its row compares other forces")  # fmt: skip
+                table[(m, forces)] = moved
+        first = table[(args.sim_dims[0], "cubature")]
+        best = np.argsort(-np.nan_to_num(first, nan=-np.inf))[:3]
+        print(f"{env_id} (body lengths, t = {args.start:g}..{args.seconds:g} s, seed {args.seed})")
+        print(f"  {'gait':<28}" + "".join(f"  M={m:<3} cub  exact" for m in args.sim_dims))
+        for j in best:
+            cells = "".join(f"  {table[(m, 'cubature')][j]:+6.3f} {table[(m, 'exact')][j]:+6.3f}"
+                            for m in args.sim_dims)  # fmt: skip
+            print(f"  {gaits[j].label():<28}{cells}", flush=True)
+            rows.append({"env_id": env_id, "gait": gaits[j].label(),
+                         **{f"M{m}_{f}": float(table[(m, f)][j]) for m in args.sim_dims
+                            for f in ("cubature", "exact")}})  # fmt: skip
+    return rows
+
+
+if __name__ == "__main__":
+    main()
