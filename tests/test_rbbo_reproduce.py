@@ -191,3 +191,22 @@ def test_the_committed_report_matches_its_run_histories():
             assert row[f"{key}_ci95"] == pytest.approx(half, rel=0.05), (row["robot"], key)
         apart = (row["R_star"] - row["R_star_ci95"]) > (row["R_init"] + row["R_init_ci95"])
         assert row["apart"] == apart
+
+
+def test_a_compiled_core_older_than_its_sources_is_named(tmp_path, monkeypatch):
+    import os
+
+    import cpp_sim._core as core
+    from rbbo.reproduce.runner import _stale_build
+
+    (tmp_path / "cpp_sim" / "src").mkdir(parents=True)
+    source = tmp_path / "cpp_sim" / "src" / "step.cpp"
+    source.write_text("// a source")
+    (tmp_path / "CMakeLists.txt").write_text("# build")
+    module = tmp_path / "_core.so"
+    module.write_bytes(b"")
+    monkeypatch.setattr(core, "__file__", str(module))
+    os.utime(module, (1_000_000, 1_000_000))
+    assert _stale_build(tmp_path) == ", compiled core older than its sources"
+    os.utime(module, (4_000_000_000, 4_000_000_000))
+    assert _stale_build(tmp_path) == ""

@@ -234,7 +234,24 @@ def source_version() -> str:
                                **run).stdout.strip()  # fmt: skip
     except (OSError, subprocess.SubprocessError):
         return text
-    return f"{text}, git {commit}{'+dirty' if dirty else ''}" if commit else text
+    if not commit:
+        return text
+    return f"{text}, git {commit}{'+dirty' if dirty else ''}{_stale_build(root)}"
+
+
+def _stale_build(root: Path) -> str:
+    """``", compiled core older than its sources"`` when an editable install's extension
+    module predates a C++ source of the checkout (the commit would then misname the physics
+    that ran), else ``""``."""
+    try:
+        import cpp_sim._core as core
+
+        built = Path(core.__file__).stat().st_mtime
+        sources = [*(root / "cpp_sim" / "src").glob("*.[ch]*"), root / "CMakeLists.txt"]
+        newest = max(p.stat().st_mtime for p in sources if p.is_file())
+    except (ImportError, OSError, ValueError):
+        return ""
+    return ", compiled core older than its sources" if newest > built else ""
 
 
 def _load_plan(out: Path, plan: ReproducePlan) -> dict[str, Any]:
@@ -279,6 +296,11 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
         _atomic_write(out / "reproduce.json", json.dumps(document, indent=2).encode())
 
     save()
+    if "older than its sources" in session["source"]:
+        log(
+            "warning: the compiled core is older than the C++ sources of this checkout; "
+            "reinstall (pip install -e .) so that the recorded commit is the code that runs"
+        )
     runs = out / "runs"
     stages = set(plan.stages)
     per_bench = sum(s in stages for s in ("table", "bo"))
