@@ -58,6 +58,18 @@ def test_modal_derivatives_span_quadratic_deformation(robot, subspace):
     assert subspace.frequencies[subspace.num_modes :].min() > subspace.frequencies[0]
 
 
+def test_a_larger_simulation_space_contains_the_smaller(robot, subspace):
+    # What comparing M = 20 with M = 40 rests on (benchmarks/check_m_convergence.py): the
+    # larger B_r is a richer Galerkin space of the same robot, with the same first modes, so
+    # the same actions are the same forces.
+    larger = build_subspace(robot, 40)
+    m3 = np.repeat(robot.fem_model().mass, 3)
+    small, big = subspace.basis, larger.basis
+    outside = small - big @ (big.T @ (m3[:, None] * small))
+    assert np.sqrt(np.sum(m3[:, None] * outside**2, axis=0)).max() < 1e-8
+    np.testing.assert_allclose(big[:, : 6 + 3], small[:, : 6 + 3], atol=1e-8)
+
+
 def test_subspace_is_cached_on_disk(robot, subspace, monkeypatch):
     files = list(cache_dir().glob("subspace-*.npz"))
     assert files, "no cache file written"
