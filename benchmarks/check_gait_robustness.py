@@ -56,7 +56,11 @@ def make(env_id: str, c: int, **kwargs) -> gym.Env:
             default = np.asarray(env.unwrapped.subspace.basis)[:, 6:]
             env.close()
             mass = np.repeat(robot.fem_model().mass, 3)
-            basis = other.T @ (mass[:, None] * default) @ basis
+            mapped = other.T @ (mass[:, None] * default) @ basis
+            padded = np.zeros_like(mapped)
+            padded[: basis.shape[0]] = basis
+            # the same modes first: take the exact zero-padded B_c, not its round-off image
+            basis = padded if np.allclose(mapped, padded, atol=1e-9) else mapped
         kwargs["control_basis"] = basis
     return gym.make(env_id, control_dim=c, **kwargs)
 
