@@ -58,6 +58,18 @@ class _Slot:
         return f"process-{self.number}" + (f".{self.restarts}" if self.restarts else "")
 
 
+def _exit_code(process, wait_s: float = 2.0) -> int | None:
+    """The exit code of a worker whose pipe has closed.
+
+    A dying worker's end of the pipe closes before the OS lets the parent reap it, so
+    ``exitcode`` can still read ``None`` at the moment EOF arrives: wait briefly for it.
+    """
+    if process is None:
+        return None
+    process.join(timeout=wait_s)
+    return process.exitcode
+
+
 class ProcessExecutor(Executor):
     """Evaluate tasks on ``workers`` local processes.
 
@@ -182,7 +194,7 @@ class ProcessExecutor(Executor):
             pass
         if slot.process.is_alive():
             return
-        code = slot.process.exitcode
+        code = _exit_code(slot.process)
         self._stop(slot, kill=True)
         slot.failed_starts += 1
         if slot.failed_starts < 3:
@@ -202,12 +214,12 @@ class ProcessExecutor(Executor):
             try:
                 outcome = slot.conn.recv()
             except (EOFError, OSError):
-                code = slot.process.exitcode if slot.process else None
+                code = _exit_code(slot.process)
                 self._fail_and_replace(slot, f"worker crashed (exit code {code})")
                 return
             self._finish(slot, outcome)
         elif not slot.process.is_alive():
-            self._fail_and_replace(slot, f"worker crashed (exit code {slot.process.exitcode})")
+            self._fail_and_replace(slot, f"worker crashed (exit code {_exit_code(slot.process)})")
         elif self.timeout_s is not None and time.monotonic() - slot.started >= self.timeout_s:
             self._fail_and_replace(slot, f"timed out after {self.timeout_s:g} s")
 
