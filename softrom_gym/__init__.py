@@ -7,7 +7,8 @@ Importing the package registers the environments: ``softrom_gym/CrossSwim-v0``,
 
 from .export import export_trajectory
 from .registration import BENCHMARKS, register_envs
+from .transfer import map_control_basis
 
 register_envs()
 
-__all__ = ["BENCHMARKS", "export_trajectory", "register_envs"]
+__all__ = ["BENCHMARKS", "export_trajectory", "map_control_basis", "register_envs"]

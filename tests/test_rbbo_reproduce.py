@@ -18,7 +18,7 @@ TINY = [
     "--t-min", "1.5", "--t-max", "2", "--settle-time", "1", "--executor", "serial",
     "--workers", "1", "--cost-cs", "1,2", "--reward-cs", "1,2", "--study-seeds", "1",
     "--study-seconds", "2", "--perturbations", "10", "--no-progress", "--rl-steps", "64",
-    "--rl-algos", "ppo",
+    "--rl-algos", "ppo", "--transfer-sim-dim", "24",
     "--mpc", "horizon=8,period=4,knots=2,window=4,samples=4,seed_horizon=8",
 ]  # fmt: skip
 
@@ -39,7 +39,7 @@ def test_writes_every_table_and_figure(reproduction):
     for name in ["REPORT.md", "table1.md", "table1.csv", "reproduce.json", "perturbation.csv",
                  "bo_vs_boca.png", "directions.png", "perturbation.png",
                  "studies/cost_vs_c.csv", "studies/cost_vs_c.png", "studies/reward_vs_c.csv",
-                 "studies/reward_vs_c.png"]:  # fmt: skip
+                 "studies/reward_vs_c.png", "transfer.csv", "transfer_table.csv"]:  # fmt: skip
         assert (out / name).is_file(), name
     for run in ["CrossSwim-v0-boca", "CrossSwim-v0-bo", "CrossSwim-v0-dir000",
                 "CrossSwim-v0-dir180"]:  # fmt: skip
@@ -76,12 +76,33 @@ def test_report_table_matches_the_run_history(reproduction):
     assert row["M"] == 20 and row["C"] == 3 and row["N"] > 0
 
 
+def test_transfer_table_is_the_bases_measured_in_the_larger_model(reproduction):
+    from rbbo.reproduce.tables import read_rows
+
+    rows = read_rows(reproduction / "transfer.csv")
+    assert [(r["benchmark"], r["basis"], r["M"]) for r in rows] == [
+        ("CrossSwim-v0", "identity", "24"), ("CrossSwim-v0", "best", "24")]  # fmt: skip
+    history = _history(reproduction / "runs" / "CrossSwim-v0-boca")
+    seeds = next(e for e in history if e["kind"] == "confirm-init")["seeds"]
+    assert all(r["seeds"].split() == [str(s) for s in seeds] for r in rows)  # fresh seeds
+    init, best = ([float(v) for v in r["R_seeds"].split()] for r in rows)
+    report = (reproduction / "REPORT.md").read_text()
+    assert "## Table I's control spaces at M = 24" in report
+    line = next(x for x in report.splitlines() if x.startswith("| CrossSwim-v0 |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    mean, _ = confidence_interval(init)
+    assert float(cells[2].split(" ± ")[0]) == pytest.approx(mean, rel=1e-3, abs=1e-12)
+    mean, _ = confidence_interval(best)
+    assert float(cells[3].split(" ± ")[0]) == pytest.approx(mean, rel=1e-3, abs=1e-12)
+
+
 def test_rerun_resumes_without_new_evaluations(reproduction):
     runs = reproduction / "runs"
     before = {p.name: len(_history(p)) for p in runs.iterdir()}
     assert main([*TINY, "--out", str(reproduction)]) == 0
     after = {p.name: len(_history(p)) for p in runs.iterdir()}
     assert after == before
+    assert (reproduction / "transfer.csv").read_text().count("\n") == 1 + 2  # none measured again
     document = json.loads((reproduction / "reproduce.json").read_text())
     assert len(document["sessions"]) == 2
     assert document["sessions"][0]["command"].startswith("rbbo reproduce --benchmarks")
@@ -148,6 +169,12 @@ def test_plan_validates_and_round_trips():
                                [0, 90, 180, 270])  # fmt: skip
     with pytest.raises(ValueError, match="perturbations"):
         ReproducePlan(perturbations_deg=[0.0])
+    with pytest.raises(
+        ValueError, match="transfer_sim_dim must be an integer > sim_dim = 20, got 20"
+    ):
+        ReproducePlan(transfer_sim_dim=20)
+    assert "transfer_sim_dim" in plan.differences(ReproducePlan(benchmarks=["BeamWalk-v0"],
+                                                                transfer_sim_dim=60))  # fmt: skip
     per_algo = ReproducePlan(rl_steps={"ppo": 500_000, "sac": 100_000})
     assert ReproducePlan.from_dict(per_algo.to_dict()) == per_algo
     with pytest.raises(ValueError, match="must name exactly ppo, sac; got ppo"):

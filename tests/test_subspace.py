@@ -70,6 +70,29 @@ def test_a_larger_simulation_space_contains_the_smaller(robot, subspace):
     np.testing.assert_allclose(big[:, : 6 + 3], small[:, : 6 + 3], atol=1e-8)
 
 
+def test_a_control_basis_maps_to_the_same_actuation_in_a_larger_space(robot, subspace):
+    from softrom_gym import map_control_basis
+
+    big = build_subspace(robot, 40).deformation
+    b_c = np.linalg.qr(np.random.default_rng(3).normal(size=(20, 3)))[0]
+    mapped = map_control_basis(b_c, robot, 20, 40)
+    assert mapped.shape == (40, 3)
+    np.testing.assert_allclose(mapped.T @ mapped, np.eye(3), atol=1e-10)
+    # the full-space force field M B B_c f_c is the same in both models
+    np.testing.assert_allclose(big @ mapped, subspace.deformation @ b_c, atol=1e-8)
+    np.testing.assert_allclose(map_control_basis(mapped, robot, 40, 20), b_c, atol=1e-10)
+    # the first C modes coincide, so the identity maps to the exact zero-padded identity
+    np.testing.assert_array_equal(map_control_basis(np.eye(20)[:, :3], robot, 20, 40),
+                                  np.eye(40)[:, :3])  # fmt: skip
+    outside = np.linalg.qr(np.random.default_rng(4).normal(size=(40, 3)))[0]
+    with pytest.raises(ValueError, match=r"cannot represent .* relative residual 0\.\d+"):
+        map_control_basis(outside, robot, 40, 20)
+    with pytest.raises(ValueError, match=r"shape \(20, 3\), expected \(source_dim, C\) = \(40"):
+        map_control_basis(b_c, robot, 40, 60)
+    with pytest.raises(TypeError, match="expected a Robot or a softrom_gym env, got str"):
+        map_control_basis(b_c, "beam", 20, 40)
+
+
 def test_subspace_is_cached_on_disk(robot, subspace, monkeypatch):
     files = list(cache_dir().glob("subspace-*.npz"))
     assert files, "no cache file written"

@@ -111,6 +111,9 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--seed", type=int, default=defaults.seed)
     p.add_argument("--stages", type=_names(_STAGES), default=list(_STAGES),
                    help=f"comma list of {','.join(_STAGES)} (default: all)")  # fmt: skip
+    p.add_argument("--transfer-sim-dim", type=positive_int, default=defaults.transfer_sim_dim,
+                   help="M of the richer model the transfer stage measures Table I's bases in "
+                   f"(default {defaults.transfer_sim_dim})")  # fmt: skip
     p.add_argument("--direction-env", type=_names(BENCHMARKS), default=[defaults.direction_env])
     p.add_argument("--directions", type=positive_int, default=defaults.directions)
     p.add_argument("--direction-budget", type=parse_duration, default=defaults.direction_budget_s,
@@ -148,6 +151,7 @@ def _plan(args) -> ReproducePlan:
         controller=args.controller, sim_dim=args.sim_dim, control_dim=args.control_dim,
         t_min=args.t_min, t_max=args.t_max, settle_time=args.settle_time, n_init=args.init,
         confirm_seeds=args.confirm_seeds, seed=args.seed, stages=args.stages,
+        transfer_sim_dim=args.transfer_sim_dim,
         direction_env=args.direction_env[0], directions=args.directions,
         direction_budget_s=args.direction_budget, perturbations_deg=args.perturbations,
         cost_cs=args.cost_cs, reward_cs=args.reward_cs, study_seeds=args.study_seeds,

@@ -29,7 +29,7 @@ PAPER_TABLE1: dict[str, dict[str, Any]] = {
 PAPER_DIRECTIONS = {"min_improvement_pct": 46.45, "max_improvement_pct": 853.50,
                     "fraction_within_10deg": 0.80}  # fmt: skip
 
-_STAGES = ("table", "bo", "directions", "perturbation", "studies", "rl")
+_STAGES = ("table", "bo", "transfer", "directions", "perturbation", "studies", "rl")
 
 
 def _short(env_id: str) -> str:
@@ -68,7 +68,10 @@ class ReproducePlan:
         Seeds every run.
     stages : list of str
         Which parts to run: "table" (Table I, BOCA), "bo" (the BO run beside each BOCA run),
-        "directions", "perturbation", "studies".
+        "transfer" (Table I's two bases measured again at M = ``transfer_sim_dim``),
+        "directions", "perturbation", "studies", "rl".
+    transfer_sim_dim : int
+        M' of the transfer stage: a richer simulation space of the same robot (> M).
     direction_env : str
         The robot of the direction studies (the paper: the cross walking).
     directions : int
@@ -111,6 +114,7 @@ class ReproducePlan:
     confirm_seeds: int = 5
     seed: int = 0
     stages: list[str] = field(default_factory=lambda: list(_STAGES))
+    transfer_sim_dim: int = 40
     direction_env: str = "CrossWalk-v0"
     directions: int = 8
     direction_budget_s: float = 15 * 60.0
@@ -163,6 +167,14 @@ class ReproducePlan:
         if not self.settle_time < self.t_min < self.t_max:
             raise ValueError(f"need settle_time < t_min < t_max, got {self.settle_time}, "
                              f"{self.t_min}, {self.t_max}")  # fmt: skip
+        if "transfer" in self.stages and (
+            isinstance(self.transfer_sim_dim, bool) or not isinstance(self.transfer_sim_dim, int)
+            or self.transfer_sim_dim <= self.sim_dim
+        ):  # fmt: skip
+            raise ValueError(
+                f"transfer_sim_dim must be an integer > sim_dim = {self.sim_dim}, got "
+                f"{self.transfer_sim_dim!r} (or leave out stage 'transfer')"
+            )
         if self.control_dim > self.sim_dim:
             raise ValueError(f"control_dim {self.control_dim} exceeds sim_dim {self.sim_dim}")
         if any(not (math.isfinite(p) and 0 < p < 180) for p in self.perturbations_deg):

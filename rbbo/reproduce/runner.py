@@ -6,6 +6,7 @@ Layout of ``OUT`` (every part resumable: rerunning the same command continues it
     runs/<bench>-boca/        Table I's RBBO run (BOCA), one per benchmark
     runs/<bench>-bo/          the plain-BO run beside it (the BO-vs-BOCA figure)
     runs/<env>-dir<deg>/      one RBBO run per walking direction
+    transfer.csv              Table I's two bases measured again at M = transfer_sim_dim
     perturbation.csv          the direction-0 B_c evaluated off its direction
     studies/                  cost_vs_c.csv, reward_vs_c.csv
     table1.csv, table1.md, *.png, REPORT.md
@@ -37,6 +38,7 @@ from ..optimizer import RBBO
 from ..store import RunDirectoryError, _atomic_write
 from .plan import ReproducePlan
 from .tables import read_rows
+from .transfer import measure_transfer
 
 __all__ = ["reproduce"]
 
@@ -47,9 +49,10 @@ def _log_stderr(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def _objective(plan: ReproducePlan, benchmark: str, direction_deg: float | None = None):
+def _objective(plan: ReproducePlan, benchmark: str, direction_deg: float | None = None,
+               sim_dim: int | None = None) -> EnvObjective:  # fmt: skip
     env_kwargs = {} if direction_deg is None else {"direction": math.radians(direction_deg)}
-    return EnvObjective(plan.env_id(benchmark), plan.sim_dim, plan.control_dim,
+    return EnvObjective(plan.env_id(benchmark), sim_dim or plan.sim_dim, plan.control_dim,
                         controller=plan.controller, settle_time=plan.settle_time,
                         env_kwargs=env_kwargs,
                         planner_kwargs=dict(plan.planner_kwargs))  # fmt: skip
@@ -308,7 +311,7 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     budget += plan.directions * plan.direction_budget_s if "directions" in stages else 0.0
     log(f"reproduce into {out}: stages {', '.join(plan.stages)}; optimisation budgets add up "
         f"to {budget / 3600:.1f} h on {plan.workers} workers, plus the confirmations, the "
-        "perturbation and the studies (a rerun of the same command resumes)")  # fmt: skip
+        "transfer, perturbation and studies (rerun the same command to resume)")  # fmt: skip
     try:
         for bench in plan.benchmarks:
             objective = _objective(plan, bench)
@@ -318,6 +321,12 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
             if "bo" in stages:
                 optimise(runs / f"{bench}-bo", plan, objective, "bo", plan.budget_s, progress,
                          log)  # fmt: skip
+            if "transfer" in stages:
+                boca = runs / f"{bench}-boca"
+                if not (boca / "best_basis.npy").exists():
+                    raise RunDirectoryError(f"the transfer stage needs {bench}'s finished "
+                                            "Table I run (stage 'table')")  # fmt: skip
+                measure_transfer(out, plan, bench, boca, log)
             save()
         if "directions" in stages:
             for deg in plan.direction_angles_deg():

@@ -1,0 +1,122 @@
+"""Table I measured again in a richer simulation space (stage "transfer").
+
+RBBO searches B_c inside one simulation space (M = 20); a B_c can win there by exploiting
+what those M modes cannot represent (the README's known limit: walking distances are not
+converged in M). This stage carries R_init's and R*'s control spaces into the
+``transfer_sim_dim``-mode model of the same robot with
+:func:`softrom_gym.map_control_basis` (T B_c, T = B'^T M B: the same full-space actuation
+field, exactly, since our simulation spaces nest) and measures both again on the run's fresh
+seeds with the same MPC and episode. A gain that survives is the control space's; one that
+vanishes was the truncation's.
+
+Rows go to ``transfer.csv`` one measurement at a time (resumable), keyed by benchmark, basis
+("identity" or "best") and M.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..intervals import confidence_interval
+from .plan import ReproducePlan
+from .tables import _interval, _num, read_rows
+
+__all__ = ["format_transfer_markdown", "measure_transfer", "transfer_rows"]
+
+BASES = ("identity", "best")
+
+
+def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Path,
+                     log) -> Path:  # fmt: skip
+    """Measure the identity and the best B_c of ``run_dir`` at M = ``plan.transfer_sim_dim``
+    on the run's fresh seeds, appending to ``out / "transfer.csv"``."""
+    import gymnasium as gym
+
+    from softrom_gym import map_control_basis
+
+    from ..optimizer import RBBO
+    from ..store import RunDirectoryError
+    from .runner import _append_row, _evaluate_seeds, _objective
+
+    path = out / "transfer.csv"
+    m_to = plan.transfer_sim_dim
+    done = {(r["benchmark"], r["basis"]) for r in read_rows(path) if int(r["M"]) == m_to}
+    todo = [b for b in BASES if (benchmark, b) not in done]
+    if not todo:
+        return path
+    opt = RBBO.resume(run_dir, read_only=True)
+    best = opt.store.best_basis()
+    if best is None:
+        raise RunDirectoryError(f"{run_dir} has no best basis yet: run its 'table' stage first")
+    m_from, c = opt.config.sim_dim, opt.config.control_dim
+    bases = {"identity": np.eye(m_from)[:, :c], "best": np.asarray(best)}
+    env = gym.make(plan.env_id(benchmark))
+    robot = env.unwrapped.robot
+    env.close()
+    objective = _objective(plan, benchmark, sim_dim=m_to)
+    seeds = opt.config.fresh_seeds
+    for name in todo:
+        mapped = map_control_basis(bases[name], robot, m_from, m_to)
+        start = time.perf_counter()
+        values = _evaluate_seeds(plan, objective, mapped, seeds)
+        _append_row(path, {"benchmark": benchmark, "basis": name, "M": m_to,
+                           "R_mean": float(np.nanmean(values)),
+                           "R_seeds": " ".join(f"{v:.6g}" for v in values),
+                           "seeds": " ".join(str(s) for s in seeds),
+                           "wall_s": time.perf_counter() - start,
+                           "run": str(run_dir)})  # fmt: skip
+        log(f"[transfer] {benchmark} {name} B_c at M = {m_to}: R = {np.nanmean(values):.4g}")
+    return path
+
+
+def _seeds(row: dict[str, str]) -> list[float]:
+    return [float(v) for v in row["R_seeds"].split()]
+
+
+def transfer_rows(out: Path, table: list[dict[str, Any]], sim_dim: int) -> list[dict[str, Any]]:
+    """Per Table I row with both measurements at M = ``sim_dim``: R_init and R* there (mean,
+    95 % half-width), the improvement, the paired gain and whether the intervals are apart."""
+    measured = {(r["benchmark"], r["basis"]): _seeds(r) for r in read_rows(out / "transfer.csv")
+                if int(r["M"]) == sim_dim}  # fmt: skip
+    rows = []
+    for t in table:
+        init, best = measured.get((t["benchmark"], "identity")), measured.get((t["benchmark"],
+                                                                               "best"))  # fmt: skip
+        if init is None or best is None:
+            continue
+        r_init, h_init = confidence_interval(init)
+        r_star, h_star = confidence_interval(best)
+        gain, h_gain = confidence_interval(np.subtract(best, init) if len(best) == len(init)
+                                           else [])  # fmt: skip
+        rows.append({
+            "benchmark": t["benchmark"], "M_from": t["M"], "M": sim_dim,
+            "R_init_from": t["R_init"], "R_star_from": t["R_star"],
+            "improvement_from_pct": t["improvement_pct"],
+            "R_init": r_init, "R_init_ci95": h_init, "R_star": r_star, "R_star_ci95": h_star,
+            "improvement_pct": 100.0 * (r_star / r_init - 1.0) if r_init > 0 else math.nan,
+            "delta": gain, "delta_ci95": h_gain,
+            "apart": bool(math.isfinite(h_init + h_star) and r_star - h_star > r_init + h_init),
+            "paired_apart": bool(math.isfinite(h_gain) and gain - h_gain > 0),
+        })  # fmt: skip
+    return rows
+
+
+def format_transfer_markdown(rows: list[dict[str, Any]]) -> str:
+    """The transfer table: Table I's improvement beside the same bases measured at M'."""
+    m_from, m_to = rows[0]["M_from"], rows[0]["M"]
+    head = ["benchmark", f"improvement at M = {m_from}", f"R_init at M = {m_to}",
+            f"R* at M = {m_to}", f"improvement at M = {m_to}", "R* - R_init (paired)",
+            "apart"]  # fmt: skip
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        cells = [r["benchmark"], _num(r["improvement_from_pct"], "+.1f") + " %",
+                 _interval(r["R_init"], r["R_init_ci95"]), _interval(r["R_star"], r["R_star_ci95"]),
+                 _num(r["improvement_pct"], "+.1f") + " %", _interval(r["delta"], r["delta_ci95"]),
+                 "yes" if r["apart"] else "no"]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
