@@ -32,8 +32,8 @@ from collections.abc import Callable
 import gymnasium as gym
 import numpy as np
 
-import softrom_gym  # noqa: F401  (registers the envs)
 from controllers import default_planner, run_episode
+from softrom_gym import map_control_basis
 
 BASIS: np.ndarray | None = None  # --control-basis: B_c (M x C) instead of the first C modes
 DEFAULT_M = 20
@@ -49,18 +49,9 @@ def make(env_id: str, c: int, **kwargs) -> gym.Env:
     basis = BASIS if BASIS is not None else np.eye(DEFAULT_M)[:, :c]
     if m != DEFAULT_M or BASIS is not None:
         if m != DEFAULT_M:
-            env = gym.make(env_id, sim_dim=m)
-            robot, other = env.unwrapped.robot, np.asarray(env.unwrapped.subspace.basis)[:, 6:]
-            env.close()
             env = gym.make(env_id)
-            default = np.asarray(env.unwrapped.subspace.basis)[:, 6:]
+            basis = map_control_basis(basis, env, DEFAULT_M, m)
             env.close()
-            mass = np.repeat(robot.fem_model().mass, 3)
-            mapped = other.T @ (mass[:, None] * default) @ basis
-            padded = np.zeros_like(mapped)
-            padded[: basis.shape[0]] = basis
-            # the same modes first: take the exact zero-padded B_c, not its round-off image
-            basis = padded if np.allclose(mapped, padded, atol=1e-9) else mapped
         kwargs["control_basis"] = basis
     return gym.make(env_id, control_dim=c, **kwargs)
 
