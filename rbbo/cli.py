@@ -157,6 +157,9 @@ def _parser() -> argparse.ArgumentParser:
     bas.add_argument("--settle-time", type=float, default=2.0,
                      help="distance is measured from this time on, s (default 2)")  # fmt: skip
     bas.add_argument("--seed", type=int, default=0, help="training seed")
+    bas.add_argument("--workers", type=_positive_int, default=1,
+                     help="jobs (one per method and basis) at once, one process each "
+                     "(default 1)")  # fmt: skip
     bas.add_argument("--checkpoint-every", type=_positive_int,
                      help="env steps between checkpoints (default a fifth of --steps)")  # fmt: skip
     bas.add_argument("--no-mpc", action="store_true", help="RL only")
@@ -430,6 +433,7 @@ def cmd_baselines(args) -> int:
             checkpoint_every=args.checkpoint_every, eval_seeds=args.eval_seeds,
             seconds=args.seconds, settle_time=args.settle_time, seed=args.seed,
             mpc=not args.no_mpc, env_kwargs=env_kwargs, progress=not args.no_progress,
+            workers=args.workers,
         )  # fmt: skip
     except KeyboardInterrupt:
         print("\ninterrupted; run the same command again to continue from the last "

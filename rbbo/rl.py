@@ -307,7 +307,8 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
     return [rows[k] for k in sorted(rows)]
 
 
-def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress) -> dict:
+def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
+         threads: int | None = None) -> dict:  # fmt: skip
     import gymnasium as gym
 
     import controllers
@@ -337,9 +338,10 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress) -> dict:
     dist, physics, wall = [], [], []
     for s in seeds:
         try:
-            planner, every = controllers.default_planner(env_id, "mppi")
+            changes = {} if threads is None else {"threads": threads}
+            planner, every = controllers.default_planner(env_id, "mppi", **changes)
         except ValueError:  # not a benchmark: no tuned settings (as rbbo's EnvObjective)
-            planner, every = controllers.MPPI(), 1
+            planner, every = controllers.MPPI(threads=threads), 1
         env.physics_steps, t0 = 0, time.perf_counter()
         result = controllers.run_episode(env, planner, seconds, replan_every=every, seed=s,
                                          progress=progress)  # fmt: skip
@@ -369,6 +371,7 @@ def run_baselines(
     mpc: bool = True,
     env_kwargs: dict | None = None,
     progress: bool = True,
+    workers: int = 1,
 ) -> list[dict]:
     """Train (or resume) each algorithm on each basis, run the MPC beside them, write
     ``OUT/baselines.csv`` and ``OUT/baselines.md``.
@@ -397,7 +400,12 @@ def run_baselines(
     env_kwargs : dict, optional
         Extra ``gym.make`` arguments (an RBBO run's).
     progress : bool
-        tqdm bars on stderr.
+        tqdm bars on stderr (with ``workers`` > 1 a line per finished job instead, always).
+    workers : int
+        Jobs (one per algorithm and basis, one per MPC basis) run at once, each in its own
+        process with one thread; the rows, files and results are those of ``workers = 1``
+        (each job is seeded and writes only its own folder), and each job's wall time is
+        its own (on a machine with at least ``workers`` free cores it is comparable).
 
     Returns
     -------
@@ -419,27 +427,70 @@ def run_baselines(
         for algo in algos:
             _claim(out / f"{algo}-{name}", {"env_id": env_id, "env_kwargs": env_kwargs,
                    "algo": algo, "seed": seed, "basis": np.asarray(basis).tolist()})  # fmt: skip
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    jobs: list[tuple[str, tuple]] = []
+    for name, basis in bases.items():
+        if mpc:
+            jobs.append((f"mppi {name}", (_mpc, env_id, name, basis, out / f"mppi-{name}",
+                                          env_kwargs, evaluation)))  # fmt: skip
+        for algo in algos:
+            n = per_algo[algo]
+            jobs.append((f"{algo} {name}", (_train, algo, env_id, name, basis,
+                                            out / f"{algo}-{name}", env_kwargs, n,
+                                            checkpoint_every or max(1, n // 5), evaluation,
+                                            seed)))  # fmt: skip
     rows: list[dict] = []
-    threads = _torch_threads(1) if algos else None
-    try:
-        for name, basis in bases.items():
-            if mpc:
-                rows.append(_mpc(env_id, name, basis, out / f"mppi-{name}", env_kwargs,
-                                 evaluation, progress))  # fmt: skip
-            for algo in algos:
-                n = per_algo[algo]
-                rows += _train(algo, env_id, name, basis, out / f"{algo}-{name}", env_kwargs,
-                               n, checkpoint_every or max(1, n // 5), evaluation, seed,
-                               progress)  # fmt: skip
-    finally:
-        if threads is not None:
-            _torch_threads(threads)
+    for result in _run_jobs(jobs, workers, progress):
+        rows += result if isinstance(result, list) else [result]
     with open(out / "baselines.csv", "w", newline="", encoding="utf-8") as f:
         writer = csv.DictWriter(f, fieldnames=_COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
     (out / "baselines.md").write_text(format_table(rows, markdown=True) + "\n")
     return rows
+
+
+def _job(call: tuple, progress: bool, threads: int | None):
+    """Run one job (``_mpc`` or ``_train`` and its arguments) with one torch thread."""
+    fn, *args = call
+    old = _torch_threads(1)
+    try:
+        extra = {"threads": threads} if fn is _mpc and threads is not None else {}
+        return fn(*args, progress, **extra)
+    finally:
+        _torch_threads(old)
+
+
+def _run_jobs(jobs: list[tuple[str, tuple]], workers: int, progress: bool) -> list:
+    """The jobs' results in job order: in this process, or ``workers`` at a time in spawned
+    processes (a failed job does not stop the others; the first failure is raised after
+    all have ended, and the finished jobs' folders keep their work)."""
+    if workers == 1 or len(jobs) <= 1:
+        return [_job(call, progress, None) for _, call in jobs]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    results: dict[int, Any] = {}
+    errors: list[tuple[str, BaseException]] = []
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+        futures = {pool.submit(_job, call, False, 1): (i, label)
+                   for i, (label, call) in enumerate(jobs)}  # fmt: skip
+        for future in as_completed(futures):
+            i, label = futures[future]
+            try:
+                results[i] = future.result()
+            except Exception as exc:  # reported below, after the other jobs have finished
+                errors.append((label, exc))
+                print(f"[baselines] {label} failed: {exc}", file=sys.stderr, flush=True)
+                continue
+            print(f"[baselines] {label} done ({len(results)}/{len(jobs)})", file=sys.stderr,
+                  flush=True)  # fmt: skip
+    if errors:
+        label, exc = errors[0]
+        raise RuntimeError(f"baseline job {label!r} failed: {exc}") from exc
+    return [results[i] for i in range(len(jobs))]
 
 
 def _reached(rows: list[dict]) -> list[str]:

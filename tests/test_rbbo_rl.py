@@ -73,6 +73,21 @@ def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
     assert "holds another run" in capsys.readouterr().err
 
 
+def test_parallel_jobs_give_the_sequential_results(tmp_path, capsys):
+    # each job is seeded and owns its folder, so two processes reproduce one process's rows
+    tables = []
+    for workers in ("1", "2"):
+        out = tmp_path / f"w{workers}"
+        assert main(["baselines", ENV, "--algo", "ppo", "--out", str(out), *SMALL,
+                     "--workers", workers]) == 0  # fmt: skip
+        with open(out / "baselines.csv", newline="") as f:
+            tables.append([{k: v for k, v in r.items() if k != "wall_s"}
+                           for r in csv.DictReader(f)])  # fmt: skip
+    assert [r["method"] for r in tables[0]] == ["mppi", "ppo", "ppo"]
+    assert tables[1] == tables[0]
+    assert "[baselines] ppo identity done" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -85,6 +100,7 @@ def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
         (["--steps", "ppo=x"], "--steps"),
         (["--steps", "ppo=0,sac=5"], "--steps"),
         (["--algo", "ppo", "--steps", "sac=500"], "ppo"),
+        (["--workers", "0"], "--workers"),
     ],
 )
 def test_bad_arguments(args, message, capsys, tmp_path):
