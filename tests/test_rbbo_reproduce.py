@@ -96,6 +96,30 @@ def test_transfer_table_is_the_bases_measured_in_the_larger_model(reproduction):
     assert float(cells[3].split(" ± ")[0]) == pytest.approx(mean, rel=1e-3, abs=1e-12)
 
 
+def test_status_says_what_each_part_has_done(reproduction, capsys, tmp_path):
+    assert main(["reproduce", "--out", str(reproduction), "--status"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    table = next(x for x in lines if x.startswith("table "))
+    assert "CrossSwim-v0" in table and "done: 3 evaluations" in table
+    assert any("2 of 2 bases measured at M = 24" in x for x in lines)
+    assert any(x.startswith("perturbation") and "3 of 3 offsets" in x for x in lines)
+    assert any(x.startswith("rl ") and "ppo-identity 64/64 steps" in x for x in lines)
+    assert lines[-1].startswith("optimisation budget left: 0.00 h")
+    # a longer budget given on the command line: a rerun would search on, so it is counted
+    stored = json.loads((reproduction / "reproduce.json").read_text())
+    stored["plan"]["iterations"] = None  # as a budget-bound plan: the budget decides
+    (tmp_path / "budget").mkdir()
+    (tmp_path / "budget" / "reproduce.json").write_text(json.dumps(stored))
+    (tmp_path / "budget" / "runs").symlink_to(reproduction / "runs")
+    assert main(["reproduce", "--out", str(tmp_path / "budget"), "--status", "--stages",
+                 "table", "--budget-per-benchmark", "1h"]) == 0  # fmt: skip
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 2 and "min more to search" in lines[0]
+    assert 0.9 < float(lines[-1].split("left: ")[1].split(" h")[0]) <= 1.0
+    assert main(["reproduce", "--out", str(tmp_path / "none"), "--status"]) == 2
+    assert "no reproduce.json" in capsys.readouterr().err
+
+
 def test_rerun_resumes_without_new_evaluations(reproduction):
     runs = reproduction / "runs"
     before = {p.name: len(_history(p)) for p in runs.iterdir()}

@@ -140,6 +140,10 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--report", type=Path, metavar="PATH",
                    help="also write the report here, its links relative to it "
                    "(e.g. docs/REPORT.md)")  # fmt: skip
+    p.add_argument("--status", action="store_true",
+                   help="print what each part of the reproduction in --out has done and the "
+                   "budget left (the stored plan; --stages and budgets given here override "
+                   "it), and exit")  # fmt: skip
     p.add_argument("--no-progress", action="store_true")
     return p
 
@@ -159,6 +163,30 @@ def _plan(args) -> ReproducePlan:
         rl_algos=args.rl_algos, rl_steps=args.rl_steps, planner_kwargs=args.mpc,
         timeout_s=args.timeout,
     )  # fmt: skip
+
+
+def _status(args, usage_error: type[Exception]) -> int:
+    import json
+    from dataclasses import replace
+
+    from .status import status_lines
+
+    path = args.out / "reproduce.json"
+    if not path.exists():
+        raise usage_error(f"{args.out} has no reproduce.json: no reproduction there yet")
+    stored = ReproducePlan.from_dict(json.loads(path.read_text())["plan"])
+    given = {a.split("=")[0] for a in args.argv if a.startswith("--")}
+    changes = {field: getattr(args, name) for flag, name, field in (
+        ("--stages", "stages", "stages"), ("--budget-per-benchmark", "budget_per_benchmark",
+         "budget_s"), ("--direction-budget", "direction_budget", "direction_budget_s"),
+        ("--rl-benchmarks", "rl_benchmarks", "rl_benchmarks"), ("--rl-steps", "rl_steps",
+         "rl_steps"), ("--rl-algos", "rl_algos", "rl_algos")) if flag in given}  # fmt: skip
+    try:
+        plan = replace(stored, **changes)
+    except (ValueError, TypeError) as exc:
+        raise usage_error(str(exc)) from exc
+    print("\n".join(status_lines(args.out, plan)))
+    return 0
 
 
 def command(args, usage_error: type[Exception]) -> int:
@@ -185,6 +213,8 @@ def command(args, usage_error: type[Exception]) -> int:
                 default_planner(plan.env_id(bench), plan.controller, **plan.planner_kwargs)
     except (ValueError, TypeError) as exc:
         raise usage_error(str(exc)) from exc
+    if args.status:
+        return _status(args, usage_error)
     if args.report_only:
         path = args.out / "reproduce.json"
         if not path.exists():

@@ -1,0 +1,98 @@
+"""Where a reproduction stands (``rbbo reproduce --out DIR --status``): what each planned part
+has done, read from the run directories without running anything, and the optimisation
+budget still to spend. A reproduction of the default plan spans several sessions; this is how
+the next one knows what is left."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .plan import ReproducePlan
+from .tables import read_rows
+
+__all__ = ["status_lines"]
+
+
+def _run_state(path: Path, budget_s: float, iterations: int | None) -> tuple[str, float]:
+    """One optimisation run's state and the budget it has left, seconds."""
+    if not (path / "config.json").exists():
+        return "not started", budget_s
+    from ..report import load
+
+    result = load(path).result()
+    capped = iterations is not None and result.evaluations >= iterations
+    left = 0.0 if capped else max(0.0, budget_s - result.wall_s)
+    confirmed = bool(result.R_init_seeds and result.R_star_seeds)
+    if confirmed and left == 0.0:
+        return (f"done: {result.evaluations} evaluations in {result.wall_s / 60:.1f} min, "
+                f"R_init {result.R_init:.4g}, R* {result.R_star:.4g}"), 0.0  # fmt: skip
+    if confirmed:  # a larger budget than it ran to: it will search on and confirm again
+        text = (f"confirmed after {result.evaluations} evaluations in "
+                f"{result.wall_s / 60:.1f} min; {left / 60:.1f} min more to search")  # fmt: skip
+        return text, left
+    if left == 0.0:
+        return f"confirming ({result.evaluations} evaluations)", 0.0
+    return (f"searching: {result.evaluations} evaluations, {result.wall_s / 60:.1f} of "
+            f"{budget_s / 60:g} min"), left  # fmt: skip
+
+
+def _rl_state(folder: Path, plan: ReproducePlan) -> str:
+    from ..rl import steps_per_algo
+
+    if not folder.exists():
+        return "not started"
+    target = steps_per_algo(plan.rl_steps, tuple(plan.rl_algos))
+    parts = []
+    for run in sorted(p for p in folder.iterdir() if p.is_dir()):
+        algo = run.name.split("-")[0]
+        if algo == "mppi":
+            parts.append(f"{run.name} {'done' if (run / 'episodes.json').exists() else '-'}")
+            continue
+        log = run / "progress.jsonl"
+        lines = log.read_text().splitlines() if log.exists() else []
+        steps = max((json.loads(x)["steps"] for x in lines if x), default=0)
+        parts.append(f"{run.name} {steps}/{target.get(algo, '?')} steps")
+    return ", ".join(parts) or "not started"
+
+
+def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
+    """One line per planned part of ``plan`` in ``out``, then the budget left."""
+    runs = out / "runs"
+    stages = set(plan.stages)
+    lines, left = [], 0.0
+    for bench in plan.benchmarks:
+        for stage, fidelity in (("table", "boca"), ("bo", "bo")):
+            if stage in stages:
+                state, rest = _run_state(runs / f"{bench}-{fidelity}", plan.budget_s,
+                                         plan.iterations)  # fmt: skip
+                lines.append(f"{stage:<12} {bench:<20} {state}")
+                left += rest
+        if "transfer" in stages:
+            m = plan.transfer_sim_dim
+            done = [r for r in read_rows(out / "transfer.csv")
+                    if r["benchmark"] == bench and int(r["M"]) == m]  # fmt: skip
+            lines.append(f"{'transfer':<12} {bench:<20} {len(done)} of 2 bases measured at "
+                         f"M = {plan.transfer_sim_dim}")  # fmt: skip
+    if "directions" in stages:
+        for deg in plan.direction_angles_deg():
+            name = f"{plan.direction_env}-dir{deg:03.0f}"
+            state, rest = _run_state(runs / name, plan.direction_budget_s, plan.iterations)
+            lines.append(f"{'directions':<12} {name:<20} {state}")
+            left += rest
+    if "perturbation" in stages:
+        n = 1 + 2 * len(plan.perturbations_deg)
+        lines.append(f"{'perturbation':<12} {plan.direction_env:<20} "
+                     f"{len(read_rows(out / 'perturbation.csv'))} of {n} offsets")  # fmt: skip
+    if "studies" in stages:
+        cost = len(read_rows(out / "studies" / "cost_vs_c.csv"))
+        reward = len(read_rows(out / "studies" / "reward_vs_c.csv"))
+        lines.append(f"{'studies':<12} {plan.direction_env:<20} cost vs C {cost} of "
+                     f"{len(plan.cost_cs)}, reward vs C {reward} of "
+                     f"{len(plan.reward_cs) * plan.study_seeds}")  # fmt: skip
+    if "rl" in stages:
+        for bench in plan.rl_benchmarks:
+            lines.append(f"{'rl':<12} {bench:<20} {_rl_state(out / 'rl' / bench, plan)}")
+    lines.append(f"optimisation budget left: {left / 3600:.2f} h on {plan.workers} workers, "
+                 "plus confirmations, transfer, perturbation, studies and RL")  # fmt: skip
+    return lines
