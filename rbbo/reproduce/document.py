@@ -144,8 +144,11 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                   f"same robot (T B_c with T = B_{m_to}^T M B_{plan.sim_dim}, the same "
                   "full-space actuation, since the spaces nest) and measured again with the "
                   "same MPC on the same fresh seeds ([transfer.csv](transfer.csv)). A gain "
-                  "that survives is the control space's; one that vanishes was the "
-                  "truncation's.", "", format_transfer_markdown(transfer), ""]  # fmt: skip
+                  "that survives the richer model is less likely the truncation's; one that "
+                  f"vanishes was. M = {m_to} is not the full-space robot either (the README's "
+                  "known limit: distances keep changing with M), so this is a robustness "
+                  "check, not a converged answer.", "", format_transfer_markdown(transfer),
+                  ""]  # fmt: skip
         kept = sum(r["paired_apart"] for r in transfer)
         lines += [f"At M = {m_to} the paired gain's interval excludes zero on {kept} of "
                   f"{len(transfer)} benchmarks; intervals apart on "

@@ -6,8 +6,9 @@ converged in M). This stage carries R_init's and R*'s control spaces into the
 ``transfer_sim_dim``-mode model of the same robot with
 :func:`softrom_gym.map_control_basis` (T B_c, T = B'^T M B: the same full-space actuation
 field, exactly, since our simulation spaces nest) and measures both again on the run's fresh
-seeds with the same MPC and episode. A gain that survives is the control space's; one that
-vanishes was the truncation's.
+seeds with the same MPC and episode. A gain that survives the richer model is less likely
+the truncation's; one that vanishes was. The richer model is not converged either (distances
+keep changing with M), so this is a robustness check, not the full-space answer.
 
 Rows go to ``transfer.csv`` one measurement at a time (resumable), keyed by benchmark, basis
 ("identity" or "best") and M.
