@@ -262,3 +262,20 @@ def test_a_compiled_core_older_than_its_sources_is_named(tmp_path, monkeypatch):
     assert _stale_build(tmp_path) == ", compiled core older than its sources"
     os.utime(module, (4_000_000_000, 4_000_000_000))
     assert _stale_build(tmp_path) == ""
+
+
+def test_a_table_with_an_unconfirmed_benchmark_averages_like_with_like():
+    from rbbo.reproduce.tables import format_markdown
+
+    nan = math.nan
+    row = {"robot": "Cross", "task": "Swim", "N": 555, "M": 20, "C": 3, "R_init": 1.0,
+           "R_init_ci95": 0.1, "R_star": 2.0, "R_star_ci95": 0.1, "improvement_pct": 100.0,
+           "delta": 1.0, "delta_ci95": 0.1, "evaluations": 9, "wall_s": 60.0, "apart": True,
+           "paper_improvement_pct": 142.21}  # fmt: skip
+    running = {**row, "task": "Walk", "R_init": nan, "R_star": nan, "improvement_pct": nan,
+               "delta": nan, "apart": False, "paper_improvement_pct": 544.32}  # fmt: skip
+    text = format_markdown([row, running])
+    assert text.splitlines()[-1].endswith("| +100.0 % | | | | | +142.2 % |")  # not +343.3
+    parsed = parse_markdown(text)
+    assert [r["apart"] for r in parsed] == [True, False]
+    assert "| - | +544.3 % |" in text.splitlines()[3]  # apart not yet known

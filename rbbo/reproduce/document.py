@@ -123,9 +123,12 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                   "mean per-seed gain with its own 95 % t-interval, the sharper test of the "
                   "two. `paper`: the paper's improvement.", "", markdown, ""]  # fmt: skip
         paired = [r["benchmark"] for r in table if r["paired_apart"]]
-        lines += [f"Intervals apart on {sum(r['apart'] for r in table)} of {len(table)} "
+        measured = [r for r in table if math.isfinite(r["R_star"])]
+        pending = len(table) - len(measured)
+        lines += [f"Intervals apart on {sum(r['apart'] for r in table)} of {len(measured)} "
                   f"benchmarks; the paired gain's interval excludes zero on {len(paired)} of "
-                  f"{len(table)}.", ""]  # fmt: skip
+                  f"{len(measured)}"
+                  + (f" ({pending} not yet confirmed)." if pending else "."), ""]  # fmt: skip
         for r in table:
             run = f"runs/{Path(r['run']).name}"
             lines.append(f"- {r['benchmark']}: [convergence]({run}/convergence.png), "
