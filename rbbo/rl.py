@@ -500,10 +500,10 @@ def _reached(rows: list[dict]) -> list[str]:
         for algo in dict.fromkeys(r["method"] for r in rows if r["method"] != "mppi"):
             mine = [r for r in rows if r["method"] == algo and r["basis"] == ref["basis"]]
             hit = next((r for r in mine if r["distance_m"] >= ref["distance_m"]), None)
-            what = (f"at {hit['env_steps']} env steps" if hit else
-                    f"not within {max(r['env_steps'] for r in mine)} env steps")  # fmt: skip
-            lines.append(f"{algo} ({ref['basis']}) reached the MPC's "
-                         f"{ref['distance_m']:.3f} m {what}")  # fmt: skip
+            goal = f"the MPC's {ref['distance_m']:.3f} m"
+            lines.append(f"{algo} ({ref['basis']}) reached {goal} at {hit['env_steps']} env "
+                         "steps" if hit else f"{algo} ({ref['basis']}) did not reach {goal} "
+                         f"within {max(r['env_steps'] for r in mine)} env steps")  # fmt: skip
     return lines
 
 
