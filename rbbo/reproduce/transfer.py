@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,7 @@ BASES = ("identity", "best")
 
 
 def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Path,
-                     log) -> Path:  # fmt: skip
+                     log: Callable[[str], None]) -> Path:  # fmt: skip
     """Measure the identity and the best B_c of ``run_dir`` at M = ``plan.transfer_sim_dim``
     on the run's fresh seeds, appending to ``out / "transfer.csv"``."""
     import gymnasium as gym
