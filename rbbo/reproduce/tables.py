@@ -30,6 +30,29 @@ COLUMNS = ["robot", "task", "N", "M", "C", "R_init", "R*", "improvement", "R* - 
            "evaluations", "wall time", "apart", "paper"]  # fmt: skip
 
 
+def compare_seeds(init: list[float], star: list[float]) -> dict[str, Any]:
+    """R_init and R* from their per-seed values: means and 95 % half-widths, the improvement
+    (from the means), the paired gain R* - R_init (same seeds) and whether each is apart."""
+    r_init, h_init = confidence_interval(init)
+    r_star, h_star = confidence_interval(star)
+    done = bool(len(init)) and bool(len(star))
+    paired = done and len(star) == len(init)
+    delta, h_delta = confidence_interval(np.subtract(star, init) if paired else [])
+    return {
+        "R_init": r_init,
+        "R_init_ci95": h_init,
+        "R_star": r_star,
+        "R_star_ci95": h_star,
+        "improvement_pct": 100.0 * (r_star / r_init - 1.0) if done and r_init > 0 else math.nan,
+        "apart": bool(
+            done and math.isfinite(h_init + h_star) and r_star - h_star > r_init + h_init
+        ),
+        "delta": delta,
+        "delta_ci95": h_delta,
+        "paired_apart": bool(math.isfinite(h_delta) and delta - h_delta > 0),
+    }
+
+
 def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
     """Table I's numbers for one benchmark from its (BOCA) run directory."""
     from ..report import load
@@ -38,15 +61,7 @@ def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
     result = opt.result()
     problem = opt.store.config.get("problem") or {}
     paper = PAPER_TABLE1[benchmark]
-    r_init, h_init = confidence_interval(result.R_init_seeds)
-    r_star, h_star = confidence_interval(result.R_star_seeds)
-    done = bool(result.R_init_seeds) and bool(result.R_star_seeds)
-    improvement = 100.0 * (r_star / r_init - 1.0) if done and r_init > 0 else math.nan
-    apart = done and math.isfinite(h_init + h_star) and r_star - h_star > r_init + h_init
-    paired = len(result.R_star_seeds) == len(result.R_init_seeds)
-    delta, h_delta = confidence_interval(
-        np.subtract(result.R_star_seeds, result.R_init_seeds) if paired and done else []
-    )
+    stats = compare_seeds(result.R_init_seeds, result.R_star_seeds)
     return {
         "benchmark": benchmark,
         "robot": paper["robot"],
@@ -54,16 +69,13 @@ def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
         "N": problem.get("N"),
         "M": opt.config.sim_dim,
         "C": opt.config.control_dim,
-        "R_init": r_init,
-        "R_init_ci95": h_init,
-        "R_star": r_star,
-        "R_star_ci95": h_star,
+        **{k: stats[k] for k in ("R_init", "R_init_ci95", "R_star", "R_star_ci95")},
         "seeds": len(result.R_init_seeds),
-        "improvement_pct": improvement,
-        "apart": apart,
-        "delta": delta,
-        "delta_ci95": h_delta,
-        "paired_apart": bool(math.isfinite(h_delta) and delta - h_delta > 0),
+        "improvement_pct": stats["improvement_pct"],
+        "apart": stats["apart"],
+        "delta": stats["delta"],
+        "delta_ci95": stats["delta_ci95"],
+        "paired_apart": stats["paired_apart"],
         "evaluations": result.evaluations,
         "failed": result.failed,
         "wall_s": result.wall_s,

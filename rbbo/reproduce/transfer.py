@@ -16,7 +16,6 @@ Rows go to ``transfer.csv`` one measurement at a time (resumable), keyed by benc
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -24,9 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from ..intervals import confidence_interval
 from .plan import ReproducePlan
-from .tables import _interval, _num, read_rows
+from .tables import _interval, _num, compare_seeds, read_rows
 
 __all__ = ["format_transfer_markdown", "measure_transfer", "transfer_rows"]
 
@@ -91,20 +89,10 @@ def transfer_rows(out: Path, table: list[dict[str, Any]], sim_dim: int) -> list[
                                                                                "best"))  # fmt: skip
         if init is None or best is None:
             continue
-        r_init, h_init = confidence_interval(init)
-        r_star, h_star = confidence_interval(best)
-        gain, h_gain = confidence_interval(np.subtract(best, init) if len(best) == len(init)
-                                           else [])  # fmt: skip
-        rows.append({
-            "benchmark": t["benchmark"], "M_from": t["M"], "M": sim_dim,
-            "R_init_from": t["R_init"], "R_star_from": t["R_star"],
-            "improvement_from_pct": t["improvement_pct"],
-            "R_init": r_init, "R_init_ci95": h_init, "R_star": r_star, "R_star_ci95": h_star,
-            "improvement_pct": 100.0 * (r_star / r_init - 1.0) if r_init > 0 else math.nan,
-            "delta": gain, "delta_ci95": h_gain,
-            "apart": bool(math.isfinite(h_init + h_star) and r_star - h_star > r_init + h_init),
-            "paired_apart": bool(math.isfinite(h_gain) and gain - h_gain > 0),
-        })  # fmt: skip
+        rows.append({"benchmark": t["benchmark"], "M_from": t["M"], "M": sim_dim,
+                     "R_init_from": t["R_init"], "R_star_from": t["R_star"],
+                     "improvement_from_pct": t["improvement_pct"],
+                     **compare_seeds(init, best)})  # fmt: skip
     return rows
 
 
