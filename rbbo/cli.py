@@ -21,7 +21,9 @@ import argparse
 import contextlib
 import math
 import re
+import signal
 import sys
+import threading
 import time
 from datetime import datetime
 from pathlib import Path
@@ -455,6 +457,30 @@ COMMANDS = {"optimize": cmd_optimize, "resume": cmd_resume, "report": cmd_report
             "reproduce": cmd_reproduce}  # fmt: skip
 
 
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """Let SIGTERM stop a command as Ctrl-C does.
+
+    A batch scheduler's time limit (SLURM, ``timeout``) or a plain ``kill`` sends SIGTERM,
+    whose default action ends the process at once: the run's session record and the workers'
+    shutdown in ``finally`` blocks would be skipped. Raised as KeyboardInterrupt, it goes
+    through the same path as Ctrl-C (what was recorded stays, "interrupted; continue with").
+    Signal handlers belong to the main thread, so elsewhere (a test's thread) nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``rbbo`` console script; returns the exit status."""
     from .store import RunDirectoryError
@@ -462,7 +488,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = _parser().parse_args(argv)
         args.argv = list(sys.argv[1:] if argv is None else argv)
-        return COMMANDS[args.command](args)
+        with _terminate_as_interrupt():
+            return COMMANDS[args.command](args)
     except (UsageError, RunDirectoryError) as exc:
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"rbbo: error: {message}", file=sys.stderr)

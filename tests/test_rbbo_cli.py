@@ -130,3 +130,47 @@ def test_console_entry_point_exit_status():
 )
 def test_parse_duration(text, seconds):
     assert parse_duration(text) == seconds
+
+
+@pytest.mark.parametrize(
+    "how",
+    ["SIGTERM to the process (a scheduler's time limit)", "SIGINT to the group (Ctrl-C)"],
+)
+def test_a_signal_stops_a_run_cleanly_and_it_resumes(tmp_path, how):
+    """The process pool's run stops through the interrupt path: status 130, the resume hint,
+    no worker traceback and no evaluation recorded as failed by the stop."""
+    import os
+    import signal
+    import time
+
+    run = tmp_path / "run"
+    argv = [sys.executable, "-m", "rbbo", "optimize", "synthetic:delay=0.2", *TINY,
+            "--workers", "2", "--iterations", "500", "--out", str(run)]  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
+    history = run / "history.jsonl"
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline and proc.poll() is None:
+        if history.exists() and history.read_text().count("\n") >= 4:
+            break
+        time.sleep(0.05)
+    else:
+        proc.kill()
+        pytest.fail(f"no 4 evaluations recorded in 90 s: {proc.communicate()[1][-2000:]}")
+    if how.startswith("SIGTERM"):
+        os.kill(proc.pid, signal.SIGTERM)
+    else:
+        os.killpg(proc.pid, signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("the run did not stop within 30 s of the signal")
+    assert proc.returncode == 130, err
+    assert f"interrupted; continue with: rbbo resume {run}" in err
+    assert "Traceback" not in err, err
+    recorded = _history(run)
+    assert recorded and all(h["status"] == "ok" for h in recorded)
+    assert main(["resume", str(run), "--iterations", str(len(recorded) + 1), "--workers", "1",
+                 "--no-progress"]) == 0  # fmt: skip
+    assert len(_history(run)) > len(recorded)

@@ -279,3 +279,36 @@ def test_a_table_with_an_unconfirmed_benchmark_averages_like_with_like():
     parsed = parse_markdown(text)
     assert [r["apart"] for r in parsed] == [True, False]
     assert "| - | +544.3 % |" in text.splitlines()[3]  # apart not yet known
+
+
+def test_a_running_session_records_its_wall_time_as_it_goes(tmp_path, monkeypatch):
+    """reproduce.json holds the session's wall time up to the last evaluation, so a session
+    killed outright (SIGKILL, a lost machine) is not recorded as shorter than it ran."""
+    import time
+
+    from rbbo.reproduce import runner
+
+    written = []
+    write = runner._atomic_write
+
+    def spy(path, data):
+        write(path, data)
+        if path.name == "reproduce.json":
+            written.append(json.loads(data)["sessions"][-1]["wall_s"])
+
+    def optimise(path, plan, objective, fidelity, budget_s, progress, log, heartbeat=None):
+        for _ in range(3):  # three evaluations, then the machine is lost
+            time.sleep(0.02)
+            heartbeat()
+        raise SystemExit("killed")
+
+    monkeypatch.setattr(runner, "_atomic_write", spy)
+    monkeypatch.setattr(runner, "_HEARTBEAT_S", 0.0)
+    monkeypatch.setattr(runner, "optimise", optimise)
+    monkeypatch.setattr(runner, "_objective", lambda plan, bench, *args: None)
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], stages=["table"])
+    with pytest.raises(SystemExit):
+        runner.reproduce(tmp_path, plan, progress=False, log=lambda message: None)
+    heartbeats = written[1:4]  # the first write opens the session, the last is `finally`
+    assert len(heartbeats) == 3 and heartbeats == sorted(heartbeats)
+    assert heartbeats[-1] >= 0.06

@@ -13,6 +13,7 @@ objective once and keep it (e.g. its env) for all their tasks. Results still com
 from __future__ import annotations
 
 import multiprocessing as mp
+import signal
 import threading
 import time
 from collections import deque
@@ -27,6 +28,10 @@ __all__ = ["ProcessExecutor"]
 
 def _worker_main(conn, objective, name: str) -> None:
     """Loop in the worker process: say it is ready, then evaluate tasks as they come."""
+    # Ctrl-C reaches the whole process group; the parent alone decides what an interrupt
+    # means (it kills the workers at shutdown), so a worker must not die of it first and
+    # have its task recorded as a crash, nor print a traceback of its own.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         conn.send("ready")  # imports and the objective are loaded: the timeout clock may start
     except OSError:  # the pool shut down while this worker was starting

@@ -44,6 +44,9 @@ __all__ = ["reproduce"]
 
 Log = Callable[[str], None]
 
+# How often a running session records its wall time in reproduce.json (seconds).
+_HEARTBEAT_S = 60.0
+
 
 def _log_stderr(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
@@ -66,8 +69,10 @@ def _config(plan: ReproducePlan, fidelity: str, budget_s: float) -> RBBOConfig:
 
 
 def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity: str,
-             budget_s: float, progress: bool, log: Log) -> Path:  # fmt: skip
-    """Create or resume the RBBO run at ``path`` and run it to its budget and confirmation."""
+             budget_s: float, progress: bool, log: Log,
+             heartbeat: Callable[[], None] | None = None) -> Path:  # fmt: skip
+    """Create or resume the RBBO run at ``path`` and run it to its budget and confirmation
+    (``heartbeat()`` after each recorded evaluation)."""
     config = _config(plan, fidelity, budget_s)
     if (path / "config.json").exists():
         opt = RBBO.resume(path)
@@ -94,9 +99,15 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
 
         bar = tqdm(desc=path.name, unit="eval", initial=len(opt.evaluations), file=sys.stderr,
                    dynamic_ncols=True, leave=False)  # fmt: skip
+
+    def callback(evaluation) -> None:
+        if bar is not None:
+            bar.update(1)
+        if heartbeat is not None:
+            heartbeat()
+
     executor = make_executor(plan.executor, objective, plan.workers, plan.timeout_s)
     try:
-        callback = (lambda e: bar.update(1)) if bar is not None else None
         result = opt.run(executor=executor, max_evaluations=plan.iterations, budget_s=budget_s,
                          callback=callback)  # fmt: skip
     finally:
@@ -294,9 +305,18 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     document["sessions"].append(session)
     started = time.perf_counter()
 
+    saved = [started]
+
     def save() -> None:
-        session["wall_s"] = time.perf_counter() - started
+        saved[0] = time.perf_counter()
+        session["wall_s"] = saved[0] - started
         _atomic_write(out / "reproduce.json", json.dumps(document, indent=2).encode())
+
+    def heartbeat() -> None:
+        # A session killed outright (SIGKILL, a lost machine) keeps its wall time to the
+        # last minute instead of to the end of its last finished benchmark.
+        if time.perf_counter() - saved[0] >= _HEARTBEAT_S:
+            save()
 
     save()
     if "older than its sources" in session["source"]:
@@ -317,10 +337,10 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
             objective = _objective(plan, bench)
             if "table" in stages:
                 optimise(runs / f"{bench}-boca", plan, objective, "boca", plan.budget_s,
-                         progress, log)  # fmt: skip
+                         progress, log, heartbeat)  # fmt: skip
             if "bo" in stages:
                 optimise(runs / f"{bench}-bo", plan, objective, "bo", plan.budget_s, progress,
-                         log)  # fmt: skip
+                         log, heartbeat)  # fmt: skip
             if "transfer" in stages:
                 boca = runs / f"{bench}-boca"
                 if not (boca / "best_basis.npy").exists():
@@ -332,7 +352,7 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
             for deg in plan.direction_angles_deg():
                 optimise(runs / f"{plan.direction_env}-dir{deg:03.0f}", plan,
                          _objective(plan, plan.direction_env, deg), "boca",
-                         plan.direction_budget_s, progress, log)  # fmt: skip
+                         plan.direction_budget_s, progress, log, heartbeat)  # fmt: skip
                 save()
         if "perturbation" in stages:
             base = runs / f"{plan.direction_env}-dir000"
