@@ -312,3 +312,28 @@ def test_a_running_session_records_its_wall_time_as_it_goes(tmp_path, monkeypatc
     heartbeats = written[1:4]  # the first write opens the session, the last is `finally`
     assert len(heartbeats) == 3 and heartbeats == sorted(heartbeats)
     assert heartbeats[-1] >= 0.06
+
+
+def test_an_interrupt_does_not_wait_for_the_evaluations_in_flight():
+    """Ctrl-C during a confirmation kills the workers (which ignore the group's SIGINT)
+    instead of waiting out their minute-long evaluations."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from rbbo import SyntheticObjective
+    from rbbo.reproduce import runner
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], executor="process", workers=2)
+    objective = SyntheticObjective(6, 2, delay=120.0, t_max=plan.t_max)
+    basis = np.eye(6)[:, :2]
+    timer = threading.Timer(3.0, os.kill, (os.getpid(), signal.SIGINT))
+    start = time.monotonic()
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            runner._evaluate_seeds(plan, objective, basis, (1, 2))
+    finally:
+        timer.cancel()
+    assert time.monotonic() - start < 60.0  # the evaluations alone take 120 s

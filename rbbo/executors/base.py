@@ -81,8 +81,9 @@ class Executor(abc.ABC):
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.shutdown()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        # Leaving on an exception (Ctrl-C, SIGTERM) must not wait for evaluations in flight.
+        self.shutdown(wait=exc_type is None)
 
 
 class SerialExecutor(Executor):

@@ -107,11 +107,15 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
             heartbeat()
 
     executor = make_executor(plan.executor, objective, plan.workers, plan.timeout_s)
+    finished = False
     try:
         result = opt.run(executor=executor, max_evaluations=plan.iterations, budget_s=budget_s,
                          callback=callback)  # fmt: skip
+        finished = True
     finally:
-        executor.shutdown()
+        # On an interrupt the workers are killed, not waited for: they ignore the group's
+        # SIGINT, and an evaluation in flight can take minutes.
+        executor.shutdown(wait=finished)
         if bar is not None:
             bar.close()
     log(f"[{path.name}] done: {result.evaluations} evaluations, R_init {result.R_init}, "
@@ -135,13 +139,10 @@ def _append_row(path: Path, row: dict[str, Any]) -> None:
 def _evaluate_seeds(plan: ReproducePlan, objective: EnvObjective, basis: np.ndarray,
                     seeds: tuple[int, ...]) -> list[float]:  # fmt: skip
     """R of ``basis`` at T_max on each seed, the seeds spread over the workers."""
-    executor = make_executor(plan.executor, objective, plan.workers, plan.timeout_s)
-    try:
+    with make_executor(plan.executor, objective, plan.workers, plan.timeout_s) as executor:
         futures = [executor.submit(EvaluationTask(i, basis, plan.t_max, (s,)))
                    for i, s in enumerate(seeds)]  # fmt: skip
         outcomes = [f.result() for f in futures]
-    finally:
-        executor.shutdown()
     return [o.R if o.status == "ok" else math.nan for o in outcomes]
 
 
