@@ -474,7 +474,9 @@ def _run_jobs(jobs: list[tuple[str, tuple]], workers: int, progress: bool) -> li
     results: dict[int, Any] = {}
     errors: list[tuple[str, BaseException]] = []
     ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+    before = set(mp.active_children())
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx)
+    try:
         futures = {pool.submit(_job, call, False, 1): (i, label)
                    for i, (label, call) in enumerate(jobs)}  # fmt: skip
         for future in as_completed(futures):
@@ -487,6 +489,14 @@ def _run_jobs(jobs: list[tuple[str, tuple]], workers: int, progress: bool) -> li
                 continue
             print(f"[baselines] {label} done ({len(results)}/{len(jobs)})", file=sys.stderr,
                   flush=True)  # fmt: skip
+    except BaseException:
+        # An interrupt (Ctrl-C, SIGTERM): the jobs resume from their checkpoints, so stop the
+        # workers now instead of waiting out training runs of an hour.
+        pool.shutdown(wait=False, cancel_futures=True)
+        for child in set(mp.active_children()) - before:
+            child.terminate()
+        raise
+    pool.shutdown()
     if errors:
         label, exc = errors[0]
         raise RuntimeError(f"baseline job {label!r} failed: {exc}") from exc

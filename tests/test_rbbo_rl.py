@@ -138,3 +138,27 @@ def test_t_interval():
     mean, half = rl.t_interval([1.0, 2.0, 3.0])
     assert mean == 2.0 and half == pytest.approx(4.302653 / math.sqrt(3), rel=1e-6)
     assert math.isnan(rl.t_interval([1.0])[1])
+
+
+def _sleep_job(seconds, progress):
+    import time
+
+    time.sleep(seconds)
+
+
+def test_an_interrupt_stops_parallel_jobs_instead_of_waiting_for_them():
+    import os
+    import signal
+    import threading
+    import time
+
+    jobs = [(f"job {i}", (_sleep_job, 120.0)) for i in range(2)]
+    timer = threading.Timer(5.0, os.kill, (os.getpid(), signal.SIGINT))
+    start = time.monotonic()
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            rl._run_jobs(jobs, 2, False)
+    finally:
+        timer.cancel()
+    assert time.monotonic() - start < 60.0  # the jobs alone take 120 s
