@@ -8,6 +8,10 @@ Printed: the three best gaits at the first M, and their distance (body lengths, 
 tetrahedron), which separates the truncation of B_r from the cubature's error.
 
     python benchmarks/check_m_convergence.py [ENV_ID ...] [--sim-dims 20 40] [--forces cubature]
+        [--full-space]
+
+``--full-space`` adds the walkers' limit M -> 3N: the same gaits, forces and start in
+``softrom_gym.full_space.FullSpaceModel`` (the reduced step and contact with B_r = I).
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import numpy as np
 
 import softrom_gym  # noqa: F401  (registers the envs)
 from controllers.gaits import gait_grid
+from softrom_gym.full_space import FullSpaceModel
 from softrom_gym.rom import build_reduced_model
 
 IDS = ["softrom_gym/CrossSwim-v0", "softrom_gym/CrossWalk-v0", "softrom_gym/BeamWalk-v0"]
@@ -48,6 +53,29 @@ def distances(env_id: str, m: int, forces: str, gaits: list, seconds: float, sta
     return np.where(out["diverged"], np.nan, moved), basis
 
 
+def full_space_distances(env_id: str, m: int, gaits: list, seconds: float, start: float,
+                         seed: int) -> np.ndarray:  # fmt: skip
+    """Body lengths travelled by each gait in the full space (``FullSpaceModel``: the same
+    step and contact with B_r = I), from the M-space env's reset state, the same forces."""
+    env = gym.make(env_id, sim_dim=m)
+    u = env.unwrapped
+    env.reset(seed=seed)
+    basis = np.asarray(u.subspace.basis)
+    model = FullSpaceModel.matching(u.model, u.robot, basis)
+    start_state = model.state_from_reduced(basis, u.get_state())
+    steps, first = round(seconds / u.dt), round(start / u.dt)
+    k = u.frame_skip
+    moved = []
+    for gait in gaits:
+        controls = np.clip(gait.controls(steps, u.dt, u.action_bound), -u.action_bound,
+                           u.action_bound).astype(np.float32).astype(float)  # fmt: skip
+        out = model.rollout(start_state, np.repeat(controls, k, axis=0), progress=True)
+        com = out["com"][k - 1 :: k]  # after each env step
+        moved.append((com[-1] - com[first - 1]) @ u.direction / u.body_length)
+    env.close()
+    return np.array(moved)
+
+
 def outside(small: np.ndarray, large: np.ndarray, mass: np.ndarray) -> float:
     """Largest mass-norm of a column of ``small`` outside span(``large``) (mass-orthonormal
     bases: 0 when the smaller simulation space lies inside the larger)."""
@@ -67,6 +95,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--forces", nargs="+", choices=["cubature", "exact"],
                    default=["cubature", "exact"],
                    help="force models (exact, every tetrahedron, is slow at large M)")  # fmt: skip
+    p.add_argument("--full-space", action="store_true",
+                   help="also run the three best gaits in the full space (FullSpaceModel, "
+                        "walkers only; about a minute per simulated 10 s on the beam)")  # fmt: skip
     args = p.parse_args(argv)
     gaits = gait_grid(3, tuple(args.frequencies), tuple(args.amplitudes))
     rows = []
@@ -94,17 +125,28 @@ def main(argv: list[str] | None = None) -> list[dict]:
         first = table[(args.sim_dims[0], args.forces[0])]
         best = np.argsort(-np.nan_to_num(first, nan=-np.inf))[:3]
         print(f"{env_id} (body lengths, t = {args.start:g}..{args.seconds:g} s, seed {args.seed})")
+        full = None
+        swims = "Swim" in env_id
+        if args.full_space and not swims:
+            full = full_space_distances(env_id, args.sim_dims[0], [gaits[j] for j in best],
+                                        args.seconds, args.start, args.seed)  # fmt: skip
+        elif args.full_space:
+            print(f"{env_id}: no full-space column (the full-space model has no drag)")
+        print(f"{env_id} (body lengths, t = {args.start:g}..{args.seconds:g} s, seed {args.seed})")
         names = {"cubature": "cub", "exact": "exact"}
         print(f"  {'gait':<28}" + "".join(
             f"  M={m:<3}" + "".join(f" {names[f]:>6}" for f in args.forces)
-            for m in args.sim_dims))  # fmt: skip
-        for j in best:
+            for m in args.sim_dims) + ("    full" if full is not None else ""))  # fmt: skip
+        for i, j in enumerate(best):
             cells = "".join("  " + " ".join(f"{table[(m, f)][j]:+6.3f}" for f in args.forces)
                             for m in args.sim_dims)  # fmt: skip
+            if full is not None:
+                cells += f"  {full[i]:+6.3f}"
             print(f"  {gaits[j].label():<28}{cells}", flush=True)
             rows.append({"env_id": env_id, "gait": gaits[j].label(),
                          **{f"M{m}_{f}": float(table[(m, f)][j]) for m in args.sim_dims
-                            for f in args.forces}})  # fmt: skip
+                            for f in args.forces},
+                         **({} if full is None else {"full": float(full[i])})})  # fmt: skip
     return rows
 
 

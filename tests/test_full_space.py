@@ -1,0 +1,96 @@
+"""The full-space walking step (softrom_gym.full_space): the reduced model's step with a B_r
+spanning all 3N directions, Coulomb sliding against the analytic answer, and bad input."""
+
+import numpy as np
+import pytest
+from test_reduced import full_basis
+
+import cpp_sim
+from softrom_gym.full_space import FullSpaceModel
+from softrom_gym.robots.robot import Robot
+from softrom_gym.robots.voxel import voxels_to_tets
+from softrom_gym.rom import build_reduced_model
+
+G = 9.81
+
+
+@pytest.fixture(scope="module")
+def bar():
+    nodes, tets = voxels_to_tets(np.ones((3, 1, 1), dtype=bool), 0.1)
+    return Robot("bar", nodes, tets, youngs_modulus=2e4)
+
+
+def test_is_the_reduced_step_with_a_full_basis(bar):
+    """Dropped 1 cm onto a frictional ground and actuated in two shapes, the full-space model
+    follows the reduced reference solver whose B_r spans all 3N directions: the same implicit
+    step, the same staggered projection, in other coordinates."""
+    sub = full_basis(bar)
+    rng = np.random.default_rng(0)
+    bc = np.linalg.qr(rng.standard_normal((sub.M, 2)))[0]
+    settings = dict(friction=0.5, dt=0.005, newton_tolerance=1e-10, contact_tolerance=1e-6,
+                    max_stagger_iterations=500, max_newton_iterations=50)  # fmt: skip
+    reduced = build_reduced_model(bar, forces="exact", subspace=sub, control_basis=bc,
+                                  solver="reference", **settings)  # fmt: skip
+    full = FullSpaceModel.matching(reduced, bar, sub.basis)
+    full.project_hessian = False  # the reference's exact Hessian
+    bound = 0.6 * np.sqrt(reduced.total_mass) * G
+    state = reduced.rest_state()
+    q = np.array(state.q)
+    q[:3] = np.array([0.0, 0.0, 0.01]) * np.sqrt(reduced.total_mass)  # 1 cm up
+    qdot = np.zeros_like(q)
+    qdot[:3] = np.array([0.3, 0.1, 0.0]) * np.sqrt(reduced.total_mass)  # sliding on landing
+    state = cpp_sim.ReducedState(q, qdot, state.impulses)
+    fstate = full.state_from_reduced(sub.basis, state)
+    gap, contacts = 0.0, 0
+    for n in range(160):
+        fc = bound * np.array(
+            [np.sin(2 * np.pi * 3 * n * 0.005), np.cos(2 * np.pi * 5 * n * 0.005)]
+        )
+        state, info = reduced.step(state, fc)
+        fstate, finfo = full.step(fstate, fc)
+        assert info["converged"] and finfo["converged"]
+        # the same iteration in other coordinates: the same number of staggers to converge
+        assert finfo["stagger_iterations"] == info["stagger_iterations"]
+        assert finfo["contact_converged"] == info["contact_converged"]
+        contacts = max(contacts, finfo["contacts"])
+        x = bar.nodes + (sub.basis @ state.q).reshape(-1, 3)
+        gap = max(gap, np.abs(x - fstate.x).max())
+    assert contacts >= 4  # it landed and stands on its bottom face
+    assert gap < 1e-6
+    np.testing.assert_allclose(fstate.v.ravel(), sub.basis @ state.qdot, atol=1e-4)
+
+
+@pytest.mark.parametrize(("theta_deg", "mu"), [(35.0, 0.5), (20.0, 0.6)])
+def test_a_block_slides_with_the_coulomb_acceleration_or_sticks(theta_deg, mu):
+    nodes, tets = voxels_to_tets(np.ones((2, 2, 1), dtype=bool), 0.1)
+    box = Robot("block", nodes, tets, youngs_modulus=1e6)
+    theta = np.deg2rad(theta_deg)
+    model = FullSpaceModel(box, friction=mu, damping_beta=0.01,
+                           gravity=(G * np.sin(theta), 0.0, -G * np.cos(theta)))  # fmt: skip
+    state = model.rest_state()
+    ts, vs = [], []
+    for n in range(100):
+        state, info = model.step(state)
+        assert info["converged"]
+        ts.append((n + 1) * model.dt)
+        vs.append(model.com(state.v)[0])
+    t, v = np.array(ts), np.array(vs)
+    late = t > 0.2
+    expected = max(G * (np.sin(theta) - mu * np.cos(theta)), 0.0)
+    accel = np.polyfit(t[late], v[late], 1)[0]
+    assert accel == pytest.approx(expected, rel=0.02, abs=0.02)
+
+
+def test_bad_input_is_named(bar):
+    with pytest.raises(ValueError, match=r"actuation must be a finite \(3N, C\) = \(48, C\)"):
+        FullSpaceModel(bar, np.ones((47, 2)))
+    with pytest.raises(ValueError, match="friction must be >= 0"):
+        FullSpaceModel(bar, friction=-1.0)
+    model = FullSpaceModel(bar, np.ones((48, 2)))
+    with pytest.raises(ValueError, match=r"controls must be finite with shape \(2,\)"):
+        model.step(model.rest_state(), np.ones(3))
+    sub = full_basis(bar)
+    swim = build_reduced_model(bar, forces="exact", subspace=sub, contact="none",
+                               fluid_density=1000.0, gravity=[0, 0, 0])  # fmt: skip
+    with pytest.raises(ValueError, match="only staggered-projection contact"):
+        FullSpaceModel.matching(swim, bar, sub.basis)
