@@ -124,7 +124,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
                   f"three modes {verdict}")  # fmt: skip
         first = table[(args.sim_dims[0], args.forces[0])]
         best = np.argsort(-np.nan_to_num(first, nan=-np.inf))[:3]
-        print(f"{env_id} (body lengths, t = {args.start:g}..{args.seconds:g} s, seed {args.seed})")
         full = None
         swims = "Swim" in env_id
         if args.full_space and not swims:
