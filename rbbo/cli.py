@@ -4,6 +4,7 @@
 
     rbbo optimize softrom_gym/CrossWalk-v0 --control-dim 3 --budget 30m --out runs/cross-walk
     rbbo resume runs/cross-walk               # after a kill: continues from history.jsonl
+    rbbo confirm runs/cross-walk              # R_init and R* measured again, appended
     rbbo report runs/cross-walk               # table (Table I's columns) + convergence.png
     rbbo rollout runs/cross-walk --video cross.mp4
     rbbo reproduce --budget-per-benchmark 45m # the paper's results, into runs/reproduce
@@ -132,6 +133,11 @@ def _parser() -> argparse.ArgumentParser:
     res.add_argument("--iterations", type=_positive_int, help="new total number of evaluations")
     res.add_argument("--workers", type=_positive_int)
     res.add_argument("--no-progress", action="store_true")
+
+    con = sub.add_parser("confirm", help="measure R_init and R* of a finished run again "
+                         "(after an upgrade, or on another machine)")  # fmt: skip
+    con.add_argument("run_dir", type=Path, metavar="DIR")
+    con.add_argument("--workers", type=_positive_int)
 
     rep = sub.add_parser("report", help="print the table and write convergence.png")
     rep.add_argument("run_dirs", type=Path, nargs="+", metavar="DIR")
@@ -342,6 +348,40 @@ def cmd_resume(args) -> int:
     return code
 
 
+def cmd_confirm(args) -> int:
+    from .executors import make_executor
+    from .optimizer import RBBO
+    from .report import format_table, report_row
+
+    opt = RBBO.resume(args.run_dir)
+    before = opt.result()
+    objective = _objective_of(opt)
+    execution = dict(opt.store.config.get("execution") or {"executor": "process",
+                     "workers": 1, "timeout_s": 600.0})  # fmt: skip
+    workers = args.workers or execution["workers"]
+    with _bad_input():
+        executor = make_executor(execution["executor"], objective, workers,
+                                 execution["timeout_s"], execution.get("address"))  # fmt: skip
+    try:
+        with _bad_input():
+            after = opt.confirm_again(executor)
+    except KeyboardInterrupt:
+        executor.shutdown(wait=False)
+        print(f"\ninterrupted; nothing is lost: run rbbo confirm {opt.store.path} again",
+              file=sys.stderr)  # fmt: skip
+        return 130
+    executor.shutdown()
+
+    def fmt(value: float | None) -> str:
+        return "-" if value is None else f"{value:.6g}"
+
+    seeds = ", ".join(map(str, opt.config.fresh_seeds))
+    print(f"R_init {fmt(before.R_init)} -> {fmt(after.R_init)}, R* {fmt(before.R_star)} -> "
+          f"{fmt(after.R_star)} (fresh seeds {seeds})")  # fmt: skip
+    print(format_table([report_row(opt)]))
+    return 0
+
+
 def cmd_report(args) -> int:
     from .report import format_table, load, plot_convergence, report_row
 
@@ -452,7 +492,8 @@ def cmd_reproduce(args) -> int:
     return command(args, UsageError)
 
 
-COMMANDS = {"optimize": cmd_optimize, "resume": cmd_resume, "report": cmd_report,
+COMMANDS = {"optimize": cmd_optimize, "resume": cmd_resume, "confirm": cmd_confirm,
+            "report": cmd_report,
             "rollout": cmd_rollout, "baselines": cmd_baselines,
             "reproduce": cmd_reproduce}  # fmt: skip
 

@@ -372,8 +372,32 @@ class RBBO:
                 return e
         return self.recommend()
 
-    def _confirm(self, executor: Executor, callback) -> None:
-        """Evaluate the identity and the recommendation on fresh seeds at T_max."""
+    def confirm_again(
+        self, executor: Executor, callback: Callable[[Evaluation], None] | None = None
+    ) -> RBBOResult:
+        """Measure R_init and R* again on the run's fresh seeds and append the new
+        confirmations; R_init and R* are then the new values, the earlier ones stay in the
+        history.
+
+        For a finished run whose numbers must be checked against the simulator as it is now
+        (after an upgrade of softrom, or on another machine): the basis confirmed as R* stays
+        the run's answer; the search is not resumed.
+        """
+        if self._final_recommendation() is None:
+            raise ValueError("the run has no evaluation to confirm yet")
+        if self.config.n_confirm == 0:
+            raise ValueError("the run was made with no confirmation seeds (n_confirm = 0)")
+        self._confirm(executor, callback, again=True)
+        result = self.result()
+        if self.store is not None:
+            self.store.write_summary(result.summary())
+            if result.best_basis is not None:
+                self.store.save_best(result.best_basis)
+        return result
+
+    def _confirm(self, executor: Executor, callback, again: bool = False) -> None:
+        """Evaluate the identity and the recommendation on fresh seeds at T_max (``again``:
+        even where the same basis was measured before)."""
         cfg = self.config
         best = self._final_recommendation()
         if best is None or cfg.n_confirm == 0:
@@ -383,7 +407,7 @@ class RBBO:
         done = {e.kind: e for e in self.history if e.kind in CONFIRM_KINDS and e.status == "ok"}
         futures = {}
         for kind, basis in wanted.items():
-            if kind in done and np.array_equal(done[kind].basis, basis):
+            if not again and kind in done and np.array_equal(done[kind].basis, basis):
                 continue  # already measured (a resumed, finished run)
             proposal = Proposal(self._next_index, basis, cfg.t_max, cfg.fresh_seeds, kind)
             self.pending[proposal.index] = proposal

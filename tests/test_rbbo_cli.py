@@ -46,6 +46,20 @@ def test_optimize_report_resume_rollout_on_a_synthetic_objective(tmp_path, capsy
     assert main(["rollout", str(run), "--seed", "7"]) == 0
     assert capsys.readouterr().out.startswith("R = ")
 
+    # confirm: the same bases measured again on the same fresh seeds, appended
+    first = [h for h in _history(run) if h["kind"].startswith("confirm")]
+    assert main(["confirm", str(run), "--workers", "1"]) == 0
+    assert capsys.readouterr().out.startswith("R_init ")
+    confirms = [h for h in _history(run) if h["kind"].startswith("confirm")]
+    assert len(confirms) == len(first) + 2
+    again = {h["kind"]: h for h in confirms[-2:]}
+    latest = {h["kind"]: h for h in first}  # the last measurement of each kind
+    for old in latest.values():
+        new = again[old["kind"]]
+        assert new["basis"] == old["basis"] and new["seeds"] == old["seeds"]
+        assert new["R"] == pytest.approx(old["R"])  # the synthetic objective is seeded
+    assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == 10
+
 
 def test_optimize_an_env_with_mpc(tmp_path, capsys, monkeypatch):
     """The env path: ENV_ID resolution, node count, settled reward per second, config."""

@@ -15,7 +15,7 @@ from ..robots import Robot
 
 __all__ = ["cache_dir", "cache_path", "load_entry", "mesh_key", "save_entry"]
 
-CACHE_VERSION = "3"  # 3: rotation columns 3..5, cubature trained on small turns
+CACHE_VERSION = "4"  # 4: machine-independent mode bases and cubature ranking (3: rotations)
 
 
 def cache_dir() -> Path:

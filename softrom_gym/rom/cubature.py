@@ -63,6 +63,20 @@ def sample_poses(
     return poses
 
 
+def _ranked(score: np.ndarray, rel_tol: float = 1e-7) -> np.ndarray:
+    """Indices by descending score, scores within ``rel_tol`` of the largest counted equal
+    and ordered by index.
+
+    A symmetric mesh has mirror-image elements with equal scores; ranking them by their last
+    bits made the rule (and so the physics) depend on the machine's BLAS kernels.
+    """
+    top = np.max(score[np.isfinite(score)], initial=0.0)
+    if not top > 0:
+        return np.argsort(-score, kind="stable")
+    level = np.where(np.isfinite(score), np.round(score / (rel_tol * top)), -np.inf)
+    return np.argsort(-level, kind="stable")
+
+
 def _greedy_nnls(
     a: np.ndarray, b: np.ndarray, tolerance: float, max_elements: int, verbose: bool
 ) -> tuple[np.ndarray, np.ndarray, float]:
@@ -77,7 +91,7 @@ def _greedy_nnls(
     while err > tolerance and len(selected) < max_elements:
         score = (a.T @ residual) / norms
         score[selected] = -np.inf
-        picks = [int(i) for i in np.argsort(score)[::-1][:batch] if score[i] > 0]
+        picks = [int(i) for i in _ranked(score)[:batch] if score[i] > 0]
         if not picks:
             break
         selected += picks

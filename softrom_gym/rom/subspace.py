@@ -39,7 +39,7 @@ import scipy.sparse.linalg as spla
 from ..robots import Robot
 from .cache import cache_path, load_entry, mesh_key, save_entry
 
-__all__ = ["Subspace", "build_subspace"]
+__all__ = ["Subspace", "build_subspace", "canonical_eigenvectors"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -219,7 +219,8 @@ def build_subspace(
 
     # Shift-invert Lanczos around a small negative shift finds the smallest eigenpairs;
     # the six rigid modes sit at lambda ~ 0 and are split off below.
-    want = min(num_modes + 6, 3 * n - 1)
+    # One eigenpair beyond those kept, to see whether the cut splits a degenerate eigenspace.
+    want = min(num_modes + 7, 3 * n - 1)
     scale = float(np.mean(k0.diagonal() / mass3))
     if 3 * n <= 600:
         lam, vec = _dense_eigh(k0, mass3)
@@ -242,9 +243,10 @@ def build_subspace(
             f"the robot's stiffness has {int(rigid_like.sum())} zero modes (6 expected): the "
             "mesh is probably disconnected"
         )
-    modes = vec[:, 6:][:, :num_modes]
+    lam_modes, modes = lam[6:], vec[:, 6:]
     # Remove any rigid component that leaked in (degenerate lambda ~ 0 subspace).
     modes = modes - rigid @ ((mass3[:, None] * rigid).T @ modes)
+    modes = canonical_eigenvectors(lam_modes, modes, mass3, keep=num_modes)
 
     columns = list(modes.T)
     if num_derivatives:
@@ -252,9 +254,12 @@ def build_subspace(
         # lambda_1 / (lambda_i lambda_j) -- lowest products first.
         base = min(num_modes, max(2, int(np.ceil(np.sqrt(2 * num_derivatives))) + 1))
         lam_def = lam[6 : 6 + base]
+        # Products equal up to round-off (degenerate eigenvalues of a symmetric body) are
+        # tied and ordered by (i, j), so the order does not depend on the machine's last bits.
+        unit = lam_def[0] * lam_def[0]
         pairs = sorted(
             ((i, j) for i in range(base) for j in range(i, base)),
-            key=lambda p: lam_def[p[0]] * lam_def[p[1]],
+            key=lambda p: (float(np.round(lam_def[p[0]] * lam_def[p[1]] / unit, 6)), p),
         )[: 2 * num_derivatives]
         columns += _modal_derivatives(fem, robot.nodes, modes, pairs, k0, rigid, mass3)
 
@@ -263,9 +268,8 @@ def build_subspace(
         raise ValueError(
             f"could only build {len(deformation)} independent deformation columns, M = {M}"
         )
-    # Eigenvectors are defined up to sign: make each column's largest entry positive so the
-    # same robot always gets the same basis (and the same meaning of q_r and B_c).
-    deformation = [d if d[np.argmax(np.abs(d))] > 0 else -d for d in deformation]
+    # No sign rule here: the modes are canonical (canonical_eigenvectors), and the modal
+    # derivatives and the Gram-Schmidt are fixed functions of them.
     basis = np.column_stack([rigid, *deformation])
     defo = basis[:, 6:]
     freq = np.sqrt(np.maximum(np.einsum("ij,ij->j", defo, k0 @ defo), 0.0))
@@ -277,6 +281,55 @@ def build_subspace(
         )
     save_entry(path, basis=basis, frequencies=freq, num_modes=num_modes)
     return sub
+
+
+def _reference_fields(size: int, count: int) -> np.ndarray:
+    """``count`` fixed generic displacement fields (size, count), the same on every machine:
+    centred uniform doubles from PCG64 with a fixed seed (a stream NumPy keeps stable)."""
+    rng = np.random.Generator(np.random.PCG64(20261202))
+    return rng.random((count, size)).T - 0.5
+
+
+def canonical_eigenvectors(
+    lam: np.ndarray, vec: np.ndarray, mass3: np.ndarray, keep: int, rel_gap: float = 1e-6
+) -> np.ndarray:
+    """The first ``keep`` generalised eigenvectors (columns of ``vec``, ascending ``lam``) in a
+    basis that does not depend on the eigensolver's arbitrary choices.
+
+    An eigensolver returns each eigenvector up to sign, and any M-orthonormal basis of a
+    degenerate eigenspace; which one depends on the last bits of its arithmetic, so the same
+    robot built on two machines (two BLAS kernels) could get bases with flipped or rotated
+    columns, and a control space B_c found on one would mean another actuation on the other.
+    Here eigenvalues within ``rel_gap`` (relative) of each other form a cluster, and each
+    cluster's span gets the basis obtained by M-projecting fixed generic fields w_1, ..., w_d
+    (:func:`_reference_fields`) on it and M-orthonormalising them in order: for a simple
+    eigenvalue, the eigenvector whose sign makes w^T M u > 0. The span of the first ``keep``
+    columns is unchanged; raises ValueError when the cut at ``keep`` splits a cluster (the
+    kept span itself would then be the solver's choice: choose M one larger or smaller).
+    """
+    lam = np.asarray(lam, dtype=float)
+    if keep < len(lam) and abs(lam[keep] - lam[keep - 1]) <= rel_gap * abs(lam[keep]):
+        raise ValueError(
+            f"the {keep} kept vibration modes end inside a degenerate eigenspace (lambda = "
+            f"{lam[keep - 1]:.6g} and {lam[keep]:.6g}): the kept span would depend on the "
+            "eigensolver; choose M so that the mode count changes by one"
+        )
+    out = np.empty((vec.shape[0], keep))
+    start = 0
+    while start < keep:
+        stop = start + 1
+        while stop < len(lam) and abs(lam[stop] - lam[stop - 1]) <= rel_gap * abs(lam[stop]):
+            stop += 1
+        block = vec[:, start:stop]
+        fields = _reference_fields(vec.shape[0], stop - start)
+        # Coefficients of each field's M-projection on the cluster, then Gram-Schmidt (QR)
+        # in coefficient space: the block is M-orthonormal, so this is Gram-Schmidt in M.
+        coeffs = block.T @ (mass3[:, None] * fields)
+        q, r = np.linalg.qr(coeffs)
+        q = q * np.where(np.diag(r) < 0, -1.0, 1.0)  # positive projections
+        out[:, start : min(stop, keep)] = (block @ q)[:, : min(stop, keep) - start]
+        start = stop
+    return out
 
 
 def _dense_eigh(k0: sp.spmatrix, mass3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

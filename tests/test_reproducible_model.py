@@ -1,0 +1,87 @@
+"""The reduced model does not depend on the machine that builds it: eigenvector signs and
+degenerate eigenspaces get one basis, cubature ties one order, whatever the BLAS kernel's last
+bits (a B_c found on one machine must mean the same actuation on another)."""
+
+import os
+import platform
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from softrom_gym.rom.cubature import _ranked
+from softrom_gym.rom.subspace import canonical_eigenvectors
+
+
+def _problem(rng, n=30):
+    """A generalised eigenbasis (M-orthonormal) with eigenvalues 1, 2, 2, 2, 3, 5, 5."""
+    mass3 = rng.uniform(0.5, 2.0, n)
+    lam = np.array([1.0, 2.0, 2.0, 2.0, 3.0, 5.0, 5.0])
+    x = np.linalg.qr(rng.standard_normal((n, len(lam))))[0]
+    return lam, x / np.sqrt(mass3)[:, None], mass3
+
+
+def test_sign_flips_and_rotations_inside_an_eigenspace_give_one_basis(rng):
+    lam, vec, mass3 = _problem(rng)
+    reference = canonical_eigenvectors(lam, vec, mass3, keep=5)
+    # What another eigensolver may return: flipped signs, any basis of the triple eigenspace.
+    rot = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+    other = vec.copy()
+    other[:, 1:4] = vec[:, 1:4] @ rot
+    other[:, [0, 4]] *= -1.0
+    again = canonical_eigenvectors(lam, other, mass3, keep=5)
+    np.testing.assert_allclose(again, reference, atol=1e-12)
+    # the same span, M-orthonormal
+    np.testing.assert_allclose(reference.T @ (mass3[:, None] * reference), np.eye(5), atol=1e-12)
+    overlap = vec[:, :5].T @ (mass3[:, None] * reference)
+    np.testing.assert_allclose(np.linalg.svd(overlap, compute_uv=False), 1.0, atol=1e-12)
+
+
+def test_a_cut_inside_a_degenerate_eigenspace_is_refused(rng):
+    lam, vec, mass3 = _problem(rng)
+    with pytest.raises(ValueError, match="end inside a degenerate eigenspace"):
+        canonical_eigenvectors(lam, vec, mass3, keep=6)
+    with pytest.raises(ValueError, match="choose M"):
+        canonical_eigenvectors(lam, vec, mass3, keep=3)
+
+
+def test_cubature_ranking_orders_ties_by_index():
+    score = np.array([0.5, 1.0, 1.0 + 1e-12, -np.inf, 1.0 - 1e-12, 0.9])
+    np.testing.assert_array_equal(_ranked(score)[:4], [1, 2, 4, 5])
+    np.testing.assert_array_equal(_ranked(score[::-1].copy())[:4], [1, 3, 4, 0])
+
+
+_BUILD = """
+import numpy as np, sys
+from softrom_gym.robots import cross
+from softrom_gym.rom import build_subspace, train_cubature
+robot = cross()
+sub = build_subspace(robot, 12, cache=False)
+rule = train_cubature(robot, sub, num_poses=40, cache=False)
+np.savez(sys.argv[1], basis=sub.basis, elements=rule.elements, weights=rule.weights)
+"""
+
+
+def _openblas_kernels() -> bool:
+    if platform.system() != "Linux" or platform.machine() != "x86_64":
+        return False
+    with open("/proc/cpuinfo") as f:
+        flags = f.read()
+    return " avx2" in flags and "openblas" in str(np.__config__.CONFIG).lower()
+
+
+@pytest.mark.skipif(not _openblas_kernels(), reason="needs OpenBLAS on x86-64 with AVX2")
+def test_the_same_model_from_two_blas_kernels(tmp_path):
+    """OpenBLAS's Sandybridge and Haswell kernels round differently; before the canonical
+    bases the cross (a symmetric body) got a B_r with flipped columns and another cubature rule."""
+    out = {}
+    for core in ("Sandybridge", "Haswell"):
+        env = {**os.environ, "OPENBLAS_CORETYPE": core, "OMP_NUM_THREADS": "1"}
+        path = tmp_path / f"{core}.npz"
+        subprocess.run([sys.executable, "-c", _BUILD, str(path)], env=env, check=True)
+        out[core] = np.load(path)
+    a, b = out["Sandybridge"], out["Haswell"]
+    np.testing.assert_allclose(a["basis"], b["basis"], atol=1e-9)
+    np.testing.assert_array_equal(a["elements"], b["elements"])
+    np.testing.assert_allclose(a["weights"], b["weights"], rtol=1e-6)
