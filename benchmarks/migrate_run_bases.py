@@ -83,6 +83,9 @@ def migrate(run: Path, old_dir: Path, tolerance: float = 1e-8) -> dict:
     if summary and summary.get("best_basis") is not None:
         summary["best_basis"] = carry(summary["best_basis"])
         store.write_summary(summary)
+    # The run now lives in the canonical B_r: record its fingerprint, so that resuming it in
+    # a space built otherwise is refused (rbbo.objective.SimulationSpaceMismatch).
+    record_simulation_space(run)
     note = {
         "what": "bases re-expressed in the machine-independent B_r (softrom cache version 4)",
         "sign_changes": [int(i) for i in np.flatnonzero(np.diag(t) < 0)],
@@ -91,6 +94,23 @@ def migrate(run: Path, old_dir: Path, tolerance: float = 1e-8) -> dict:
     }
     (run / "migration.json").write_text(json.dumps(note, indent=2) + "\n")
     return note
+
+
+def record_simulation_space(run: Path) -> list[float]:
+    """Write the fingerprint of the env's B_r as built now into the run's config.json."""
+    from rbbo.objective import EnvObjective
+
+    path = run / "config.json"
+    config = json.loads(path.read_text())
+    spec = config["objective"]
+    objective = EnvObjective(spec["env_id"], int(config["rbbo"]["sim_dim"]),
+                             int(config["rbbo"]["control_dim"]),
+                             env_kwargs=spec.get("env_kwargs") or {})  # fmt: skip
+    spec["simulation_space"] = objective.simulation_space()
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
+    tmp.replace(path)
+    return spec["simulation_space"]
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -29,6 +29,7 @@ from .grassmann import _check_dims, random_points
 __all__ = [
     "EnvObjective",
     "Objective",
+    "SimulationSpaceMismatch",
     "SyntheticObjective",
     "make_objective",
     "parse_objective_spec",
@@ -120,6 +121,10 @@ class SyntheticObjective:
         return {"kind": "synthetic", **{k: v for k, v in asdict(self).items() if k[0] != "_"}}
 
 
+class SimulationSpaceMismatch(ValueError):
+    """The env builds another simulation space B_r than the one a run's B_c were found in."""
+
+
 @dataclass
 class EnvObjective:
     """R(B_c, T, seed): the MPC controller's task reward on a softrom env, per second.
@@ -173,11 +178,48 @@ class EnvObjective:
         if not self.settle_time >= 0:
             raise ValueError(f"settle_time must be >= 0, got {self.settle_time!r}")
         self._env = None
+        self._signature: list[float] | None = None
 
     def __getstate__(self):
         state = self.__dict__.copy()
         state["_env"] = None  # a worker builds its own env
         return state
+
+    def simulation_space(self) -> list[float] | None:
+        """The env's B_r fingerprint (``Subspace.signature()``), None for an env without one."""
+        if self._signature is None:
+            env = self.make_env(np.eye(self.sim_dim)[:, : self.control_dim])
+            try:
+                subspace = getattr(env.unwrapped, "subspace", None)
+                if subspace is not None and hasattr(subspace, "signature"):
+                    self._signature = [float(v) for v in subspace.signature()]
+            finally:
+                env.close()
+        return self._signature
+
+    def expect_simulation_space(self, recorded: list[float] | None) -> None:
+        """Raise :class:`SimulationSpaceMismatch` unless this env's B_r is the one a run
+        recorded (``recorded``: the run's ``simulation_space``; None skips the check, for
+        runs made before it was recorded)."""
+        if recorded is None:
+            return
+        current = self.simulation_space()
+        rec = np.asarray(recorded, dtype=float)
+        if current is None or len(current) != len(rec):
+            raise SimulationSpaceMismatch(
+                f"{self.env_id} at M = {self.sim_dim} has no simulation space like the one "
+                "this run recorded"
+            )
+        cur = np.asarray(current)
+        scale = float(np.abs(rec).max()) or 1.0
+        bad = np.flatnonzero(np.abs(cur - rec) > 1e-6 * scale)
+        if bad.size:
+            raise SimulationSpaceMismatch(
+                f"{self.env_id} at M = {self.sim_dim} builds a simulation space B_r whose "
+                f"coordinates {bad.tolist()} differ from those this run's B_c were found in "
+                "(another softrom version or mesh): its bases would mean other actuations. "
+                "Carry them over (benchmarks/migrate_run_bases.py) or start a new run."
+            )
 
     def make_env(self, basis: np.ndarray, **extra):
         import gymnasium as gym
@@ -262,6 +304,7 @@ class EnvObjective:
         return settled_reward_rate(result, dt, self.settle_time, T)
 
     def spec(self) -> dict[str, Any]:
+        signature = self.simulation_space()
         return {
             "kind": "env",
             "env_id": self.env_id,
@@ -271,6 +314,7 @@ class EnvObjective:
             "settle_time": self.settle_time,
             "env_kwargs": self.env_kwargs,
             "planner_kwargs": self.planner_kwargs,
+            **({} if signature is None else {"simulation_space": signature}),
         }
 
 
@@ -330,5 +374,8 @@ def make_objective(spec: dict[str, Any], sim_dim: int, control_dim: int, **kwarg
     if kind == "synthetic":
         return SyntheticObjective(sim_dim, control_dim, **{**kwargs, **spec})
     if kind == "env":
-        return EnvObjective(sim_dim=sim_dim, control_dim=control_dim, **{**kwargs, **spec})
+        recorded = spec.pop("simulation_space", None)
+        objective = EnvObjective(sim_dim=sim_dim, control_dim=control_dim, **{**kwargs, **spec})
+        objective.expect_simulation_space(recorded)
+        return objective
     raise ValueError(f"unknown objective kind {kind!r}; valid: ['synthetic', 'env']")

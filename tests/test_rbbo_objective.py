@@ -150,3 +150,24 @@ def test_bad_objective_specs():
         parse_objective_spec("synthetic:noise=x")
     with pytest.raises(ValueError, match="unknown objective kind 'csv'"):
         make_objective({"kind": "csv"}, 4, 2)
+
+
+def test_a_run_is_never_replayed_in_another_simulation_space():
+    """A run records its B_r's fingerprint; an env that builds other reduced coordinates
+    (a flipped mode: what another BLAS kernel gave before the canonical bases) is refused by
+    name instead of giving its B_c another meaning."""
+    from rbbo.objective import EnvObjective, SimulationSpaceMismatch, make_objective
+
+    objective = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2)
+    spec = objective.spec()
+    recorded = spec["simulation_space"]
+    assert len(recorded) == 6 + 6
+    again = make_objective(spec, 6, 2)  # the same space: accepted
+    assert again.simulation_space() == pytest.approx(recorded)
+    flipped = list(recorded)
+    flipped[8] = -flipped[8]  # deformation coordinate 2 with the other sign
+    with pytest.raises(SimulationSpaceMismatch, match=r"coordinates \[8\] differ"):
+        make_objective({**spec, "simulation_space": flipped}, 6, 2)
+    with pytest.raises(SimulationSpaceMismatch, match="no simulation space like"):
+        objective.expect_simulation_space(recorded[:-1])
+    objective.expect_simulation_space(None)  # a run from before the fingerprint: no check

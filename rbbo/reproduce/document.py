@@ -135,6 +135,17 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                          f"[best basis]({run}/best_basis.npy), "
                          f"[history]({run}/history.jsonl)")  # fmt: skip
         lines.append("")
+        carried = [r["benchmark"] for r in table if (Path(r["run"]) / "migration.json").exists()]
+        if carried:
+            lines += [f"The runs of {', '.join(carried)} searched the simulation space that "
+                      "softrom built before its cache version 4, when a mode's sign came from "
+                      "the BLAS kernel of the machine. Their stored bases were carried into "
+                      "the machine-independent B_r (the same full-space actuations: "
+                      "`migration.json` in each run, `benchmarks/migrate_run_bases.py`) and "
+                      "R_init and R* above were measured again there (`rbbo confirm`); the "
+                      "search itself, its evaluation count and convergence plot, ran in the "
+                      "old space, whose cubature rule differs by how it broke ties.",
+                      ""]  # fmt: skip
     transfer = transfer_rows(out, table, plan.transfer_sim_dim) if table else []
     if transfer:
         write_csv(transfer, out / "transfer_table.csv")

@@ -83,8 +83,12 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
                 raise RunDirectoryError(f"{path} was made with {name} = "
                                         f"{getattr(stored, name)!r}, this plan has "
                                         f"{getattr(config, name)!r}")  # fmt: skip
-        if opt.objective_spec != objective.spec():
+        stored_spec = dict(opt.objective_spec)
+        recorded = stored_spec.pop("simulation_space", None)
+        spec = {k: v for k, v in objective.spec().items() if k != "simulation_space"}
+        if stored_spec != spec:
             raise RunDirectoryError(f"{path} optimises another objective: {opt.objective_spec}")
+        objective.expect_simulation_space(recorded)
     else:
         problem = {"env_id": objective.env_id, "N": objective.node_count()}
         execution = {"executor": plan.executor, "workers": plan.workers,
@@ -156,6 +160,10 @@ def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Pa
     base_deg = math.degrees(float((opt.objective_spec.get("env_kwargs") or {})
                                   .get("direction", 0.0)))  # fmt: skip
     seeds = opt.config.fresh_seeds
+    # the basis is replayed in the env as built now: it must be the run's simulation space
+    _objective(plan, plan.direction_env, base_deg).expect_simulation_space(
+        opt.objective_spec.get("simulation_space")
+    )
     done = {float(r["offset_deg"]) for r in read_rows(path)}
     offsets = [0.0] + [s * p for p in plan.perturbations_deg for s in (-1.0, 1.0)]
     for offset in offsets:

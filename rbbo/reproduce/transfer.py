@@ -54,6 +54,10 @@ def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Pa
     if best is None:
         raise RunDirectoryError(f"{run_dir} has no best basis yet: run its 'table' stage first")
     m_from, c = opt.config.sim_dim, opt.config.control_dim
+    # map_control_basis reads B_r at M = m_from as built now: it must be the run's
+    _objective(plan, benchmark, sim_dim=m_from).expect_simulation_space(
+        opt.objective_spec.get("simulation_space")
+    )
     bases = {"identity": np.eye(m_from)[:, :c], "best": np.asarray(best)}
     env = gym.make(plan.env_id(benchmark))
     robot = env.unwrapped.robot

@@ -81,6 +81,13 @@ class Subspace:
         """The columns the elastic energy sees, rotations and deformation: (3N, M + 3)."""
         return self.basis[:, 3:]
 
+    def signature(self) -> np.ndarray:
+        """B_r^T w (M + 6,) for a fixed generic field w: a fingerprint of what each reduced
+        coordinate means. Two bases whose columns differ (a flipped or rotated mode, another
+        mesh or material) differ here well above round-off; RBBO runs record it, so that a
+        B_c is never replayed in a simulation space other than the one it was found in."""
+        return self.basis.T @ _reference_fields(self.basis.shape[0], 1)[:, 0]
+
 
 def _mass_gram_schmidt(
     columns: list[np.ndarray], mass3: np.ndarray, start: np.ndarray, tol: float = 1e-6
