@@ -226,24 +226,14 @@ def build_subspace(
 
     # Shift-invert Lanczos around a small negative shift finds the smallest eigenpairs;
     # the six rigid modes sit at lambda ~ 0 and are split off below.
-    # One eigenpair beyond those kept, to see whether the cut splits a degenerate eigenspace.
-    want = min(num_modes + 7, 3 * n - 1)
+    # One eigenpair beyond those kept shows whether the cut splits a degenerate eigenspace;
+    # only then are more computed, to see it whole (canonical_eigenvectors).
     scale = float(np.mean(k0.diagonal() / mass3))
-    if 3 * n <= 600:
-        lam, vec = _dense_eigh(k0, mass3)
-        lam, vec = lam[:want], vec[:, :want]
-    else:
-        lam, vec = spla.eigsh(
-            k0,
-            k=want,
-            M=sp.diags(mass3),
-            sigma=-1e-6 * scale,
-            which="LM",
-            tol=1e-10,
-            v0=np.ones(3 * n),  # a fixed start vector keeps the result reproducible
-        )
-        order = np.argsort(lam)
-        lam, vec = lam[order], vec[:, order]
+    want = min(num_modes + 7, 3 * n - 1)
+    lam, vec = _lowest_eigenpairs(k0, mass3, want, scale)
+    while want < 3 * n - 1 and _cluster_at_end(lam[6 + num_modes - 1 :]):
+        want = min(want + 8, 3 * n - 1)
+        lam, vec = _lowest_eigenpairs(k0, mass3, want, scale)
     rigid_like = lam < 1e-8 * scale
     if rigid_like.sum() > 6:
         raise ValueError(
@@ -310,23 +300,25 @@ def canonical_eigenvectors(
     Here eigenvalues within ``rel_gap`` (relative) of each other form a cluster, and each
     cluster's span gets the basis obtained by M-projecting fixed generic fields w_1, ..., w_d
     (:func:`_reference_fields`) on it and M-orthonormalising them in order: for a simple
-    eigenvalue, the eigenvector whose sign makes w^T M u > 0. The span of the first ``keep``
-    columns is unchanged; raises ValueError when the cut at ``keep`` splits a cluster (the
-    kept span itself would then be the solver's choice: choose M one larger or smaller).
+    eigenvalue, the eigenvector whose sign makes w^T M u > 0. Where the cut at ``keep``
+    falls inside a cluster, the kept columns are the first of its canonical basis (the part of
+    the eigenspace the fields w_1, w_2, ... reach first): an arbitrary choice, but the same on
+    every machine. Raises ValueError when that cluster runs to the last eigenpair given (its
+    full extent is unknown: compute more eigenpairs).
     """
     lam = np.asarray(lam, dtype=float)
-    if keep < len(lam) and abs(lam[keep] - lam[keep - 1]) <= rel_gap * abs(lam[keep]):
-        raise ValueError(
-            f"the {keep} kept vibration modes end inside a degenerate eigenspace (lambda = "
-            f"{lam[keep - 1]:.6g} and {lam[keep]:.6g}): the kept span would depend on the "
-            "eigensolver; choose M so that the mode count changes by one"
-        )
     out = np.empty((vec.shape[0], keep))
     start = 0
     while start < keep:
         stop = start + 1
         while stop < len(lam) and abs(lam[stop] - lam[stop - 1]) <= rel_gap * abs(lam[stop]):
             stop += 1
+        if start < keep < stop and stop == len(lam):
+            raise ValueError(
+                f"the {keep} kept vibration modes end inside a degenerate eigenspace that "
+                f"reaches the last of the {len(lam)} eigenpairs computed (lambda = "
+                f"{lam[start]:.6g}): compute more eigenpairs, or choose another M"
+            )
         block = vec[:, start:stop]
         fields = _reference_fields(vec.shape[0], stop - start)
         # Coefficients of each field's M-projection on the cluster, then Gram-Schmidt (QR)
@@ -337,6 +329,32 @@ def canonical_eigenvectors(
         out[:, start : min(stop, keep)] = (block @ q)[:, : min(stop, keep) - start]
         start = stop
     return out
+
+
+def _lowest_eigenpairs(k0: sp.spmatrix, mass3: np.ndarray, want: int, scale: float
+                       ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The ``want`` lowest eigenpairs of K u = lambda M u, ascending."""
+    n3 = len(mass3)
+    if n3 <= 600:
+        lam, vec = _dense_eigh(k0, mass3)
+        return lam[:want], vec[:, :want]
+    lam, vec = spla.eigsh(
+        k0,
+        k=want,
+        M=sp.diags(mass3),
+        sigma=-1e-6 * scale,
+        which="LM",
+        tol=1e-10,
+        v0=np.ones(n3),  # a fixed start vector keeps the result reproducible
+    )
+    order = np.argsort(lam)
+    return lam[order], vec[:, order]
+
+
+def _cluster_at_end(lam: np.ndarray, rel_gap: float = 1e-6) -> bool:
+    """Whether the eigenvalues from the first to the last are all one cluster (a degenerate
+    eigenspace that the computed pairs may not cover)."""
+    return len(lam) > 1 and bool(np.all(np.abs(np.diff(lam)) <= rel_gap * np.abs(lam[1:])))
 
 
 def _dense_eigh(k0: sp.spmatrix, mass3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
