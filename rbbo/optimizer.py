@@ -333,6 +333,10 @@ class RBBO:
         finally:
             if own:
                 executor.shutdown(wait=ok)
+        return self._record_result()
+
+    def _record_result(self) -> RBBOResult:
+        """The result so far, also written to summary.json and best_basis.npy."""
         result = self.result()
         if self.store is not None:
             self.store.write_summary(result.summary())
@@ -388,12 +392,7 @@ class RBBO:
         if self.config.n_confirm == 0:
             raise ValueError("the run was made with no confirmation seeds (n_confirm = 0)")
         self._confirm(executor, callback, again=True)
-        result = self.result()
-        if self.store is not None:
-            self.store.write_summary(result.summary())
-            if result.best_basis is not None:
-                self.store.save_best(result.best_basis)
-        return result
+        return self._record_result()
 
     def _confirm(self, executor: Executor, callback, again: bool = False) -> None:
         """Evaluate the identity and the recommendation on fresh seeds at T_max (``again``:
