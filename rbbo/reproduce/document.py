@@ -142,9 +142,10 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                       "the BLAS kernel of the machine. Their stored bases were carried into "
                       "the machine-independent B_r (the same full-space actuations: "
                       "`migration.json` in each run, `benchmarks/migrate_run_bases.py`) and "
-                      "R_init and R* above were measured again there (`rbbo confirm`); the "
-                      "search itself, its evaluation count and convergence plot, ran in the "
-                      "old space, whose cubature rule differs by how it broke ties.",
+                      "R_init and R* above were measured again there (`rbbo confirm`; the "
+                      "wall time counts both confirmations); the search itself, its "
+                      "evaluation count and convergence plot, ran in the old space, whose "
+                      "cubature rule differs by how it broke ties.",
                       ""]  # fmt: skip
     transfer = transfer_rows(out, table, plan.transfer_sim_dim) if table else []
     if transfer:
