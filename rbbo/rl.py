@@ -114,6 +114,7 @@ def resolve_bases(
             if store is None:
                 raise ValueError("--control-basis best needs --run DIR (an RBBO run directory)")
             bases["best"] = store.best_basis()
+            _expect_run_space(store, env_id, env_kwargs, dims)
         elif spec.endswith(".npy"):
             try:
                 b = np.load(spec, allow_pickle=False)
@@ -130,6 +131,16 @@ def resolve_bases(
     if "identity" in specs:
         bases = {"identity": np.eye(dims[0])[:, : dims[1]], **bases}
     return bases, env_kwargs
+
+
+def _expect_run_space(store, env_id: str, env_kwargs: dict, dims: tuple[int, int]) -> None:
+    """Refuse a run's B_c when the env now builds another simulation space than the run's."""
+    from .objective import EnvObjective
+
+    recorded = (store.config.get("objective") or {}).get("simulation_space")
+    if recorded is not None:
+        objective = EnvObjective(env_id, dims[0], dims[1], env_kwargs=env_kwargs)
+        objective.expect_simulation_space(recorded)
 
 
 def t_interval(values) -> tuple[float, float]:

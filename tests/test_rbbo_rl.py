@@ -10,6 +10,7 @@ import pytest
 
 from rbbo import rl
 from rbbo.cli import main
+from rbbo.objective import EnvObjective
 from rbbo.store import RunStore
 
 ENV = "softrom_gym/CrossSwim-v0"  # the cheapest env
@@ -129,6 +130,16 @@ def test_resolve_bases(tmp_path):
     np.testing.assert_array_equal(bases["best"], best)
     with pytest.raises(ValueError, match="CrossWalk"):
         rl.resolve_bases(["best"], "softrom_gym/CrossWalk-v0", run)
+    # a run recorded in another simulation space (a flipped mode) is refused by name
+    other = tmp_path / "other"
+    spec = {"kind": "env", "env_id": ENV, "env_kwargs": {"friction": 0.5}}
+    signature = EnvObjective(ENV, 8, 2, env_kwargs=spec["env_kwargs"]).simulation_space()
+    flipped = [*signature[:7], -signature[7], *signature[8:]]
+    config = {"rbbo": {"sim_dim": 8, "control_dim": 2},
+              "objective": {**spec, "simulation_space": flipped}}  # fmt: skip
+    RunStore.create(other, config).save_best(best)
+    with pytest.raises(ValueError, match=r"coordinates \[7\] differ"):
+        rl.resolve_bases(["best"], ENV, other)
     with pytest.raises(ValueError, match="no best_basis"):
         (run / "best_basis.npy").unlink()
         rl.resolve_bases(["best"], ENV, run)

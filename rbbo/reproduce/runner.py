@@ -226,6 +226,8 @@ def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
         bases = {"identity": np.eye(m)[:, :c]}
         best = out / "runs" / f"{bench}-boca" / "best_basis.npy"
         if best.exists():
+            recorded = RBBO.resume(best.parent, read_only=True).objective_spec
+            _objective(plan, bench).expect_simulation_space(recorded.get("simulation_space"))
             basis = np.load(best)
             # named by its bytes: a longer Table I run may recommend another B_c, which then
             # trains afresh instead of being refused by (or resumed into) the older one's run
