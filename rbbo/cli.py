@@ -524,6 +524,7 @@ def _terminate_as_interrupt():
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``rbbo`` console script; returns the exit status."""
+    from .objective import SimulationSpaceMismatch
     from .store import RunDirectoryError
 
     try:
@@ -531,7 +532,7 @@ def main(argv: list[str] | None = None) -> int:
         args.argv = list(sys.argv[1:] if argv is None else argv)
         with _terminate_as_interrupt():
             return COMMANDS[args.command](args)
-    except (UsageError, RunDirectoryError) as exc:
+    except (UsageError, RunDirectoryError, SimulationSpaceMismatch) as exc:
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"rbbo: error: {message}", file=sys.stderr)
         return 2

@@ -337,3 +337,23 @@ def test_an_interrupt_does_not_wait_for_the_evaluations_in_flight():
     finally:
         timer.cancel()
     assert time.monotonic() - start < 60.0  # the evaluations alone take 120 s
+
+
+def test_a_run_in_another_simulation_space_is_refused(reproduction, tmp_path, capsys):
+    """Resumed in an env that builds other reduced coordinates (here: a recorded fingerprint
+    with one mode flipped, as another BLAS kernel gave before cache version 4), the run's
+    bases would mean other actuations: refused with one error line, nothing evaluated."""
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(reproduction, copy)
+    config_path = copy / "runs" / "CrossSwim-v0-boca" / "config.json"
+    config = json.loads(config_path.read_text())
+    config["objective"]["simulation_space"][7] *= -1.0
+    config_path.write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
+    before = _history(copy / "runs" / "CrossSwim-v0-boca")
+    argv = [*TINY, "--out", str(copy)]
+    assert main([*argv, "--stages", "table"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("rbbo: error: ") and "coordinates [7] differ" in err[-1]
+    assert _history(copy / "runs" / "CrossSwim-v0-boca") == before
