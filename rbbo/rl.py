@@ -235,6 +235,28 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
     lines = [json.loads(x) for x in log.read_text().splitlines() if x] if log.exists() else []
     done = sorted(int(p.stem[5:]) for p in ckpts.glob("step_*.zip") if p.stem[5:].isdigit())
     key = {"seeds": list(seeds), "seconds": seconds, "settle_time": settle}
+
+    def rows_up_to(n: int) -> list[dict]:
+        rows = {}
+        for x in lines:
+            if {k: x[k] for k in key} == key and x["steps"] <= n:
+                rows[x["steps"]] = _row(env_id, algo, name, x["steps"] == n, x["steps"],
+                                        x["physics_steps"], x["wall_s"], x["distance"],
+                                        body)  # fmt: skip
+        return [rows[k] for k in sorted(rows)]
+
+    if lines and not done:
+        # The log without the checkpoints it describes: a committed reproduction keeps logs,
+        # not weights. A job its log shows finished is reported from the log; an unfinished
+        # one trains again from the start, its old log kept beside, not mixed into the new.
+        logged = max((x["steps"] for x in lines if {k: x[k] for k in key} == key), default=0)
+        if logged >= steps:
+            train_env.close()
+            eval_env.close()
+            return rows_up_to(logged)
+        count = len(list(folder.glob("progress-*")))
+        os.replace(log, folder / f"progress-without-checkpoints-{count}.jsonl")
+        lines = []
     if done:
         model = cls.load(ckpts / f"step_{done[-1]}.zip", env=train_env, device="cpu")
         if algo == "sac" and (ckpts / f"step_{done[-1]}_replay.pkl").is_file():
@@ -307,15 +329,9 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
         checkpoint(model, save=False)  # evaluated before with other seeds or seconds
     if trained or not (folder / "final.zip").is_file():
         model.save(folder / "final.zip")
-    rows = {}
-    for x in lines:
-        if {k: x[k] for k in key} == key and x["steps"] <= n:
-            rows[x["steps"]] = _row(env_id, algo, name, x["steps"] == n, x["steps"],
-                                    x["physics_steps"], x["wall_s"], x["distance"],
-                                    body)  # fmt: skip
     train_env.close()
     eval_env.close()
-    return [rows[k] for k in sorted(rows)]
+    return rows_up_to(n)
 
 
 def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,

@@ -74,6 +74,38 @@ def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
     assert "holds another run" in capsys.readouterr().err
 
 
+def test_a_log_without_its_weights_reports_or_restarts(tmp_path, capsys, monkeypatch):
+    """A committed reproduction keeps progress.jsonl, not the weights: a finished job is
+    reported from its log without training again; an unfinished one starts over, its old log
+    kept beside the new one."""
+    import shutil
+
+    import stable_baselines3 as sb3
+
+    out = tmp_path / "bl"
+    args = ["baselines", ENV, "--algo", "ppo", "--out", str(out), *SMALL, "--no-mpc"]
+    assert main(args) == 0
+    table = capsys.readouterr().out
+    folder = out / "ppo-identity"
+    first = _lines(folder / "progress.jsonl")
+    shutil.rmtree(folder / "checkpoints")
+    (folder / "final.zip").unlink()
+
+    def refuse(*a, **k):
+        raise AssertionError("retrained a finished run")
+
+    monkeypatch.setattr(sb3.PPO, "learn", refuse)
+    assert main(args) == 0
+    assert capsys.readouterr().out == table
+    monkeypatch.undo()
+
+    more = [*args]
+    more[more.index("256")] = "384"
+    assert main(more) == 0
+    assert _lines(folder / "progress-without-checkpoints-0.jsonl") == first
+    assert [x["steps"] for x in _lines(folder / "progress.jsonl")] == [128, 256, 384]
+
+
 def test_parallel_jobs_give_the_sequential_results(tmp_path, capsys):
     # each job is seeded and owns its folder, so two processes reproduce one process's rows
     tables = []
