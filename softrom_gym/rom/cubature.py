@@ -64,8 +64,8 @@ def sample_poses(
 
 
 def _ranked(score: np.ndarray, rel_tol: float = 1e-7) -> np.ndarray:
-    """Indices by descending score, scores within ``rel_tol`` of the largest counted equal
-    and ordered by index.
+    """Indices by descending score, each score rounded to a multiple of ``rel_tol`` times the
+    largest, equal rounded scores ordered by index.
 
     A symmetric mesh has mirror-image elements with equal scores; ranking them by their last
     bits made the rule (and so the physics) depend on the machine's BLAS kernels.
