@@ -136,6 +136,33 @@ def test_rerun_resumes_without_new_evaluations(reproduction):
     assert made_by.count("  # softrom ") == 2
 
 
+def test_report_says_what_the_whole_record_holds_whichever_stages_ran_last(reproduction):
+    # A session that runs one stage rewrites the report from every stage's results: nothing
+    # finished earlier is called "not run", and nothing unfinished is hidden.
+    assert main(["reproduce", "--out", str(reproduction), "--report-only", "--stages", "rl"]) == 0
+    text = (reproduction / "REPORT.md").read_text()
+    assert "Not run yet" not in text and "Under way" not in text
+    assert "## Table I" in text and "## Eight directions" in text
+
+
+def test_stage_progress_counts_parts_done_and_planned(reproduction, tmp_path):
+    from rbbo.reproduce.document import _progress_lines
+    from rbbo.reproduce.status import stage_progress
+
+    plan = ReproducePlan.from_dict(
+        json.loads((reproduction / "reproduce.json").read_text())["plan"]
+    )
+    done = stage_progress(reproduction, plan)
+    assert done == {"table": (1, 1), "bo": (1, 1), "transfer": (1, 1), "directions": (2, 2),
+                    "perturbation": (3, 3), "studies": (4, 4), "rl": (1, 1)}  # fmt: skip
+    assert _progress_lines(done) == []
+    empty = stage_progress(tmp_path, plan)
+    assert all(d == 0 for d, _ in empty.values())
+    assert _progress_lines(empty)[0].startswith("Not run yet in this reproduction: table, bo, ")
+    partial = _progress_lines({**done, "directions": (1, 2)})
+    assert partial[0].startswith("Under way (parts finished of those planned): directions (1 of 2)")
+
+
 def test_report_only_rewrites_the_report_and_its_copy(reproduction, tmp_path):
     (reproduction / "REPORT.md").unlink()
     copy = tmp_path / "docs" / "REPORT.md"

@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from .figures import plot_bo_vs_boca, plot_directions, plot_perturbation, plot_study
-from .plan import _STAGES, PAPER_DIRECTIONS, ReproducePlan
+from .plan import PAPER_DIRECTIONS, ReproducePlan
+from .status import stage_progress
 from .tables import confidence_interval, format_markdown, read_rows, table_row, write_csv
 from .transfer import format_transfer_markdown, transfer_rows
 
@@ -99,16 +100,15 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
     lines += [s["command"] + (f"  # {s['source']}" if s.get("source") else "")
               for s in sessions] + ["```", ""]  # fmt: skip
     cap = "" if plan.iterations is None else f" or {plan.iterations} evaluations"
-    beside = "; the BO run beside it had the same" if "bo" in plan.stages else ""
+    progress = stage_progress(out, plan)
+    beside = "; the BO run beside it had the same" if progress["bo"][0] or panels else ""
     lines += [f"Total wall time {total / 60:.1f} min on {_machine()}. Budget per benchmark "
               f"{plan.budget_s / 60:g} min{cap} (BOCA{beside}), "
               f"{plan.workers} workers, controller {plan.controller}, M = {plan.sim_dim}, "
               f"C = {plan.control_dim}, T in [{plan.t_min:g}, {plan.t_max:g}] s, R measured "
               f"from t = {plan.settle_time:g} s, R_init and R* each on {plan.confirm_seeds} "
               "fresh MPC seeds (mean ± 95 % t-interval).", ""]  # fmt: skip
-    skipped = [stage for stage in _STAGES if stage not in plan.stages]
-    if skipped:
-        lines += [f"Not run in this reproduction (stages left out): {', '.join(skipped)}.", ""]
+    lines += _progress_lines(progress)
     if plan.planner_kwargs:
         lines += [f"MPC settings overridden: `{plan.planner_kwargs}`.", ""]
     if table:
@@ -304,6 +304,20 @@ def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[st
                   f"{sum(int(r['C']) == c for r in reward)} |"
                   for c, (m, _), sd in zip(cs, stats, sds, strict=True)]  # fmt: skip
         lines.append("")
+    return lines
+
+
+def _progress_lines(progress: dict[str, tuple[int, int]]) -> list[str]:
+    """What the record does not hold yet: stages with nothing done, and stages under way."""
+    missing = [stage for stage, (done, n) in progress.items() if n and done == 0]
+    partial = [f"{stage} ({done} of {n})" for stage, (done, n) in progress.items()
+               if 0 < done < n]  # fmt: skip
+    lines = []
+    if missing:
+        lines += [f"Not run yet in this reproduction: {', '.join(missing)}.", ""]
+    if partial:
+        lines += [f"Under way (parts finished of those planned): {', '.join(partial)}; the "
+                  "sections below show what has finished.", ""]  # fmt: skip
     return lines
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from .plan import ReproducePlan
 from .tables import read_rows
 
-__all__ = ["status_lines"]
+__all__ = ["stage_progress", "status_lines"]
 
 
 def _run_state(path: Path, budget_s: float, iterations: int | None) -> tuple[str, float]:
@@ -35,6 +35,59 @@ def _run_state(path: Path, budget_s: float, iterations: int | None) -> tuple[str
         return f"confirming ({result.evaluations} evaluations)", 0.0
     return (f"searching: {result.evaluations} evaluations, {result.wall_s / 60:.1f} of "
             f"{budget_s / 60:g} min"), left  # fmt: skip
+
+
+def _run_done(path: Path, budget_s: float, iterations: int | None) -> bool:
+    return _run_state(path, budget_s, iterations)[0].startswith("done")
+
+
+def _rl_jobs_done(folder: Path, plan: ReproducePlan) -> bool:
+    """Whether every MPPI and RL job of one benchmark's RL stage has finished."""
+    from ..rl import steps_per_algo
+
+    if not folder.exists():
+        return False
+    target = steps_per_algo(plan.rl_steps, tuple(plan.rl_algos))
+    jobs = [p for p in folder.iterdir() if p.is_dir()]
+    for run in jobs:
+        algo = run.name.split("-")[0]
+        if algo == "mppi":
+            if not (run / "episodes.json").exists():
+                return False
+            continue
+        log = run / "progress.jsonl"
+        lines = log.read_text().splitlines() if log.exists() else []
+        if max((json.loads(x)["steps"] for x in lines if x), default=0) < target.get(algo, 0):
+            return False
+    return bool(jobs) and (folder / "baselines.md").exists()
+
+
+def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]:
+    """``{stage: (parts done, parts planned)}`` for every stage, whichever of them the last
+    command named: a reproduction spans sessions that each run some stages, and its report
+    says what the whole record holds. A part is one benchmark's run (table, bo, transfer,
+    rl), one direction, one perturbation offset or one study point."""
+    runs = out / "runs"
+    n_bench = len(plan.benchmarks)
+    table = sum(_run_done(runs / f"{b}-boca", plan.budget_s, plan.iterations)
+                for b in plan.benchmarks)  # fmt: skip
+    bo = sum(_run_done(runs / f"{b}-bo", plan.budget_s, plan.iterations) for b in plan.benchmarks)
+    m = plan.transfer_sim_dim
+    rows = [r for r in read_rows(out / "transfer.csv") if int(r["M"]) == m]
+    transfer = sum(sum(r["benchmark"] == b for r in rows) >= 2 for b in plan.benchmarks)
+    angles = plan.direction_angles_deg()
+    directions = sum(_run_done(runs / f"{plan.direction_env}-dir{deg:03.0f}",
+                               plan.direction_budget_s, plan.iterations)
+                     for deg in angles)  # fmt: skip
+    n_offsets = 1 + 2 * len(plan.perturbations_deg)
+    offsets = min(len(read_rows(out / "perturbation.csv")), n_offsets)
+    n_study = len(plan.cost_cs) + len(plan.reward_cs) * plan.study_seeds
+    study = min(len(read_rows(out / "studies" / "cost_vs_c.csv"))
+                + len(read_rows(out / "studies" / "reward_vs_c.csv")), n_study)  # fmt: skip
+    rl = sum(_rl_jobs_done(out / "rl" / b, plan) for b in plan.rl_benchmarks)
+    return {"table": (table, n_bench), "bo": (bo, n_bench), "transfer": (transfer, n_bench),
+            "directions": (directions, len(angles)), "perturbation": (offsets, n_offsets),
+            "studies": (study, n_study), "rl": (rl, len(plan.rl_benchmarks))}  # fmt: skip
 
 
 def _rl_state(folder: Path, plan: ReproducePlan) -> str:
