@@ -209,6 +209,26 @@ def _claim(folder: Path, meta: dict) -> None:
                                 "another --out")  # fmt: skip
 
 
+def _read_progress(log: Path) -> list[dict]:
+    """The rows of a training job's progress.jsonl. A last line torn by a kill mid-write is
+    dropped from the file (the next row would otherwise be glued onto it); its evaluation is
+    made again with the checkpoint it belongs to, or was of one never saved."""
+    if not log.exists():
+        return []
+    text = log.read_text(encoding="utf-8")
+    rows, torn = [], False
+    for line in text.splitlines():
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:
+            torn = torn or bool(line.strip())
+    if torn or (text and not text.endswith("\n")):
+        tmp = log.with_name(log.name + ".tmp")
+        tmp.write_text("".join(json.dumps(r) + "\n" for r in rows), encoding="utf-8")
+        os.replace(tmp, log)
+    return rows
+
+
 def _row(env_id, method, basis, final, env_steps, physics, wall, distances, body) -> dict:
     mean, half = t_interval(distances)
     return {"env": env_id, "method": method, "basis": basis, "final": final,
@@ -232,7 +252,7 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
     body = float(train_env.get_wrapper_attr("body_length"))
     ckpts, log = folder / "checkpoints", folder / "progress.jsonl"
     ckpts.mkdir(parents=True, exist_ok=True)
-    lines = [json.loads(x) for x in log.read_text().splitlines() if x] if log.exists() else []
+    lines = _read_progress(log)
     done = sorted(int(p.stem[5:]) for p in ckpts.glob("step_*.zip") if p.stem[5:].isdigit())
     key = {"seeds": list(seeds), "seconds": seconds, "settle_time": settle}
 

@@ -30,3 +30,16 @@ def _isolated_cache(tmp_path_factory):
         del os.environ["SOFTROM_CACHE_DIR"]
     else:
         os.environ["SOFTROM_CACHE_DIR"] = old
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _interruptible():
+    """The Ctrl-C tests need SIGINT raised as KeyboardInterrupt. A shell without job control
+    starts background commands (``pytest &``, a CI step sent to the background) with SIGINT
+    ignored; Python then leaves it ignored, and so do the processes it starts. Restore
+    Python's handler (exec resets it to the default in those processes)."""
+    import signal
+
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield

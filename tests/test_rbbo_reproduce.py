@@ -136,13 +136,24 @@ def test_rerun_resumes_without_new_evaluations(reproduction):
     assert made_by.count("  # softrom ") == 2
 
 
-def test_report_says_what_the_whole_record_holds_whichever_stages_ran_last(reproduction):
-    # A session that runs one stage rewrites the report from every stage's results: nothing
-    # finished earlier is called "not run", and nothing unfinished is hidden.
-    assert main(["reproduce", "--out", str(reproduction), "--report-only", "--stages", "rl"]) == 0
-    text = (reproduction / "REPORT.md").read_text()
-    assert "Not run yet" not in text and "Under way" not in text
-    assert "## Table I" in text and "## Eight directions" in text
+def test_report_says_what_the_whole_record_holds_whichever_stages_ran_last(reproduction, tmp_path):
+    # A later session that runs one stage, without the RL flags, rewrites the report from
+    # every stage's results: nothing finished earlier is called unfinished, and the RL
+    # section says what was trained, not the RL defaults of the last command.
+    import shutil
+
+    out = tmp_path / "copy"
+    shutil.copytree(reproduction, out)
+    cut = TINY.index("--rl-steps")
+    later = TINY[:cut] + TINY[cut + 4 :]  # without --rl-steps 64 --rl-algos ppo
+    assert main([*later, "--out", str(out), "--stages", "perturbation"]) == 0
+    text = (out / "REPORT.md").read_text()
+    assert "No part finished yet" not in text and "Under way" not in text
+    assert "## Table I" in text and "## 2 walking directions" in text
+    assert "## RL baselines on CrossSwim-v0" in text
+    assert "PPO (Stable-Baselines3, 64 env steps each" in text
+    sessions = json.loads((out / "reproduce.json").read_text())["sessions"]
+    assert all(s["machine"] and s["workers"] == 1 for s in sessions[-1:])
 
 
 def test_stage_progress_counts_parts_done_and_planned(reproduction, tmp_path):
@@ -158,7 +169,7 @@ def test_stage_progress_counts_parts_done_and_planned(reproduction, tmp_path):
     assert _progress_lines(done) == []
     empty = stage_progress(tmp_path, plan)
     assert all(d == 0 for d, _ in empty.values())
-    assert _progress_lines(empty)[0].startswith("Not run yet in this reproduction: table, bo, ")
+    assert _progress_lines(empty)[0].startswith("No part finished yet: table, bo, ")
     partial = _progress_lines({**done, "directions": (1, 2)})
     assert partial[0].startswith("Under way (parts finished of those planned): directions (1 of 2)")
 
@@ -234,7 +245,9 @@ def test_plan_validates_and_round_trips():
         ReproducePlan(rl_steps={"ppo": 5, "sac": 0})
 
 
-def test_rl_stage_without_stable_baselines3_is_a_usage_error(monkeypatch, tmp_path, capsys):
+def test_rl_stage_without_stable_baselines3_is_a_usage_error(
+    reproduction, monkeypatch, tmp_path, capsys
+):
     import rbbo.rl
 
     def missing():
@@ -244,6 +257,54 @@ def test_rl_stage_without_stable_baselines3_is_a_usage_error(monkeypatch, tmp_pa
     assert main(["reproduce", "--out", str(tmp_path / "x"), "--stages", "rl"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "softrom[rl]" in err[0] and "--stages" in err[0]
+    # a status runs nothing, so it needs nothing: it reads what the RL stage wrote
+    assert main(["reproduce", "--out", str(reproduction), "--status"]) == 0
+    assert any(x.startswith("rl ") for x in capsys.readouterr().out.splitlines())
+
+
+def test_a_replaced_best_basis_is_measured_again_its_old_rows_kept(reproduction, tmp_path):
+    import shutil
+
+    from rbbo.reproduce.tables import basis_digest, read_rows
+
+    out = tmp_path / "copy"
+    shutil.copytree(reproduction, out)
+    # as if a longer budget had made both runs recommend another B_c
+    boca = out / "runs" / "CrossSwim-v0-boca" / "best_basis.npy"
+    np.save(boca, np.load(boca)[:, ::-1].copy())
+    base = out / "runs" / "CrossSwim-v0-dir000" / "best_basis.npy"
+    np.save(base, -np.load(base))
+    assert main([*TINY, "--out", str(out), "--stages", "transfer,perturbation"]) == 0
+    old = read_rows(out / "transfer-superseded.csv")
+    assert [r["basis"] for r in old] == ["best"]
+    rows = read_rows(out / "transfer.csv")
+    assert sorted(r["basis"] for r in rows) == ["best", "identity"]
+    best = next(r for r in rows if r["basis"] == "best")
+    assert best["basis_digest"] == basis_digest(np.load(boca))
+    assert len(read_rows(out / "perturbation-superseded.csv")) == 3
+    rows = read_rows(out / "perturbation.csv")
+    assert len(rows) == 3 and {r["basis_digest"] for r in rows} == {basis_digest(np.load(base))}
+
+
+def test_a_row_with_new_columns_widens_the_csv_and_keeps_the_old_rows(tmp_path):
+    from rbbo.reproduce.runner import _append_row
+    from rbbo.reproduce.tables import read_rows
+
+    path = tmp_path / "t.csv"
+    path.write_text("a,b\n1,2\n")  # written by an older version
+    _append_row(path, {"a": 3, "b": 4, "c": 5})
+    _append_row(path, {"a": 6, "b": 7, "c": 8})
+    assert read_rows(path) == [{"a": "1", "b": "2", "c": ""}, {"a": "3", "b": "4", "c": "5"},
+                               {"a": "6", "b": "7", "c": "8"}]  # fmt: skip
+
+
+def test_a_progress_log_torn_by_a_kill_is_read_and_mended(tmp_path):
+    from rbbo.rl import _read_progress
+
+    log = tmp_path / "progress.jsonl"
+    log.write_text('{"steps": 64}\n{"steps": 128}\n{"steps": 19')
+    assert _read_progress(log) == [{"steps": 64}, {"steps": 128}]
+    assert log.read_text() == '{"steps": 64}\n{"steps": 128}\n'  # the next row starts a line
 
 
 def test_the_committed_report_matches_its_run_histories():

@@ -142,8 +142,8 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    "(e.g. docs/REPORT.md)")  # fmt: skip
     p.add_argument("--status", action="store_true",
                    help="print what each part of the reproduction in --out has done and the "
-                   "budget left (the stored plan; --stages and budgets given here override "
-                   "it), and exit")  # fmt: skip
+                   "budget left (every stage of the stored plan; --stages and budgets given "
+                   "here override it), and exit")  # fmt: skip
     p.add_argument("--no-progress", action="store_true")
     return p
 
@@ -181,6 +181,8 @@ def _status(args, usage_error: type[Exception]) -> int:
          "budget_s"), ("--direction-budget", "direction_budget", "direction_budget_s"),
         ("--rl-benchmarks", "rl_benchmarks", "rl_benchmarks"), ("--rl-steps", "rl_steps",
          "rl_steps"), ("--rl-algos", "rl_algos", "rl_algos")) if flag in given}  # fmt: skip
+    # The stored stages are the last session's; a status is of the whole reproduction.
+    changes.setdefault("stages", list(_STAGES))
     try:
         plan = replace(stored, **changes)
     except (ValueError, TypeError) as exc:
@@ -199,7 +201,7 @@ def command(args, usage_error: type[Exception]) -> int:
 
     try:
         plan = _plan(args)
-        if "rl" in plan.stages and not args.report_only:
+        if "rl" in plan.stages and not (args.report_only or args.status):
             from ..rl import require_sb3
 
             try:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-import platform
 import re
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ import numpy as np
 
 from .figures import plot_bo_vs_boca, plot_directions, plot_perturbation, plot_study
 from .plan import PAPER_DIRECTIONS, ReproducePlan
-from .status import stage_progress
+from .status import _rl_benchmarks, stage_progress
 from .tables import confidence_interval, format_markdown, read_rows, table_row, write_csv
 from .transfer import format_transfer_markdown, transfer_rows
 
@@ -60,9 +59,23 @@ def _num(x: float, spec: str = ".4g") -> str:
     return "-" if x is None or not math.isfinite(x) else f"{x:{spec}}"
 
 
-def _machine() -> str:
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return f"{platform.processor() or platform.machine()}, {cpus} CPUs, {platform.system()}"
+def _machine(sessions: list[dict[str, Any]] | None = None) -> str:
+    """The machines the sessions ran on (recorded since 2026-12-02; an older session is
+    taken to have run where the report is written)."""
+    from .runner import machine_description
+
+    here = machine_description()
+    seen = list(dict.fromkeys(s.get("machine", here) for s in sessions or [])) or [here]
+    return " / ".join(seen)
+
+
+def _session_values(sessions: list[dict[str, Any]], key: str, current: float) -> str:
+    """A setting that may change between sessions, as the report prints it: one value, or
+    each distinct value in the order the sessions used them."""
+    values = list(dict.fromkeys(s.get(key, current) for s in sessions)) or [current]
+    if key.endswith("_s"):
+        return " / ".join(f"{v / 60:g}" for v in values)
+    return " / ".join(f"{v:g}" for v in values)
 
 
 def _relink(lines: list[str], out: Path, folder: Path) -> list[str]:
@@ -102,9 +115,10 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
     cap = "" if plan.iterations is None else f" or {plan.iterations} evaluations"
     progress = stage_progress(out, plan)
     beside = "; the BO run beside it had the same" if progress["bo"][0] or panels else ""
-    lines += [f"Total wall time {total / 60:.1f} min on {_machine()}. Budget per benchmark "
-              f"{plan.budget_s / 60:g} min{cap} (BOCA{beside}), "
-              f"{plan.workers} workers, controller {plan.controller}, M = {plan.sim_dim}, "
+    lines += [f"Total wall time {total / 60:.1f} min on {_machine(sessions)}. Budget per "
+              f"benchmark {_session_values(sessions, 'budget_s', plan.budget_s)} min{cap} "
+              f"(BOCA{beside}), {_session_values(sessions, 'workers', plan.workers)} workers, "
+              f"controller {plan.controller}, M = {plan.sim_dim}, "
               f"C = {plan.control_dim}, T in [{plan.t_min:g}, {plan.t_max:g}] s, R measured "
               f"from t = {plan.settle_time:g} s, R_init and R* each on {plan.confirm_seeds} "
               "fresh MPC seeds (mean ± 95 % t-interval).", ""]  # fmt: skip
@@ -190,7 +204,7 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
         written["directions"] = directions
         gains = [r["improvement_pct"] for r in directions if math.isfinite(r["improvement_pct"])]
         lines += [
-            "## Eight directions",
+            f"## {len(plan.direction_angles_deg())} walking directions",
             "",
             "![directions](directions.png)",
             "",
@@ -229,24 +243,26 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                       f"paper: about {paper:.0%})."]  # fmt: skip
         lines.append("")
     lines += _studies(out, plan, written)
-    for bench in plan.rl_benchmarks:
+    for bench in _rl_benchmarks(out, plan):
         table_md = out / "rl" / bench / "baselines.md"
         if table_md.exists():
+            methods, budget = _rl_trained(out / "rl" / bench / "baselines.csv")
             lines += [f"## RL baselines on {bench}", "",
-                      f"PPO and SAC (Stable-Baselines3, {_rl_budget(plan)}, "
+                      f"{methods} (Stable-Baselines3, {budget}, "
                       "evaluated at every checkpoint) beside MPPI, on the identity basis and "
                       "on the Table I B_c (`rbbo-<hash>`), over the same "
                       f"{plan.confirm_seeds} seeds and {plan.t_max:g}-s episodes, distance "
                       f"from t = {plan.settle_time:g} s (mean ± 95 % t-interval).", "",
                       table_md.read_text().strip(), ""]  # fmt: skip
-    counts = [r["evaluations"] for r in table]
+    counts = [r["evaluations"] for r in table if math.isfinite(r["R_star"])]  # finished runs
     lines += ["## Where ours differs from the paper, and why", "",
               "- Our simulator is not theirs: our meshes have other node counts (column N), our "
               "B_r has linearised rotations and no floating frame, and contact is staggered "
               "projection in reduced coordinates; the paper's absolute R are in its own units.",
               "- Our R_init is the identity basis under our MPC (gait-seeded periodic MPPI or "
               "Gauss-Newton), which already walks; a stronger baseline leaves less to gain.",
-              f"- Our budget is {plan.budget_s / 60:g} min per benchmark on {_machine()} "
+              f"- Our budget is {_session_values(sessions, 'budget_s', plan.budget_s)} min "
+              f"per benchmark on {_machine(sessions)} "
               "against the paper's 10 hours on 48 cores"
               + (f", so RBBO saw {min(counts)}-{max(counts)} evaluations per benchmark."
                  if counts else "."),
@@ -308,21 +324,28 @@ def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[st
 
 
 def _progress_lines(progress: dict[str, tuple[int, int]]) -> list[str]:
-    """What the record does not hold yet: stages with nothing done, and stages under way."""
+    """What the record does not hold yet: stages with no part finished, and stages with
+    some. (A run still searching or not yet confirmed is not finished; the sections below
+    show it with what it has, its R* as "-" until confirmed.)"""
     missing = [stage for stage, (done, n) in progress.items() if n and done == 0]
     partial = [f"{stage} ({done} of {n})" for stage, (done, n) in progress.items()
                if 0 < done < n]  # fmt: skip
     lines = []
     if missing:
-        lines += [f"Not run yet in this reproduction: {', '.join(missing)}.", ""]
+        lines += [f"No part finished yet: {', '.join(missing)}.", ""]
     if partial:
-        lines += [f"Under way (parts finished of those planned): {', '.join(partial)}; the "
-                  "sections below show what has finished.", ""]  # fmt: skip
+        lines += [f"Under way (parts finished of those planned): {', '.join(partial)}.", ""]
     return lines
 
 
-def _rl_budget(plan: ReproducePlan) -> str:
-    """The RL budget as the report says it: N env steps each, or per method."""
-    if not isinstance(plan.rl_steps, dict):
-        return f"{plan.rl_steps} env steps each"
-    return " and ".join(f"{a.upper()} {n}" for a, n in plan.rl_steps.items()) + " env steps"
+def _rl_trained(path: Path) -> tuple[str, str]:
+    """The RL methods of a baselines.csv and the env steps each was trained to, as the
+    report says them ("PPO and SAC", "PPO 301056 and SAC 60000 env steps")."""
+    steps: dict[str, int] = {}
+    for r in read_rows(path):
+        if r["method"] != "mppi" and r["final"] == "True":
+            steps[r["method"]] = max(steps.get(r["method"], 0), int(float(r["env_steps"])))
+    names = " and ".join(m.upper() for m in steps) or "RL"
+    if len(set(steps.values())) == 1:
+        return names, f"{next(iter(steps.values()))} env steps each"
+    return names, " and ".join(f"{m.upper()} {n}" for m, n in steps.items()) + " env steps"

@@ -8,6 +8,7 @@ Layout of ``OUT`` (every part resumable: rerunning the same command continues it
     runs/<env>-dir<deg>/      one RBBO run per walking direction
     transfer.csv              Table I's two bases measured again at M = transfer_sim_dim
     perturbation.csv          the direction-0 B_c evaluated off its direction
+    *-superseded.csv          rows of a B_c that its run has since replaced (kept, not used)
     studies/                  cost_vs_c.csv, reward_vs_c.csv
     table1.csv, table1.md, *.png, REPORT.md
 
@@ -21,8 +22,10 @@ import csv
 import json
 import math
 import os
+import platform
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import fields
@@ -37,7 +40,7 @@ from ..objective import EnvObjective
 from ..optimizer import RBBO
 from ..store import RunDirectoryError, _atomic_write
 from .plan import ReproducePlan
-from .tables import read_rows
+from .tables import basis_digest, read_rows
 from .transfer import measure_transfer
 
 __all__ = ["reproduce"]
@@ -128,9 +131,20 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
 
 
 def _append_row(path: Path, row: dict[str, Any]) -> None:
-    """Append one CSV row and fsync it (a finished measurement is never lost)."""
+    """Append one CSV row and fsync it (a finished measurement is never lost). A row with
+    columns the file lacks (written by an older version) rewrites the file with the wider
+    header first, the old rows' new cells left empty."""
     path.parent.mkdir(parents=True, exist_ok=True)
     new = not path.exists()
+    if not new:
+        with open(path, newline="") as f:
+            header = next(csv.reader(f), [])
+        missing = [k for k in row if k not in header]
+        if missing or not header:
+            old = read_rows(path)
+            fieldnames = header + missing
+            _rewrite_csv(path, old, fieldnames)
+        row = {k: row.get(k, "") for k in (header + missing)} | row
     with open(path, "a", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(row))
         if new:
@@ -138,6 +152,34 @@ def _append_row(path: Path, row: dict[str, Any]) -> None:
         writer.writerow(row)
         f.flush()
         os.fsync(f.fileno())
+
+
+def _rewrite_csv(path: Path, rows: list[dict[str, Any]], fieldnames: list[str]) -> None:
+    """Replace ``path`` by ``rows`` under ``fieldnames`` atomically (a kill leaves the old
+    file or the new one, never half of either)."""
+    import io
+
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=fieldnames, restval="")
+    writer.writeheader()
+    writer.writerows(rows)
+    _atomic_write(path, buffer.getvalue().encode())
+
+
+def _supersede(path: Path, stale: Callable[[dict[str, str]], bool]) -> int:
+    """Move the rows of ``path`` for which ``stale(row)`` holds to ``<stem>-superseded.csv``
+    (appended there first, so a kill between the two writes duplicates a row, never loses
+    one); returns how many moved."""
+    rows = read_rows(path)
+    old = [r for r in rows if stale(r)]
+    if not old:
+        return 0
+    for r in old:
+        _append_row(path.with_name(f"{path.stem}-superseded.csv"), r)
+    with open(path, newline="") as f:
+        header = next(csv.reader(f), [])
+    _rewrite_csv(path, [r for r in rows if not stale(r)], header)
+    return len(old)
 
 
 def _evaluate_seeds(plan: ReproducePlan, objective: EnvObjective, basis: np.ndarray,
@@ -157,6 +199,14 @@ def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Pa
     basis = opt.store.best_basis()
     if basis is None:
         raise RunDirectoryError(f"{base_run} has no best basis yet")
+    digest = basis_digest(basis)
+    # Rows of another B_c (the run searched on under a larger budget, or another base run)
+    # are kept aside, not mixed into this one's curve. Rows without a digest predate it.
+    moved = _supersede(path, lambda r: Path(r["run"]).name != base_run.name
+                       or r.get("basis_digest", "") not in ("", digest))  # fmt: skip
+    if moved:
+        log(f"[perturbation] {moved} offsets of another B_c moved to "
+            "perturbation-superseded.csv; measuring them again")  # fmt: skip
     base_deg = math.degrees(float((opt.objective_spec.get("env_kwargs") or {})
                                   .get("direction", 0.0)))  # fmt: skip
     seeds = opt.config.fresh_seeds
@@ -176,7 +226,7 @@ def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Pa
                            "R_mean": float(np.nanmean(values)),
                            "R_seeds": " ".join(f"{v:.6g}" for v in values),
                            "wall_s": time.perf_counter() - start,
-                           "run": str(base_run)})  # fmt: skip
+                           "run": str(base_run), "basis_digest": digest})  # fmt: skip
         log(f"[perturbation] {offset:+g} deg: R = {np.nanmean(values):.4g}")
     return path
 
@@ -216,8 +266,6 @@ def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
 
 def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
     """PPO/SAC on the identity and on each benchmark's Table I B_c, MPC beside them."""
-    import hashlib
-
     from .. import rl
 
     folders = []
@@ -231,8 +279,7 @@ def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
             basis = np.load(best)
             # named by its bytes: a longer Table I run may recommend another B_c, which then
             # trains afresh instead of being refused by (or resumed into) the older one's run
-            digest = hashlib.blake2b(basis.tobytes(), digest_size=4).hexdigest()
-            bases[f"rbbo-{digest}"] = basis
+            bases[f"rbbo-{basis_digest(basis)}"] = basis
         folder = out / "rl" / bench
         rl.run_baselines(plan.env_id(bench), bases, folder, algos=tuple(plan.rl_algos),
                          steps=plan.rl_steps, eval_seeds=plan.confirm_seeds,
@@ -240,6 +287,29 @@ def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
                          progress=progress, workers=plan.workers)  # fmt: skip
         folders.append(folder)
     return folders
+
+
+def machine_description() -> str:
+    """The machine a session runs on, as the report prints it."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return f"{platform.processor() or platform.machine()}, {cpus} CPUs, {platform.system()}"
+
+
+def _perturbation_base(out: Path, plan: ReproducePlan) -> Path:
+    """The run whose B_c the perturbation study walks off its direction: the one its rows
+    already used, else the direction-0 run of the directions stage, else Table I's run of
+    the direction robot (the same task), whichever has finished first."""
+    runs = out / "runs"
+    used = {Path(r["run"]).name for r in read_rows(out / "perturbation.csv")}
+    candidates = [runs / name for name in sorted(used)]
+    candidates += [runs / f"{plan.direction_env}-dir000", runs / f"{plan.direction_env}-boca"]
+    for run in candidates:
+        if (run / "best_basis.npy").exists():
+            return run
+    raise RunDirectoryError(
+        f"the perturbation study needs a finished {plan.direction_env} run "
+        "(stage 'directions' or 'table')"
+    )
 
 
 def source_version() -> str:
@@ -312,16 +382,20 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     out.mkdir(parents=True, exist_ok=True)
     document = _load_plan(out, plan)
     session = {"command": command or " ".join(sys.argv), "started": time.time(), "wall_s": 0.0,
-               "source": source_version()}  # fmt: skip
+               "source": source_version(), "machine": machine_description(),
+               "budget_s": plan.budget_s, "direction_budget_s": plan.direction_budget_s,
+               "workers": plan.workers}  # fmt: skip
     document["sessions"].append(session)
     started = time.perf_counter()
 
     saved = [started]
+    lock = threading.Lock()
 
     def save() -> None:
-        saved[0] = time.perf_counter()
-        session["wall_s"] = saved[0] - started
-        _atomic_write(out / "reproduce.json", json.dumps(document, indent=2).encode())
+        with lock:
+            saved[0] = time.perf_counter()
+            session["wall_s"] = saved[0] - started
+            _atomic_write(out / "reproduce.json", json.dumps(document, indent=2).encode())
 
     def heartbeat() -> None:
         # A session killed outright (SIGKILL, a lost machine) keeps its wall time to the
@@ -330,6 +404,15 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
             save()
 
     save()
+    # The optimisation runs call heartbeat() after each evaluation; the other stages (RL
+    # training, the studies) run for long stretches without one, so a thread beats too.
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.wait(max(_HEARTBEAT_S, 1.0)):
+            heartbeat()
+
+    threading.Thread(target=beat, name="reproduce-heartbeat", daemon=True).start()
     if "older than its sources" in session["source"]:
         log(
             "warning: the compiled core is older than the C++ sources of this checkout; "
@@ -366,15 +449,7 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
                          plan.direction_budget_s, progress, log, heartbeat)  # fmt: skip
                 save()
         if "perturbation" in stages:
-            base = runs / f"{plan.direction_env}-dir000"
-            if not (base / "best_basis.npy").exists():
-                base = runs / f"{plan.direction_env}-boca"
-            if not (base / "best_basis.npy").exists():
-                raise RunDirectoryError(
-                    f"the perturbation study needs a finished {plan.direction_env} run "
-                    "(stage 'directions' or 'table')"
-                )
-            perturbation(out, plan, base, log)
+            perturbation(out, plan, _perturbation_base(out, plan), log)
             save()
         if "studies" in stages:
             studies(out, plan, log)
@@ -382,5 +457,6 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
         if "rl" in stages:
             rl_baselines(out, plan, progress)
     finally:
+        stop.set()
         save()
     return write_report(out, plan, document, None if copy_report is None else Path(copy_report))

@@ -8,8 +8,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from .plan import ReproducePlan
-from .tables import read_rows
+from .tables import basis_digest, read_rows
 
 __all__ = ["stage_progress", "status_lines"]
 
@@ -41,25 +43,35 @@ def _run_done(path: Path, budget_s: float, iterations: int | None) -> bool:
     return _run_state(path, budget_s, iterations)[0].startswith("done")
 
 
-def _rl_jobs_done(folder: Path, plan: ReproducePlan) -> bool:
-    """Whether every MPPI and RL job of one benchmark's RL stage has finished."""
-    from ..rl import steps_per_algo
-
-    if not folder.exists():
-        return False
-    target = steps_per_algo(plan.rl_steps, tuple(plan.rl_algos))
-    jobs = [p for p in folder.iterdir() if p.is_dir()]
-    for run in jobs:
-        algo = run.name.split("-")[0]
-        if algo == "mppi":
-            if not (run / "episodes.json").exists():
-                return False
+def _progress_steps(log: Path) -> int:
+    """The most env steps a training job's progress.jsonl records (0 without one); a line
+    torn by a kill mid-write is skipped, not fatal."""
+    steps = 0
+    for line in log.read_text().splitlines() if log.exists() else []:
+        try:
+            steps = max(steps, int(json.loads(line)["steps"]))
+        except (ValueError, KeyError, TypeError):
             continue
-        log = run / "progress.jsonl"
-        lines = log.read_text().splitlines() if log.exists() else []
-        if max((json.loads(x)["steps"] for x in lines if x), default=0) < target.get(algo, 0):
-            return False
-    return bool(jobs) and (folder / "baselines.md").exists()
+    return steps
+
+
+def _rl_benchmarks(out: Path, plan: ReproducePlan) -> list[str]:
+    """The benchmarks with RL baselines: the plan's, then any other the record holds (an
+    earlier session may have trained on benchmarks this one does not name)."""
+    folder = out / "rl"
+    held = sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.exists() else []
+    return list(plan.rl_benchmarks) + [b for b in held if b not in plan.rl_benchmarks]
+
+
+def _rl_jobs_done(out: Path, bench: str) -> bool:
+    """Whether one benchmark's RL stage has finished for the bases it must cover: its table
+    (baselines.csv, written when every job of a call has finished) has rows for the identity
+    and, once Table I's run has a best B_c, for that B_c."""
+    rows = read_rows(out / "rl" / bench / "baselines.csv")
+    bases = {r["basis"] for r in rows}
+    best = out / "runs" / f"{bench}-boca" / "best_basis.npy"
+    needed = {"identity"} | ({f"rbbo-{basis_digest(np.load(best))}"} if best.exists() else set())
+    return bool(rows) and needed <= bases
 
 
 def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]:
@@ -84,10 +96,11 @@ def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]
     n_study = len(plan.cost_cs) + len(plan.reward_cs) * plan.study_seeds
     study = min(len(read_rows(out / "studies" / "cost_vs_c.csv"))
                 + len(read_rows(out / "studies" / "reward_vs_c.csv")), n_study)  # fmt: skip
-    rl = sum(_rl_jobs_done(out / "rl" / b, plan) for b in plan.rl_benchmarks)
+    rl_benchmarks = _rl_benchmarks(out, plan)
+    rl = sum(_rl_jobs_done(out, b) for b in rl_benchmarks)
     return {"table": (table, n_bench), "bo": (bo, n_bench), "transfer": (transfer, n_bench),
             "directions": (directions, len(angles)), "perturbation": (offsets, n_offsets),
-            "studies": (study, n_study), "rl": (rl, len(plan.rl_benchmarks))}  # fmt: skip
+            "studies": (study, n_study), "rl": (rl, len(rl_benchmarks))}  # fmt: skip
 
 
 def _rl_state(folder: Path, plan: ReproducePlan) -> str:
@@ -102,9 +115,7 @@ def _rl_state(folder: Path, plan: ReproducePlan) -> str:
         if algo == "mppi":
             parts.append(f"{run.name} {'done' if (run / 'episodes.json').exists() else '-'}")
             continue
-        log = run / "progress.jsonl"
-        lines = log.read_text().splitlines() if log.exists() else []
-        steps = max((json.loads(x)["steps"] for x in lines if x), default=0)
+        steps = _progress_steps(run / "progress.jsonl")
         parts.append(f"{run.name} {steps}/{target.get(algo, '?')} steps")
     return ", ".join(parts) or "not started"
 
@@ -144,7 +155,7 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
                      f"{len(plan.cost_cs)}, reward vs C {reward} of "
                      f"{len(plan.reward_cs) * plan.study_seeds}")  # fmt: skip
     if "rl" in stages:
-        for bench in plan.rl_benchmarks:
+        for bench in _rl_benchmarks(out, plan):
             lines.append(f"{'rl':<12} {bench:<20} {_rl_state(out / 'rl' / bench, plan)}")
     lines.append(f"optimisation budget left: {left / 3600:.2f} h on {plan.workers} workers, "
                  "plus confirmations, transfer, perturbation, studies and RL")  # fmt: skip

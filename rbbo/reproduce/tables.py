@@ -12,6 +12,7 @@ is true when R*'s interval lies wholly above R_init's.
 from __future__ import annotations
 
 import csv
+import hashlib
 import math
 import re
 from pathlib import Path
@@ -23,8 +24,8 @@ from ..intervals import confidence_interval
 from ..report import _duration
 from .plan import PAPER_TABLE1
 
-__all__ = ["confidence_interval", "format_markdown", "parse_markdown", "read_rows", "table_row",
-           "write_csv"]  # fmt: skip
+__all__ = ["basis_digest", "confidence_interval", "format_markdown", "parse_markdown",
+           "read_rows", "table_row", "write_csv"]  # fmt: skip
 
 COLUMNS = ["robot", "task", "N", "M", "C", "R_init", "R*", "improvement", "R* - R_init (paired)",
            "evaluations", "wall time", "apart", "paper"]  # fmt: skip
@@ -83,6 +84,14 @@ def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
         "paper_improvement_pct": paper["improvement_pct"],
         "run": str(run_dir),
     }
+
+
+def basis_digest(basis: np.ndarray) -> str:
+    """Eight hex digits naming a control basis by its bytes. A measurement of a run's best B_c
+    records it, so a longer run that recommends another B_c is measured afresh instead of
+    being reported with the older one's numbers."""
+    data = np.ascontiguousarray(basis, dtype=np.float64).tobytes()
+    return hashlib.blake2b(data, digest_size=4).hexdigest()
 
 
 def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from .plan import ReproducePlan
-from .tables import _interval, _num, compare_seeds, read_rows
+from .tables import _interval, _num, basis_digest, compare_seeds, read_rows
 
 __all__ = ["format_transfer_markdown", "measure_transfer", "transfer_rows"]
 
@@ -41,10 +41,19 @@ def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Pa
 
     from ..optimizer import RBBO
     from ..store import RunDirectoryError
-    from .runner import _append_row, _evaluate_seeds, _objective
+    from .runner import _append_row, _evaluate_seeds, _objective, _supersede
 
     path = out / "transfer.csv"
     m_to = plan.transfer_sim_dim
+    best_file = run_dir / "best_basis.npy"
+    digest = basis_digest(np.load(best_file)) if best_file.exists() else ""
+    # A best-B_c row of another B_c (the Table I run searched on under a larger budget) is
+    # kept aside and measured again; rows without a digest predate it.
+    moved = _supersede(path, lambda r: r["benchmark"] == benchmark and r["basis"] == "best"
+                       and r.get("basis_digest", "") not in ("", digest))  # fmt: skip
+    if moved:
+        log(f"[transfer] {benchmark}: the best B_c changed since it was measured; the old "
+            "row is in transfer-superseded.csv")  # fmt: skip
     done = {(r["benchmark"], r["basis"]) for r in read_rows(path) if int(r["M"]) == m_to}
     todo = [b for b in BASES if (benchmark, b) not in done]
     if not todo:
@@ -73,7 +82,8 @@ def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Pa
                            "R_seeds": " ".join(f"{v:.6g}" for v in values),
                            "seeds": " ".join(str(s) for s in seeds),
                            "wall_s": time.perf_counter() - start,
-                           "run": str(run_dir)})  # fmt: skip
+                           "run": str(run_dir),
+                           "basis_digest": basis_digest(bases[name])})  # fmt: skip
         log(f"[transfer] {benchmark} {name} B_c at M = {m_to}: R = {np.nanmean(values):.4g}")
     return path
 
