@@ -245,7 +245,9 @@ class RunStore:
     def history(self) -> list[Evaluation]:
         """All recorded evaluations, in the order they finished."""
         if not self.history_path.exists():
-            raise RunDirectoryError(f"{self.path} has no {HISTORY}")
+            # create() writes config.json, then an empty history: a run killed between the
+            # two has recorded nothing, which a reader (report, status) sees as such
+            return []
         out = []
         with open(self.history_path, encoding="utf-8", errors="strict") as f:
             try:

@@ -99,3 +99,11 @@ def test_evaluation_validation():
         _evaluation(0, status="weird")
     with pytest.raises(ValueError, match="an 'ok' evaluation needs a finite R, got nan"):
         Evaluation(0, np.eye(2), 1.0, float("nan"))
+
+
+def test_a_run_killed_before_its_history_existed_reads_as_empty(tmp_path):
+    store = RunStore.create(tmp_path / "run", {"rbbo": {}})
+    store.history_path.unlink()  # as if killed between writing config.json and the history
+    assert RunStore.open(tmp_path / "run", repair=False).history() == []
+    RunStore.open(tmp_path / "run")  # resuming makes it again
+    assert (tmp_path / "run" / "history.jsonl").is_file()
