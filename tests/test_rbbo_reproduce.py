@@ -37,7 +37,8 @@ def _history(run_dir):
 def test_writes_every_table_and_figure(reproduction):
     out = reproduction
     for name in ["REPORT.md", "table1.md", "table1.csv", "reproduce.json", "perturbation.csv",
-                 "bo_vs_boca.png", "directions.png", "perturbation.png",
+                 "bo_vs_boca.png", "bo_vs_boca_simulated.png", "directions.png",
+                 "perturbation.png",
                  "studies/cost_vs_c.csv", "studies/cost_vs_c.png", "studies/reward_vs_c.csv",
                  "studies/reward_vs_c.png", "transfer.csv", "transfer_table.csv"]:  # fmt: skip
         assert (out / name).is_file(), name
@@ -50,6 +51,17 @@ def test_writes_every_table_and_figure(reproduction):
     assert (rl / "baselines.md").is_file() and (rl / "ppo-identity" / "final.zip").is_file()
     assert len(list(rl.glob("ppo-rbbo-*"))) == 1  # the Table I basis trained too
     assert "## RL baselines on CrossSwim-v0" in (out / "REPORT.md").read_text()
+    bo_table = (out / "REPORT.md").read_text().split("## BO vs BOCA")[1]
+    assert "BO within BOCA's simulated time" in bo_table and "| CrossSwim-v0 | " in bo_table
+
+
+def test_simulated_time_is_the_sum_of_episode_lengths_over_seeds():
+    from types import SimpleNamespace
+
+    from rbbo.reproduce.figures import simulated_minutes
+
+    evs = [SimpleNamespace(T=6.0, seeds=[1]), SimpleNamespace(T=12.0, seeds=[2, 3])]
+    assert simulated_minutes(evs).tolist() == [0.1, 0.5]
 
 
 def test_report_table_matches_the_run_history(reproduction):
