@@ -209,10 +209,11 @@ def _claim(folder: Path, meta: dict) -> None:
                                 "another --out")  # fmt: skip
 
 
-def _read_progress(log: Path) -> list[dict]:
+def _read_progress(log: Path, mend: bool = True) -> list[dict]:
     """The rows of a training job's progress.jsonl. A last line torn by a kill mid-write is
-    dropped from the file (the next row would otherwise be glued onto it); its evaluation is
-    made again with the checkpoint it belongs to, or was of one never saved."""
+    skipped, and with ``mend`` (when the job resumes) dropped from the file, since the next
+    row would otherwise be glued onto it; its evaluation is made again with the checkpoint
+    it belongs to, or was of one never saved."""
     if not log.exists():
         return []
     text = log.read_text(encoding="utf-8")
@@ -222,7 +223,7 @@ def _read_progress(log: Path) -> list[dict]:
             rows.append(json.loads(line))
         except json.JSONDecodeError:
             torn = torn or bool(line.strip())
-    if torn or (text and not text.endswith("\n")):
+    if mend and (torn or (text and not text.endswith("\n"))):
         tmp = log.with_name(log.name + ".tmp")
         tmp.write_text("".join(json.dumps(r) + "\n" for r in rows), encoding="utf-8")
         os.replace(tmp, log)

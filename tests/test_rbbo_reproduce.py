@@ -315,6 +315,9 @@ def test_a_progress_log_torn_by_a_kill_is_read_and_mended(tmp_path):
 
     log = tmp_path / "progress.jsonl"
     log.write_text('{"steps": 64}\n{"steps": 128}\n{"steps": 19')
+    # a reader (status, report) skips the torn line and leaves the file as it is
+    assert _read_progress(log, mend=False) == [{"steps": 64}, {"steps": 128}]
+    assert log.read_text().endswith('{"steps": 19')
     assert _read_progress(log) == [{"steps": 64}, {"steps": 128}]
     assert log.read_text() == '{"steps": 64}\n{"steps": 128}\n'  # the next row starts a line
 

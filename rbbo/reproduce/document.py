@@ -378,7 +378,9 @@ def _rl_trained(path: Path) -> tuple[str, str]:
     for r in read_rows(path):
         if r["method"] != "mppi" and r["final"] == "True":
             steps[r["method"]] = max(steps.get(r["method"], 0), int(float(r["env_steps"])))
-    names = " and ".join(m.upper() for m in steps) or "RL"
+    if not steps:
+        return "RL", "no training finished yet"
+    names = " and ".join(m.upper() for m in steps)
     if len(set(steps.values())) == 1:
         return names, f"{next(iter(steps.values()))} env steps each"
     return names, " and ".join(f"{m.upper()} {n}" for m, n in steps.items()) + " env steps"

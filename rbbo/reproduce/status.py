@@ -5,7 +5,6 @@ the next one knows what is left."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +15,11 @@ from .tables import basis_digest, read_rows
 __all__ = ["stage_progress", "status_lines"]
 
 
-def _run_state(path: Path, budget_s: float, iterations: int | None) -> tuple[str, float]:
-    """One optimisation run's state and the budget it has left, seconds."""
+def _run_state(path: Path, budget_s: float, iterations: int | None) -> tuple[str, float, bool]:
+    """One optimisation run's state, the budget it has left (seconds) and whether it is
+    finished (searched its budget and confirmed)."""
     if not (path / "config.json").exists():
-        return "not started", budget_s
+        return "not started", budget_s, False
     from ..report import load
 
     result = load(path).result()
@@ -28,31 +28,19 @@ def _run_state(path: Path, budget_s: float, iterations: int | None) -> tuple[str
     confirmed = bool(result.R_init_seeds and result.R_star_seeds)
     if confirmed and left == 0.0:
         return (f"done: {result.evaluations} evaluations in {result.wall_s / 60:.1f} min, "
-                f"R_init {result.R_init:.4g}, R* {result.R_star:.4g}"), 0.0  # fmt: skip
+                f"R_init {result.R_init:.4g}, R* {result.R_star:.4g}"), 0.0, True  # fmt: skip
     if confirmed:  # a larger budget than it ran to: it will search on and confirm again
         text = (f"confirmed after {result.evaluations} evaluations in "
                 f"{result.wall_s / 60:.1f} min; {left / 60:.1f} min more to search")  # fmt: skip
-        return text, left
+        return text, left, False
     if left == 0.0:
-        return f"confirming ({result.evaluations} evaluations)", 0.0
+        return f"confirming ({result.evaluations} evaluations)", 0.0, False
     return (f"searching: {result.evaluations} evaluations, {result.wall_s / 60:.1f} of "
-            f"{budget_s / 60:g} min"), left  # fmt: skip
+            f"{budget_s / 60:g} min"), left, False  # fmt: skip
 
 
 def _run_done(path: Path, budget_s: float, iterations: int | None) -> bool:
-    return _run_state(path, budget_s, iterations)[0].startswith("done")
-
-
-def _progress_steps(log: Path) -> int:
-    """The most env steps a training job's progress.jsonl records (0 without one); a line
-    torn by a kill mid-write is skipped, not fatal."""
-    steps = 0
-    for line in log.read_text().splitlines() if log.exists() else []:
-        try:
-            steps = max(steps, int(json.loads(line)["steps"]))
-        except (ValueError, KeyError, TypeError):
-            continue
-    return steps
+    return _run_state(path, budget_s, iterations)[2]
 
 
 def _rl_benchmarks(out: Path, plan: ReproducePlan) -> list[str]:
@@ -104,7 +92,7 @@ def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]
 
 
 def _rl_state(folder: Path, plan: ReproducePlan) -> str:
-    from ..rl import steps_per_algo
+    from ..rl import _read_progress, steps_per_algo
 
     if not folder.exists():
         return "not started"
@@ -115,7 +103,9 @@ def _rl_state(folder: Path, plan: ReproducePlan) -> str:
         if algo == "mppi":
             parts.append(f"{run.name} {'done' if (run / 'episodes.json').exists() else '-'}")
             continue
-        steps = _progress_steps(run / "progress.jsonl")
+        steps = max(
+            (x["steps"] for x in _read_progress(run / "progress.jsonl", mend=False)), default=0
+        )
         parts.append(f"{run.name} {steps}/{target.get(algo, '?')} steps")
     return ", ".join(parts) or "not started"
 
@@ -128,7 +118,7 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
     for bench in plan.benchmarks:
         for stage, fidelity in (("table", "boca"), ("bo", "bo")):
             if stage in stages:
-                state, rest = _run_state(runs / f"{bench}-{fidelity}", plan.budget_s,
+                state, rest, _ = _run_state(runs / f"{bench}-{fidelity}", plan.budget_s,
                                          plan.iterations)  # fmt: skip
                 lines.append(f"{stage:<12} {bench:<20} {state}")
                 left += rest
@@ -141,7 +131,7 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
     if "directions" in stages:
         for deg in plan.direction_angles_deg():
             name = f"{plan.direction_env}-dir{deg:03.0f}"
-            state, rest = _run_state(runs / name, plan.direction_budget_s, plan.iterations)
+            state, rest, _ = _run_state(runs / name, plan.direction_budget_s, plan.iterations)
             lines.append(f"{'directions':<12} {name:<20} {state}")
             left += rest
     if "perturbation" in stages:
