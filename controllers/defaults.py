@@ -19,8 +19,9 @@ PLANNERS = {"mppi": (MPPI, MPPISettings), "gn": (GaussNewtonShooting, GaussNewto
 # Shared by every benchmark, with why:
 _COMMON: dict[str, Any] = {
     # A gait, not a lean: the plan is one cycle of a periodic spline, repeated over the
-    # horizon, and R counts only the last cycle (window = period), where a pose held after
-    # a first lunge gains nothing. The warm start then carries the gait by advancing its phase.
+    # horizon, and R counts only the cycles after a lead-in cycle (window = horizon - period,
+    # set per benchmark below), where a pose held after a first lunge gains nothing. The warm
+    # start then carries the gait by advancing its phase.
     "knots": 6,  # per cycle: a sinusoid or a square-ish wave; each knot costs GN C rollouts
     "kind": "cubic",  # smooth controls (C1) that still pass through their knots
     "gait_seed": True,  # start from the best sinusoid at the cycle's frequency, not from rest
@@ -73,7 +74,8 @@ _PLANNER: dict[str, dict[str, Any]] = {
     # 16 samples, one round: the most a 2-core replan affords; noise 0.15 of the bound around
     # a gait explores its shape without breaking it; temperature 0.1 of the spread.
     "mppi": {"samples": 16, "noise": 0.15, "temperature": 0.1, "iterations": 1},
-    # One iteration per replan (K C + 1 + 4 rollouts). fd_step 0.1 of the bound: contact
+    # One iteration per replan (K C + 1 + 4 + 8 rollouts: the differences, the line search
+    # and the exploration candidates; 31 for K = 6, C = 3). fd_step 0.1 of the bound: contact
     # makes R kinked in the knots (a foot lands a step earlier or later), and a difference
     # smaller than the kinks' spacing measures one kink, not the slope of the gait. On
     # CrossWalk (t = 2..10 s) fd_step 0.02 walked 0.36 BL (mean of 3 seeds); on seed 0,

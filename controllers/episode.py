@@ -157,7 +157,7 @@ def run_episode(
         if terminated:
             stop = "diverged"
             break
-        if truncated:
+        if truncated and t < steps - 1:  # the limit ended it before the time asked for
             stop = "truncated by the time limit"
             break
     if bar is not None:

@@ -12,8 +12,9 @@ J(x) = R(x) - |r(x)|^2 - w_d n_lost(x) (see :mod:`controllers.cost`). One iterat
    its Hessian vanishes and Λ's Gauss-Newton term carries the curvature;
 3. a batched line search: the steps for ``len(line_search)`` damping values
    ``mu * line_search[i]`` run in one rollout, and the best is taken only if it raises J.
-   mu then moves to the accepted value (or grows tenfold when none is accepted), so an
-   iteration never lowers the objective. With ``max_step`` each step is first scaled into
+   mu then moves to the accepted value (or, when none is accepted, to ten times the largest
+   value tried: 1000 mu with the default ``line_search``), so an iteration never lowers the
+   objective. With ``max_step`` each step is first scaled into
    a trust region (no knot moves by more than ``max_step``): a gait then changes gradually
    from replan to replan, where a full step can trade it for a one-horizon lunge;
 4. with ``explore > 0`` the same rollout also runs that many random candidates around the
@@ -150,7 +151,7 @@ class GaussNewtonShooting(Planner):
                 accepted.append(kind)
                 history.append((j0, float(trial.objective[best])))
             else:
-                self.damping_ = float(mus[-1] * 10.0)
+                self.damping_ = float(mus.max() * 10.0)
                 accepted.append("none")
                 history.append((j0, j0))
         self.last_.update(

@@ -143,14 +143,17 @@ class EnvAPI:
         self.direction = np.asarray(get("direction"), dtype=float)
         self.control_dim = int(env.action_space.shape[0])
         self.center_of_mass = get("center_of_mass")
+        self.unwrapped = env.unwrapped
 
 
 class Planner(ABC):
     """Receding-horizon planner over a spline of knots in control space.
 
     Subclasses implement :meth:`_optimise` (one replan's update of ``self.plan_``'s knots).
-    After :meth:`plan`, ``last_`` holds the replan's record (objective before and after,
-    rollouts run, wall time).
+    After :meth:`plan`, ``last_`` holds the replan's record: ``objective_start`` (J of the
+    warm-started plan), ``objective_best`` (Gauss-Newton: J of the plan it adopts; MPPI: J
+    of its best sample, since the weighted mean it adopts is not rolled out, which would cost
+    another rollout), ``rollouts`` and ``wall_s``.
     """
 
     name = "planner"
@@ -175,7 +178,7 @@ class Planner(ABC):
 
     def plan(self, env: Any) -> None:
         """One replan from the env's current state: shift-warm-started, then optimised."""
-        self._require_reset()
+        self._require_reset(env)
         start = time.perf_counter()
         state = self.api_.get_state()
         self.last_ = {"rollouts": 0}
@@ -184,7 +187,7 @@ class Planner(ABC):
 
     def action(self, env: Any) -> np.ndarray:
         """f_c (C,) for the env's current step; the plan's clock then advances one step."""
-        self._require_reset()
+        self._require_reset(env)
         f_c = self.api_.bound * np.clip(self.plan_.value(0.0), -1.0, 1.0)
         self.plan_.shift(1)
         return f_c
@@ -193,9 +196,15 @@ class Planner(ABC):
     @abstractmethod
     def _optimise(self, state: Any) -> None: ...
 
-    def _require_reset(self) -> None:
+    def _require_reset(self, env: Any = None) -> None:
         if self.plan_ is None:
             raise RuntimeError(f"{type(self).__name__}.reset(env, seed) must be called first")
+        # The plan lives in the env it was reset on: planning another env's state from it
+        # would be silently wrong.
+        if env is not None and getattr(env, "unwrapped", env) is not self.api_.unwrapped:
+            raise ValueError(
+                f"{type(self).__name__} was reset on another env: call reset(env, seed) first"
+            )
 
     def _evaluate(self, state: Any, knots: np.ndarray, horizon: int | None = None) -> Evaluation:
         """R - Λ of a batch of knots (B, K, C) from ``state``, in one batched rollout."""

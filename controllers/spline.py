@@ -182,8 +182,9 @@ class SplinePlan:
         if self.period is not None:
             self.offset = float(np.mod(self.offset + steps, self.period))
             return
-        times = self.offset + steps + self.spacing * np.arange(self.num_knots)
-        if self.num_knots == 1:
+        if self.num_knots == 1:  # spacing is infinite: one knot holds the whole horizon
             times = np.array([self.offset + steps])
+        else:
+            times = self.offset + steps + self.spacing * np.arange(self.num_knots)
         self.knots = self.weights(times) @ self.knots
         self.offset = 0.0

@@ -2,6 +2,8 @@
 
 Small robots (a 28-node beam, 6 modes) and short horizons keep these fast."""
 
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -175,6 +177,34 @@ def test_episode_result_records_the_episode(walker, tmp_path):
         res.distance_between(0.5)
 
 
+def test_stop_reason_tells_a_finished_episode_from_a_time_limit():
+    env = small_env("walk", max_episode_steps=4)
+    p = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
+    # The limit's last step is the episode's own last step: it ran the time it was asked for.
+    assert run_episode(env, p, 0.1, seed=0, progress=False).stop_reason == "time"
+    cut = run_episode(env, p, 0.2, seed=0, progress=False)
+    assert cut.stop_reason == "truncated by the time limit" and cut.rewards.shape == (4,)
+
+
+def test_damping_after_a_rejected_step_is_ten_times_the_largest_tried(walker, monkeypatch):
+    # Multipliers in descending order: the largest is the first, not the last.
+    settings = GaussNewtonSettings(horizon=4, knots=2, line_search=(100.0, 1.0), damping=0.5)
+    gn = GaussNewtonShooting(settings)
+    gn.reset(walker, seed=0)
+    evaluate = gn._evaluate
+
+    def every_trial_worse(state, knots, horizon=None):
+        ev = evaluate(state, knots, horizon)
+        if len(knots) == len(settings.line_search):  # the line search's rollout
+            ev = dataclasses.replace(ev, objective=ev.objective - 1.0)
+        return ev
+
+    monkeypatch.setattr(gn, "_evaluate", every_trial_worse)
+    gn.plan(walker)
+    assert gn.last_["accepted"] == ["none"]
+    assert gn.damping_ == pytest.approx(0.5 * 100.0 * 10.0)
+
+
 def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
     settings = MPPISettings(horizon=8, knots=4, period=8, window=4, gait_seed=True, samples=2,
                             noise=0.0)  # fmt: skip
@@ -222,6 +252,14 @@ def test_invalid_weights_and_inputs_raise_clear_errors(walker):
         MPPI(GaussNewtonSettings())
     with pytest.raises(RuntimeError, match=r"MPPI.reset\(env, seed\) must be called first"):
         MPPI().plan(walker)
+    bound_to_walker = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
+    bound_to_walker.reset(walker, seed=0)
+    other = small_env("walk")
+    other.reset(seed=0)
+    with pytest.raises(ValueError, match="MPPI was reset on another env"):
+        bound_to_walker.plan(other)
+    with pytest.raises(ValueError, match="MPPI was reset on another env"):
+        bound_to_walker.action(other)
     with pytest.raises(ValueError, match="replan_every must be a positive integer, got 0"):
         run_episode(walker, MPPI(), 1.0, replan_every=0)
     with pytest.raises(ValueError, match="no defaults for 'softrom_gym/SoftRobot-v0'"):

@@ -58,6 +58,12 @@ def test_shift_keeps_the_future_values():
     cubic.shift(13)
     np.testing.assert_allclose(cubic.controls()[[0, 10, 20]], before[[13, 23, 33]], atol=1e-14)
     np.testing.assert_allclose(cubic.value(0.0), before[13], atol=1e-14)
+    # One open knot holds its value over the horizon; a shift keeps it (and warns of nothing).
+    single = SplinePlan(horizon=10, knots=1, control_dim=3)
+    single.knots = rng.uniform(-1, 1, (1, 3))
+    held = single.knots.copy()
+    single.shift(1)
+    np.testing.assert_allclose(single.knots, held, atol=1e-14)
 
 
 def test_bad_plans_raise_errors_naming_the_value():

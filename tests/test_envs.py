@@ -156,6 +156,11 @@ def test_bad_input_errors():
     np.testing.assert_allclose(b_c.T @ b_c, np.eye(3), atol=1e-12)
     with pytest.raises(ValueError, match="rank-deficient"):
         gym.make("softrom_gym/BeamWalk-v0", control_basis=np.ones((20, 3)), orthonormalize=True)
+    with pytest.raises(ValueError, match="reset_noise_scale must be finite and >= 0, got -1.0"):
+        gym.make("softrom_gym/BeamWalk-v0", reset_noise_scale=-1.0)
+    robot = env.unwrapped.robot
+    with pytest.raises(ValueError, match="resolution = 5 applies to a robot name or a mesh path"):
+        gym.make("softrom_gym/SoftRobot-v0", robot=robot, resolution=5)
 
 
 def test_vector_env_equals_single_envs():
@@ -177,6 +182,26 @@ def test_vector_env_equals_single_envs():
             np.testing.assert_array_equal(obs[i], o)
             assert rewards[i] == r
         assert info["distance"].shape == (n,)
+    venv.close()
+
+
+def test_vector_env_unseeded_reset_continues_each_stream():
+    def two_resets(seed):
+        venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                            vectorization_mode="vector_entry_point")  # fmt: skip
+        first, _ = venv.reset(seed=seed)
+        second, _ = venv.reset()
+        venv.close()
+        return first, second
+
+    a, b = two_resets(3), two_resets(np.int64(3))
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])  # reproducible, as a single env's would be
+    assert not np.array_equal(a[0], a[1])
+    venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                        vectorization_mode="vector_entry_point")  # fmt: skip
+    with pytest.raises(ValueError, match="seed must be None, an int or a list of 2 ints, got 'x'"):
+        venv.reset(seed="x")
     venv.close()
 
 

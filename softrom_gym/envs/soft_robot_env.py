@@ -183,6 +183,8 @@ class SoftRobotEnv(gym.Env):
             raise ValueError(f"control_dim = {control_dim} exceeds sim_dim = {sim_dim}")
         if not (np.isfinite(action_scale) and action_scale > 0):
             raise ValueError(f"action_scale must be > 0, got {action_scale}")
+        if not (np.isfinite(reset_noise_scale) and reset_noise_scale >= 0):
+            raise ValueError(f"reset_noise_scale must be finite and >= 0, got {reset_noise_scale}")
         self.render_mode = render_mode
         self.task = task
         self.frame_skip = int(frame_skip)
@@ -248,6 +250,11 @@ class SoftRobotEnv(gym.Env):
         if resolution is not None:
             kwargs["resolution"] = resolution
         if isinstance(robot, Robot):
+            if resolution is not None:
+                raise ValueError(
+                    f"resolution = {resolution} applies to a robot name or a mesh path, not to "
+                    "a Robot that is already meshed"
+                )
             if kwargs:
                 from dataclasses import replace
 

@@ -70,17 +70,22 @@ class SoftRobotVectorEnv(VectorEnv):
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
         if seed is None:
             seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, int):
-            seeds = [seed + i for i in range(self.num_envs)]
-        else:
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        elif isinstance(seed, (list, tuple, np.ndarray)):
             seeds = list(seed)
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed list has {len(seeds)} entries, expected {self.num_envs}")
+        else:
+            raise ValueError(
+                f"seed must be None, an int or a list of {self.num_envs} ints, got {seed!r}"
+            )
         infos: dict[str, Any] = {}
         obs = np.zeros(self.observation_space.shape, dtype=np.float32)
         for i, s in enumerate(seeds):
-            if s is not None or seed is None:
-                self._rngs[i] = seeding.np_random(s)[0]
+            # Gymnasium's rule: an unseeded reset continues each sub-env's own stream.
+            if s is not None:
+                self._rngs[i] = seeding.np_random(int(s))[0]
             obs[i], info = self._reset_one(i)
             infos = self._add_info(infos, info, i)
         self._autoreset[:] = False
