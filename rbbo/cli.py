@@ -132,6 +132,12 @@ def _parser() -> argparse.ArgumentParser:
     res.add_argument("--budget", type=parse_duration, help="new total wall-time budget")
     res.add_argument("--iterations", type=_positive_int, help="new total number of evaluations")
     res.add_argument("--workers", type=_positive_int)
+    res.add_argument(
+        "--executor",
+        choices=["process", "ray", "serial"],
+        help="run this session's evaluations elsewhere (default: the run's)",
+    )
+    res.add_argument("--address", help="Ray cluster address (with --executor ray)")
     res.add_argument("--no-progress", action="store_true")
 
     con = sub.add_parser("confirm", help="measure R_init and R* of a finished run again "
@@ -226,7 +232,9 @@ def _progress(opt, max_evaluations, budget_s, enabled: bool):
     done = len(opt.evaluations)
     bar = tqdm(total=max_evaluations, initial=done, unit="eval", dynamic_ncols=True,
                file=sys.stderr, desc="rbbo")  # fmt: skip
-    best = [max((e.R for e in opt.evaluations if e.status == "ok"), default=-math.inf)]
+    best = [max((e.R for e in opt.evaluations
+                 if e.status == "ok" and math.isclose(e.T, opt.config.t_max)),
+                default=-math.inf)]  # fmt: skip
 
     def callback(evaluation) -> None:
         if evaluation.kind.startswith("confirm"):
@@ -244,22 +252,38 @@ def _progress(opt, max_evaluations, budget_s, enabled: bool):
     return callback, bar.close
 
 
-def _execute(opt, objective, execution: dict, max_evaluations, budget_s, progress: bool) -> int:
+def _make_executor(objective, execution: dict):
+    """The run's executor, built before anything is written (a missing Ray or a wrong
+    address is then a usage error that leaves no run directory behind)."""
     from .executors import make_executor
-    from .report import format_table, plot_convergence, report_row
 
     with _bad_input():
-        executor = make_executor(execution["executor"], objective, execution["workers"],
-                                 execution["timeout_s"], execution.get("address"))  # fmt: skip
+        return make_executor(execution["executor"], objective, execution["workers"],
+                             execution["timeout_s"], execution.get("address"))  # fmt: skip
+
+
+def _execute(opt, executor, max_evaluations, budget_s, progress: bool) -> int:
+    from .optimizer import EvaluationsFailing
+    from .report import format_table, plot_convergence, report_row
+
     callback, close = _progress(opt, max_evaluations, budget_s, progress)
+    # None is "no limit" here; to run() it would mean "the limit stored in the config"
+    unlimited = math.inf
     try:
-        opt.run(executor=executor, max_evaluations=max_evaluations, budget_s=budget_s,
+        opt.run(executor=executor,
+                max_evaluations=unlimited if max_evaluations is None else max_evaluations,
+                budget_s=unlimited if budget_s is None else budget_s,
                 callback=callback)  # fmt: skip
     except KeyboardInterrupt:
         close()
         executor.shutdown(wait=False)
         print(f"\ninterrupted; continue with: rbbo resume {opt.store.path}", file=sys.stderr)
         return 130
+    except EvaluationsFailing as exc:
+        close()
+        executor.shutdown(wait=False)
+        print(f"rbbo: error: {exc}", file=sys.stderr)
+        return 1
     close()
     executor.shutdown()
     print(format_table([report_row(opt)]))
@@ -312,10 +336,15 @@ def cmd_optimize(args) -> int:
         out = Path("runs") / f"{name}-{datetime.now():%Y%m%d-%H%M%S}"
     execution = {"executor": args.executor, "workers": args.workers,
                  "timeout_s": args.timeout, "address": args.address}  # fmt: skip
-    with _bad_input():
-        opt = RBBO.create(out, config, objective_spec=objective.spec(),
-                          extra={"execution": execution, "problem": problem})  # fmt: skip
-    return _execute(opt, objective, execution, iterations, budget, not args.no_progress)
+    executor = _make_executor(objective, execution)
+    try:
+        with _bad_input():
+            opt = RBBO.create(out, config, objective_spec=objective.spec(),
+                              extra={"execution": execution, "problem": problem})  # fmt: skip
+    except BaseException:
+        executor.shutdown(wait=False)
+        raise
+    return _execute(opt, executor, iterations, budget, not args.no_progress)
 
 
 def _objective_of(opt):
@@ -339,10 +368,29 @@ def cmd_resume(args) -> int:
                      "workers": 1, "timeout_s": 600.0})  # fmt: skip
     if args.workers:
         execution["workers"] = args.workers
-    iterations = args.iterations or opt.config.max_evaluations
-    budget = args.budget or opt.config.budget_s
+    if args.executor:
+        execution["executor"] = args.executor
+        execution["address"] = args.address if args.executor == "ray" else None
+    elif args.address:
+        if execution["executor"] != "ray":
+            raise UsageError("--address is for --executor ray")
+        execution["address"] = args.address
+    # A new limit replaces both stored ones: a run that stopped at its budget, resumed with
+    # --iterations, would otherwise stop again at once.
+    iterations, budget = args.iterations, args.budget
+    if iterations is None and budget is None:
+        iterations, budget = opt.config.max_evaluations, opt.config.budget_s
+    if not opt.can_submit(iterations, budget):
+        done = len(opt.evaluations)
+        limits = ([f"{iterations} evaluations"] if iterations is not None else []) + (
+            [f"a budget of {budget / 60:g} min"] if budget is not None else []
+        )
+        print(f"{opt.store.path} has reached {' and '.join(limits)} ({done} evaluations, "
+              f"{opt.elapsed_s / 60:.1f} min): nothing more to search; give a larger "
+              "--budget or --iterations to go on", file=sys.stderr)  # fmt: skip
     started = time.monotonic()
-    code = _execute(opt, objective, execution, iterations, budget, not args.no_progress)
+    executor = _make_executor(objective, execution)
+    code = _execute(opt, executor, iterations, budget, not args.no_progress)
     if code == 0:
         print(f"resumed for {time.monotonic() - started:.0f} s", file=sys.stderr)
     return code
@@ -388,6 +436,11 @@ def cmd_report(args) -> int:
     if args.png is not None and len(args.run_dirs) > 1:
         raise UsageError("--png names one plot: give one DIR")
     rows = []
+    if args.png is not None:
+        try:
+            args.png.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"cannot write --png {args.png}: {exc}") from exc
     for run_dir in args.run_dirs:
         opt = load(run_dir)
         rows.append(report_row(opt))
@@ -405,6 +458,9 @@ def cmd_rollout(args) -> int:
     basis = opt.store.best_basis()
     objective = _objective_of(opt)
     seconds = args.seconds or opt.config.t_max
+    if isinstance(objective, EnvObjective) and not seconds > objective.settle_time:
+        raise UsageError(f"--seconds {seconds:g} must exceed the run's settle time "
+                         f"{objective.settle_time:g} s (R is measured from it on)")  # fmt: skip
     if not isinstance(objective, EnvObjective):
         if args.video:
             raise UsageError("--video needs an env run; a synthetic objective has no robot")
@@ -525,6 +581,7 @@ def _terminate_as_interrupt():
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``rbbo`` console script; returns the exit status."""
     from .objective import SimulationSpaceMismatch
+    from .optimizer import EvaluationsFailing
     from .store import RunDirectoryError
 
     try:
@@ -536,6 +593,9 @@ def main(argv: list[str] | None = None) -> int:
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"rbbo: error: {message}", file=sys.stderr)
         return 2
+    except EvaluationsFailing as exc:  # e.g. from a stage of rbbo reproduce
+        print(f"rbbo: error: {exc}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

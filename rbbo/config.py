@@ -104,7 +104,8 @@ class RBBOConfig:
 
     @property
     def fresh_seeds(self) -> tuple[int, ...]:
-        # disjoint from every run's CRN seeds for seed < 10**6
+        # disjoint from the CRN seeds (seed .. seed + seeds - 1) of every run whose
+        # seed + seeds <= 10**6
         return tuple(10**6 + 1000 * self.seed + k for k in range(self.n_confirm))
 
 

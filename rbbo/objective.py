@@ -18,6 +18,7 @@ run can be resumed):
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
@@ -82,11 +83,15 @@ class SyntheticObjective:
 
     def __post_init__(self) -> None:
         _check_dims(self.sim_dim, self.control_dim)
+        seed = self.optimum_seed
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"the synthetic seed must be an integer >= 0, got {seed!r}")
         for name in ("noise", "bias", "delay"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
-        if not self.t_max > 0:
-            raise ValueError(f"t_max must be > 0, got {self.t_max!r}")
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if not (math.isfinite(self.t_max) and self.t_max > 0):
+            raise ValueError(f"t_max must be finite and > 0, got {self.t_max!r}")
         rng = np.random.default_rng(self.optimum_seed)
         self._u, self._v = random_points(self.sim_dim, self.control_dim, 2, rng)
 
@@ -111,7 +116,9 @@ class SyntheticObjective:
         if self.noise:
             common = np.random.default_rng([int(seed), 0]).standard_normal()
             b = np.asarray(basis, dtype=float)
-            key = np.round(b @ b.T, 8).tobytes()  # the subspace, not its representative
+            # The subspace, not its representative; + 0.0 turns the -0.0 that rounding
+            # leaves of a tiny negative entry into 0.0, whose bytes differ.
+            key = (np.round(b @ b.T, 8) + 0.0).tobytes()
             digest = int.from_bytes(hashlib.blake2b(key, digest_size=8).digest(), "little")
             own = np.random.default_rng([int(seed), 1, digest]).standard_normal()
             r += self.noise * (common + 0.5 * own)

@@ -42,9 +42,14 @@ from .gp import GrassmannGP
 from .grassmann import dimension, identity_basis, random_points
 from .store import Evaluation, RunDirectoryError, RunStore
 
-__all__ = ["FIDELITIES", "RBBO", "Proposal", "RBBOConfig", "RBBOResult"]
+__all__ = ["FIDELITIES", "RBBO", "EvaluationsFailing", "Proposal", "RBBOConfig", "RBBOResult"]
 
 CONFIG_VERSION = 1
+MAX_CONSECUTIVE_FAILURES = 10
+
+
+class EvaluationsFailing(RuntimeError):
+    """Every evaluation of the last stretch of a run failed, so :meth:`RBBO.run` stopped."""
 
 
 class RBBO:
@@ -205,8 +210,9 @@ class RBBO:
         cfg = self.config
         index = self._next_index
         info: dict[str, Any] = {}
-        if index < len(self._initial):
-            basis, t, kind = self._initial[index]
+        position = self._next_design_position()
+        if position is not None:
+            basis, t, kind = self._initial[position]
         else:
             rng = np.random.default_rng([cfg.seed, 2, index])
             start = time.perf_counter()
@@ -261,7 +267,24 @@ class RBBO:
         self._record(evaluation, persist=True)
         return evaluation
 
+    def _next_design_position(self) -> int | None:
+        """The first initial-design point neither recorded nor pending, if any.
+
+        Matched by basis, not by index: confirmations share the index sequence, and a point
+        lost in flight when a run stopped is proposed again when it resumes.
+        """
+        started = [e.basis for e in self.history if e.kind == "initial"]
+        started += [p.basis for p in self.pending.values() if p.kind == "initial"]
+        for position, (basis, _, _) in enumerate(self._initial):
+            if not any(b.shape == basis.shape and np.array_equal(b, basis) for b in started):
+                return position
+        return None
+
     # -- driving a whole run ------------------------------------------------------------
+    def can_submit(self, max_evaluations: int | None, budget_s: float | None) -> bool:
+        """Whether a search evaluation may start under these limits (None: no limit)."""
+        return self._can_submit(max_evaluations, budget_s)
+
     def _can_submit(self, max_evaluations, budget_s) -> bool:
         started = len(self.evaluations) + sum(
             p.kind not in CONFIRM_KINDS for p in self.pending.values()
@@ -312,12 +335,18 @@ class RBBO:
                 if workers == 1 and timeout_s is None
                 else ProcessExecutor(objective, workers, timeout_s)
             )
+        # A run whose every evaluation fails (a broken objective or executor) stops instead of
+        # spending its budget on failures; one failure among successes is only recorded.
+        failure_limit = max(MAX_CONSECUTIVE_FAILURES, 2 * executor.workers)
+        failures: list[Evaluation] = []
         ok = False
         try:
             in_flight = {}
             while True:
-                while len(in_flight) < executor.workers and self._can_submit(
-                    max_evaluations, budget_s
+                while (
+                    len(in_flight) < executor.workers
+                    and len(failures) < failure_limit
+                    and self._can_submit(max_evaluations, budget_s)
                 ):
                     proposal = self.ask()
                     in_flight[executor.submit(proposal.task())] = proposal
@@ -326,7 +355,16 @@ class RBBO:
                 done, _ = wait(list(in_flight), timeout=1.0, return_when=FIRST_COMPLETED)
                 for future in done:
                     proposal = in_flight.pop(future)
-                    self._tell_outcome(proposal, future.result(), callback)
+                    evaluation = self._tell_outcome(proposal, future.result(), callback)
+                    failures = [*failures, evaluation] if evaluation.status == "failed" else []
+            if len(failures) >= failure_limit:
+                self._record_result()
+                raise EvaluationsFailing(
+                    f"the last {len(failures)} evaluations all failed, the last with: "
+                    f"{failures[-1].error}; the run stopped (its record is kept"
+                    + (f"; resume it with: rbbo resume {self.store.path}" if self.store else "")
+                    + ")"
+                )
             if confirm:
                 self._confirm(executor, callback)
             ok = True

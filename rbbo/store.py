@@ -13,6 +13,13 @@ A kill during a write can leave a partial last line; :meth:`RunStore.open` detec
 (:class:`TruncatedHistoryWarning`), keeps the bytes in ``history.jsonl.truncated`` and cuts
 the file back to its last complete line. Anything else unreadable raises
 :class:`RunDirectoryError` naming the file and line.
+
+A store that writes (:meth:`RunStore.create`, :meth:`RunStore.open` with ``repair``) holds an
+exclusive lock on ``DIR/.rbbo.lock`` (``flock``; it holds the owner's pid) until
+:meth:`RunStore.close` or the process ends, so a second process, e.g. ``rbbo resume`` while
+the run still goes on under nohup, is refused instead of appending the same evaluation
+indices. Readers (``repair=False``) take no lock. Stores of one directory in one process share
+the lock.
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import io
 import json
 import math
 import os
+import sys
 import tempfile
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -42,6 +50,15 @@ HISTORY = "history.jsonl"
 BEST = "best_basis.npy"
 SUMMARY = "summary.json"
 STATUSES = ("ok", "failed")
+LOCK = ".rbbo.lock"
+
+if sys.platform != "win32":
+    import fcntl
+else:  # pragma: no cover - no flock: runs are not guarded against a second writer
+    fcntl = None
+
+# realpath of a run directory -> [lock file descriptor, stores of this process holding it]
+_HELD_LOCKS: dict[str, list[int]] = {}
 
 
 class RunDirectoryError(ValueError):
@@ -151,6 +168,40 @@ def _atomic_write(path: Path, data: bytes) -> None:
     _fsync_dir(path.parent)
 
 
+def _acquire_lock(path: Path) -> str:
+    """Lock run directory ``path`` for this process (shared by its stores); the key to release."""
+    key = os.path.realpath(path)
+    held = _HELD_LOCKS.get(key)
+    if held is not None:
+        held[1] += 1
+        return key
+    fd = os.open(path / LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+    if fcntl is not None:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            owner = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise RunDirectoryError(
+                f"{path} is in use by another process (pid {owner}): wait for it to finish "
+                "or stop it, then run the command again"
+            ) from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    _HELD_LOCKS[key] = [fd, 1]
+    return key
+
+
+def _release_lock(key: str) -> None:
+    held = _HELD_LOCKS.get(key)
+    if held is None:
+        return
+    held[1] -= 1
+    if held[1] == 0:
+        del _HELD_LOCKS[key]
+        os.close(held[0])  # releases the flock
+
+
 class RunStore:
     """Reads and writes one run directory (see the module docstring).
 
@@ -160,6 +211,23 @@ class RunStore:
     def __init__(self, path: str | os.PathLike, config: dict[str, Any]):
         self.path = Path(path)
         self.config = config
+        self._lock_key: str | None = None
+
+    def _lock(self) -> None:
+        if self._lock_key is None:
+            self._lock_key = _acquire_lock(self.path)
+
+    def close(self) -> None:
+        """Release this store's hold on the directory's lock (see the module docstring)."""
+        if self._lock_key is not None:
+            _release_lock(self._lock_key)
+            self._lock_key = None
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # pragma: no cover - interpreter shutdown; the OS drops the lock
+            pass
 
     @property
     def history_path(self) -> Path:
@@ -176,15 +244,23 @@ class RunStore:
             )
         if path.exists() and not path.is_dir():
             raise RunDirectoryError(f"{path} exists and is not a directory")
-        path.mkdir(parents=True, exist_ok=True)
         try:
             data = json.dumps(config, indent=2, sort_keys=True, allow_nan=False)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"config is not JSON-serialisable: {exc}") from exc
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise RunDirectoryError(f"cannot create the run directory {path}: {exc}") from exc
+        store = cls(path, config)
+        store._lock()
+        if (path / CONFIG).exists():  # another process created it since the check above
+            store.close()
+            raise RunDirectoryError(f"{path} already holds a run; resume it (rbbo resume {path})")
         _atomic_write(path / CONFIG, (data + "\n").encode())
         (path / HISTORY).touch()
         _fsync_dir(path)
-        return cls(path, config)
+        return store
 
     @classmethod
     def open(cls, path: str | os.PathLike, *, repair: bool = True) -> RunStore:
@@ -206,6 +282,7 @@ class RunStore:
             raise RunDirectoryError(f"{path / CONFIG} does not hold a JSON object")
         store = cls(path, config)
         if repair:
+            store._lock()
             store._repair_tail()
         return store
 

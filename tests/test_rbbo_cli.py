@@ -130,6 +130,37 @@ def test_run_directory_errors(tmp_path, capsys):
     assert "--video needs an env run" in _error(capsys, ["rollout", str(run), "--video", "a.mp4"])
 
 
+def test_resume_with_a_new_limit_replaces_the_stored_ones(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", *TINY, "--budget", "1s", "--executor", "serial",
+                 "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    done = len([h for h in _history(run) if not h["kind"].startswith("confirm")])
+    # the stored 1-s budget is spent; with only the old limits there is nothing to search
+    assert main(["resume", str(run), "--no-progress", "--executor", "serial"]) == 0
+    assert "has reached a budget of 0.0166667 min" in capsys.readouterr().err
+    # a new --iterations replaces the budget instead of stopping at it
+    assert main(["resume", str(run), "--iterations", str(done + 3), "--no-progress",
+                 "--executor", "serial"]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == done + 3
+
+
+def test_output_paths_that_cannot_be_written_are_usage_errors(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    err = _error(capsys, ["optimize", "synthetic", *TINY, "--iterations", "2",
+                          "--executor", "serial", "--out", str(blocker / "run")])  # fmt: skip
+    assert "cannot create the run directory" in err
+    run = tmp_path / "run"
+    main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+          "--out", str(run)])  # fmt: skip
+    capsys.readouterr()
+    png = tmp_path / "new" / "folder" / "plot.png"
+    assert main(["report", str(run), "--png", str(png)]) == 0
+    assert png.exists()
+
+
 def test_console_entry_point_exit_status():
     """The real process: ``python -m rbbo`` (what the ``rbbo`` script runs) exits with 2."""
     proc = subprocess.run([sys.executable, "-m", "rbbo", "optimize", "synthetic", "--budget",

@@ -129,6 +129,11 @@ def test_synthetic_objective_is_deterministic_and_rotation_invariant():
     diffs = [objective(u, 10.0, s) - objective(b, 10.0, s) for s in range(20)]
     assert np.std(diffs) < 0.1
     assert objective(u, 4.0, 0) < objective(u, 10.0, 0)  # low fidelity is biased low
+    # also for an axis-aligned subspace (R_init's), whose B B^T rounds tiny entries to -0.0
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        rotation = np.linalg.qr(rng.standard_normal((2, 2)))[0]
+        assert objective(b @ rotation, 10.0, 3) == pytest.approx(objective(b, 10.0, 3), abs=1e-12)
 
 
 @pytest.mark.parametrize(
@@ -150,6 +155,12 @@ def test_bad_objective_specs():
         parse_objective_spec("synthetic:noise=x")
     with pytest.raises(ValueError, match="unknown objective kind 'csv'"):
         make_objective({"kind": "csv"}, 4, 2)
+    for option in ("noise=inf", "bias=inf", "delay=nan"):
+        key = option.split("=")[0]
+        with pytest.raises(ValueError, match=f"{key} must be finite and >= 0"):
+            make_objective(parse_objective_spec(f"synthetic:{option}"), 4, 2)
+    with pytest.raises(ValueError, match="the synthetic seed must be an integer >= 0, got -1"):
+        make_objective(parse_objective_spec("synthetic:seed=-1"), 4, 2)
 
 
 def test_a_run_is_never_replayed_in_another_simulation_space():

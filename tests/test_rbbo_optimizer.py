@@ -146,6 +146,46 @@ def test_resume_after_sigkill_loses_no_recorded_evaluation(tmp_path):
     assert len(set(indices)) == len(indices)
 
 
+def test_a_resume_inside_the_initial_design_evaluates_every_design_point(tmp_path):
+    """Confirmations share the index sequence: a run stopped inside its initial design and
+    confirmed must still evaluate each design point once when it resumes."""
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=5, max_evaluations=3, n_confirm=2, **FAST)
+    RBBO.create(tmp_path / "run", config).run(objective)
+    opt = RBBO.resume(tmp_path / "run")
+    assert [e.kind for e in opt.history][-2:] == ["confirm-init", "confirm-best"]
+    opt.run(objective, max_evaluations=8, confirm=False)
+    initial = [e.basis for e in opt.history if e.kind == "initial"]
+    design = [basis for basis, _, _ in opt._initial]
+    assert len(initial) == len(design) == 6
+    for basis in design:
+        assert sum(np.array_equal(basis, b) for b in initial) == 1
+
+
+def test_a_run_whose_evaluations_all_fail_stops_with_the_reason(tmp_path):
+    from rbbo.optimizer import EvaluationsFailing
+
+    def broken(basis, T, seed):
+        raise OSError("simulator library missing")
+
+    opt = RBBO.create(tmp_path / "run", RBBOConfig(6, 2, n_init=3, max_evaluations=50, **FAST))
+    with pytest.raises(EvaluationsFailing, match="last 10 evaluations all failed, the last "
+                       "with: OSError: simulator library missing"):  # fmt: skip
+        opt.run(broken)
+    assert len(opt.evaluations) == 10  # not 50: it stopped
+    # one failure among successes is recorded and the run goes on
+    calls = []
+
+    def flaky(basis, T, seed):
+        calls.append(1)
+        if len(calls) % 3 == 0:
+            raise OSError("transient")
+        return float(basis[0, 0])
+
+    result = RBBO(RBBOConfig(6, 2, n_init=3, max_evaluations=12, n_confirm=0, **FAST)).run(flaky)
+    assert result.evaluations == 12 and result.failed == 4
+
+
 def test_resume_rejects_bad_settings(tmp_path):
     (tmp_path / "config.json").write_text(json.dumps({"rbbo": {"sim_dim": 4, "control_dim": 9}}))
     with pytest.raises(RunDirectoryError, match="invalid settings: control_dim = 9 exceeds"):

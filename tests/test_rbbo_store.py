@@ -107,3 +107,35 @@ def test_a_run_killed_before_its_history_existed_reads_as_empty(tmp_path):
     assert RunStore.open(tmp_path / "run", repair=False).history() == []
     RunStore.open(tmp_path / "run")  # resuming makes it again
     assert (tmp_path / "run" / "history.jsonl").is_file()
+
+
+LOCK_PROBE = """
+import sys
+from rbbo.store import RunDirectoryError, RunStore
+try:
+    RunStore.open(sys.argv[1], repair=sys.argv[2] == "write")
+except RunDirectoryError as exc:
+    print(exc)
+else:
+    print("opened")
+"""
+
+
+def test_a_second_process_cannot_write_a_run_directory(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    def probe(mode):
+        return subprocess.run([sys.executable, "-c", LOCK_PROBE, str(run), mode],
+                              capture_output=True, text=True, timeout=120).stdout  # fmt: skip
+
+    run = tmp_path / "run"
+    store = RunStore.create(run, {"sim_dim": 4, "control_dim": 2})
+    again = RunStore.open(run)  # this process's stores share the lock
+    assert f"is in use by another process (pid {os.getpid()})" in probe("write")
+    assert probe("read") == "opened\n"  # readers take no lock
+    store.close()
+    assert "in use" in probe("write")  # still held by the second store
+    again.close()
+    assert probe("write") == "opened\n"

@@ -129,6 +129,15 @@ def test_too_many_modes_raise(robot):
         build_subspace(robot, 10, num_derivatives=10, cache=False)
 
 
+def test_the_largest_simulation_space_of_a_small_mesh_is_all_its_vibration_modes():
+    small = from_mesh(trimesh.creation.box((0.2, 0.1, 0.1)), 2)
+    largest = 3 * small.num_nodes - 6
+    full = build_subspace(small, largest, num_derivatives=0, cache=False)
+    mass3 = np.repeat(small.fem_model().mass, 3)
+    gram = full.basis.T @ (mass3[:, None] * full.basis)
+    np.testing.assert_allclose(gram, np.eye(largest + 6), atol=1e-9)
+
+
 def test_cubature_matches_exact_forces_on_held_out_poses(robot, subspace):
     rule = train_cubature(robot, subspace)
     assert len(rule) < robot.num_tets // 5

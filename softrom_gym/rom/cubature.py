@@ -49,7 +49,9 @@ def sample_poses(
     stretch a linearised turn carries, at the expense of deformation.
     """
     size = float(np.ptp(robot.nodes, axis=0).max())
-    omega = np.maximum(subspace.frequencies, subspace.frequencies.min())
+    omega = np.asarray(subspace.frequencies, dtype=float)
+    if not np.all(omega > 0):  # build_subspace never gives one (it refuses extra zero modes)
+        raise ValueError("the subspace has a column of zero frequency: poses cannot be scaled")
     defo = subspace.deformation
     rot = subspace.rotations
     poses = np.empty((count, subspace.M + 3))

@@ -229,10 +229,17 @@ def build_subspace(
     # One eigenpair beyond those kept shows whether the cut splits a degenerate eigenspace;
     # only then are more computed, to see it whole (canonical_eigenvectors).
     scale = float(np.mean(k0.diagonal() / mass3))
-    want = min(num_modes + 7, 3 * n - 1)
+    # The dense solver returns every pair; ARPACK (larger meshes) at most 3N - 1 of them.
+    most = 3 * n if 3 * n <= _DENSE_LIMIT else 3 * n - 1
+    if num_modes + 6 > most:
+        raise ValueError(
+            f"M = {M} with num_derivatives = {num_derivatives} needs {num_modes} vibration "
+            f"modes, more than the {most - 6} this {n}-node mesh's eigensolver can return"
+        )
+    want = min(num_modes + 7, most)
     lam, vec = _lowest_eigenpairs(k0, mass3, want, scale)
-    while want < 3 * n - 1 and _cluster_at_end(lam[6 + num_modes - 1 :]):
-        want = min(want + 8, 3 * n - 1)
+    while want < most and _cluster_at_end(lam[6 + num_modes - 1 :]):
+        want = min(want + 8, most)
         lam, vec = _lowest_eigenpairs(k0, mass3, want, scale)
     rigid_like = lam < 1e-8 * scale
     if rigid_like.sum() > 6:
@@ -331,11 +338,14 @@ def canonical_eigenvectors(
     return out
 
 
+_DENSE_LIMIT = 600  # 3N up to which the generalised eigenproblem is solved densely
+
+
 def _lowest_eigenpairs(k0: sp.spmatrix, mass3: np.ndarray, want: int, scale: float
                        ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The ``want`` lowest eigenpairs of K u = lambda M u, ascending."""
     n3 = len(mass3)
-    if n3 <= 600:
+    if n3 <= _DENSE_LIMIT:
         lam, vec = _dense_eigh(k0, mass3)
         return lam[:want], vec[:, :want]
     lam, vec = spla.eigsh(
