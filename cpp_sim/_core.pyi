@@ -167,8 +167,8 @@ class ReducedState:
         ...
 class ReducedModel:
     """
-    Reduced-order soft body in the simulation space B_r (see softrom_gym.rom.ReducedModel for the
-    Python front end that builds the basis and cubature).
+    Reduced-order soft body in the simulation space B_r (softrom_gym.rom.build_reduced_model is
+    the Python front end that builds the basis and cubature).
     
     q_r = (3 rigid translations, 3 linearised rotations, M deformation coordinates),
     x = X + B_r q_r, B_r^T M B_r = I. Implicit Euler with Newton on the (M + 6)-dimensional system; elastic forces by cubature;

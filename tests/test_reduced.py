@@ -268,6 +268,16 @@ def test_bad_input_raises_clear_errors(walker):
     swapped[:, [3, 6]] = swapped[:, [6, 3]]  # a deformation column where a rotation belongs
     with pytest.raises(ValueError, match="basis columns 3..5 must be linearised rotations"):
         build_reduced_model(robot, subspace=Subspace(swapped, sub.frequencies, sub.num_modes))
+    material = [robot.youngs_modulus, robot.poisson_ratio, robot.density]
+    surface = [robot.surface_nodes, robot.surface_faces]
+    args = [robot.nodes, robot.tets, *material, sub.basis, np.arange(3), np.zeros(3), *surface]
+    with pytest.raises(ValueError, match="cubature_weights must have a positive sum"):
+        cpp_sim.ReducedModel(*args)
+    args[7] = np.ones(3)
+    args[8] = np.concatenate([robot.surface_nodes, robot.surface_nodes[:1]])
+    node = int(robot.surface_nodes[0])
+    with pytest.raises(ValueError, match=f"surface_nodes lists node {node} more than once"):
+        cpp_sim.ReducedModel(*args)
 
 
 def test_a_spinning_body_turns_then_meets_its_linearisation_limit(box):

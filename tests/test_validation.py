@@ -113,7 +113,51 @@ def test_bad_settings(tet):
     fem = make(*tet)
     with pytest.raises(ValueError, match="damping_beta must be a finite number >= 0, got -1"):
         fem.damping_beta = -1.0
-    with pytest.raises(ValueError, match=r"gravity has shape \(1, 2\), expected \(1, 3\)"):
+    with pytest.raises(ValueError, match=r"gravity has shape \(2,\), expected \(3,\)"):
         fem.gravity = [0.0, 1.0]
+    with pytest.raises(ValueError, match=r"gravity has shape \(3, 1\), expected \(3,\)"):
+        fem.gravity = np.ones((3, 1))
+    with pytest.raises((TypeError, ValueError), match="gravity"):
+        fem.gravity = [[1.0], [1.0, 2.0]]  # ragged: numpy cannot make an array of it
     fem.gravity = [0.0, 0.0, -1.62]
     assert fem.gravity == [0.0, 0.0, -1.62]
+
+
+def test_threads_stepping_one_model_take_turns(tet):
+    """step() runs without the GIL: two threads on one model must not share its scratch."""
+    import threading
+
+    nodes, tets = tet
+    fem = make(nodes, tets)
+    v0 = np.zeros_like(nodes)
+    v0[3, 2] = -0.5
+    expected = make(nodes, tets).step(nodes, v0, 0.005)
+    results, errors = [], []
+
+    def work():
+        try:
+            for _ in range(20):
+                results.append(fem.step(nodes, v0, 0.005))
+        except Exception as exc:  # surfaced below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors and len(results) == 80
+    for x, v in results:
+        np.testing.assert_array_equal(x, expected[0])
+        np.testing.assert_array_equal(v, expected[1])
+
+
+def test_integer_settings_accept_numpy_integers_and_name_overflow():
+    config = cpp_sim.ReducedConfig(max_newton_iterations=np.int64(7))
+    assert config.max_newton_iterations == 7
+    with pytest.raises(ValueError, match="max_newton_iterations must be at most 2147483647"):
+        cpp_sim.ReducedConfig(max_newton_iterations=2**40)
+    with pytest.raises(TypeError, match="max_newton_iterations must be an integer, got True"):
+        cpp_sim.ReducedConfig(max_newton_iterations=True)
+    with pytest.raises(TypeError, match="max_newton_iterations must be an integer, got 2.5"):
+        cpp_sim.ReducedConfig(max_newton_iterations=2.5)

@@ -4,6 +4,7 @@
 #include <pybind11/stl.h>
 
 #include <memory>
+#include <mutex>
 #include <sstream>
 #include <string>
 #include <utility>
@@ -137,31 +138,53 @@ density : float
       .def_property(
           "gravity", [](const FEMModel& f) { return std::vector<double>{f.gravity.x(), f.gravity.y(), f.gravity.z()}; },
           [](FEMModel& f, py::handle g) {
-            VecX gv = v::real_matrix(py::array::ensure(g).reshape({1, -1}), "gravity", 1, 3);
+            py::array a = v::as_array(g, "gravity");
+            if (a.ndim() != 1 || a.shape(0) != 3)
+              throw py::value_error("gravity has shape " + v::shape_str(a) + ", expected (3,)");
+            const VecX gv =
+                v::real_matrix(a.reshape({py::ssize_t{1}, py::ssize_t{3}}), "gravity", 1, 3);
+            std::lock_guard<std::mutex> lock(f.mutex());
             f.gravity = gv;
           },
           "Gravitational acceleration (3,), m/s^2.")
       .def_property(
           "damping_alpha", [](const FEMModel& f) { return f.damping_alpha; },
-          [](FEMModel& f, double a) { f.damping_alpha = v::non_negative(a, "damping_alpha"); },
+          [](FEMModel& f, double a) {
+            v::non_negative(a, "damping_alpha");
+            std::lock_guard<std::mutex> lock(f.mutex());
+            f.damping_alpha = a;
+          },
           "Mass-proportional Rayleigh damping, 1/s (default 0: it would also damp free flight).")
       .def_property(
           "damping_beta", [](const FEMModel& f) { return f.damping_beta; },
-          [](FEMModel& f, double b) { f.damping_beta = v::non_negative(b, "damping_beta"); },
+          [](FEMModel& f, double b) {
+            v::non_negative(b, "damping_beta");
+            std::lock_guard<std::mutex> lock(f.mutex());
+            f.damping_beta = b;
+          },
           "Stiffness-proportional Rayleigh damping, s (default 0.005).")
       .def_property(
           "newton_tolerance", [](const FEMModel& f) { return f.newton_tolerance; },
-          [](FEMModel& f, double t) { f.newton_tolerance = v::positive(t, "newton_tolerance"); },
+          [](FEMModel& f, double t) {
+            v::positive(t, "newton_tolerance");
+            std::lock_guard<std::mutex> lock(f.mutex());
+            f.newton_tolerance = t;
+          },
           "Newton stops when max |dx| / dt falls below this, m/s.")
       .def_property(
           "max_newton_iterations", [](const FEMModel& f) { return f.max_newton_iterations; },
           [](FEMModel& f, int n) {
             if (n < 1) throw py::value_error("max_newton_iterations must be >= 1, got " + std::to_string(n));
+            std::lock_guard<std::mutex> lock(f.mutex());
             f.max_newton_iterations = n;
           })
       .def_property(
           "solver", [](const FEMModel& f) { return solver_name(f.solver()); },
-          [](FEMModel& f, const std::string& name) { f.set_solver(solver_from_name(name)); },
+          [](FEMModel& f, const std::string& name) {
+            const FEMSolver kind = solver_from_name(name);
+            std::lock_guard<std::mutex> lock(f.mutex());
+            f.set_solver(kind);
+          },
           "How step() solves its Newton systems. 'supernodal_llt' (default), "
           "'simplicial_llt' and 'simplicial_ldlt' share the fast step (closed-form element "
           "projection, in-place assembly on a pre-permuted pattern, symbolic analysis once, no "
@@ -199,7 +222,10 @@ density : float
             std::vector<char> mask = v::node_mask(fixed, "fixed", n);
             VecX xo, vo;
             {
+              // The GIL first, then the model's lock: a thread waiting for the lock holds
+              // no GIL, so steps of one model from several threads take turns.
               py::gil_scoped_release release;
+              std::lock_guard<std::mutex> lock(f.mutex());
               f.step(xv, vv, dt, mask, xo, vo);
             }
             return py::make_tuple(v::positions_out(xo), v::positions_out(vo));
@@ -213,7 +239,11 @@ Raises RuntimeError if the step diverges.)doc")
       .def_property_readonly(
           "last_step_stats",
           [](const FEMModel& f) {
-            const StepStats& s = f.last_step_stats();
+            StepStats s;
+            {
+              std::lock_guard<std::mutex> lock(f.mutex());
+              s = f.last_step_stats();
+            }
             py::dict d;
             d["iterations"] = s.iterations;
             d["step_norm"] = s.step_norm;

@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <sstream>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -39,14 +40,22 @@ double real(py::handle x, const char* name) {
 }
 
 int integer_at_least(py::handle x, const char* name, int low) {
-  if (!py::isinstance<py::int_>(x) || py::isinstance<py::bool_>(x))
+  // Any integer, numpy's included (__index__), never a bool.
+  if (py::isinstance<py::bool_>(x) || !PyIndex_Check(x.ptr()))
     throw py::type_error(std::string(name) + " must be an integer, got " +
                          std::string(py::repr(x)));
-  const int n = x.cast<int>();
-  if (n < low)
+  const py::object index = py::reinterpret_steal<py::object>(PyNumber_Index(x.ptr()));
+  if (!index) throw py::error_already_set();
+  int overflow = 0;
+  const long long wide = PyLong_AsLongLongAndOverflow(index.ptr(), &overflow);
+  if (overflow > 0 || wide > std::numeric_limits<int>::max())
+    throw py::value_error(std::string(name) + " must be at most " +
+                          std::to_string(std::numeric_limits<int>::max()) + ", got " +
+                          std::string(py::repr(x)));
+  if (overflow < 0 || wide < low)
     throw py::value_error(std::string(name) + " must be >= " + std::to_string(low) + ", got " +
-                          std::to_string(n));
-  return n;
+                          std::string(py::repr(x)));
+  return static_cast<int>(wide);
 }
 
 Vec3 vec3(py::handle x, const char* name) {

@@ -4,6 +4,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <sstream>
 #include <thread>
 
@@ -146,7 +147,19 @@ std::unique_ptr<ReducedModel> make_reduced(py::handle nodes, py::handle tets, do
   std::vector<int> elems = index_vector(cub_elements, "cubature_elements", fem.mesh().num_tets());
   VecX w = vector_in(cub_weights, "cubature_weights", static_cast<Eigen::Index>(elems.size()));
   if ((w.array() < 0).any()) throw py::value_error("cubature_weights must be >= 0");
+  if (!(w.sum() > 0.0))
+    throw py::value_error("cubature_weights must have a positive sum (got " +
+                          std::to_string(elems.size()) +
+                          " elements): without one the body has no elasticity");
   std::vector<int> snodes = index_vector(surface_nodes, "surface_nodes", n);
+  {
+    std::vector<int> sorted = snodes;
+    std::sort(sorted.begin(), sorted.end());
+    const auto dup = std::adjacent_find(sorted.begin(), sorted.end());
+    if (dup != sorted.end())
+      throw py::value_error("surface_nodes lists node " + std::to_string(*dup) +
+                            " more than once (it would be two contact points)");
+  }
   py::array fa = v::as_array(surface_faces, "surface_faces");
   if (fa.ndim() != 2 || fa.shape(1) != 3)
     throw py::value_error("surface_faces has shape " + v::shape_str(fa) + ", expected (F, 3)");
@@ -174,7 +187,11 @@ py::array_t<double> controls_in(const ReducedModel& m, py::handle obj, const cha
         << " with C = " << c << " the control dimension";
     throw py::value_error(msg.str());
   }
-  auto out = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(a);
+  auto in = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(a);
+  // Always a copy: step and rollout read the controls without the GIL, while another
+  // Python thread could be writing the caller's array.
+  py::array_t<double> out(std::vector<py::ssize_t>(in.shape(), in.shape() + in.ndim()));
+  std::copy(in.data(), in.data() + in.size(), out.mutable_data());
   const double* p = out.data();
   for (py::ssize_t i = 0; i < out.size(); ++i)
     if (!std::isfinite(p[i])) {
@@ -223,8 +240,8 @@ node) that warm-start the next contact solve. Copies in, copies out; picklable.)
       });
 
   py::class_<ReducedModel> model_cls(m, "ReducedModel", R"doc(
-Reduced-order soft body in the simulation space B_r (see softrom_gym.rom.ReducedModel for the
-Python front end that builds the basis and cubature).
+Reduced-order soft body in the simulation space B_r (softrom_gym.rom.build_reduced_model is
+the Python front end that builds the basis and cubature).
 
 q_r = (3 rigid translations, 3 linearised rotations, M deformation coordinates),
 x = X + B_r q_r, B_r^T M B_r = I. Implicit Euler with Newton on the (M + 6)-dimensional system; elastic forces by cubature;

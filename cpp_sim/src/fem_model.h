@@ -5,6 +5,7 @@
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
 #include <memory>
+#include <mutex>
 #include <vector>
 
 #include "material.h"
@@ -77,6 +78,10 @@ class FEMModel {
   FEMSolver solver() const { return solver_kind_; }
   void set_solver(FEMSolver kind) { solver_kind_ = kind; }
 
+  // Held by the Python binding while step() runs without the GIL and while a setting
+  // changes: two threads stepping one model would share its factorisation and scratch.
+  std::mutex& mutex() const { return mutex_; }
+
   Vec3 gravity{0.0, 0.0, -9.81};
   double damping_alpha = 0.0;   // mass-proportional Rayleigh coefficient, 1/s
   double damping_beta = 0.005;  // stiffness-proportional Rayleigh coefficient, s
@@ -112,6 +117,7 @@ class FEMModel {
   // Fast path, built on its first step: the pre-permuted pattern, K(x) and K(x_n) on it.
   std::unique_ptr<SpdSystem> system_;
   std::vector<double> k_, k0_;
+  mutable std::mutex mutex_;
 };
 
 }  // namespace softrom
