@@ -3,8 +3,11 @@
 For each env id: single-env steps/s (``gym.make`` + ``step``), the native vector env with 8
 robots (each stepping as many times as the single env, so both see the same mix of settling
 and walking) (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) in robot-steps/s,
-their ratio (`vector_speedup`), and batched ``rollout`` throughput on 2 threads in robot
-env-steps/s (64 rollouts x 10 env steps). Actions are uniform random in the action box.
+their ratio (`vector_speedup`: the vector env steps its robots on 2 threads, the single env
+on one, so the ratio is batching and threading together), and batched ``rollout`` throughput
+on 2 threads in robot env-steps/s (64 rollouts x 10 env steps). Actions are uniform random in
+the action box. Each rate is one timed run after the env's first step (not best of several):
+compare rows of one run.
 
     python benchmarks/bench_env.py [--json] [--steps 100]
 """

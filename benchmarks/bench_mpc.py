@@ -76,6 +76,17 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     args = p.parse_args(argv)
     ids = [i if "/" in i else f"softrom_gym/{i}" for i in args.env_ids]
+    if not (args.seconds > 0 and args.start >= 0):
+        p.error(f"--seconds must be > 0 and --start >= 0, got {args.seconds}, {args.start}")
+    for env_id in ids:
+        # the registered time limit ends an episode early: the distance per second would be
+        # divided by time the robot never walked
+        spec = gym.spec(env_id)
+        if spec.max_episode_steps is not None:
+            period = spec.kwargs.get("frame_skip", 5) * spec.kwargs.get("dt", 1.0 / 200.0)
+            limit = spec.max_episode_steps * period
+            if args.seconds > limit + 1e-9:
+                p.error(f"--seconds {args.seconds:g} exceeds {env_id}'s {limit:g}-s episode")
     if not args.json:
         print(f"{'env id':<30} {'ctrl':<5} {'replan s':>9} {'RTF':>7} {'m/s':>8} {'BL':>7}")
     rows = []

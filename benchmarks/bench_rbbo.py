@@ -111,6 +111,8 @@ def main(argv=None) -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[50, 200, 500])
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
+    if args.repeats < 1 or min(args.sizes) < 1:
+        parser.error(f"--repeats and --sizes must be >= 1, got {args.repeats}, {args.sizes}")
     if not args.json:
         print(f"GP-UCB on Gr({M}, {C}); medians of {args.repeats} runs")
         print(f"{'n':>5} {'setting':>7} {'optimizer':>9} {'fit s':>7} {'acq s':>7} "

@@ -28,9 +28,9 @@ beats R_init and how many it is the best of the three (ties count for each), and
 time (evaluations included, confirmation not). The plot shows the best observed R (search
 seeds) against evaluations and against wall time. CrossSwim-v0 at T = 3 s costs about 2.6 s
 an evaluation on one core, so the defaults (16 evaluations, 3 seeds, 3 confirm seeds: about
-175 evaluations) take roughly 8-10 minutes. Caveat: with M x C = 60 CMA-ES's default
-population is 16, so at 16 evaluations it completes a single generation: a Gaussian sample
-(sigma 0.5) around the identity, which it does not evaluate itself.
+175 evaluations) take roughly 8-10 minutes. Caveat: ``rbbo.baselines.cma_es`` caps CMA-ES's
+population at a quarter of the evaluations (at least 4), so at 16 evaluations it runs 4
+generations of 4: little room to adapt its step size or covariance.
 
     python benchmarks/bench_rbbo_vs.py --real softrom_gym/CrossSwim-v0   # part (b) only
     python benchmarks/bench_rbbo_vs.py --real softrom_gym/CrossSwim-v0 --t 3 --settle-time 1 \
@@ -170,7 +170,7 @@ def part_b(args, env_id: str, seeds: int, n: int, png: Path) -> None:
     m, c, t = args.sim_dim, args.control_dim, args.t
     if not t > args.settle_time:
         raise SystemExit(f"--t {t} must exceed --settle-time {args.settle_time}")
-    if n <= args.n_init:
+    if n <= args.n_init + 1:  # the identity and n_init points, then one acquisition at least
         raise SystemExit(f"--evaluations {n} must exceed RBBO's initial design (--n-init + 1)")
 
     def make():

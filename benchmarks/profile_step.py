@@ -12,7 +12,9 @@ three deformation modes (the same sequence for every row):
   at an iteration cap (``newton cap`` / ``stagger cap``: results the solver did not certify);
 * the split of a step's time (µs, measured inside C++ with ``profile=True``): ``dynamics``
   (the implicit solve), ``drag``, and the staggered projection's ``normal`` and ``friction``
-  halves; the remainder of ``us/step`` is binding overhead and bookkeeping;
+  halves; the remainder of ``us/step`` is binding overhead and bookkeeping, and for the fast
+  solver the per-call set-up of A_0's inverse (each ``step`` call forms it; a ``rollout``
+  forms it once for all its steps);
 * for each solver the model offers (``reference``: the exact Newton path; ``fast``: the
   default), so the two columns read side by side.
 
@@ -106,7 +108,8 @@ def profile(robot_name: str, steps: int) -> list[dict]:
                 robot, control_basis=np.eye(20)[:, :3], **settings, **extra
             )  # fmt: skip
             r = time_step(model, steps)
-            pose = r.pop("pose") if config == "staggered" else pose
+            last = r.pop("pose")  # an array: not a row's value (nor JSON)
+            pose = last if config == "staggered" else pose
             rows.append({"robot": robot_name, "config": config, "solver": solver, **r})
     model = build_reduced_model(robot, control_basis=np.eye(20)[:, :3])
     q_e = pose[3:]
@@ -116,7 +119,7 @@ def profile(robot_name: str, steps: int) -> list[dict]:
             "config": "kernels",
             "forces_us": time_call(model.elastic_forces, q_e),
             "stiffness_us": time_call(model.elastic_stiffness, q_e, repeats=50),
-            "cubature_elements": None,
+            "cubature_elements": model.num_cubature_elements,
         }
     )
     return rows
