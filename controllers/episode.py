@@ -123,6 +123,8 @@ def run_episode(
         raise ValueError(f"seconds must be a positive number, got {seconds!r}")
     if video is not None and getattr(env, "render_mode", None) != "rgb_array":
         raise ValueError("video needs an env made with render_mode='rgb_array'")
+    if video is not None:
+        _imageio()  # before the episode, not after it
     api = EnvAPI(env)
     steps = max(1, round(seconds / api.dt))
     env.reset(seed=seed)
@@ -192,11 +194,16 @@ def _progress(total: int, enabled: bool, name: str):
     return tqdm(total=total, desc=name, unit="step", leave=False)
 
 
-def _write_video(path: str | os.PathLike, frames: list[np.ndarray], fps: int) -> None:
+def _imageio():
     try:
         import imageio.v2 as imageio
     except ImportError:
         raise ImportError(
-            "writing a video needs imageio: pip install imageio imageio-ffmpeg"
+            "writing a video needs imageio: pip install 'softrom[video]' (imageio and "
+            "imageio-ffmpeg)"
         ) from None
-    imageio.mimwrite(os.fspath(path), frames, fps=fps)
+    return imageio
+
+
+def _write_video(path: str | os.PathLike, frames: list[np.ndarray], fps: int) -> None:
+    _imageio().mimwrite(os.fspath(path), frames, fps=fps)

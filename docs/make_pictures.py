@@ -1,6 +1,6 @@
 """Render one PNG per benchmark (docs/<EnvId>.png) with the envs' rgb_array renderer.
 
-    python docs/make_pictures.py
+    python docs/make_pictures.py [--out DIR]
 
 Each robot takes 20 env steps (0.5 s) of a fixed sinusoidal stroke in its first control
 mode, so the picture shows it deformed on the ground (or in the fluid).
@@ -8,6 +8,7 @@ mode, so the picture shows it deformed on the ground (or in the fluid).
 
 from __future__ import annotations
 
+import argparse
 import struct
 import zlib
 from pathlib import Path
@@ -34,7 +35,15 @@ def write_png(path: Path, rgb: np.ndarray) -> None:
 
 
 def main() -> None:
-    out = Path(__file__).parent
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path(__file__).parent,
+        help="folder for the PNGs (default: docs/, overwriting the committed)",
+    )
+    out = parser.parse_args().out
+    out.mkdir(parents=True, exist_ok=True)
     for name in softrom_gym.BENCHMARKS:
         env = gym.make(f"softrom_gym/{name}", render_mode="rgb_array")
         env.reset(seed=0)
@@ -43,7 +52,7 @@ def main() -> None:
             env.step(np.array([np.sin(2 * np.pi * t / 20), 0.0, 0.0], np.float32) * bound)
         frame = env.render()
         write_png(out / f"{name.removesuffix('-v0')}.png", frame)
-        print(f"wrote docs/{name.removesuffix('-v0')}.png {frame.shape}")
+        print(f"wrote {out / (name.removesuffix('-v0') + '.png')} {frame.shape}")
 
 
 if __name__ == "__main__":

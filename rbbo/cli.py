@@ -469,6 +469,10 @@ def cmd_rollout(args) -> int:
               f"optimum {objective.value(objective.optimum):.6g}")  # fmt: skip
         return 0
     if args.video:
+        with _bad_input():  # imageio missing: say what to install, before the episode runs
+            from controllers.episode import _imageio
+
+            _imageio()
         return _rollout_video(objective, basis, seconds, args.seed, args.video)
     r = objective(basis, seconds, args.seed)
     print(f"R = {r:.6g} per second from t = {objective.settle_time:g} s "

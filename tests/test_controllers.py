@@ -3,6 +3,7 @@
 Small robots (a 28-node beam, 6 modes) and short horizons keep these fast."""
 
 import dataclasses
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -175,6 +176,16 @@ def test_episode_result_records_the_episode(walker, tmp_path):
     assert "replans" in res.summary() and video.stat().st_size > 500
     with pytest.raises(ValueError, match=r"times \(0.5, None\) must lie in \[0, 0.1\] s"):
         res.distance_between(0.5)
+
+
+def test_a_video_without_imageio_fails_before_the_episode(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "imageio", None)  # import imageio raises ImportError
+    monkeypatch.setitem(sys.modules, "imageio.v2", None)
+    env = small_env("walk", render_mode="rgb_array")
+    planner = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
+    with pytest.raises(ImportError, match=r"pip install 'softrom\[video\]'"):
+        run_episode(env, planner, 0.1, seed=0, progress=False, video=tmp_path / "a.mp4")
+    assert planner.plan_ is None  # refused before the episode started
 
 
 def test_stop_reason_tells_a_finished_episode_from_a_time_limit():
