@@ -51,8 +51,59 @@ def test_writes_every_table_and_figure(reproduction):
     assert (rl / "baselines.md").is_file() and (rl / "ppo-identity" / "final.zip").is_file()
     assert len(list(rl.glob("ppo-rbbo-*"))) == 1  # the Table I basis trained too
     assert "## RL baselines on CrossSwim-v0" in (out / "REPORT.md").read_text()
-    bo_table = (out / "REPORT.md").read_text().split("## BO vs BOCA")[1]
-    assert "BO within BOCA's simulated time" in bo_table and "| CrossSwim-v0 | " in bo_table
+    log = (out / "reproduce.log").read_text()  # the record keeps its own log
+    assert re.search(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d session 1: ", log, re.M)
+    assert "[CrossSwim-v0-boca] BOCA, budget" in log and "(softrom 0.1.0" in log
+    text = (out / "REPORT.md").read_text()
+    assert "BO within BOCA's simulated time" in text.split("## BO vs BOCA")[1]
+    assert list(_bo_table_matches_histories(text, out)) == ["CrossSwim-v0"]
+
+
+def _bo_table_matches_histories(text: str, folder, skip_stale: bool = False) -> dict:
+    """Parse the report's BO-vs-BOCA table and recompute each cell from the runs' histories;
+    returns the rows checked, by benchmark. ``skip_stale``: a row whose run has recorded more
+    evaluations since the report was written (a run still going) is not checked."""
+    section = text.split("## BO vs BOCA")[1].split("\n## ")[0]
+    rows = {}
+    for line in section.splitlines():
+        if line.startswith("| ") and not line.startswith("| benchmark"):
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            rows[cells[0]] = cells
+    checked = {}
+    for bench, cells in rows.items():
+        runs = {}
+        for name in ("boca", "bo"):
+            run = folder / "runs" / f"{bench}-{name}"
+            t_max = json.loads((run / "config.json").read_text())["rbbo"]["t_max"]
+            search = [e for e in _history(run) if not e["kind"].startswith("confirm")]
+            runs[name] = (search, t_max)
+
+        counts = [len(runs["boca"][0]), len(runs["bo"][0])]
+        if skip_stale and [int(cells[6]), int(cells[7])] != counts:
+            continue
+
+        def full(evs, t_max):
+            return [e for e in evs if e["status"] == "ok" and math.isclose(e["T"], t_max)]
+
+        def minutes(evs):
+            return np.cumsum([e["T"] * max(len(e["seeds"]), 1) for e in evs]) / 60.0
+
+        for column, name in ((1, "boca"), (2, "bo")):
+            best = max(e["R"] for e in full(*runs[name]))
+            assert float(cells[column]) == pytest.approx(best, rel=1e-3), (bench, name)
+        spent = {name: minutes(evs)[-1] for name, (evs, _) in runs.items()}
+        bo, t_max = runs["bo"]
+        within = [e["R"] for e, t in zip(bo, minutes(bo), strict=True)
+                  if t <= spent["boca"] + 1e-9 and e["status"] == "ok"
+                  and math.isclose(e["T"], t_max)]  # fmt: skip
+        if within:
+            assert float(cells[3]) == pytest.approx(max(within), rel=1e-3), bench
+        boca_spent, bo_spent = (float(v) for v in cells[4].split(" / "))
+        assert boca_spent == pytest.approx(spent["boca"], abs=0.051)
+        assert bo_spent == pytest.approx(spent["bo"], abs=0.051)
+        assert [int(cells[6]), int(cells[7])] == counts
+        checked[bench] = cells
+    return checked
 
 
 def test_simulated_time_is_the_sum_of_episode_lengths_over_seeds():
@@ -346,6 +397,8 @@ def test_the_committed_report_matches_its_run_histories():
             assert row[f"{key}_ci95"] == pytest.approx(half, rel=0.05), (row["robot"], key)
         apart = (row["R_star"] - row["R_star_ci95"]) > (row["R_init"] + row["R_init_ci95"])
         assert row["apart"] == apart
+    # and BO vs BOCA from its runs (a run that went on after the report: not yet reported)
+    assert _bo_table_matches_histories(text, folder, skip_stale=True)
 
 
 def test_a_compiled_core_older_than_its_sources_is_named(tmp_path, monkeypatch):

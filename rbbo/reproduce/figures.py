@@ -55,8 +55,9 @@ def plot_bo_vs_boca(panels: dict[str, dict[str, list]], path: Path,
                 continue
             if axis == "wall":
                 minutes = np.array([e.elapsed_s for e in ok]) / 60.0
-            else:
-                minutes = simulated_minutes(ok)
+            else:  # a failed evaluation spent its simulated time too
+                spent = simulated_minutes(evaluations)
+                minutes = spent[[e.status == "ok" for e in evaluations]]
             r = np.array([e.R for e in ok])
             t_max = max(e.T for e in ok)
             full = np.array([math.isclose(e.T, t_max) for e in ok])

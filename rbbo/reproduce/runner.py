@@ -55,6 +55,19 @@ def _log_stderr(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
+def _tee(log: Log, path: Path) -> Log:
+    """``log``, and each message appended to ``path`` with its UTC time: the record keeps
+    its own log, whatever the session's stderr went to."""
+
+    def both(message: str) -> None:
+        log(message)
+        stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())
+        with open(path, "a", encoding="utf-8") as f:
+            f.write("".join(f"{stamp} {line}\n" for line in message.splitlines() or [""]))
+
+    return both
+
+
 def _objective(plan: ReproducePlan, benchmark: str, direction_deg: float | None = None,
                sim_dim: int | None = None) -> EnvObjective:  # fmt: skip
     env_kwargs = {} if direction_deg is None else {"direction": math.radians(direction_deg)}
@@ -98,8 +111,10 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
                      "timeout_s": plan.timeout_s}  # fmt: skip
         opt = RBBO.create(path, config, objective_spec=objective.spec(),
                           extra={"execution": execution, "problem": problem})  # fmt: skip
+    # The code is recorded per run as well as per session: each run starts fresh workers,
+    # which import the checkout as it is then.
     log(f"[{path.name}] {fidelity.upper()}, budget {budget_s / 60:.1f} min, "
-        f"{len(opt.evaluations)} evaluations so far")  # fmt: skip
+        f"{len(opt.evaluations)} evaluations so far ({source_version()})")  # fmt: skip
     bar = None
     if progress:
         from tqdm import tqdm
@@ -380,12 +395,14 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    log = _tee(log, out / "reproduce.log")
     document = _load_plan(out, plan)
     session = {"command": command or " ".join(sys.argv), "started": time.time(), "wall_s": 0.0,
                "source": source_version(), "machine": machine_description(),
                "budget_s": plan.budget_s, "direction_budget_s": plan.direction_budget_s,
                "workers": plan.workers}  # fmt: skip
     document["sessions"].append(session)
+    log(f"session {len(document['sessions'])}: {session['command']} ({session['source']})")
     started = time.perf_counter()
 
     saved = [started]
