@@ -385,8 +385,8 @@ def cmd_resume(args) -> int:
         limits = ([f"{iterations} evaluations"] if iterations is not None else []) + (
             [f"a budget of {budget / 60:g} min"] if budget is not None else []
         )
-        print(f"{opt.store.path} has reached {' and '.join(limits)} ({done} evaluations, "
-              f"{opt.elapsed_s / 60:.1f} min): nothing more to search; give a larger "
+        print(f"{opt.store.path} has reached its limit ({' and '.join(limits)}; it has {done} "
+              f"evaluations, {opt.elapsed_s / 60:.1f} min): nothing more to search; give a larger "
               "--budget or --iterations to go on", file=sys.stderr)  # fmt: skip
     started = time.monotonic()
     executor = _make_executor(objective, execution)
