@@ -279,11 +279,10 @@ def _execute(opt, executor, max_evaluations, budget_s, progress: bool) -> int:
         executor.shutdown(wait=False)
         print(f"\ninterrupted; continue with: rbbo resume {opt.store.path}", file=sys.stderr)
         return 130
-    except EvaluationsFailing as exc:
+    except EvaluationsFailing:  # reported by main()
         close()
         executor.shutdown(wait=False)
-        print(f"rbbo: error: {exc}", file=sys.stderr)
-        return 1
+        raise
     close()
     executor.shutdown()
     print(format_table([report_row(opt)]))
@@ -469,11 +468,10 @@ def cmd_rollout(args) -> int:
               f"optimum {objective.value(objective.optimum):.6g}")  # fmt: skip
         return 0
     if args.video:
-        with _bad_input():  # imageio missing: say what to install, before the episode runs
-            from controllers.episode import _imageio
-
-            _imageio()
-        return _rollout_video(objective, basis, seconds, args.seed, args.video)
+        try:  # run_episode checks for imageio before the episode runs
+            return _rollout_video(objective, basis, seconds, args.seed, args.video)
+        except ImportError as exc:
+            raise UsageError(str(exc)) from exc
     r = objective(basis, seconds, args.seed)
     print(f"R = {r:.6g} per second from t = {objective.settle_time:g} s "
           f"(T = {seconds:g} s, seed {args.seed})")  # fmt: skip
@@ -597,7 +595,7 @@ def main(argv: list[str] | None = None) -> int:
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"rbbo: error: {message}", file=sys.stderr)
         return 2
-    except EvaluationsFailing as exc:  # e.g. from a stage of rbbo reproduce
+    except EvaluationsFailing as exc:  # rbbo optimize, resume, or a stage of reproduce
         print(f"rbbo: error: {exc}", file=sys.stderr)
         return 1
 

@@ -283,9 +283,6 @@ class RBBO:
     # -- driving a whole run ------------------------------------------------------------
     def can_submit(self, max_evaluations: int | None, budget_s: float | None) -> bool:
         """Whether a search evaluation may start under these limits (None: no limit)."""
-        return self._can_submit(max_evaluations, budget_s)
-
-    def _can_submit(self, max_evaluations, budget_s) -> bool:
         started = len(self.evaluations) + sum(
             p.kind not in CONFIRM_KINDS for p in self.pending.values()
         )
@@ -338,15 +335,15 @@ class RBBO:
         # A run whose every evaluation fails (a broken objective or executor) stops instead of
         # spending its budget on failures; one failure among successes is only recorded.
         failure_limit = max(MAX_CONSECUTIVE_FAILURES, 2 * executor.workers)
-        failures: list[Evaluation] = []
+        failed_in_a_row, last_error = 0, None
         ok = False
         try:
             in_flight = {}
             while True:
                 while (
                     len(in_flight) < executor.workers
-                    and len(failures) < failure_limit
-                    and self._can_submit(max_evaluations, budget_s)
+                    and failed_in_a_row < failure_limit
+                    and self.can_submit(max_evaluations, budget_s)
                 ):
                     proposal = self.ask()
                     in_flight[executor.submit(proposal.task())] = proposal
@@ -356,12 +353,14 @@ class RBBO:
                 for future in done:
                     proposal = in_flight.pop(future)
                     evaluation = self._tell_outcome(proposal, future.result(), callback)
-                    failures = [*failures, evaluation] if evaluation.status == "failed" else []
-            if len(failures) >= failure_limit:
+                    failed = evaluation.status == "failed"
+                    failed_in_a_row = failed_in_a_row + 1 if failed else 0
+                    last_error = evaluation.error
+            if failed_in_a_row >= failure_limit:
                 self._record_result()
                 raise EvaluationsFailing(
-                    f"the last {len(failures)} evaluations all failed, the last with: "
-                    f"{failures[-1].error}; the run stopped (its record is kept"
+                    f"the last {failed_in_a_row} evaluations all failed, the last with: "
+                    f"{last_error}; the run stopped (its record is kept"
                     + (f"; resume it with: rbbo resume {self.store.path}" if self.store else "")
                     + ")"
                 )
