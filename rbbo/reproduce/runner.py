@@ -327,9 +327,12 @@ def _perturbation_base(out: Path, plan: ReproducePlan) -> Path:
     )
 
 
+_CODE_PATHS = ("cpp_sim", "softrom_gym", "controllers", "rbbo", "pyproject.toml", "CMakeLists.txt")
+
+
 def source_version() -> str:
     """What code ran: the package version, and the git commit of the source tree when it is
-    a checkout (``+dirty`` when tracked files differ from it), so a report names its code."""
+    a checkout (``+dirty`` when its tracked code differs from it), so a report names its code."""
     from importlib.metadata import PackageNotFoundError, version
 
     try:
@@ -340,8 +343,10 @@ def source_version() -> str:
     try:
         run = {"cwd": root, "capture_output": True, "text": True, "timeout": 10, "check": True}
         commit = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], **run).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               **run).stdout.strip()  # fmt: skip
+        # Only the code counts: a record committed inside the checkout (its log, its
+        # histories) differs from HEAD while it is being written, which is not other code.
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--",
+                                *_CODE_PATHS], **run).stdout.strip()  # fmt: skip
     except (OSError, subprocess.SubprocessError):
         return text
     if not commit:
