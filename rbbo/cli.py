@@ -468,14 +468,26 @@ def cmd_rollout(args) -> int:
               f"optimum {objective.value(objective.optimum):.6g}")  # fmt: skip
         return 0
     if args.video:
-        try:  # run_episode checks for imageio before the episode runs
-            return _rollout_video(objective, basis, seconds, args.seed, args.video)
-        except ImportError as exc:
-            raise UsageError(str(exc)) from exc
+        _require_imageio()  # before the episode, so a missing extra costs nothing
+        return _rollout_video(objective, basis, seconds, args.seed, args.video)
     r = objective(basis, seconds, args.seed)
     print(f"R = {r:.6g} per second from t = {objective.settle_time:g} s "
           f"(T = {seconds:g} s, seed {args.seed})")  # fmt: skip
     return 0
+
+
+def _require_imageio() -> None:
+    """Raise a usage error naming the extra when imageio cannot be imported.
+
+    Only this import is turned into a usage error: an ImportError raised inside the episode
+    is a fault of the package and keeps its traceback.
+    """
+    try:
+        import imageio.v2  # noqa: F401
+    except ImportError as exc:
+        raise UsageError(
+            "--video needs imageio: pip install 'softrom[video]' (imageio and imageio-ffmpeg)"
+        ) from exc
 
 
 def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> int:

@@ -81,6 +81,20 @@ def test_optimize_an_env_with_mpc(tmp_path, capsys, monkeypatch):
         assert record["R"] == pytest.approx(4.0 * record["basis"][0][0])
 
 
+def test_rollout_video_without_imageio_is_a_usage_error(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
+    run = tmp_path / "env-run"
+    assert main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
+                 "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",
+                 "--executor", "serial", "--no-progress", "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    monkeypatch.setitem(sys.modules, "imageio", None)  # import imageio raises ImportError
+    monkeypatch.setitem(sys.modules, "imageio.v2", None)
+    err = _error(capsys, ["rollout", str(run), "--video", str(tmp_path / "a.mp4")])
+    assert "--video needs imageio: pip install 'softrom[video]'" in err
+    assert not (tmp_path / "a.mp4").exists()
+
+
 def _error(capsys, argv):
     code = main(argv)
     err = capsys.readouterr().err

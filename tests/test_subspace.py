@@ -158,3 +158,15 @@ def test_reduced_element_forces_sum_to_projected_full_forces(robot, subspace):
         x = robot.nodes + (subspace.elastic @ poses[p]).reshape(-1, 3)
         projected = subspace.elastic.T @ fem.forces(x).ravel()
         np.testing.assert_allclose(g[p].sum(axis=0), projected, rtol=1e-9, atol=1e-9)
+
+
+def test_cubature_cache_is_keyed_on_the_frequencies_that_scale_its_poses(tmp_path):
+    from softrom_gym.rom import Subspace
+
+    small = from_mesh(trimesh.creation.box((0.2, 0.1, 0.1)), 2)
+    sub = build_subspace(small, 6, cache=False)
+    stiffer = Subspace(sub.basis, 2.0 * sub.frequencies, sub.num_modes)
+    train_cubature(small, sub, num_poses=8, cache=tmp_path)
+    train_cubature(small, stiffer, num_poses=8, cache=tmp_path)
+    # Same basis, other frequencies: a second entry, not the first one read back.
+    assert len(list(tmp_path.glob("cubature-*.npz"))) == 2

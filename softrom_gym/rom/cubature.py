@@ -139,7 +139,11 @@ def train_cubature(
     if not 0 < tolerance < 1:
         raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
     max_elements = max_elements or min(robot.num_tets, 25 * subspace.M)
-    basis_hash = hashlib.sha256(np.ascontiguousarray(subspace.basis).tobytes()).hexdigest()
+    # The poses are scaled by the subspace's frequencies, so the rule depends on them as
+    # well as on the basis (they differ for a hand-built Subspace).
+    digest = hashlib.sha256(np.ascontiguousarray(subspace.basis).tobytes())
+    digest.update(np.ascontiguousarray(subspace.frequencies, dtype=float).tobytes())
+    basis_hash = digest.hexdigest()
     key = mesh_key(robot, basis_hash, num_poses, tolerance, max_elements, seed)
     path = cache_path(cache, f"cubature-{key}.npz")
     entry = load_entry(path)
