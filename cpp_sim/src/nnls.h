@@ -128,7 +128,7 @@ inline NnlsResult nnls(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
 
 // Lawson-Hanson with the passive set's Gram matrix G_p^T G_p = R^T R kept as an upper
 // Cholesky factor that grows by one column per added variable (a triangular solve, O(p^2 + rows
-// p)) and is refactorised only when variables leave the set. A column that is (numerically) a
+// p)) and shrinks by Givens rotations when variables leave the set (O(p^2)). A column that is (numerically) a
 // combination of the passive ones is not added: Lawson-Hanson never needs it, and its Gram
 // matrix would be singular. Same iterates as the QR variant, a fraction of the work.
 inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
@@ -160,15 +160,27 @@ inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd&
     passive[t] = 1;
     return true;
   };
-  auto rebuild = [&]() {
-    std::vector<Eigen::Index> keep;
-    for (Eigen::Index j : set)
-      if (passive[j]) keep.push_back(j);
-    set.clear();
-    for (Eigen::Index j : keep) {
-      passive[j] = 0;
-      if (!add(j)) blocked[j] = 1;
+  auto remove_at = [&](Eigen::Index c) {
+    // Drop set[c]: delete column c of R, which leaves R upper Hessenberg from column c on, and
+    // restore the triangle with Givens rotations on adjacent rows (they keep R^T R, the Gram
+    // matrix of the remaining columns). O(p^2), against O(rows p^2) to add the rest again.
+    const Eigen::Index p = static_cast<Eigen::Index>(set.size());
+    for (Eigen::Index j = c; j + 1 < p; ++j) r.col(j).head(p) = r.col(j + 1).head(p);
+    for (Eigen::Index j = c; j + 1 < p; ++j) {
+      const double a = r(j, j), b = r(j + 1, j);
+      const double rho = std::hypot(a, b);  // > 0: the columns are independent
+      const double cs = a / rho, sn = b / rho;
+      for (Eigen::Index k = j; k + 1 < p; ++k) {
+        const double x = r(j, k), y = r(j + 1, k);
+        r(j, k) = cs * x + sn * y;
+        r(j + 1, k) = cs * y - sn * x;
+      }
     }
+    set.erase(set.begin() + c);
+  };
+  auto rebuild = [&]() {  // drop the variables that left the passive set
+    for (Eigen::Index c = static_cast<Eigen::Index>(set.size()) - 1; c >= 0; --c)
+      if (!passive[set[c]]) remove_at(c);
   };
   auto solve = [&]() {  // z on the passive set, 0 elsewhere
     const Eigen::Index p = static_cast<Eigen::Index>(set.size());
@@ -197,7 +209,17 @@ inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd&
       rebuild();
     }
   }
-  Eigen::VectorXd w = g.transpose() * (d - g * u);
+  // w = G^T (d - G u), the NNLS gradient. u is zero outside a few (<= rows) columns, so G u
+  // is formed from those columns alone: with many redundant contact rows (185 on the cross)
+  // the dense product cost as much again as G^T r.
+  Eigen::VectorXd w(n), resid(rows);
+  auto gradient = [&]() {
+    resid = d;
+    for (Eigen::Index j = 0; j < n; ++j)
+      if (u[j] != 0.0) resid.noalias() -= u[j] * g.col(j);
+    w.noalias() = g.transpose() * resid;
+  };
+  gradient();
   int outer = 0;
   for (; outer < max_iterations; ++outer) {
     Eigen::Index t = -1;
@@ -238,7 +260,7 @@ inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd&
     if (inner == max_iterations) res.converged = false;
     // A dropped variable may be useful again once the set has changed.
     std::fill(blocked.begin(), blocked.end(), 0);
-    w.noalias() = g.transpose() * (d - g * u);
+    gradient();
   }
   if (outer == max_iterations) res.converged = false;
   return res;
