@@ -116,8 +116,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   };
   contact_velocities(vc_prev);
   MatX hess(m, m), wjt(2 * k, m);
-  std::vector<int> loaded;
+  std::vector<int> loaded, dual_loaded;
   loaded.reserve(k);
+  MatX y_l, delassus_l, dual_sys;
+  VecX rhs_l;
+  Eigen::LLT<MatX> dual_llt;
   int stagger = 0;
   bool converged = false;
   for (; stagger < cfg.max_stagger_iterations; ++stagger) {
@@ -148,14 +151,46 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
         for (int l = 0; l < nl; ++l) {
           const int i = loaded[l];
           const Eigen::Vector2d ut = jt.middleRows(2 * i, 2) * v;
-          const double w = mu * lam_n[i] / std::sqrt(ut.squaredNorm() + eps * eps);
-          weight[l] = w;
-          // sqrt(w_i) J_t,i stacked, so the reweighted Hessian is one rank update.
-          wjt.middleRows(2 * l, 2) = std::sqrt(w) * jt.middleRows(2 * i, 2);
+          weight[l] = mu * lam_n[i] / std::sqrt(ut.squaredNorm() + eps * eps);
         }
-        hess = a;
-        hess.selfadjointView<Eigen::Lower>().rankUpdate(wjt.topRows(2 * nl).transpose());
-        v = hess.selfadjointView<Eigen::Lower>().llt().solve(a * v_second);
+        // The step solves (A + J_l^T W J_l) v = A v'' (J_l: the loaded nodes' tangent rows,
+        // W their weights). With fewer rows than coordinates (2 nl < M + 6: a walker stands
+        // on ~7 nodes) it is solved in the rows' space instead (Woodbury):
+        //   v = v'' - A^-1 J_l^T (W^-1 + J_l A^-1 J_l^T)^-1 J_l v'',
+        // where J_l A^-1 J_l^T = Y^T Y, Y = L^-1 J_l^T, changes only with the loaded set:
+        // a (2 nl)^2 factorisation per stagger instead of a rank update and an (M + 6)^2 one.
+        bool solved = false;
+        if (cfg.solver == Solver::Fast && 2 * nl < m) {
+          if (loaded != dual_loaded) {
+            y_l.resize(m, 2 * nl);
+            for (int l = 0; l < nl; ++l)
+              y_l.middleCols(2 * l, 2) = jt.middleRows(2 * loaded[l], 2).transpose();
+            a_llt.matrixL().solveInPlace(y_l);
+            delassus_l.noalias() = y_l.transpose() * y_l;
+            dual_loaded = loaded;
+          }
+          dual_sys = delassus_l;
+          rhs_l.resize(2 * nl);
+          for (int l = 0; l < nl; ++l) {
+            dual_sys.diagonal().segment<2>(2 * l).array() += 1.0 / weight[l];
+            rhs_l.segment<2>(2 * l).noalias() = jt.middleRows(2 * loaded[l], 2) * v_second;
+          }
+          dual_llt.compute(dual_sys);
+          if (dual_llt.info() == Eigen::Success) {
+            dual_llt.solveInPlace(rhs_l);
+            response.noalias() = y_l * rhs_l;
+            a_llt.matrixU().solveInPlace(response);
+            v = v_second - response;
+            solved = v.allFinite();
+          }
+        }
+        if (!solved) {
+          for (int l = 0; l < nl; ++l)  // sqrt(w_i) J_t,i stacked: one rank update
+            wjt.middleRows(2 * l, 2) = std::sqrt(weight[l]) * jt.middleRows(2 * loaded[l], 2);
+          hess = a;
+          hess.selfadjointView<Eigen::Lower>().rankUpdate(wjt.topRows(2 * nl).transpose());
+          v = hess.selfadjointView<Eigen::Lower>().llt().solve(a * v_second);
+        }
         for (int l = 0; l < nl; ++l) {
           const int i = loaded[l];
           lam_t.segment<2>(2 * i) = -weight[l] * (jt.middleRows(2 * i, 2) * v);
