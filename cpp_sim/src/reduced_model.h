@@ -31,7 +31,9 @@ enum class ContactModel { None = 0, Staggered = 1, Penalty = 2 };
 // metric the last Newton matrix; kept to check the fast path against.
 // Fast (default): quasi-Newton from the rest-stiffness matrix A_0 with BFGS updates and an
 // Armijo line search on the incremental potential, the stiffness rebuilt only when the
-// iteration stalls; contact on A_0 with hoisted factors and a Gram-Cholesky NNLS.
+// iteration stalls (and once where a step with contact ends: the contact metric); the same
+// staggered projection as the reference, with a Gram-Cholesky NNLS (Givens downdates) and the
+// friction step solved in the loaded rows' space when they are fewer than the coordinates.
 enum class Solver { Reference = 0, Fast = 1 };
 
 // Every setting of a reduced model, in one place: the binding exposes this struct as
