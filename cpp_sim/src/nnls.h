@@ -139,7 +139,11 @@ inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd&
   Eigen::VectorXd& u = res.u;
   u = Eigen::VectorXd::Zero(n);
   const double tol = 1e-12 * std::max(1.0, g.cwiseAbs().maxCoeff() * d.cwiseAbs().maxCoeff());
-  const Eigen::VectorXd gtd = g.transpose() * d;
+  // G^T d from d's nonzero rows (a least-distance programme has one: d = e_last), exactly
+  // the dense product's value at a fraction of its cost with hundreds of columns.
+  Eigen::VectorXd gtd = Eigen::VectorXd::Zero(n);
+  for (Eigen::Index r = 0; r < rows; ++r)
+    if (d[r] != 0.0) gtd.noalias() += d[r] * g.row(r).transpose();
   std::vector<Eigen::Index> set;   // passive variables, in the order of R's columns
   std::vector<char> passive(n, 0), blocked(n, 0);
   Eigen::MatrixXd r(rows, rows);   // upper triangular, p x p in use (p <= rows)
