@@ -128,9 +128,9 @@ inline NnlsResult nnls(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
 
 // Lawson-Hanson with the passive set's Gram matrix G_p^T G_p = R^T R kept as an upper
 // Cholesky factor that grows by one column per added variable (a triangular solve, O(p^2 + rows
-// p)) and shrinks by Givens rotations when variables leave the set (O(p^2)). A column that is (numerically) a
-// combination of the passive ones is not added: Lawson-Hanson never needs it, and its Gram
-// matrix would be singular. Same iterates as the QR variant, a fraction of the work.
+// p)) and shrinks by Givens rotations when variables leave the set (O(p^2)). A column that is
+// (numerically) a combination of the passive ones is not added: Lawson-Hanson never needs it,
+// and its Gram matrix would be singular. Same iterates as the QR variant, a fraction of the work.
 inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
                                 const Eigen::VectorXd* guess, int max_iterations) {
   const Eigen::Index n = g.cols(), rows = g.rows();

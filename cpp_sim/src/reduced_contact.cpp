@@ -157,8 +157,9 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
         // W their weights). With fewer rows than coordinates (2 nl < M + 6: a walker stands
         // on ~7 nodes) it is solved in the rows' space instead (Woodbury):
         //   v = v'' - A^-1 J_l^T (W^-1 + J_l A^-1 J_l^T)^-1 J_l v'',
-        // where J_l A^-1 J_l^T = Y^T Y, Y = L^-1 J_l^T, changes only with the loaded set:
-        // a (2 nl)^2 factorisation per stagger instead of a rank update and an (M + 6)^2 one.
+        // where J_l A^-1 J_l^T = Y^T Y, Y = L^-1 J_l^T, changes only with the loaded set (which
+        // does change in most staggers: the saving is the factorisation, (2 nl)^2 instead of a
+        // rank update and an (M + 6)^2 one).
         bool solved = false;
         if (cfg.solver == Solver::Fast && 2 * nl < m) {
           if (loaded != dual_loaded) {
