@@ -53,7 +53,7 @@ PARTS = {
     "stiffness": r"softrom::ReducedModel::(elastic_stiffness_fast|elastic_reference)\(",
     "forces": r"softrom::ReducedModel::elastic_energy_force\(",
     "contact": r"softrom::ReducedModel::solve_contacts\((?!.*\{lambda)",
-    "normal (LDP)": r"softrom::least_distance\(",
+    "normal (LDP)": r"softrom::(least_distance|nnls_cholesky|nnls)\(",
     "drag": r"softrom::ReducedModel::drag\(",
 }
 

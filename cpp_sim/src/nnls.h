@@ -126,28 +126,47 @@ inline NnlsResult nnls(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
   return res;
 }
 
+// Scratch buffers of nnls_cholesky and least_distance, reused from call to call: a contact
+// solve calls them once per stagger, ~30 times a walking step.
+struct NnlsWorkspace {
+  Eigen::VectorXd u, gtd, z, col, rhs, w, resid, d, r_ldp;
+  Eigen::MatrixXd r;
+  std::vector<Eigen::Index> set;
+  std::vector<char> passive, blocked;
+};
+
 // Lawson-Hanson with the passive set's Gram matrix G_p^T G_p = R^T R kept as an upper
 // Cholesky factor that grows by one column per added variable (a triangular solve, O(p^2 + rows
 // p)) and shrinks by Givens rotations when variables leave the set (O(p^2)). A column that is
 // (numerically) a combination of the passive ones is not added: Lawson-Hanson never needs it,
 // and its Gram matrix would be singular. Same iterates as the QR variant, a fraction of the work.
-inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
-                                const Eigen::VectorXd* guess, int max_iterations) {
+// The solution is left in ws.u; returns false when an iteration cap stopped it.
+inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
+                          const Eigen::VectorXd* guess, int max_iterations, NnlsWorkspace& ws) {
   const Eigen::Index n = g.cols(), rows = g.rows();
   if (max_iterations <= 0) max_iterations = static_cast<int>(3 * n + 10);
-  NnlsResult res;
-  Eigen::VectorXd& u = res.u;
-  u = Eigen::VectorXd::Zero(n);
+  bool converged = true;
+  Eigen::VectorXd& u = ws.u;
+  u.setZero(n);
   const double tol = 1e-12 * std::max(1.0, g.cwiseAbs().maxCoeff() * d.cwiseAbs().maxCoeff());
   // G^T d from d's nonzero rows (a least-distance programme has one: d = e_last), exactly
   // the dense product's value at a fraction of its cost with hundreds of columns.
-  Eigen::VectorXd gtd = Eigen::VectorXd::Zero(n);
+  Eigen::VectorXd& gtd = ws.gtd;
+  gtd.setZero(n);
   for (Eigen::Index r = 0; r < rows; ++r)
     if (d[r] != 0.0) gtd.noalias() += d[r] * g.row(r).transpose();
-  std::vector<Eigen::Index> set;   // passive variables, in the order of R's columns
-  std::vector<char> passive(n, 0), blocked(n, 0);
-  Eigen::MatrixXd r(rows, rows);   // upper triangular, p x p in use (p <= rows)
-  Eigen::VectorXd z(n), col(rows), rhs(rows);
+  std::vector<Eigen::Index>& set = ws.set;  // passive variables, in the order of R's columns
+  set.clear();
+  std::vector<char>& passive = ws.passive;
+  std::vector<char>& blocked = ws.blocked;
+  passive.assign(n, 0);
+  blocked.assign(n, 0);
+  Eigen::MatrixXd& r = ws.r;  // upper triangular, p x p in use (p <= rows)
+  r.resize(rows, rows);
+  Eigen::VectorXd &z = ws.z, &col = ws.col, &rhs = ws.rhs;
+  z.resize(n);
+  col.resize(rows);
+  rhs.resize(rows);
   auto add = [&](Eigen::Index t) -> bool {
     const Eigen::Index p = static_cast<Eigen::Index>(set.size());
     if (p >= rows) return false;
@@ -216,7 +235,9 @@ inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd&
   // w = G^T (d - G u), the NNLS gradient. u is zero outside a few (<= rows) columns, so G u
   // is formed from those columns alone: with many redundant contact rows (185 on the cross)
   // the dense product cost as much again as G^T r.
-  Eigen::VectorXd w(n), resid(rows);
+  Eigen::VectorXd &w = ws.w, &resid = ws.resid;
+  w.resize(n);
+  resid.resize(rows);
   auto gradient = [&]() {
     resid = d;
     for (Eigen::Index j = 0; j < n; ++j)
@@ -261,13 +282,13 @@ inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd&
         }
       if (dropped) rebuild();
     }
-    if (inner == max_iterations) res.converged = false;
+    if (inner == max_iterations) converged = false;
     // A dropped variable may be useful again once the set has changed.
     std::fill(blocked.begin(), blocked.end(), 0);
     gradient();
   }
-  if (outer == max_iterations) res.converged = false;
-  return res;
+  if (outer == max_iterations) converged = false;
+  return converged;
 }
 
 // Least-distance programme: min |x| subject to E x >= f, solved as the NNLS of
@@ -276,18 +297,25 @@ inline NnlsResult nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd&
 // lambda >= 0 (complementary to E x - f). `lambda` on entry (if sized k) warm-starts the
 // active set. `converged` is cleared when NNLS stopped at its iteration cap.
 inline bool least_distance(const Eigen::MatrixXd& g, Eigen::VectorXd& x, Eigen::VectorXd& lambda,
-                           bool& converged, NnlsSolve how = NnlsSolve::Qr) {
+                           bool& converged, NnlsSolve how, NnlsWorkspace& ws) {
   const Eigen::Index m = g.rows() - 1, k = g.cols();
-  Eigen::VectorXd d = Eigen::VectorXd::Zero(m + 1);
+  Eigen::VectorXd& d = ws.d;
+  d.setZero(m + 1);
   d[m] = 1.0;
   const Eigen::VectorXd* guess = lambda.size() == k ? &lambda : nullptr;
-  const NnlsResult res =
-      how == NnlsSolve::Gram ? nnls_cholesky(g, d, guess, 0) : nnls(g, d, guess, 0, how);
-  converged = converged && res.converged;
-  const Eigen::VectorXd r = g * res.u - d;
+  if (how == NnlsSolve::Gram) {
+    converged = nnls_cholesky(g, d, guess, 0, ws) && converged;
+  } else {
+    NnlsResult res = nnls(g, d, guess, 0, how);
+    converged = converged && res.converged;
+    ws.u.swap(res.u);
+  }
+  Eigen::VectorXd& r = ws.r_ldp;
+  r.noalias() = g * ws.u;
+  r -= d;
   if (!(r[m] < -1e-14)) return false;
   x = -r.head(m) / r[m];
-  lambda = -res.u / r[m];
+  lambda = -ws.u / r[m];
   return true;
 }
 

@@ -32,7 +32,7 @@ namespace softrom {
 // constraints hold even when staggering stops at its cap (reported in info).
 int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                                  const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses,
-                                 StepInfo& info) const {
+                                 Workspace& ws, StepInfo& info) const {
   const double h = cfg.dt;
   const double mu = cfg.friction;
   const double tol = cfg.contact_tolerance;
@@ -93,18 +93,21 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     return response;
   };
 
+  VecX x_ldp(m), lam_ldp(k), row_gap(k);  // the normal solve's buffers, reused every stagger
   auto normal_solve = [&](const VecX& v_prime) {
     // With A = L L^T and x = L^T (v - v'), the normal problem is the least-distance programme
     // min |x| s.t. J_n L^-T x >= b - J_n v', solved exactly by NNLS (Lawson & Hanson), whose
     // active set copes with the redundant rows; the multipliers are the normal impulses.
     ++info.normal_iterations;
     ScopedTimer timer(cfg.profile ? &info.time_normal : nullptr);
-    g.row(m) = (b - jn * v_prime).transpose();
-    VecX x, lam = lam_n;  // warm start: last stagger's (or step's) loaded nodes
+    row_gap.noalias() = jn * v_prime;
+    g.row(m) = (b - row_gap).transpose();
+    lam_ldp = lam_n;  // warm start: last stagger's (or step's) loaded nodes
     bool nnls_ok = true;
-    if (least_distance(g, x, lam, nnls_ok, how)) {
-      v = v_prime + a_llt.matrixU().solve(x);
-      lam_n = lam;
+    if (least_distance(g, x_ldp, lam_ldp, nnls_ok, how, ws.nnls)) {
+      a_llt.matrixU().solveInPlace(x_ldp);
+      v = v_prime + x_ldp;
+      lam_n = lam_ldp;
     } else {
       v = v_prime;  // unreachable for a ground plane (moving up is always feasible)
       lam_n.setZero();
@@ -112,13 +115,15 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     }
     // The LDP's answer must be feasible: every candidate ends on or above its bound.
     if (nnls_ok) {
-      const double worst = (b - jn * v).maxCoeff();
+      row_gap.noalias() = jn * v;
+      const double worst = (b - row_gap).maxCoeff();
       if (worst > tol) nnls_ok = false;
     }
     if (!nnls_ok) info.contact_converged = false;
   };
 
-  VecX vc_prev(3 * k), vc(3 * k), weight(k), v_prev = v, dv_stagger(m);
+  VecX vc_prev(3 * k), vc(3 * k), weight(k), v_prev = v, dv_stagger(m), v_second(m);
+  Eigen::Vector2d ut2;
   auto contact_velocities = [&](VecX& out) {
     out.head(k).noalias() = jn * v;
     out.tail(2 * k).noalias() = jt * v;
@@ -136,7 +141,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     // --- Normal problem with the friction impulses held fixed.
     normal_solve(velocity_after(jt, lam_t));
     // --- Friction problem with the normal impulses held fixed.
-    const VecX v_second = velocity_after(jn, lam_n);
+    v_second = velocity_after(jn, lam_n);
     ++info.friction_iterations;
     ScopedTimer timer(cfg.profile ? &info.time_friction : nullptr);
     {
@@ -203,7 +208,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
         }
         for (int l = 0; l < nl; ++l) {
           const int i = loaded[l];
-          lam_t.segment<2>(2 * i) = -weight[l] * (jt.middleRows(2 * i, 2) * v);
+          ut2.noalias() = jt.middleRows(2 * i, 2) * v;  // into a fixed-size vector: no heap
+          lam_t.segment<2>(2 * i) = -weight[l] * ut2;
         }
       }
     }
@@ -218,9 +224,10 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       vc.head(k).noalias() = jn * dv_stagger;
       change = vc.head(k).cwiseAbs().maxCoeff();
       for (int i = 0; i < k; ++i)
-        if (lam_n[i] > 0.0)
-          change = std::max(
-              change, (jt.middleRows(2 * i, 2) * dv_stagger).cwiseAbs().maxCoeff());
+        if (lam_n[i] > 0.0) {
+          ut2.noalias() = jt.middleRows(2 * i, 2) * dv_stagger;
+          change = std::max(change, ut2.cwiseAbs().maxCoeff());
+        }
     } else {
       contact_velocities(vc);
       change = (vc.head(k) - vc_prev.head(k)).cwiseAbs().maxCoeff();

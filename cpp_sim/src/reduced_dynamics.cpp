@@ -189,7 +189,7 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
   Eigen::LLT<MatX> a_llt;
   if (cfg.contact == ContactModel::Staggered) a_llt.compute(a);
   dyn_timer.stop();
-  finish_step(in, s, v, a, a_llt, info);
+  finish_step(in, s, v, a, a_llt, ws, info);
   return info;
 }
 
@@ -363,7 +363,7 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
     }
   }
   dyn_timer.stop();
-  finish_step(in, s, v, a, a_llt, info);
+  finish_step(in, s, v, a, a_llt, ws, info);
   return info;
 }
 
@@ -382,13 +382,14 @@ bool ReducedModel::near_ground(const ReducedConfig& cfg, const VecX& q, const Ve
 // Contact projection, divergence check, and the state update. Impulses are solved into a copy:
 // a step that diverges leaves the whole state as it was.
 bool ReducedModel::finish_step(const StepInputs& in, ReducedState& s, VecX& v, const MatX& a,
-                               const Eigen::LLT<MatX>& a_llt, StepInfo& info) const {
+                               const Eigen::LLT<MatX>& a_llt, Workspace& ws,
+                               StepInfo& info) const {
   const ReducedConfig& cfg = in.config;
   const double h = cfg.dt;
   const double sqrt_m = std::sqrt(total_mass_);
   VecX impulses = s.impulses;
   if (cfg.contact == ContactModel::Staggered)
-    info.stagger_iterations = solve_contacts(cfg, s.q, a, a_llt, v, impulses, info);
+    info.stagger_iterations = solve_contacts(cfg, s.q, a, a_llt, v, impulses, ws, info);
   const VecX q_next = s.q + h * v;
   // Divergence: non-finite state or RMS node speed beyond any physical meaning.
   if (!v.allFinite() || !q_next.allFinite() || !impulses.allFinite() ||

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "material.h"
+#include "nnls.h"
 #include "tet_mesh.h"
 
 namespace softrom {
@@ -101,8 +102,10 @@ class ScopedTimer {
   std::chrono::steady_clock::time_point start_;
 };
 
-// Per-thread scratch memory for one step: every buffer the step needs, sized once, so that a
-// rollout worker never allocates in its inner loop.
+// Per-thread scratch memory, sized once and reused from step to step by a rollout worker: the
+// dynamics' buffers and the contact solve's least-distance (NNLS) buffers, which it uses ~30
+// times a walking step. (The contact solve's own matrices are sized by each step's candidate
+// rows and allocated once per step.)
 struct Workspace {
   VecX fall, pall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
   RowMatX hg;
@@ -113,6 +116,7 @@ struct Workspace {
   MatX drag_w;
   Eigen::Index drag_cols = 0;
   bool drag_jacobian_formed = false;
+  NnlsWorkspace nnls;  // the contact solve's least-distance programmes, one per stagger
 };
 
 // What one call reads from the model besides its constant data: copied at entry, so a call
@@ -202,7 +206,7 @@ class ReducedModel {
   void step_loads(const StepInputs& in, const ReducedState& s, const double* fc, bool jacobian,
                   Workspace& ws, StepInfo& info) const;
   bool finish_step(const StepInputs& in, ReducedState& s, VecX& v, const MatX& a,
-                   const Eigen::LLT<MatX>& a_llt, StepInfo& info) const;
+                   const Eigen::LLT<MatX>& a_llt, Workspace& ws, StepInfo& info) const;
 
   bool near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v) const;
   // Drag at (q, qdot): the force f, the factor W of its Jacobian J_d = -W W^T (columns
@@ -211,7 +215,7 @@ class ReducedModel {
             MatX& w, Eigen::Index& cols) const;
   void drag_jacobian(const MatX& w, Eigen::Index cols, MatX& jac) const;
   int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
-                     const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses,
+                     const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses, Workspace& ws,
                      StepInfo& info) const;
   void penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
                         MatX& jac) const;
