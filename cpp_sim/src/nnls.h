@@ -295,7 +295,8 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
 // [E^T; f^T] u ~ e_{m+1}. The caller passes g = [E^T; f^T] ((m + 1) x k) so that a constant E
 // is copied once. Returns false if infeasible. On success x = E^T lambda with multipliers
 // lambda >= 0 (complementary to E x - f). `lambda` on entry (if sized k) warm-starts the
-// active set. `converged` is cleared when NNLS stopped at its iteration cap.
+// active set. `converged` is cleared when NNLS stopped at its iteration cap. `ws` is scratch
+// (the NNLS solution u is left in ws.u); the Qr variant still allocates its own.
 inline bool least_distance(const Eigen::MatrixXd& g, Eigen::VectorXd& x, Eigen::VectorXd& lambda,
                            bool& converged, NnlsSolve how, NnlsWorkspace& ws) {
   const Eigen::Index m = g.rows() - 1, k = g.cols();
