@@ -15,7 +15,9 @@
   at the target fidelity on the Grassmannian, and picks T by BOCA (``fidelity="boca"``) or
   uses T_max (``"bo"``).
 - Every evaluation uses the same seeds (common random numbers), so bases are compared under
-  the same MPC noise. A proposal is handed out as soon as a worker is free.
+  the same MPC noise. A proposal is handed out as soon as a worker is free, so with several
+  workers the data a proposal sees depends on which evaluation finished first and two runs
+  differ; with one worker (or ask/tell in a fixed order) a run repeats bitwise.
 - Recommendation: among the bases evaluated at T_max, the one with the highest GP posterior
   mean (noise-aware, not the luckiest sample). At the end of :meth:`RBBO.run` it and the
   identity are evaluated on ``n_confirm`` fresh seeds at T_max: R* and R_init.
