@@ -38,7 +38,9 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   const double tol = cfg.contact_tolerance;
   const int ns = static_cast<int>(surface_nodes_.size());
   const Eigen::Index m = basis_cols_;
-  const NnlsSolve how = cfg.solver == Solver::Fast ? NnlsSolve::Gram : NnlsSolve::Qr;
+  // The fast solver's variants below (the reference keeps the original arithmetic).
+  const bool fast = cfg.solver == Solver::Fast;
+  const NnlsSolve how = fast ? NnlsSolve::Gram : NnlsSolve::Qr;
   // Candidate rows: every surface node on or near the ground, or heading there this step.
   const VecX z_all = normal_rows_ * q;
   const VecX vn_all = normal_rows_ * v;
@@ -77,7 +79,6 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   MatX g(m + 1, k);
   g.topRows(m) = a_llt.matrixL().solve(jn.transpose());
   VecX response(m);
-  const bool fast = cfg.solver == Solver::Fast;
   auto velocity_after = [&](const MatX& j, const VecX& lam) -> const VecX& {
     if (fast) {
       // Only loaded nodes carry impulses (~7 of 64 candidates on a walker): J^T lambda from
@@ -93,7 +94,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     return response;
   };
 
-  VecX x_ldp(m), lam_ldp(k), row_gap(k);  // the normal solve's buffers, reused every stagger
+  VecX x_ldp(m), lam_ldp(k), row_gap(k);  // per-stagger buffers (row_gap: a J_n product)
   auto normal_solve = [&](const VecX& v_prime) {
     // With A = L L^T and x = L^T (v - v'), the normal problem is the least-distance programme
     // min |x| s.t. J_n L^-T x >= b - J_n v', solved exactly by NNLS (Lawson & Hanson), whose
@@ -122,13 +123,17 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     if (!nnls_ok) info.contact_converged = false;
   };
 
-  VecX vc_prev(3 * k), vc(3 * k), weight(k), v_prev = v, dv_stagger(m), v_second(m);
+  VecX vc_prev, vc, weight(k), v_prev = v, dv_stagger(m), v_second(m);
   Eigen::Vector2d ut2;
   auto contact_velocities = [&](VecX& out) {
     out.head(k).noalias() = jn * v;
     out.tail(2 * k).noalias() = jt * v;
   };
-  if (!fast) contact_velocities(vc_prev);
+  if (!fast) {  // the reference compares all 3k contact velocities stagger to stagger
+    vc_prev.resize(3 * k);
+    vc.resize(3 * k);
+    contact_velocities(vc_prev);
+  }
   MatX hess(m, m), wjt(2 * k, m);
   std::vector<int> loaded, dual_loaded;
   loaded.reserve(k);
@@ -175,7 +180,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
         // does change in most staggers: the saving is the factorisation, (2 nl)^2 instead of a
         // rank update and an (M + 6)^2 one).
         bool solved = false;
-        if (cfg.solver == Solver::Fast && 2 * nl < m) {
+        if (fast && 2 * nl < m) {
           if (loaded != dual_loaded) {
             y_l.resize(m, 2 * nl);
             for (int l = 0; l < nl; ++l)
@@ -221,8 +226,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       // The same test as J (v - v_prev), with only the loaded nodes' tangent rows formed.
       dv_stagger = v - v_prev;
       v_prev = v;
-      vc.head(k).noalias() = jn * dv_stagger;
-      change = vc.head(k).cwiseAbs().maxCoeff();
+      row_gap.noalias() = jn * dv_stagger;
+      change = row_gap.cwiseAbs().maxCoeff();
       for (int i = 0; i < k; ++i)
         if (lam_n[i] > 0.0) {
           ut2.noalias() = jt.middleRows(2 * i, 2) * dv_stagger;
