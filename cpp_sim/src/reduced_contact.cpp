@@ -7,7 +7,79 @@
 
 namespace softrom {
 
+namespace {
 
+// Vector Aitken extrapolation of the stagger map (fast solver only).
+//
+// Near its fixed point staggering converges linearly, and on the walkers slowly: traced on the
+// quadruped, the last staggers of a long step are one sliding foot node whose normal impulse
+// creeps up by the same small amount every stagger (its friction shifts load onto it, which
+// raises its friction), a contraction rate of 0.9-0.99. When the loaded set has held for
+// three staggers and two successive changes of the impulses d_k, d_(k-1) point the same way
+// (cosine > 0.9), the sequence is taken as geometric with ratio r = d_k.d_(k-1) / |d_(k-1)|^2
+// and, if it is slow (0.5 <= r < 1), the friction impulses jump towards its limit,
+// lambda_t += min(r / (1 - r), 10) d_k,t (the next normal solve answers the jump; the friction
+// half-step after it puts lambda_t back inside the Coulomb discs, so they are not projected
+// here: clipping the jump to the current discs undid it for the sliding nodes it is for). The
+// fixed point is staggering's own: a step is declared converged only on two plain staggers
+// after the last jump, by the same test, and no jump is made in the last staggers before the
+// cap. Measured in benchmarks/PROFILE.md (2026-12-03, Aitken entry).
+class StaggerExtrapolation {
+ public:
+  StaggerExtrapolation(const VecX& lam_n, const VecX& lam_t)
+      : k_(lam_n.size()), last_(3 * k_), d_(3 * k_), d_prev_(3 * k_) {
+    last_ << lam_n, lam_t;
+    loaded_.reserve(k_);
+  }
+
+  // The impulses at the end of a stagger; returns the factor f of the jump
+  // lambda_t += f (lambda_t - lambda_t,prev), 0 for none.
+  double observe(const VecX& lam_n, const VecX& lam_t, const std::vector<int>& loaded) {
+    if (loaded == loaded_) {
+      ++held_;
+    } else {
+      held_ = 0;
+      loaded_ = loaded;
+    }
+    d_prev_.swap(d_);
+    d_.head(k_) = lam_n - last_.head(k_);
+    d_.tail(2 * k_) = lam_t - last_.tail(2 * k_);
+    last_.head(k_) = lam_n;
+    last_.tail(2 * k_) = lam_t;
+    const bool have_pair = have_d_;
+    have_d_ = true;
+    if (!have_pair || held_ < kHold) return 0.0;
+    const double dd = d_prev_.squaredNorm(), cross = d_.dot(d_prev_);
+    if (!(dd > 0.0) || !(cross > 0.0)) return 0.0;
+    const double r = cross / dd;
+    if (r >= 1.0 || r < kMinRatio || cross < kMinCosine * std::sqrt(dd * d_.squaredNorm()))
+      return 0.0;
+    return std::min(r / (1.0 - r), kMaxFactor);
+  }
+
+  // After a jump: lambda_t moved by f d_t, and the history starts again.
+  void jumped(const VecX& lam_t) {
+    last_.tail(2 * k_) = lam_t;
+    have_d_ = false;
+    held_ = 0;
+    loaded_.clear();
+  }
+
+  auto friction_change() const { return d_.tail(2 * k_); }
+
+ private:
+  static constexpr int kHold = 2;  // the loaded set unchanged over the last two staggers
+  static constexpr double kMinCosine = 0.9;
+  static constexpr double kMinRatio = 0.5;  // faster sequences converge without help
+  static constexpr double kMaxFactor = 10.0;
+  Eigen::Index k_;
+  VecX last_, d_, d_prev_;  // (lambda_n, lambda_t): the last impulses and their changes
+  std::vector<int> loaded_;
+  int held_ = 0;
+  bool have_d_ = false;
+};
+
+}  // namespace
 
 // Staggered projection (Kaufman, Sueda, James & Pai 2008) in reduced coordinates.
 //
@@ -142,6 +214,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   Eigen::LLT<MatX> dual_llt;
   int stagger = 0;
   bool converged = false;
+  StaggerExtrapolation extrapolation(lam_n, lam_t);
+  bool after_jump = false;  // the stagger after a jump may not declare convergence
   for (; stagger < cfg.max_stagger_iterations; ++stagger) {
     // --- Normal problem with the friction impulses held fixed.
     normal_solve(velocity_after(jt, lam_t));
@@ -243,10 +317,20 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
                                         .maxCoeff());
       vc_prev = vc;
     }
-    if (change < tol) {
+    if (change < tol && !after_jump) {
       ++stagger;
       converged = true;
       break;
+    }
+    after_jump = false;
+    if (fast && stagger + 3 < cfg.max_stagger_iterations) {
+      // (No jump in the last staggers: a capped step must end on plain iterates.)
+      const double f = extrapolation.observe(lam_n, lam_t, loaded);
+      if (f > 0.0) {
+        lam_t += f * extrapolation.friction_change();
+        extrapolation.jumped(lam_t);
+        after_jump = true;
+      }
     }
   }
   if (!converged) {
