@@ -231,7 +231,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       // stagger loop iterates to the joint fixed point. (Measured on the quadruped: staggering
       // converges linearly at a rate near 0.95 per stagger; solving this half to convergence
       // by Newton's method, or Anderson-accelerating the stagger map, made it oscillate
-      // instead: the slow part is the normal-friction coupling through the active sets.)
+      // instead: the slow part is the normal-friction coupling, a sliding node's load creeping
+      // up stagger by stagger, which the guarded Aitken jump above shortens.)
       // Only loaded nodes (lambda_n > 0) carry friction: the others have zero weight.
       loaded.clear();
       for (int i = 0; i < k; ++i)
