@@ -107,8 +107,8 @@ def gait_speeds(robot, task: str, count: int, seconds: float) -> dict:
     return {
         "mean_speed_reference": float(speeds["reference"].mean()),
         "mean_speed_fast": float(speeds["fast"].mean()),
-        "rms_fast_minus_reference": float(np.sqrt(np.mean(d_fast**2))),
-        "rms_perturbed_minus_reference": float(np.sqrt(np.mean(d_pert**2))),
+        "rms_fast_minus_reference": rms(d_fast),
+        "rms_perturbed_minus_reference": rms(d_pert),
         "mean_gap_standard_error": float(d_fast.std(ddof=1) / np.sqrt(count)) if count > 1 else 0,
         "rms_reference_minus_tight": rms(speeds["reference"] - speeds["tight"]),
         "rms_fast_minus_tight": rms(speeds["fast"] - speeds["tight"]),
