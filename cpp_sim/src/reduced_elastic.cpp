@@ -43,12 +43,18 @@ void ReducedModel::elastic_reference(const VecX& qe, bool project, double* energ
   }
 }
 
-// Energy and force in one pass: the determinant and cofactor are shared by psi and P.
+// Energy and force in one pass: the determinant and cofactor are shared by psi and P. The
+// products with G use the padded copy grad_fast_ (q_e padded with zeros, the force's padding
+// dropped), the same sums.
 double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace& ws) const {
+  const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
+  ws.q_pad.resize(mp);
+  ws.q_pad.head(md) = qe;
+  ws.q_pad.tail(mp - md).setZero();
   ws.fall.resize(9 * nk);
   ws.pall.resize(9 * nk);
-  ws.fall.noalias() = grad_ * qe;
+  ws.fall.noalias() = grad_fast_ * ws.q_pad;
   const double mu = material_.mu, lambda = material_.lambda;
   double en = 0.0;
   for (Eigen::Index k = 0; k < nk; ++k) {
@@ -60,32 +66,55 @@ double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace
     en += w * (0.5 * mu * (f.squaredNorm() - 3.0) - mu * jm1 + 0.5 * lambda * jm1 * jm1);
     Eigen::Map<Mat3>(ws.pall.data() + 9 * k) = (w * mu) * f + (w * (lambda * jm1 - mu)) * cof;
   }
-  force.resize(qe.size());
-  force.noalias() = -(grad_.transpose() * ws.pall);
+  ws.f_pad.resize(mp);
+  ws.f_pad.noalias() = -(grad_fast_.transpose() * ws.pall);
+  force = ws.f_pad.head(md);
   return en;
 }
 
-// The stiffness as two products: H G, element by element, then the lower triangle of
-// G^T (H G) as one triangular GEMM. An element's 9 rows of the row-major G are, in memory, the
-// column-major (M + 3) x 9 matrix G_k^T, so (H_k G_k)^T = G_k^T H_k (H_k symmetric) is a
-// product whose long dimension is contiguous and vectorises; the row-major 9 x (M + 3) form
-// of the same product measured 1.7x slower (143 elements, M = 20).
+// One element's rows of H G: out (9 x md, row-major) = H (9 x 9, symmetric) times g (9 x md,
+// row-major, the element's rows of G). Each output row is a sum of nine rows of g with the
+// row's nine coefficients held in registers across the whole row, so the long, contiguous
+// dimension vectorises with one multiply and one add per coefficient. Eigen's lazy product of
+// the same shapes broadcasts the coefficient again for every packet: 1.15 M instructions per
+// quadruped stiffness against 0.56 M here (callgrind, benchmarks/PROFILE.md).
+static void element_hg(const Mat9& h, const double* __restrict g, Eigen::Index md,
+                       double* __restrict out) {
+  for (int i = 0; i < 9; ++i) {
+    const double h0 = h(i, 0), h1 = h(i, 1), h2 = h(i, 2), h3 = h(i, 3), h4 = h(i, 4);
+    const double h5 = h(i, 5), h6 = h(i, 6), h7 = h(i, 7), h8 = h(i, 8);
+    double* __restrict o = out + i * md;
+    for (Eigen::Index c = 0; c < md; ++c) {
+      o[c] = h0 * g[c] + h1 * g[md + c] + h2 * g[2 * md + c] + h3 * g[3 * md + c] +
+             h4 * g[4 * md + c] + h5 * g[5 * md + c] + h6 * g[6 * md + c] +
+             h7 * g[7 * md + c] + h8 * g[8 * md + c];
+    }
+  }
+}
+
+// The stiffness as two products: H G, element by element (element_hg), then the lower
+// triangle of G^T (H G) as one triangular GEMM over all 9K rows (a full GEMM of the same
+// product measured 27 % more instructions), both on the padded G (grad_fast_): the padding's
+// rows and columns of the product are zero and dropped.
 void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace& ws) const {
-  using ColsOf9 = Eigen::Matrix<double, Eigen::Dynamic, 9>;
-  const Eigen::Index md = qe.size();
+  const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
+  ws.q_pad.resize(mp);
+  ws.q_pad.head(md) = qe;
+  ws.q_pad.tail(mp - md).setZero();
   ws.fall.resize(9 * nk);
-  ws.fall.noalias() = grad_ * qe;
-  ws.hg.resize(9 * nk, md);
+  ws.fall.noalias() = grad_fast_ * ws.q_pad;
+  ws.hg.resize(9 * nk, mp);
   for (Eigen::Index k = 0; k < nk; ++k) {
     Eigen::Map<Mat3> f(ws.fall.data() + 9 * k);
     f.diagonal().array() += 1.0;
     const Mat9 dp = wvol_[k] * material_.dpdf(f);
-    const Eigen::Map<const ColsOf9> gk_t(grad_.data() + 9 * k * md, md, 9);
-    Eigen::Map<ColsOf9>(ws.hg.data() + 9 * k * md, md, 9).noalias() = gk_t.lazyProduct(dp);
+    element_hg(dp, grad_fast_.data() + 9 * k * mp, mp, ws.hg.data() + 9 * k * mp);
   }
+  ws.k_pad.resize(mp, mp);
+  ws.k_pad.triangularView<Eigen::Lower>() = grad_fast_.transpose() * ws.hg;
   stiff.resize(md, md);
-  stiff.triangularView<Eigen::Lower>() = grad_.transpose() * ws.hg;
+  stiff.triangularView<Eigen::Lower>() = ws.k_pad.topLeftCorner(md, md);
   stiff.triangularView<Eigen::StrictlyUpper>() = stiff.transpose();
 }
 

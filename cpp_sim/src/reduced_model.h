@@ -108,7 +108,9 @@ class ScopedTimer {
 // rows and allocated once per step.)
 struct Workspace {
   VecX fall, pall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
+  VecX q_pad, f_pad;  // q_e and the force padded to grad_fast_'s width
   RowMatX hg;
+  MatX k_pad;
   MatX k_el, a, h_inv, j_drag, j_pen, tmp;
   VecX f_pen;
   // The drag Jacobian as a factor, J_d = -W W^T (W: M x drag_cols, one column per face
@@ -230,6 +232,11 @@ class ReducedModel {
   // element's weight times rest volume. Stacking turns the reduced force and stiffness into
   // matrix products instead of K small ones.
   RowMatX grad_;
+  // The fast kernels' copy of G, padded with zero columns to an even width, so every row is
+  // whole SIMD packets (M + 3 = 23 leaves a scalar tail on each of the 9K rows) and the
+  // stiffness GEMM has no odd edge (measured in benchmarks/PROFILE.md). The reference solver
+  // keeps grad_, so its arithmetic is unchanged.
+  RowMatX grad_fast_;
   std::vector<double> wvol_;
   StableNeoHookean material_;
   // Surface: rows of B_r (3 x (M + 6)) and rest positions of each surface node.
