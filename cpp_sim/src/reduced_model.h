@@ -234,8 +234,8 @@ class ReducedModel {
   RowMatX grad_;
   // The fast kernels' copy of G, padded with zero columns to an even width, so every row is
   // whole SIMD packets (M + 3 = 23 leaves a scalar tail on each of the 9K rows) and the
-  // stiffness GEMM has no odd edge (measured in benchmarks/PROFILE.md). The reference solver
-  // keeps grad_, so its arithmetic is unchanged.
+  // stiffness GEMM has no odd edge (measured in benchmarks/PROFILE.md). The reference kernel
+  // (elastic_reference) keeps grad_; K_r(rest), which both solvers use, comes from this one.
   RowMatX grad_fast_;
   std::vector<double> wvol_;
   StableNeoHookean material_;
