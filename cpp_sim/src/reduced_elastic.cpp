@@ -43,18 +43,25 @@ void ReducedModel::elastic_reference(const VecX& qe, bool project, double* energ
   }
 }
 
+// G q_e into ws.fall (vec F_k - vec I for every element) through the padded G: q_e is padded
+// with zeros to grad_fast_'s width in ws.q_pad.
+void ReducedModel::deformation_gradients_fast(const VecX& qe, Workspace& ws) const {
+  const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
+  ws.q_pad.resize(mp);
+  ws.q_pad.head(md) = qe;
+  ws.q_pad.tail(mp - md).setZero();
+  ws.fall.resize(grad_fast_.rows());
+  ws.fall.noalias() = grad_fast_ * ws.q_pad;
+}
+
 // Energy and force in one pass: the determinant and cofactor are shared by psi and P. The
 // products with G use the padded copy grad_fast_ (q_e padded with zeros, the force's padding
 // dropped), the same sums.
 double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace& ws) const {
   const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
-  ws.q_pad.resize(mp);
-  ws.q_pad.head(md) = qe;
-  ws.q_pad.tail(mp - md).setZero();
-  ws.fall.resize(9 * nk);
+  deformation_gradients_fast(qe, ws);
   ws.pall.resize(9 * nk);
-  ws.fall.noalias() = grad_fast_ * ws.q_pad;
   const double mu = material_.mu, lambda = material_.lambda;
   double en = 0.0;
   for (Eigen::Index k = 0; k < nk; ++k) {
@@ -77,7 +84,7 @@ double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace
 // row's nine coefficients held in registers across the whole row, so the long, contiguous
 // dimension vectorises with one multiply and one add per coefficient. Eigen's lazy product of
 // the same shapes broadcasts the coefficient again for every packet: 1.15 M instructions per
-// quadruped stiffness against 0.56 M here (callgrind, benchmarks/PROFILE.md).
+// quadruped stiffness against ~0.6 M here (callgrind, benchmarks/PROFILE.md).
 static void element_hg(const Mat9& h, const double* __restrict g, Eigen::Index md,
                        double* __restrict out) {
   for (int i = 0; i < 9; ++i) {
@@ -99,11 +106,7 @@ static void element_hg(const Mat9& h, const double* __restrict g, Eigen::Index m
 void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace& ws) const {
   const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
-  ws.q_pad.resize(mp);
-  ws.q_pad.head(md) = qe;
-  ws.q_pad.tail(mp - md).setZero();
-  ws.fall.resize(9 * nk);
-  ws.fall.noalias() = grad_fast_ * ws.q_pad;
+  deformation_gradients_fast(qe, ws);
   ws.hg.resize(9 * nk, mp);
   for (Eigen::Index k = 0; k < nk; ++k) {
     Eigen::Map<Mat3> f(ws.fall.data() + 9 * k);

@@ -197,6 +197,7 @@ class ReducedModel {
   // Cubature kernels (reduced_elastic.cpp). `fast` selects the fused fixed-size kernels.
   void elastic_reference(const VecX& qe, bool project, double* energy, VecX* force,
                          MatX* stiff) const;
+  void deformation_gradients_fast(const VecX& qe, Workspace& ws) const;
   double elastic_energy_force(const VecX& qe, VecX& force, Workspace& ws) const;
   void elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace& ws) const;
 
