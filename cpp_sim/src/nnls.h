@@ -274,8 +274,9 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
         if (z[j] <= 0.0) alpha = std::min(alpha, u[j] / (u[j] - z[j]));
       u += alpha * (z - u);
       bool dropped = false;
-      // The threshold once per pass, not once per passive variable: an O(n) maximum inside the
-      // loop over the set was a third of NNLS's own work with 185 candidates (the cross).
+      // The threshold once per pass, not once per passive variable: the O(n) maximum inside
+      // the loop over the set cost the cross (185 candidates) a sixth of its least-distance
+      // solves (3.14 -> 2.62 M instructions per step).
       // Zeroing an entry below the threshold cannot change the maximum unless every entry is
       // below it, where the test is moot.
       const double drop_below = 1e-14 * (1.0 + u.cwiseAbs().maxCoeff());

@@ -25,10 +25,10 @@ namespace {
 // after the last jump, by the same test, and no jump is made in the last staggers before the
 // cap. A step makes at most kMaxJumps jumps: unlimited, the jumps can drive staggering round
 // a cycle that never settles (a jump shifts load between the nodes of a foot, staggering
-// creeps back, the next jump shifts it again), measured on 16 open-loop tripod gaits with the
-// cap raised to 400 as 11 % of the steps never converging, against under 1 % with at most 5
-// jumps or none. Measured in benchmarks/PROFILE.md (2026-12-03, Aitken entry and the entry
-// on its jump limit).
+// creeps back, the next jump shifts it again). On four open-loop tripod gaits with the cap
+// raised to 400, 11.4 % of the steps never converged; with at most 5 jumps 1.1 %, with none
+// 0.6 %. Measured in benchmarks/PROFILE.md (2026-12-03, Aitken entry and the entry on its
+// jump limit).
 class StaggerExtrapolation {
  public:
   StaggerExtrapolation(const VecX& lam_n, const VecX& lam_t)
