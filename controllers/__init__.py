@@ -10,7 +10,7 @@ Planners use only the env's public MPC API (``get_state``, ``rollout``, ``action
 """
 
 from .cost import CostWeights, Evaluation, evaluate
-from .defaults import DEFAULTS, default_planner, default_settings
+from .defaults import DEFAULTS, default_planner, default_settings, has_defaults, planner_for
 from .episode import EpisodeResult, run_episode
 from .gaits import SinusoidGait, gait_grid, phase_orders
 from .gauss_newton import GaussNewtonSettings, GaussNewtonShooting
@@ -35,6 +35,8 @@ __all__ = [
     "default_settings",
     "evaluate",
     "gait_grid",
+    "has_defaults",
     "phase_orders",
+    "planner_for",
     "run_episode",
 ]

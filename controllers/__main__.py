@@ -8,6 +8,7 @@ the task reward R, Λ's terms, and the wall time per replan.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -37,6 +38,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
+    if not (math.isfinite(args.seconds) and args.seconds > 0):
+        parser.error(f"--seconds must be a positive number, got {args.seconds}")
     import gymnasium as gym
 
     import softrom_gym  # noqa: F401  (registers the envs)
@@ -50,7 +53,10 @@ def main(argv: list[str] | None = None) -> int:
             b_c = np.load(args.control_basis)
         except (OSError, ValueError) as exc:
             parser.error(f"--control-basis {args.control_basis}: {exc}")
-        kwargs.update(control_basis=b_c, control_dim=b_c.shape[1] if b_c.ndim == 2 else 0)
+        if b_c.ndim != 2:
+            parser.error(f"--control-basis {args.control_basis} has shape {b_c.shape}; "
+                         "expected (M, C)")  # fmt: skip
+        kwargs.update(control_basis=b_c, control_dim=b_c.shape[1])
     if args.video is not None:
         kwargs["render_mode"] = "rgb_array"
     changes = {k: v for k, v in (("horizon", args.horizon), ("samples", args.samples),

@@ -12,7 +12,14 @@ from .gauss_newton import GaussNewtonSettings, GaussNewtonShooting
 from .mppi import MPPI, MPPISettings
 from .planner import Planner, PlannerSettings
 
-__all__ = ["DEFAULTS", "PLANNERS", "default_planner", "default_settings"]
+__all__ = [
+    "DEFAULTS",
+    "PLANNERS",
+    "default_planner",
+    "default_settings",
+    "has_defaults",
+    "planner_for",
+]
 
 PLANNERS = {"mppi": (MPPI, MPPISettings), "gn": (GaussNewtonShooting, GaussNewtonSettings)}
 
@@ -120,3 +127,24 @@ def default_planner(env_id: str, planner: str, **changes: Any) -> tuple[Planner,
     if changes:
         settings = settings.replace(**changes)
     return PLANNERS[planner][0](settings), replan_every
+
+
+def has_defaults(env_id: str) -> bool:
+    """Whether ``env_id`` is a benchmark with tuned planner defaults (:data:`DEFAULTS`)."""
+    try:
+        _benchmark(env_id)
+    except ValueError:
+        return False
+    return True
+
+
+def planner_for(env_id: str, planner: str, **changes: Any) -> tuple[Planner, int]:
+    """The benchmark's tuned planner (:func:`default_planner`) where ``env_id`` has defaults;
+    elsewhere (a robot of your own) the planner with its library settings, ``changes``
+    applied, replanning every env step."""
+    if planner not in PLANNERS:
+        raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
+    if has_defaults(env_id):
+        return default_planner(env_id, planner, **changes)
+    cls, settings_cls = PLANNERS[planner]
+    return cls(settings_cls(**changes)), 1

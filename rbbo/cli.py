@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import math
 import re
 import signal
@@ -28,6 +29,7 @@ import threading
 import time
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 __all__ = ["main", "parse_duration"]
 
@@ -111,6 +113,11 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--t-max", type=_positive_float, default=10.0, help="full T, s")
     opt.add_argument("--settle-time", type=float, default=2.0,
                      help="R is measured from this time on, s (default 2)")  # fmt: skip
+    opt.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                     type=_env_kwarg,
+                     help="a gym.make keyword for the env, repeatable; VALUE is read as JSON, "
+                     "else as a string (e.g. --env-kwarg robot=my_robot.stl "
+                     "--env-kwarg task=swim for softrom_gym/SoftRobot-v0)")  # fmt: skip
     opt.add_argument("--init", type=int, default=5, help="random initial points (default 5)")
     opt.add_argument("--workers", type=_positive_int, default=1)
     opt.add_argument("--executor", choices=["process", "ray", "serial"], default="process")
@@ -195,8 +202,21 @@ def _bad_input():
         raise UsageError(str(exc)) from exc
 
 
-def _resolve_env(env_id: str) -> str:
-    """A registered env id (short names get the softrom_gym/ namespace)."""
+def _env_kwarg(text: str) -> tuple[str, Any]:
+    """KEY=VALUE of --env-kwarg; VALUE is JSON where it parses (numbers, lists, true), else
+    the string itself (a mesh path, a robot name)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, KEY a keyword name; got {text!r}")
+    try:
+        return key, json.loads(value)
+    except ValueError:
+        return key, value
+
+
+def _resolve_env(env_id: str, synthetic: bool = True) -> str:
+    """A registered env id (short names get the softrom_gym/ namespace). ``synthetic``: the
+    command also accepts the synthetic objective (the error message lists it)."""
     import gymnasium as gym
 
     import softrom_gym  # noqa: F401  (registers the envs)
@@ -205,7 +225,8 @@ def _resolve_env(env_id: str) -> str:
         env_id = f"softrom_gym/{env_id}"
     if env_id not in gym.registry:
         known = sorted(k for k in gym.registry if k.startswith("softrom_gym/"))
-        raise UsageError(f"unknown ENV_ID {env_id!r}; registered: {', '.join(known)}, synthetic")
+        also = ", synthetic" if synthetic else ""
+        raise UsageError(f"unknown ENV_ID {env_id!r}; registered: {', '.join(known)}{also}")
     return env_id
 
 
@@ -316,7 +337,17 @@ def cmd_optimize(args) -> int:
         spec["env_id"] = _resolve_env(spec["env_id"])
         _check_controllers()
         spec.update(controller=args.controller, settle_time=args.settle_time)
+        if args.env_kwarg:
+            spec["env_kwargs"] = dict(args.env_kwarg)
         problem["env_id"] = spec["env_id"]
+        import controllers
+
+        if not controllers.has_defaults(spec["env_id"]):
+            print(f"note: {spec['env_id']} has no tuned planner settings; {args.controller} "
+                  "runs with its library settings and replans every env step (slower than "
+                  "on a benchmark; see controllers.DEFAULTS)", file=sys.stderr)  # fmt: skip
+    elif args.env_kwarg:
+        raise UsageError("--env-kwarg is for an env, not the synthetic objective")
     else:
         spec["t_max"] = args.t_max
     with _bad_input():
@@ -328,7 +359,8 @@ def cmd_optimize(args) -> int:
         )  # fmt: skip
         objective = make_objective(spec, args.sim_dim, args.control_dim)
     if spec["kind"] == "env":
-        problem["N"] = objective.node_count()
+        with _bad_input():  # the env is made here: a bad --env-kwarg fails now, named
+            problem["N"] = objective.node_count()
     out = args.out
     if out is None:
         name = args.env_id.split("/")[-1].split(":")[0]
@@ -525,7 +557,7 @@ def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> 
 def cmd_baselines(args) -> int:
     from . import rl
 
-    env_id = _resolve_env(args.env_id)
+    env_id = _resolve_env(args.env_id, synthetic=False)
     algos = [a.strip().lower() for a in args.algo.split(",")]
     bad = [a for a in algos if a not in rl.ALGOS]
     if bad:
@@ -582,14 +614,23 @@ def _terminate_as_interrupt():
         yield
         return
 
+    stopping = []
+
     def interrupt(signum, frame):
+        # Once: ``timeout`` signals the process and then its whole group, and a second
+        # SIGTERM raised inside the shutdown the first one began would break it off.
+        if stopping:
+            return
+        stopping.append(signum)
         raise KeyboardInterrupt(f"signal {signum}")
 
     previous = signal.signal(signal.SIGTERM, interrupt)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        # after a SIGTERM the process is on its way out: a late second one must not turn the
+        # clean exit (status 130) into a kill
+        signal.signal(signal.SIGTERM, signal.SIG_IGN if stopping else previous)
 
 
 def main(argv: list[str] | None = None) -> int:

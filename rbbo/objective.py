@@ -256,20 +256,13 @@ class EnvObjective:
     def planner(self):
         """The MPC planner and its replan interval (env steps).
 
-        ``controllers.default_planner(env_id, controller, **planner_kwargs)`` (the
-        benchmark's tuned settings) when the controllers provide it for this env, else the
-        planner class with default settings, replanning every step.
+        ``controllers.planner_for(env_id, controller, **planner_kwargs)``: the benchmark's
+        tuned settings where the controllers have them for this env, else the planner's
+        library settings, replanning every step.
         """
         import controllers
 
-        default = getattr(controllers, "default_planner", None)
-        if default is not None:
-            try:
-                return default(self.env_id, self.controller, **self.planner_kwargs)
-            except ValueError:  # no tuned defaults for this env id
-                pass
-        cls = controllers.MPPI if self.controller == "mppi" else controllers.GaussNewtonShooting
-        return cls(**self.planner_kwargs), 1
+        return controllers.planner_for(self.env_id, self.controller, **self.planner_kwargs)
 
     def episode(self, basis: np.ndarray, T: float, seed: int, env=None, **kwargs):
         """Run one MPC episode of T seconds; returns the controllers' EpisodeResult."""

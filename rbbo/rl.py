@@ -122,6 +122,14 @@ def resolve_bases(
                 raise ValueError(f"cannot read control basis {spec}: {exc}") from None
             if b.ndim != 2 or b.shape[0] < b.shape[1]:
                 raise ValueError(f"control basis {spec} has shape {b.shape}, expected (M, C)")
+            if not np.all(np.isfinite(b)):
+                raise ValueError(f"control basis {spec} contains non-finite values")
+            sv = np.linalg.svd(b, compute_uv=False)
+            if not sv[-1] > 1e-10 * sv[0]:  # as the env's orthonormalize=True (before any work)
+                raise ValueError(
+                    f"control basis {spec} is rank-deficient (singular values "
+                    f"{np.array2string(sv, precision=3)}): its C columns must span C directions"
+                )
             if Path(spec).stem in {*bases, *specs}:
                 raise ValueError(f"two control bases are named {Path(spec).stem!r}")
             bases[Path(spec).stem] = b
@@ -385,11 +393,9 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
     k = int(env.get_wrapper_attr("frame_skip"))
     dist, physics, wall = [], [], []
     for s in seeds:
-        try:
-            changes = {} if threads is None else {"threads": threads}
-            planner, every = controllers.default_planner(env_id, "mppi", **changes)
-        except ValueError:  # not a benchmark: no tuned settings (as rbbo's EnvObjective)
-            planner, every = controllers.MPPI(threads=threads), 1
+        # not a benchmark: MPPI's library settings, as rbbo's EnvObjective
+        changes = {} if threads is None else {"threads": threads}
+        planner, every = controllers.planner_for(env_id, "mppi", **changes)
         env.physics_steps, t0 = 0, time.perf_counter()
         result = controllers.run_episode(env, planner, seconds, replan_every=every, seed=s,
                                          progress=progress)  # fmt: skip

@@ -19,6 +19,8 @@ from controllers import (
     PlannerSettings,
     default_planner,
     default_settings,
+    has_defaults,
+    planner_for,
     run_episode,
 )
 from controllers.__main__ import main as cli_main
@@ -298,3 +300,22 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
         cli_main(["BeamWalk-v0", "--samples", "0"])
     assert exc.value.code == 2
     assert "samples must be an integer >= 1, got 0" in capsys.readouterr().err
+    for bad in (["--seconds", "0"], ["--seconds", "nan"]):
+        with pytest.raises(SystemExit) as exc:
+            cli_main(["BeamWalk-v0", *bad])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert f"--seconds must be a positive number, got {float(bad[1])}" in err
+
+
+def test_planner_for_uses_tuned_defaults_only_where_they_exist():
+    tuned, every = planner_for("softrom_gym/CrossWalk-v0", "mppi", threads=1)
+    settings, tuned_every = default_settings("softrom_gym/CrossWalk-v0", "mppi")
+    assert every == tuned_every and tuned.settings == settings.replace(threads=1)
+    # a robot of one's own: library settings with the changes, replanning every step
+    own, every = planner_for("softrom_gym/SoftRobot-v0", "gn", threads=1)
+    assert isinstance(own, GaussNewtonShooting) and every == 1
+    assert own.settings == GaussNewtonSettings(threads=1)
+    assert has_defaults("CrossSwim-v0") and not has_defaults("SoftRobot-v0")
+    with pytest.raises(ValueError, match="unknown planner 'ilqr'"):
+        planner_for("softrom_gym/SoftRobot-v0", "ilqr")

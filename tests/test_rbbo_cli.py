@@ -81,6 +81,24 @@ def test_optimize_an_env_with_mpc(tmp_path, capsys, monkeypatch):
         assert record["R"] == pytest.approx(4.0 * record["basis"][0][0])
 
 
+def test_env_kwargs_reach_the_env_and_the_run_directory(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
+    run = tmp_path / "env-run"
+    argv = ["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
+            "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",
+            "--executor", "serial", "--no-progress"]  # fmt: skip
+    assert main([*argv, "--env-kwarg", "render_mode=null", "--out", str(run)]) == 0
+    assert json.loads((run / "config.json").read_text())["objective"]["env_kwargs"] == {
+        "render_mode": None
+    }
+    capsys.readouterr()
+    err = _error(capsys, [*argv, "--env-kwarg", "robot=my.stl", "--out", str(tmp_path / "b")])
+    assert "unexpected keyword argument 'robot'" in err
+    assert "expected KEY=VALUE" in _error(capsys, [*argv, "--env-kwarg", "robot"])
+    assert "--env-kwarg is for an env" in _error(capsys, ["optimize", "synthetic",
+                                                          "--env-kwarg", "a=1"])  # fmt: skip
+
+
 def test_rollout_video_without_imageio_is_a_usage_error(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
     run = tmp_path / "env-run"
@@ -193,7 +211,11 @@ def test_parse_duration(text, seconds):
 
 @pytest.mark.parametrize(
     "how",
-    ["SIGTERM to the process (a scheduler's time limit)", "SIGINT to the group (Ctrl-C)"],
+    [
+        "SIGTERM to the process (a scheduler's time limit)",
+        "SIGINT to the group (Ctrl-C)",
+        "SIGTERM twice, to the process then its group (timeout)",
+    ],
 )
 def test_a_signal_stops_a_run_cleanly_and_it_resumes(tmp_path, how):
     """The process pool's run stops through the interrupt path: status 130, the resume hint,
@@ -216,7 +238,11 @@ def test_a_signal_stops_a_run_cleanly_and_it_resumes(tmp_path, how):
     else:
         proc.kill()
         pytest.fail(f"no 4 evaluations recorded in 90 s: {proc.communicate()[1][-2000:]}")
-    if how.startswith("SIGTERM"):
+    if how.startswith("SIGTERM twice"):
+        os.kill(proc.pid, signal.SIGTERM)
+        time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGTERM)
+    elif how.startswith("SIGTERM"):
         os.kill(proc.pid, signal.SIGTERM)
     else:
         os.killpg(proc.pid, signal.SIGINT)

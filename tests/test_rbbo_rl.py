@@ -175,6 +175,17 @@ def test_resolve_bases(tmp_path):
     with pytest.raises(ValueError, match="no best_basis"):
         (run / "best_basis.npy").unlink()
         rl.resolve_bases(["best"], ENV, run)
+    # a basis the env would refuse is refused before any work, naming the file
+    np.save(tmp_path / "flat.npy", np.ones((8, 2)))
+    with pytest.raises(ValueError, match=r"control basis .*flat.npy is rank-deficient"):
+        rl.resolve_bases([str(tmp_path / "flat.npy")], ENV)
+
+
+def test_baselines_do_not_offer_the_synthetic_objective(capsys, tmp_path):
+    assert main(["baselines", "synthetic", "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown ENV_ID 'synthetic'" in err and not err.strip().endswith("synthetic")
+    assert not (tmp_path / "b").exists()
 
 
 def test_t_interval():
