@@ -73,6 +73,26 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _nonnegative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+def _nonnegative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
 def rl_steps_arg(text: str) -> int | dict[str, int]:
     """``--steps`` / ``--rl-steps``: N for every algorithm, or ppo=N,sac=N."""
     from .rl import parse_steps
@@ -105,21 +125,29 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("env_id", metavar="ENV_ID")
     opt.add_argument("--control-dim", type=_positive_int, default=3, help="C (default 3)")
     opt.add_argument("--sim-dim", type=_positive_int, default=20, help="M (default 20)")
-    opt.add_argument("--controller", choices=["mppi", "gn"], default="mppi")
-    opt.add_argument("--budget", type=parse_duration, help="wall time, e.g. 30m, 2h")
+    opt.add_argument("--controller", choices=["mppi", "gn"], default="mppi",
+                     help="the MPC planner (default mppi)")  # fmt: skip
+    opt.add_argument("--budget", type=parse_duration,
+                     help="wall time, e.g. 30m, 2h (default 30m without --iterations)")  # fmt: skip
     opt.add_argument("--iterations", type=_positive_int, help="number of evaluations")
-    opt.add_argument("--fidelity", choices=["bo", "boca"], default="bo")
-    opt.add_argument("--t-min", type=_positive_float, default=4.0, help="shortest T, s (BOCA)")
-    opt.add_argument("--t-max", type=_positive_float, default=10.0, help="full T, s")
-    opt.add_argument("--settle-time", type=float, default=2.0,
+    opt.add_argument("--fidelity", choices=["bo", "boca"], default="bo",
+                     help="bo: every episode T_max long; boca: BOCA picks T in [--t-min, "
+                     "--t-max] (default bo)")  # fmt: skip
+    opt.add_argument("--t-min", type=_positive_float, default=4.0,
+                     help="shortest T, s (BOCA; default 4)")  # fmt: skip
+    opt.add_argument("--t-max", type=_positive_float, default=10.0,
+                     help="full episode length T_max, s (default 10)")  # fmt: skip
+    opt.add_argument("--settle-time", type=_nonnegative_float, default=2.0,
                      help="R is measured from this time on, s (default 2)")  # fmt: skip
     opt.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                      type=_env_kwarg,
                      help="a gym.make keyword for the env, repeatable; VALUE is read as JSON, "
                      "else as a string (e.g. --env-kwarg robot=my_robot.stl "
                      "--env-kwarg task=swim for softrom_gym/SoftRobot-v0)")  # fmt: skip
-    opt.add_argument("--init", type=int, default=5, help="random initial points (default 5)")
-    opt.add_argument("--workers", type=_positive_int, default=1)
+    opt.add_argument("--init", type=_nonnegative_int, default=5,
+                     help="random initial points before the GP proposes (default 5)")  # fmt: skip
+    opt.add_argument("--workers", type=_positive_int, default=1,
+                     help="evaluations run at once (default 1)")  # fmt: skip
     opt.add_argument("--executor", choices=["process", "ray", "serial"], default="process")
     opt.add_argument("--address", help="Ray cluster address (with --executor ray)")
     opt.add_argument("--timeout", type=parse_duration, default=600.0,
@@ -127,7 +155,7 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--seed", type=int, default=0)
     opt.add_argument("--seeds", type=_positive_int, default=1,
                      help="common-random-number seeds per evaluation (default 1)")  # fmt: skip
-    opt.add_argument("--confirm-seeds", type=int, default=3,
+    opt.add_argument("--confirm-seeds", type=_nonnegative_int, default=3,
                      help="fresh seeds for R_init and R* (default 3)")  # fmt: skip
     opt.add_argument("--optimizer", choices=["lrbfgs", "cg"], default="lrbfgs",
                      help="acquisition maximiser")  # fmt: skip
@@ -175,7 +203,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="evaluation episodes (default 5)")  # fmt: skip
     bas.add_argument("--seconds", type=_positive_float, default=10.0,
                      help="evaluation episode length, s (default 10)")  # fmt: skip
-    bas.add_argument("--settle-time", type=float, default=2.0,
+    bas.add_argument("--settle-time", type=_nonnegative_float, default=2.0,
                      help="distance is measured from this time on, s (default 2)")  # fmt: skip
     bas.add_argument("--seed", type=int, default=0, help="training seed")
     bas.add_argument("--workers", type=_positive_int, default=1,
@@ -320,7 +348,8 @@ def cmd_optimize(args) -> int:
     if args.control_dim > args.sim_dim:
         raise UsageError(f"--control-dim {args.control_dim} exceeds --sim-dim {args.sim_dim}")
     if args.t_min >= args.t_max and args.fidelity == "boca":
-        raise UsageError(f"--t-min {args.t_min} must be below --t-max {args.t_max}")
+        raise UsageError(f"--t-min {args.t_min} must be below --t-max {args.t_max} (BOCA "
+                         "searches episode lengths between them)")  # fmt: skip
     if args.address and args.executor != "ray":
         raise UsageError("--address is for --executor ray")
     budget, iterations = args.budget, args.iterations

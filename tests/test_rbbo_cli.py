@@ -134,7 +134,12 @@ def _error(capsys, argv):
         (["optimize", "Nope-v0"], "unknown ENV_ID 'Nope-v0'; registered: softrom_gym/BeamWalk-v0"),
         (["optimize", "synthetic", "--address", "auto"], "--address is for --executor ray"),
         (["optimize", "synthetic", "--fidelity", "boca", "--t-min", "12"], "--t-min 12.0 must be"),
-        (["optimize", "synthetic", "--init", "-1"], "n_init must be an integer >= 0, got -1"),
+        (["optimize", "synthetic", "--init", "-1"], "--init: expected an integer >= 0, got '-1'"),
+        (["optimize", "synthetic", "--settle-time", "-1"], "--settle-time: expected a number >= 0"),
+        (
+            ["optimize", "synthetic", "--confirm-seeds", "-2"],
+            "--confirm-seeds: expected an integer",
+        ),
         (["report"], "the following arguments are required: DIR"),
     ],
 )

@@ -101,6 +101,9 @@ def test_from_mesh_rejects_open_mesh():
 def test_from_mesh_bad_arguments(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         from_mesh(tmp_path / "missing.stl")
+    (tmp_path / "notes.txt").write_text("not a mesh\n")
+    with pytest.raises(ValueError, match=r"cannot read .*notes.txt.* as a mesh: use .*\.stl"):
+        from_mesh(tmp_path / "notes.txt")
     with pytest.raises(TypeError, match="mesh must be a file path or a trimesh.Trimesh"):
         from_mesh(42)
     with pytest.raises(TypeError, match="unknown material parameter"):

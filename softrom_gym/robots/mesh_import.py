@@ -26,7 +26,13 @@ def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, s
         path = os.fspath(mesh)
         if not os.path.exists(path):
             raise FileNotFoundError(f"mesh file {path!r} does not exist")
-        loaded = trimesh.load(path, force="mesh")
+        try:
+            loaded = trimesh.load(path, force="mesh")
+        except NotImplementedError:  # trimesh's word for a format it has no loader for
+            raise ValueError(
+                f"cannot read {path!r} as a mesh: use a surface format trimesh reads "
+                "(.stl, .obj, .ply, .off, .glb, ...)"
+            ) from None
         if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
             raise ValueError(f"{path!r} holds no triangle mesh")
         return loaded, os.path.splitext(os.path.basename(path))[0]
