@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -205,5 +206,11 @@ def _imageio():
     return imageio
 
 
+# Containers written through ffmpeg: its default macro block of 16 would resize the renderer's
+# 480 x 360 frames to 480 x 368 (with a warning); 2 keeps any even size as it is.
+_FFMPEG_SUFFIXES = {".mp4", ".m4v", ".mov", ".mkv", ".avi", ".webm"}
+
+
 def _write_video(path: str | os.PathLike, frames: list[np.ndarray], fps: int) -> None:
-    _imageio().mimwrite(os.fspath(path), frames, fps=fps)
+    extra = {"macro_block_size": 2} if Path(path).suffix.lower() in _FFMPEG_SUFFIXES else {}
+    _imageio().mimwrite(os.fspath(path), frames, fps=fps, **extra)

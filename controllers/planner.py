@@ -116,6 +116,11 @@ class PlannerSettings:
     def replace(self, **changes: Any):
         """A copy with some fields changed (validated again)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
+        unknown = sorted(set(changes) - set(values))
+        if unknown:
+            raise TypeError(
+                f"unknown {type(self).__name__} setting {unknown[0]!r}; valid: {sorted(values)}"
+            )
         values.update(changes)
         return type(self)(**values)
 

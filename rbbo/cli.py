@@ -369,12 +369,6 @@ def cmd_optimize(args) -> int:
         if args.env_kwarg:
             spec["env_kwargs"] = dict(args.env_kwarg)
         problem["env_id"] = spec["env_id"]
-        import controllers
-
-        if not controllers.has_defaults(spec["env_id"]):
-            print(f"note: {spec['env_id']} has no tuned planner settings; {args.controller} "
-                  "runs with its library settings and replans every env step (slower than "
-                  "on a benchmark; see controllers.DEFAULTS)", file=sys.stderr)  # fmt: skip
     elif args.env_kwarg:
         raise UsageError("--env-kwarg is for an env, not the synthetic objective")
     else:
@@ -404,6 +398,17 @@ def cmd_optimize(args) -> int:
     except BaseException:
         executor.shutdown(wait=False)
         raise
+    # notes once the input is known good (a usage error stays one line)
+    if iterations is not None and iterations <= args.init:
+        print(f"note: --iterations {iterations} <= --init {args.init}: every evaluation is a "
+              "random initial point, and the GP proposes none", file=sys.stderr)  # fmt: skip
+    if spec["kind"] == "env":
+        import controllers
+
+        if not controllers.has_defaults(spec["env_id"]):
+            print(f"note: {spec['env_id']} has no tuned planner settings; {args.controller} "
+                  "runs with its library settings and replans every env step (slower than "
+                  "on a benchmark; see controllers.DEFAULTS)", file=sys.stderr)  # fmt: skip
     return _execute(opt, executor, iterations, budget, not args.no_progress)
 
 

@@ -176,6 +176,10 @@ def test_episode_result_records_the_episode(walker, tmp_path):
     bound = env.get_wrapper_attr("action_bound")
     assert np.all(np.abs(res.actions) <= bound)
     assert "replans" in res.summary() and video.stat().st_size > 500
+    import imageio.v2 as imageio
+
+    with imageio.get_reader(video) as reader:  # the frames keep their size (no 16-px blocks)
+        assert reader.get_data(0).shape == env.render().shape
     with pytest.raises(ValueError, match=r"times \(0.5, None\) must lie in \[0, 0.1\] s"):
         res.distance_between(0.5)
 
@@ -319,3 +323,6 @@ def test_planner_for_uses_tuned_defaults_only_where_they_exist():
     assert has_defaults("CrossSwim-v0") and not has_defaults("SoftRobot-v0")
     with pytest.raises(ValueError, match="unknown planner 'ilqr'"):
         planner_for("softrom_gym/SoftRobot-v0", "ilqr")
+    for env_id in ("softrom_gym/SoftRobot-v0", "softrom_gym/CrossWalk-v0"):
+        with pytest.raises(TypeError, match=r"unknown MPPISettings setting 'bogus'; valid: \["):
+            planner_for(env_id, "mppi", bogus=3)

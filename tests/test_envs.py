@@ -203,6 +203,9 @@ def test_vector_env_unseeded_reset_continues_each_stream():
     with pytest.raises(ValueError, match="seed must be None, an int or a list of 2 ints, got 'x'"):
         venv.reset(seed="x")
     venv.close()
+    with pytest.raises(ValueError, match="the vector env does not render"):
+        gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, render_mode="rgb_array",
+                     vectorization_mode="vector_entry_point")  # fmt: skip
 
 
 def test_vector_env_autoresets_on_the_next_step():

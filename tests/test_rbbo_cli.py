@@ -85,7 +85,7 @@ def test_env_kwargs_reach_the_env_and_the_run_directory(tmp_path, capsys, monkey
     monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
     run = tmp_path / "env-run"
     argv = ["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
-            "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",
+            "--init", "2", "--iterations", "3", "--t-max", "4", "--confirm-seeds", "1",
             "--executor", "serial", "--no-progress"]  # fmt: skip
     assert main([*argv, "--env-kwarg", "render_mode=null", "--out", str(run)]) == 0
     assert json.loads((run / "config.json").read_text())["objective"]["env_kwargs"] == {

@@ -43,6 +43,11 @@ class SoftRobotVectorEnv(VectorEnv):
     ) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if env_kwargs.get("render_mode") is not None:
+            raise ValueError(
+                f"the vector env does not render (render_mode={env_kwargs['render_mode']!r}); "
+                "render one robot with gym.make(id, render_mode='rgb_array')"
+            )
         self.env = SoftRobotEnv(**env_kwargs)
         self.num_envs = num_envs
         self.max_episode_steps = max_episode_steps
