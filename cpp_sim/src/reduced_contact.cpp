@@ -142,8 +142,13 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   const bool fast = cfg.solver == Solver::Fast;
   const NnlsSolve how = fast ? NnlsSolve::Gram : NnlsSolve::Qr;
   // Candidate rows: every surface node on or near the ground, or heading there this step.
-  const VecX z_all = normal_rows_ * q;
-  const VecX vn_all = normal_rows_ * v;
+  if (!ws.ground_rows_ready) {  // near_ground has not formed them for this q and v
+    ws.ground_z.noalias() = normal_rows_ * q;
+    ws.ground_vn.noalias() = normal_rows_ * v;
+  }
+  ws.ground_rows_ready = false;
+  const VecX& z_all = ws.ground_z;
+  const VecX& vn_all = ws.ground_vn;
   std::vector<int> active;
   std::vector<double> gap;
   for (int c = 0; c < ns; ++c) {

@@ -65,6 +65,7 @@ void ReducedModel::step_loads(const StepInputs& in, const ReducedState& s, const
 
 StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double* fc,
                             Workspace& ws) const {
+  ws.ground_rows_ready = false;
   // Penalty contact is not a potential force (damping, friction), so it keeps the Newton
   // solve on the residual; it still gets the fast kernels when solver = fast.
   if (in.config.solver == Solver::Fast && in.config.contact != ContactModel::Penalty)
@@ -356,7 +357,7 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
   // quadruped: with A_0 the velocity error is 40x the reference's own (7e-3 vs 1.8e-4 m/s
   // RMS), with the stiffness at the step's start 3.5x, with the stiffness at its end equal.
   // So a step with contact candidates builds K_r once, at the end; other steps never do.
-  if (cfg.contact == ContactModel::Staggered && near_ground(cfg, s.q, v)) {
+  if (cfg.contact == ContactModel::Staggered && near_ground(cfg, s.q, v, ws)) {
     if (!refresh(v, false)) {
       info.diverged = true;
       return info;
@@ -369,9 +370,13 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
 
 // True when a surface node is within the contact margin of the ground, or would reach it
 // within two steps at its current velocity: the candidate test of the contact solve.
-bool ReducedModel::near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v) const {
-  const VecX z = normal_rows_ * q;
-  const VecX vn = normal_rows_ * v;
+bool ReducedModel::near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v,
+                               Workspace& ws) const {
+  VecX& z = ws.ground_z;
+  VecX& vn = ws.ground_vn;
+  z.noalias() = normal_rows_ * q;
+  vn.noalias() = normal_rows_ * v;
+  ws.ground_rows_ready = true;  // for solve_contacts, at the same q and v
   for (Eigen::Index c = 0; c < z.size(); ++c)
     if (surface_rest_[3 * c + 2] + z[c] - cfg.ground_height + 2.0 * cfg.dt * std::min(vn[c], 0.0) <
         cfg.contact_margin)

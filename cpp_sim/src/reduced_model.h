@@ -119,6 +119,11 @@ struct Workspace {
   Eigen::Index drag_cols = 0;
   bool drag_jacobian_formed = false;
   NnlsWorkspace nnls;  // the contact solve's least-distance programmes, one per stagger
+  // N q and N v (N: the surface nodes' normal rows) of the step's end, from near_ground for
+  // the contact solve that follows it (two products over every surface node, ~0.1 M
+  // instructions each on the quadruped); cleared at each step's start.
+  VecX ground_z, ground_vn;
+  bool ground_rows_ready = false;
 };
 
 // What one call reads from the model besides its constant data: copied at entry, so a call
@@ -211,7 +216,7 @@ class ReducedModel {
   bool finish_step(const StepInputs& in, ReducedState& s, VecX& v, const MatX& a,
                    const Eigen::LLT<MatX>& a_llt, Workspace& ws, StepInfo& info) const;
 
-  bool near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v) const;
+  bool near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v, Workspace& ws) const;
   // Drag at (q, qdot): the force f, the factor W of its Jacobian J_d = -W W^T (columns
   // 0..cols-1 of w), and J_d itself when jac is not null.
   void drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f, MatX* jac,
