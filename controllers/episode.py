@@ -72,7 +72,9 @@ class EpisodeResult:
         return replan_every * self.dt / float(np.mean(self.replan_wall_s))
 
     def summary(self, start: float = 2.0) -> str:
-        t0 = min(start, self.seconds)
+        # the distance after the settling time, or over the whole of a shorter episode (an
+        # empty window would print a distance of zero that says nothing)
+        t0 = start if start < self.seconds else 0.0
         d = self.distance_between(t0)
         wall = float(np.mean(self.replan_wall_s)) if self.replans else float("nan")
         return (

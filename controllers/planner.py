@@ -102,7 +102,7 @@ class PlannerSettings:
         if not isinstance(self.weights, CostWeights):
             raise TypeError(f"weights must be a CostWeights, got {type(self.weights).__name__}")
         if self.gait_seed and self.period is None:
-            raise ValueError("gait_seed needs a periodic plan (period = None)")
+            raise ValueError("gait_seed needs a periodic plan: set period (env steps per cycle)")
         amps = np.asarray(self.seed_amplitudes, dtype=float)
         if amps.ndim != 1 or amps.size == 0 or not np.all(np.isfinite(amps) & (amps > 0)):
             raise ValueError(

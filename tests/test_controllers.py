@@ -300,6 +300,7 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
                      "--iterations", "1", "--no-progress"]) == 0  # fmt: skip
     line = capsys.readouterr().out.strip()
     assert line.startswith("BeamWalk-v0 gn: 0.05 s") and "real-time factor" in line
+    assert "distance t=0..0.05 s" in line  # shorter than the settling time: the whole episode
     with pytest.raises(SystemExit) as exc:
         cli_main(["BeamWalk-v0", "--samples", "0"])
     assert exc.value.code == 2
