@@ -92,8 +92,8 @@ class StaggerExtrapolation {
 // impulses, and the velocity is formed once from them: v = v_free + L^-T Y lambda_W with
 //   Y = L^-1 [J_n,W^T  J_t,W^T]   (M + 6 x 3 n; the normal columns are columns of E^T),
 //   D = Y^T Y = J_W A^-1 J_W^T    (W's Delassus matrix),   c = J_W v_free.
-// Instead of NNLS over every candidate and four triangular solves, such a stagger factors
-// nothing but the friction half's 2 n x 2 n system. Measured with callgrind_step.py (100
+// Such a stagger skips NNLS over every candidate and four of the six (M + 6) triangular
+// solves, and factors nothing but the friction half's 2 n x 2 n system. callgrind_step.py (100
 // random steps), instructions per stagger: quadruped 120 k -> 93 k, tripod 119 k -> 84 k, beam
 // 99 k -> 77 k (benchmarks/PROFILE.md, session 12).
 struct LoadedRows {
