@@ -63,34 +63,26 @@ def parse_duration(text: str) -> float:
     return seconds
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
+def _number_arg(kind: type, allowed, what: str):
+    """An argparse type: ``kind`` (int or float) parsed from the text and checked by
+    ``allowed``; either failure says what was expected and what was given."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            value = None
+        if value is None or not allowed(value):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return value
+
+    return parse
 
 
-def _nonnegative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return value
-
-
-def _nonnegative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return value
+_positive_int = _number_arg(int, lambda v: v >= 1, "a positive integer")
+_nonnegative_int = _number_arg(int, lambda v: v >= 0, "an integer >= 0")
+_positive_float = _number_arg(float, lambda v: math.isfinite(v) and v > 0, "a positive number")
+_nonnegative_float = _number_arg(float, lambda v: math.isfinite(v) and v >= 0, "a number >= 0")
 
 
 def rl_steps_arg(text: str) -> int | dict[str, int]:
@@ -105,16 +97,6 @@ def rl_steps_arg(text: str) -> int | dict[str, int]:
     if any(n < 1 for n in values):
         raise argparse.ArgumentTypeError(f"env steps must be positive, got {text!r}")
     return steps
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
 
 
 def _parser() -> argparse.ArgumentParser:
