@@ -250,6 +250,7 @@ def measure(name: str, full_steps: int, seconds: float) -> dict:
         ref_rate = max(ref_rate, reduced_steps_per_s(reference, steps))
         fast_rate = max(fast_rate, reduced_steps_per_s(model, steps))
     row = {
+        "kernels": cpp_sim.kernel_instruction_set(),
         "robot": name,
         "nodes": robot.num_nodes,
         "tets": robot.num_tets,
@@ -303,6 +304,7 @@ def main() -> None:
     cols = ("full/s", "ref/s", "fast/s", "fast/ref", "speedup", "penalty/s", "batch2/s",
             "2thr/1thr", "cpu 2/1", "drop err", "vs MuJoCo")  # fmt: skip
     if not args.json:
+        print(f"fast solver's cubature kernels: {cpp_sim.kernel_instruction_set()}")
         print(f"{'benchmark':<15} {'nodes':>5} " + " ".join(f"{c:>10}" for c in cols))
     for name in args.robots:
         r = measure(name, args.full_steps, args.seconds)

@@ -9,7 +9,15 @@ from ._core import (
     ReducedConfig,
     ReducedModel,
     ReducedState,
+    kernel_instruction_set,
     reduced_element_forces,
 )
 
-__all__ = ["FEMModel", "ReducedConfig", "ReducedModel", "ReducedState", "reduced_element_forces"]
+__all__ = [
+    "FEMModel",
+    "ReducedConfig",
+    "ReducedModel",
+    "ReducedState",
+    "kernel_instruction_set",
+    "reduced_element_forces",
+]

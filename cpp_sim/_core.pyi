@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy
 import numpy.typing
 import typing
-__all__: list[str] = ['FEMModel', 'ReducedConfig', 'ReducedModel', 'ReducedState', 'reduced_element_forces']
+__all__: list[str] = ['FEMModel', 'ReducedConfig', 'ReducedModel', 'ReducedState', 'kernel_instruction_set', 'reduced_element_forces']
 class FEMModel:
     """
     Full-space finite-element model of a soft body.
@@ -590,6 +590,10 @@ class ReducedConfig:
     @stabilization.setter
     def stabilization(self, arg1: typing.Any) -> None:
         ...
+def kernel_instruction_set() -> str:
+    """
+    The instruction set the fast solver's cubature kernels run with on this machine: 'x86-64-v3' (AVX2 + FMA, chosen at load time on x86-64 Linux builds) or 'baseline'. The two round differently (fused multiply-adds), so chaotic trajectories computed on machines of the two kinds part at round-off level.
+    """
 def reduced_element_forces(fem: FEMModel, basis: typing.Any, poses: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
     """
     Per-element reduced elastic forces -V_e G_e^T vec P(F_e) (P, T, M) at poses (P, M) of the deformation basis (3N, M): the training data for cubature.

@@ -263,6 +263,37 @@ def test_cubature_stiffness_is_the_derivative_of_cubature_forces(beam_robot):
     assert slope == pytest.approx(-f @ d, rel=1e-6)
 
 
+@pytest.mark.parametrize("modes", [5, 6, 9, 20])
+def test_dense_kernels_at_every_padded_width(box, modes):
+    # The fast kernels pad q_e (M + 3 entries) to a multiple of 4 and tile the stiffness in
+    # blocks of 8 and 4 rows: widths 8, 12 (8 + 4), 12 and 24. The stiffness must be the
+    # forces' derivative and the forces the derivative of the energy, which the reference
+    # kernel computes with Eigen's products on the unpadded G.
+    model = build_reduced_model(box, subspace=build_subspace(box, modes))
+    q = 0.05 * np.random.default_rng(modes).standard_normal(model.dim - 3)
+    k = model.elastic_stiffness(q)
+    np.testing.assert_array_equal(k, k.T)
+    eps = 1e-6
+    fd = np.empty_like(k)
+    for j in range(q.size):
+        dq = np.zeros_like(q)
+        dq[j] = eps
+        fd[:, j] = -(model.elastic_forces(q + dq) - model.elastic_forces(q - dq)) / (2 * eps)
+    np.testing.assert_allclose(k, fd, atol=1e-6 * np.abs(k).max())
+    f = model.elastic_forces(q)
+    grad = np.array(
+        [
+            (model.elastic_energy(q + eps * e) - model.elastic_energy(q - eps * e)) / (2 * eps)
+            for e in np.eye(q.size)
+        ]
+    )
+    np.testing.assert_allclose(-f, grad, atol=1e-6 * np.abs(f).max())
+
+
+def test_kernel_instruction_set_is_reported():
+    assert cpp_sim.kernel_instruction_set() in ("x86-64-v3", "baseline")
+
+
 @pytest.mark.xfail(
     reason="B_r has linearised rotations and no floating frame: with M = 20 modes, internal "
     "forces of a deformed body exert a spurious torque, so actuated free flight gains angular "

@@ -12,6 +12,7 @@
 #include <sched.h>
 #endif
 
+#include "dense_kernels.h"
 #include "fem_model.h"
 #include "reduced_model.h"
 #include "validate.h"
@@ -460,4 +461,11 @@ diverged rollout keeps its last good state and earns zero reward from then on.)d
       py::arg("fem"), py::arg("basis"), py::arg("poses"),
       "Per-element reduced elastic forces -V_e G_e^T vec P(F_e) (P, T, M) at poses (P, M) of "
       "the deformation basis (3N, M): the training data for cubature.");
+
+  m.def(
+      "kernel_instruction_set", [] { return std::string(kernels::instruction_set()); },
+      "The instruction set the fast solver's cubature kernels run with on this machine: "
+      "'x86-64-v3' (AVX2 + FMA, chosen at load time on x86-64 Linux builds) or 'baseline'. "
+      "The two round differently (fused multiply-adds), so chaotic trajectories computed on "
+      "machines of the two kinds part at round-off level.");
 }

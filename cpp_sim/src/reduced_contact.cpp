@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "dense_kernels.h"
 #include "nnls.h"
 #include "reduced_model.h"
 
@@ -175,6 +176,15 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     lam_n[i] = std::max(old[3 * c + 2], 0.0);  // warm start by node id
     lam_t.segment<2>(2 * i) = old.segment<2>(3 * c);
   }
+  // out = A x for a column-major A (J_n, Y): the fast solver's kernel, Eigen's in the reference.
+  auto times = [fast](const MatX& a, const VecX& x, VecX& out) {
+    if (fast) {
+      out.resize(a.rows());
+      kernels::cols_times(a.data(), a.rows(), a.cols(), x.data(), out.data());
+    } else {
+      out.noalias() = a * x;
+    }
+  };
   const VecX v_free = v;
   const double eps = tol;  // smoothing of |v_t|: sticking nodes creep at most ~eps
   // Constant within the step: E^T = L^-1 J_n^T (the LDP's constraint matrix). The velocity
@@ -206,7 +216,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     // active set copes with the redundant rows; the multipliers are the normal impulses.
     ++info.normal_iterations;
     ScopedTimer timer(cfg.profile ? &info.time_normal : nullptr);
-    row_gap.noalias() = jn * v_prime;
+    times(jn, v_prime, row_gap);
     g.row(m) = (b - row_gap).transpose();
     lam_ldp = lam_n;  // warm start: last stagger's (or step's) loaded nodes
     bool nnls_ok = true;
@@ -221,7 +231,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     }
     // The LDP's answer must be feasible: every candidate ends on or above its bound.
     if (nnls_ok) {
-      row_gap.noalias() = jn * v;
+      times(jn, v, row_gap);
       const double worst = (b - row_gap).maxCoeff();
       if (worst > tol) nnls_ok = false;
     }
@@ -292,10 +302,10 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     rows.d_nn.solveInPlace(rhs_l);
     if (!(rhs_l.array() > 0.0).all()) return false;
     lam_w.head(nw) = rhs_l;
-    v_on.noalias() = rows.y * lam_w;
+    times(rows.y, lam_w, v_on);
     a_llt.matrixU().solveInPlace(v_on);
     v_on += v_free;
-    row_gap.noalias() = jn * v_on;
+    times(jn, v_on, row_gap);
     for (int i = 0; i < k; ++i)
       if (!rows.member[i] && b[i] - row_gap[i] > kSlack) return false;
     v = v_on;
@@ -367,7 +377,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
             dual_llt.solveInPlace(rhs_l);
             if (on_set) {  // v = v_free + L^-T Y (lambda_n, -z)
               lam_w.tail(2 * nl) = -rhs_l;
-              response.noalias() = rows.y * lam_w;
+              times(rows.y, lam_w, response);
               a_llt.matrixU().solveInPlace(response);
               v = v_free + response;
             } else {
@@ -401,7 +411,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       // The same test as J (v - v_prev), with only the loaded nodes' tangent rows formed.
       dv_stagger = v - v_prev;
       v_prev = v;
-      row_gap.noalias() = jn * dv_stagger;
+      times(jn, dv_stagger, row_gap);
       change = row_gap.cwiseAbs().maxCoeff();
       for (int i = 0; i < k; ++i)
         if (lam_n[i] > 0.0) {

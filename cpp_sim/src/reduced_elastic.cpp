@@ -3,6 +3,7 @@
 // K_r = sum_k w_k V_k G_k^T (dP/dF)(F_k) G_k, with vec F_k = vec I + G_k q_e.
 #include <Eigen/Dense>
 
+#include "dense_kernels.h"
 #include "reduced_model.h"
 
 namespace softrom {
@@ -51,7 +52,7 @@ void ReducedModel::deformation_gradients_fast(const VecX& qe, Workspace& ws) con
   ws.q_pad.head(md) = qe;
   ws.q_pad.tail(mp - md).setZero();
   ws.fall.resize(grad_fast_.rows());
-  ws.fall.noalias() = grad_fast_ * ws.q_pad;
+  kernels::rows_times(grad_fast_.data(), grad_fast_.rows(), mp, ws.q_pad.data(), ws.fall.data());
 }
 
 // Energy and force in one pass: the determinant and cofactor are shared by psi and P. The
@@ -74,35 +75,15 @@ double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace
     Eigen::Map<Mat3>(ws.pall.data() + 9 * k) = (w * mu) * f + (w * (lambda * jm1 - mu)) * cof;
   }
   ws.f_pad.resize(mp);
-  ws.f_pad.noalias() = -(grad_fast_.transpose() * ws.pall);
-  force = ws.f_pad.head(md);
+  kernels::rows_transpose_times(grad_fast_.data(), grad_fast_.rows(), mp, ws.pall.data(),
+                                ws.f_pad.data());
+  force = -ws.f_pad.head(md);
   return en;
 }
 
-// One element's rows of H G: out (9 x md, row-major) = H (9 x 9, symmetric) times g (9 x md,
-// row-major, the element's rows of G). Each output row is a sum of nine rows of g with the
-// row's nine coefficients held in registers across the whole row, so the long, contiguous
-// dimension vectorises with one multiply and one add per coefficient. Eigen's lazy product of
-// the same shapes broadcasts the coefficient again for every packet: 1.15 M instructions per
-// quadruped stiffness against ~0.6 M here (callgrind, benchmarks/PROFILE.md).
-static void element_hg(const Mat9& h, const double* __restrict g, Eigen::Index md,
-                       double* __restrict out) {
-  for (int i = 0; i < 9; ++i) {
-    const double h0 = h(i, 0), h1 = h(i, 1), h2 = h(i, 2), h3 = h(i, 3), h4 = h(i, 4);
-    const double h5 = h(i, 5), h6 = h(i, 6), h7 = h(i, 7), h8 = h(i, 8);
-    double* __restrict o = out + i * md;
-    for (Eigen::Index c = 0; c < md; ++c) {
-      o[c] = h0 * g[c] + h1 * g[md + c] + h2 * g[2 * md + c] + h3 * g[3 * md + c] +
-             h4 * g[4 * md + c] + h5 * g[5 * md + c] + h6 * g[6 * md + c] +
-             h7 * g[7 * md + c] + h8 * g[8 * md + c];
-    }
-  }
-}
-
-// The stiffness as two products: H G, element by element (element_hg), then the lower
-// triangle of G^T (H G) as one triangular GEMM over all 9K rows (a full GEMM of the same
-// product measured 27 % more instructions), both on the padded G (grad_fast_): the padding's
-// rows and columns of the product are zero and dropped.
+// The stiffness as two products: H G, element by element (kernels::element_hg), then the
+// lower triangle of G^T (H G) over all 9K rows (kernels::gram_lower), both on the padded G
+// (grad_fast_): the padding's rows and columns of the product are zero and dropped.
 void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace& ws) const {
   const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
@@ -112,10 +93,11 @@ void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace
     Eigen::Map<Mat3> f(ws.fall.data() + 9 * k);
     f.diagonal().array() += 1.0;
     const Mat9 dp = wvol_[k] * material_.dpdf(f);
-    element_hg(dp, grad_fast_.data() + 9 * k * mp, mp, ws.hg.data() + 9 * k * mp);
+    kernels::element_hg(dp.data(), grad_fast_.data() + 9 * k * mp, mp,
+                        ws.hg.data() + 9 * k * mp);
   }
   ws.k_pad.resize(mp, mp);
-  ws.k_pad.triangularView<Eigen::Lower>() = grad_fast_.transpose() * ws.hg;
+  kernels::gram_lower(grad_fast_.data(), ws.hg.data(), grad_fast_.rows(), mp, ws.k_pad.data());
   stiff.resize(md, md);
   stiff.triangularView<Eigen::Lower>() = ws.k_pad.topLeftCorner(md, md);
   stiff.triangularView<Eigen::StrictlyUpper>() = stiff.transpose();

@@ -36,7 +36,7 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
     grad_.middleRows(9 * k, 9) = dfdx(mesh.dm_inv[e]) * u;
     wvol_.push_back(cubature_weights[k] * mesh.volume[e]);
   }
-  grad_fast_.setZero(9 * nk, md + md % 2);
+  grad_fast_.setZero(9 * nk, (md + 3) / 4 * 4);  // a multiple of 4: dense_kernels.h
   grad_fast_.leftCols(md) = grad_;
 
   const int ns = static_cast<int>(surface_nodes.size());

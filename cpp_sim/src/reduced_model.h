@@ -238,9 +238,9 @@ class ReducedModel {
   // element's weight times rest volume. Stacking turns the reduced force and stiffness into
   // matrix products instead of K small ones.
   RowMatX grad_;
-  // The fast kernels' copy of G, padded with zero columns to an even width, so every row is
-  // whole SIMD packets (M + 3 = 23 leaves a scalar tail on each of the 9K rows) and the
-  // stiffness GEMM has no odd edge (measured in benchmarks/PROFILE.md). The reference kernel
+  // The fast kernels' copy of G, padded with zero columns to a multiple of 4, so every row is
+  // whole AVX2 packets (M + 3 = 23 leaves a scalar tail on each of the 9K rows) for the
+  // kernels of dense_kernels.h (measured in benchmarks/PROFILE.md). The reference kernel
   // (elastic_reference) keeps grad_; K_r(rest), which both solvers use, comes from this one.
   RowMatX grad_fast_;
   std::vector<double> wvol_;

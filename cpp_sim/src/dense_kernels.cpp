@@ -1,0 +1,133 @@
+// See dense_kernels.h. The loops are written so that the compiler vectorises them without
+// reassociating sums (no -ffast-math): the long dimension is the contiguous one, and the
+// reductions keep explicit per-lane partial sums.
+#include "dense_kernels.h"
+
+// target_clones makes one copy of a function per listed target and an ifunc resolver that
+// picks one when the module loads (GCC >= 12 on x86-64 ELF: Linux wheels). Clang's and
+// Apple's toolchains lack the `arch=` form or ifuncs, so they get the baseline loops.
+#if defined(__x86_64__) && defined(__linux__) && defined(__GNUC__) && !defined(__clang__) && \
+    __GNUC__ >= 12
+#define SOFTROM_KERNEL __attribute__((target_clones("arch=x86-64-v3", "default")))
+#define SOFTROM_KERNEL_DISPATCH 1
+#define SOFTROM_INLINE __attribute__((always_inline)) inline
+#else
+#define SOFTROM_KERNEL
+#define SOFTROM_KERNEL_DISPATCH 0
+#define SOFTROM_INLINE inline
+#endif
+
+namespace softrom::kernels {
+
+const char* instruction_set() {
+#if SOFTROM_KERNEL_DISPATCH
+  __builtin_cpu_init();
+  if (__builtin_cpu_supports("x86-64-v3")) return "x86-64-v3";
+#endif
+  return "baseline";
+}
+
+namespace {
+
+// A 4-column, IB-row tile of G^T X over rows [r0, r1): its 4 x IB sums stay in registers (8
+// AVX2 registers for IB = 8) while the rows stream past, each row adding an outer product.
+template <int IB>
+SOFTROM_INLINE void gram_tile(const double* __restrict g, const double* __restrict x, Index r0,
+                              Index r1, Index width, Index i0, Index j0, double* __restrict out) {
+  double acc[4][IB];
+  for (int t = 0; t < 4; ++t)
+    for (int s = 0; s < IB; ++s) acc[t][s] = out[i0 + s + (j0 + t) * width];
+  for (Index r = r0; r < r1; ++r) {
+    const double* gr = g + r * width + i0;
+    const double* xr = x + r * width + j0;
+    for (int t = 0; t < 4; ++t) {
+      const double b = xr[t];
+      for (int s = 0; s < IB; ++s) acc[t][s] += b * gr[s];
+    }
+  }
+  for (int t = 0; t < 4; ++t)
+    for (int s = 0; s < IB; ++s) out[i0 + s + (j0 + t) * width] = acc[t][s];
+}
+
+}  // namespace
+
+SOFTROM_KERNEL void gram_lower(const double* __restrict g, const double* __restrict x,
+                               Index rows, Index width, double* __restrict out) {
+  // Rows in chunks whose slices of G and X stay in L1 while every tile passes over them.
+  constexpr Index kChunk = 48;
+  for (Index i = 0; i < width * width; ++i) out[i] = 0.0;
+  for (Index r0 = 0; r0 < rows; r0 += kChunk) {
+    const Index r1 = r0 + kChunk < rows ? r0 + kChunk : rows;
+    for (Index j0 = 0; j0 < width; j0 += 4) {
+      // Tiles on or below the diagonal; an 8-row tile from the last multiple of 8 at or
+      // above j0 (its entries above the diagonal are computed and then cleared below).
+      Index i0 = j0 - j0 % 8;
+      for (; i0 + 8 <= width; i0 += 8) gram_tile<8>(g, x, r0, r1, width, i0, j0, out);
+      if (i0 < width) gram_tile<4>(g, x, r0, r1, width, i0, j0, out);
+    }
+  }
+  for (Index j = 1; j < width; ++j)
+    for (Index i = 0; i < j; ++i) out[i + j * width] = 0.0;
+}
+
+SOFTROM_KERNEL void rows_times(const double* __restrict g, Index rows, Index width,
+                               const double* __restrict q, double* __restrict out) {
+  for (Index r = 0; r < rows; ++r) {
+    const double* gr = g + r * width;
+    double a[4] = {0.0, 0.0, 0.0, 0.0};
+    for (Index c = 0; c < width; c += 4)
+      for (int l = 0; l < 4; ++l) a[l] += gr[c + l] * q[c + l];
+    out[r] = (a[0] + a[1]) + (a[2] + a[3]);
+  }
+}
+
+SOFTROM_KERNEL void rows_transpose_times(const double* __restrict g, Index rows, Index width,
+                                         const double* __restrict p, double* __restrict out) {
+  for (Index c = 0; c < width; ++c) out[c] = 0.0;
+  Index r = 0;
+  for (; r + 4 <= rows; r += 4) {  // four rows per pass over out
+    const double p0 = p[r], p1 = p[r + 1], p2 = p[r + 2], p3 = p[r + 3];
+    const double* g0 = g + r * width;
+    for (Index c = 0; c < width; ++c)
+      out[c] += (p0 * g0[c] + p1 * g0[width + c]) + (p2 * g0[2 * width + c] + p3 * g0[3 * width + c]);
+  }
+  for (; r < rows; ++r) {
+    const double pr = p[r];
+    const double* gr = g + r * width;
+    for (Index c = 0; c < width; ++c) out[c] += pr * gr[c];
+  }
+}
+
+SOFTROM_KERNEL void cols_times(const double* __restrict a, Index rows, Index cols,
+                               const double* __restrict x, double* __restrict out) {
+  for (Index r = 0; r < rows; ++r) out[r] = 0.0;
+  Index c = 0;
+  for (; c + 2 <= cols; c += 2) {  // two columns per pass over out
+    const double x0 = x[c], x1 = x[c + 1];
+    const double* a0 = a + c * rows;
+    for (Index r = 0; r < rows; ++r) out[r] += x0 * a0[r] + x1 * a0[rows + r];
+  }
+  if (c < cols) {
+    const double xc = x[c];
+    const double* ac = a + c * rows;
+    for (Index r = 0; r < rows; ++r) out[r] += xc * ac[r];
+  }
+}
+
+// Each output row is the sum of the element's nine rows of G with the row's nine coefficients
+// held in registers across the whole row: one multiply-add per coefficient and packet.
+SOFTROM_KERNEL void element_hg(const double* __restrict h, const double* __restrict g,
+                               Index width, double* __restrict out) {
+  for (int i = 0; i < 9; ++i) {
+    const double h0 = h[i], h1 = h[i + 9], h2 = h[i + 18], h3 = h[i + 27], h4 = h[i + 36];
+    const double h5 = h[i + 45], h6 = h[i + 54], h7 = h[i + 63], h8 = h[i + 72];
+    double* __restrict o = out + i * width;
+    for (Index c = 0; c < width; ++c) {
+      o[c] = h0 * g[c] + h1 * g[width + c] + h2 * g[2 * width + c] + h3 * g[3 * width + c] +
+             h4 * g[4 * width + c] + h5 * g[5 * width + c] + h6 * g[6 * width + c] +
+             h7 * g[7 * width + c] + h8 * g[8 * width + c];
+    }
+  }
+}
+
+}  // namespace softrom::kernels

@@ -1,0 +1,41 @@
+// The dense kernels of the cubature force and stiffness (reduced_elastic.cpp) and the contact
+// solve's matrix-vector products (reduced_contact.cpp, fast solver), built for two
+// instruction sets in one binary: the x86-64 baseline (SSE2), which every x86-64 machine runs,
+// and x86-64-v3 (AVX2 + FMA), which GCC's target_clones selects at load time on a CPU that has
+// it. Other compilers and architectures (arm64, clang, MSVC) build the plain loops alone for
+// their own baseline. Measured in benchmarks/PROFILE.md (session 13 entry).
+//
+// The cubature kernels take dense row-major matrices with a row width `width` that is a
+// multiple of 4 (the stacked cubature gradient G is padded with zero columns to such a width),
+// so every row is whole AVX2 packets.
+#pragma once
+
+#include <cstddef>
+
+namespace softrom::kernels {
+
+using Index = std::ptrdiff_t;
+
+// The instruction set the kernels run with on this machine: "x86-64-v3" or "baseline".
+const char* instruction_set();
+
+// out (width x width, column-major) gets the lower triangle of G^T X, for G and X of `rows` x
+// `width`; the strictly upper triangle is left zero. (The reduced stiffness G^T (H G).)
+void gram_lower(const double* g, const double* x, Index rows, Index width, double* out);
+
+// out (rows) = G q, for G of `rows` x `width` and q of `width`.
+void rows_times(const double* g, Index rows, Index width, const double* q, double* out);
+
+// out (width) = G^T p, for G of `rows` x `width` and p of `rows`.
+void rows_transpose_times(const double* g, Index rows, Index width, const double* p,
+                          double* out);
+
+// out (rows) = A x, for A of `rows` x `cols` in column-major order (an Eigen MatrixXd) and
+// x of `cols`; any `rows`. (The contact solve's products with the candidates' normal rows.)
+void cols_times(const double* a, Index rows, Index cols, const double* x, double* out);
+
+// One cubature element's rows of H G: out (9 x width) = H g, for H 9 x 9 (column-major,
+// symmetric) and g the element's 9 rows of G.
+void element_hg(const double* h, const double* g, Index width, double* out);
+
+}  // namespace softrom::kernels
