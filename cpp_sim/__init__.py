@@ -4,7 +4,17 @@ The extension module ``cpp_sim._core`` is built from ``cpp_sim/src`` by the pack
 scikit-build-core build; this package re-exports its public classes.
 """
 
-from ._core import (
+import os
+
+_KERNELS = os.environ.get("SOFTROM_KERNELS", "")
+if _KERNELS not in ("", "auto", "baseline"):
+    # The C++ core reads it on first use; an unknown value must not be silently ignored.
+    raise ValueError(
+        f"SOFTROM_KERNELS={_KERNELS!r} is not understood: set 'baseline' (the x86-64 baseline "
+        "kernels on any machine) or 'auto' (AVX2 + FMA where the CPU has it), or leave it unset"
+    )
+
+from ._core import (  # noqa: E402
     FEMModel,
     ReducedConfig,
     ReducedModel,

@@ -1,6 +1,11 @@
 """The reduced step's solvers: the fast default against the exact reference path, convergence
 reporting, contact conditions of the returned impulses, energy, and the cubature kernels."""
 
+import json
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import trimesh
@@ -290,8 +295,51 @@ def test_dense_kernels_at_every_padded_width(box, modes):
     np.testing.assert_allclose(-f, grad, atol=1e-6 * np.abs(f).max())
 
 
-def test_kernel_instruction_set_is_reported():
-    assert cpp_sim.kernel_instruction_set() in ("x86-64-v3", "baseline")
+_KERNEL_PROBE = """
+import json, sys
+import numpy as np
+import cpp_sim
+from softrom_gym.robots import beam
+from softrom_gym.rom import build_reduced_model
+model = build_reduced_model(beam(), control_basis=np.eye(20)[:, :3])
+q = 0.02 * np.random.default_rng(0).standard_normal(model.dim - 3)
+state = model.rest_state()
+for u in 40.0 * np.sin(np.arange(30)[:, None] * 0.3 + np.arange(3)):
+    state, _ = model.step(state, u)
+json.dump({"isa": cpp_sim.kernel_instruction_set(), "k": model.elastic_stiffness(q).tolist(),
+           "f": model.elastic_forces(q).tolist(), "q": state.q.tolist()}, sys.stdout)
+"""
+
+
+def _kernel_probe(kernels: str) -> dict:
+    env = {**os.environ, "SOFTROM_KERNELS": kernels}
+    out = subprocess.run(
+        [sys.executable, "-c", _KERNEL_PROBE], env=env, capture_output=True, text=True, check=True
+    )
+    return json.loads(out.stdout)
+
+
+def test_baseline_kernels_agree_with_the_dispatched_ones():
+    # The CI machine's CPU decides which set the other tests run; this runs both. The two sets
+    # compute the same sums (fused multiply-adds round differently), and 30 walking steps of
+    # the beam stay together far below the contact tolerance's effect.
+    base, auto = _kernel_probe("baseline"), _kernel_probe("auto")
+    assert base["isa"] == "baseline"
+    assert auto["isa"] == cpp_sim.kernel_instruction_set()
+    k = np.array(auto["k"])
+    np.testing.assert_allclose(base["k"], k, rtol=0, atol=1e-12 * np.abs(k).max())
+    f = np.array(auto["f"])
+    np.testing.assert_allclose(base["f"], f, rtol=0, atol=1e-12 * np.abs(f).max())
+    np.testing.assert_allclose(base["q"], auto["q"], rtol=0, atol=1e-9)  # measured 7e-15
+
+
+def test_unknown_kernel_setting_is_refused():
+    env = {**os.environ, "SOFTROM_KERNELS": "avx512"}
+    out = subprocess.run(
+        [sys.executable, "-c", "import cpp_sim"], env=env, capture_output=True, text=True
+    )
+    assert out.returncode != 0
+    assert "SOFTROM_KERNELS='avx512' is not understood" in out.stderr
 
 
 @pytest.mark.xfail(

@@ -464,8 +464,9 @@ diverged rollout keeps its last good state and earns zero reward from then on.)d
 
   m.def(
       "kernel_instruction_set", [] { return std::string(kernels::instruction_set()); },
-      "The instruction set the fast solver's cubature kernels run with on this machine: "
-      "'x86-64-v3' (AVX2 + FMA, chosen at load time on x86-64 Linux builds) or 'baseline'. "
-      "The two round differently (fused multiply-adds), so chaotic trajectories computed on "
-      "machines of the two kinds part at round-off level.");
+      "The instruction set of the fast solver's dense kernels (cubature force and stiffness, "
+      "contact products) in this process: 'x86-64-v3' (AVX2 + FMA, on an x86-64 CPU that has "
+      "it, in GCC builds) or 'baseline'. Set the environment variable SOFTROM_KERNELS=baseline "
+      "before the first step to use the baseline: the two round differently (fused "
+      "multiply-adds), so chaotic trajectories computed with the two part at round-off level.");
 }

@@ -1,31 +1,23 @@
 // See dense_kernels.h. The loops are written so that the compiler vectorises them without
 // reassociating sums (no -ffast-math): the long dimension is the contiguous one, and the
-// reductions keep explicit per-lane partial sums.
+// reductions keep explicit per-lane partial sums. Each body is compiled twice, for the
+// baseline and (GCC on x86-64) for x86-64-v3, and a table of function pointers picks one
+// set on first use. (GCC's target_clones would pick by itself, but could not be told to use
+// the baseline on a machine with AVX2, which the tests and SOFTROM_KERNELS=baseline need.)
 #include "dense_kernels.h"
 
-// target_clones makes one copy of a function per listed target and an ifunc resolver that
-// picks one when the module loads (GCC >= 12 on x86-64 ELF: Linux wheels). Clang's and
-// Apple's toolchains lack the `arch=` form or ifuncs, so they get the baseline loops.
-#if defined(__x86_64__) && defined(__linux__) && defined(__GNUC__) && !defined(__clang__) && \
-    __GNUC__ >= 12
-#define SOFTROM_KERNEL __attribute__((target_clones("arch=x86-64-v3", "default")))
+#include <cstdlib>
+#include <cstring>
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 12
 #define SOFTROM_KERNEL_DISPATCH 1
 #define SOFTROM_INLINE __attribute__((always_inline)) inline
 #else
-#define SOFTROM_KERNEL
 #define SOFTROM_KERNEL_DISPATCH 0
 #define SOFTROM_INLINE inline
 #endif
 
 namespace softrom::kernels {
-
-const char* instruction_set() {
-#if SOFTROM_KERNEL_DISPATCH
-  __builtin_cpu_init();
-  if (__builtin_cpu_supports("x86-64-v3")) return "x86-64-v3";
-#endif
-  return "baseline";
-}
 
 namespace {
 
@@ -49,9 +41,7 @@ SOFTROM_INLINE void gram_tile(const double* __restrict g, const double* __restri
     for (int s = 0; s < IB; ++s) out[i0 + s + (j0 + t) * width] = acc[t][s];
 }
 
-}  // namespace
-
-SOFTROM_KERNEL void gram_lower(const double* __restrict g, const double* __restrict x,
+SOFTROM_INLINE void gram_lower_body(const double* __restrict g, const double* __restrict x,
                                Index rows, Index width, double* __restrict out) {
   // Rows in chunks whose slices of G and X stay in L1 while every tile passes over them.
   constexpr Index kChunk = 48;
@@ -70,7 +60,7 @@ SOFTROM_KERNEL void gram_lower(const double* __restrict g, const double* __restr
     for (Index i = 0; i < j; ++i) out[i + j * width] = 0.0;
 }
 
-SOFTROM_KERNEL void rows_times(const double* __restrict g, Index rows, Index width,
+SOFTROM_INLINE void rows_times_body(const double* __restrict g, Index rows, Index width,
                                const double* __restrict q, double* __restrict out) {
   for (Index r = 0; r < rows; ++r) {
     const double* gr = g + r * width;
@@ -81,7 +71,7 @@ SOFTROM_KERNEL void rows_times(const double* __restrict g, Index rows, Index wid
   }
 }
 
-SOFTROM_KERNEL void rows_transpose_times(const double* __restrict g, Index rows, Index width,
+SOFTROM_INLINE void rows_transpose_times_body(const double* __restrict g, Index rows, Index width,
                                          const double* __restrict p, double* __restrict out) {
   for (Index c = 0; c < width; ++c) out[c] = 0.0;
   Index r = 0;
@@ -98,7 +88,7 @@ SOFTROM_KERNEL void rows_transpose_times(const double* __restrict g, Index rows,
   }
 }
 
-SOFTROM_KERNEL void cols_times(const double* __restrict a, Index rows, Index cols,
+SOFTROM_INLINE void cols_times_body(const double* __restrict a, Index rows, Index cols,
                                const double* __restrict x, double* __restrict out) {
   for (Index r = 0; r < rows; ++r) out[r] = 0.0;
   Index c = 0;
@@ -116,7 +106,7 @@ SOFTROM_KERNEL void cols_times(const double* __restrict a, Index rows, Index col
 
 // Each output row is the sum of the element's nine rows of G with the row's nine coefficients
 // held in registers across the whole row: one multiply-add per coefficient and packet.
-SOFTROM_KERNEL void element_hg(const double* __restrict h, const double* __restrict g,
+SOFTROM_INLINE void element_hg_body(const double* __restrict h, const double* __restrict g,
                                Index width, double* __restrict out) {
   for (int i = 0; i < 9; ++i) {
     const double h0 = h[i], h1 = h[i + 9], h2 = h[i + 18], h3 = h[i + 27], h4 = h[i + 36];
@@ -128,6 +118,82 @@ SOFTROM_KERNEL void element_hg(const double* __restrict h, const double* __restr
              h7 * g[7 * width + c] + h8 * g[8 * width + c];
     }
   }
+}
+
+// Each kernel twice: the same body compiled for the baseline and for x86-64-v3.
+struct Table {
+  const char* name;
+  void (*gram_lower)(const double*, const double*, Index, Index, double*);
+  void (*rows_times)(const double*, Index, Index, const double*, double*);
+  void (*rows_transpose_times)(const double*, Index, Index, const double*, double*);
+  void (*cols_times)(const double*, Index, Index, const double*, double*);
+  void (*element_hg)(const double*, const double*, Index, double*);
+};
+
+#define SOFTROM_KERNEL_SET(attr, suffix)                                                       \
+  attr void gram_lower_##suffix(const double* g, const double* x, Index rows, Index width,     \
+                                double* out) {                                                 \
+    gram_lower_body(g, x, rows, width, out);                                                   \
+  }                                                                                            \
+  attr void rows_times_##suffix(const double* g, Index rows, Index width, const double* q,     \
+                                double* out) {                                                 \
+    rows_times_body(g, rows, width, q, out);                                                   \
+  }                                                                                            \
+  attr void rows_transpose_times_##suffix(const double* g, Index rows, Index width,            \
+                                          const double* p, double* out) {                      \
+    rows_transpose_times_body(g, rows, width, p, out);                                         \
+  }                                                                                            \
+  attr void cols_times_##suffix(const double* a, Index rows, Index cols, const double* x,      \
+                                double* out) {                                                 \
+    cols_times_body(a, rows, cols, x, out);                                                    \
+  }                                                                                            \
+  attr void element_hg_##suffix(const double* h, const double* g, Index width, double* out) {  \
+    element_hg_body(h, g, width, out);                                                         \
+  }
+
+SOFTROM_KERNEL_SET(, baseline)
+#if SOFTROM_KERNEL_DISPATCH
+SOFTROM_KERNEL_SET(__attribute__((target("arch=x86-64-v3"))), v3)
+#endif
+
+const Table& table() {
+  // Chosen once, on first use: x86-64-v3 where the CPU has it, unless SOFTROM_KERNELS=baseline
+  // asks for the baseline (the same round-off as a machine without AVX2).
+  static const Table chosen = [] {
+    const Table baseline{"baseline", gram_lower_baseline, rows_times_baseline,
+                         rows_transpose_times_baseline, cols_times_baseline, element_hg_baseline};
+#if SOFTROM_KERNEL_DISPATCH
+    const char* want = std::getenv("SOFTROM_KERNELS");
+    const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
+    __builtin_cpu_init();
+    if (!forced && __builtin_cpu_supports("x86-64-v3"))
+      return Table{"x86-64-v3", gram_lower_v3, rows_times_v3, rows_transpose_times_v3,
+                   cols_times_v3, element_hg_v3};
+#endif
+    return baseline;
+  }();
+  return chosen;
+}
+
+}  // namespace
+
+const char* instruction_set() { return table().name; }
+
+void gram_lower(const double* g, const double* x, Index rows, Index width, double* out) {
+  table().gram_lower(g, x, rows, width, out);
+}
+void rows_times(const double* g, Index rows, Index width, const double* q, double* out) {
+  table().rows_times(g, rows, width, q, out);
+}
+void rows_transpose_times(const double* g, Index rows, Index width, const double* p,
+                          double* out) {
+  table().rows_transpose_times(g, rows, width, p, out);
+}
+void cols_times(const double* a, Index rows, Index cols, const double* x, double* out) {
+  table().cols_times(a, rows, cols, x, out);
+}
+void element_hg(const double* h, const double* g, Index width, double* out) {
+  table().element_hg(h, g, width, out);
 }
 
 }  // namespace softrom::kernels

@@ -1,13 +1,11 @@
 // The dense kernels of the cubature force and stiffness (reduced_elastic.cpp) and the contact
-// solve's matrix-vector products (reduced_contact.cpp, fast solver), built for two
-// instruction sets in one binary: the x86-64 baseline (SSE2), which every x86-64 machine runs,
-// and x86-64-v3 (AVX2 + FMA), which GCC's target_clones selects at load time on a CPU that has
-// it. Other compilers and architectures (arm64, clang, MSVC) build the plain loops alone for
-// their own baseline. Measured in benchmarks/PROFILE.md (session 13 entry).
+// solve's matrix-vector products (reduced_contact.cpp, fast solver), built for two instruction
+// sets in one binary: the x86-64 baseline (SSE2), which every x86-64 machine runs, and
+// x86-64-v3 (AVX2 + FMA), used where the CPU has it unless the environment variable
+// SOFTROM_KERNELS=baseline asks for the baseline. The two sets compute the same sums and round
+// differently (fused multiply-adds). Other compilers and architectures (arm64, clang, MSVC)
+// build the plain loops for their own baseline. Measured in benchmarks/PROFILE.md (session 13).
 //
-// The cubature kernels take dense row-major matrices with a row width `width` that is a
-// multiple of 4 (the stacked cubature gradient G is padded with zero columns to such a width),
-// so every row is whole AVX2 packets.
 #pragma once
 
 #include <cstddef>
@@ -16,7 +14,7 @@ namespace softrom::kernels {
 
 using Index = std::ptrdiff_t;
 
-// The instruction set the kernels run with on this machine: "x86-64-v3" or "baseline".
+// The instruction set the kernels run with in this process: "x86-64-v3" or "baseline".
 const char* instruction_set();
 
 // out (width x width, column-major) gets the lower triangle of G^T X, for G and X of `rows` x
