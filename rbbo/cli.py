@@ -618,7 +618,7 @@ COMMANDS = {"optimize": cmd_optimize, "resume": cmd_resume, "confirm": cmd_confi
 
 @contextlib.contextmanager
 def _terminate_as_interrupt():
-    """Let SIGTERM stop a command as Ctrl-C does.
+    """Let SIGTERM stop a command as Ctrl-C does, and either signal stop it only once.
 
     A batch scheduler's time limit (SLURM, ``timeout``) or a plain ``kill`` sends SIGTERM,
     whose default action ends the process at once: the run's session record and the workers'
@@ -633,20 +633,27 @@ def _terminate_as_interrupt():
     stopping = []
 
     def interrupt(signum, frame):
-        # Once: ``timeout`` signals the process and then its whole group, and a second
-        # SIGTERM raised inside the shutdown the first one began would break it off.
+        # Once, for SIGTERM and SIGINT together: ``timeout`` (``-s INT`` too) signals the
+        # process and then its whole group, so the process gets the signal twice, and a second
+        # KeyboardInterrupt raised inside the shutdown the first one began would break it off
+        # (a traceback, and the pool's supervisor thread still running at interpreter exit).
         if stopping:
             return
         stopping.append(signum)
         raise KeyboardInterrupt(f"signal {signum}")
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    handled = [signal.SIGTERM]
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        handled.append(signal.SIGINT)  # not where SIGINT is ignored (a background job)
+    previous = {s: signal.signal(s, interrupt) for s in handled}
     try:
         yield
     finally:
-        # after a SIGTERM the process is on its way out: a late second one must not turn the
-        # clean exit (status 130) into a kill
-        signal.signal(signal.SIGTERM, signal.SIG_IGN if stopping else previous)
+        # After a SIGTERM the process is on its way out: a late second one must not turn the
+        # clean exit (status 130) into a kill. Ctrl-C works again for an in-process caller.
+        for s in handled:
+            ignore = stopping and s == signal.SIGTERM
+            signal.signal(s, signal.SIG_IGN if ignore else previous[s])
 
 
 def main(argv: list[str] | None = None) -> int:

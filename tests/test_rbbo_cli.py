@@ -1,6 +1,8 @@
 """The ``rbbo`` command line (rbbo.cli): end to end on tiny budgets, and its usage errors."""
 
 import json
+import os
+import signal
 import subprocess
 import sys
 
@@ -9,7 +11,7 @@ import pytest
 # the stand-in env and controllers of the objective tests drive the env path end to end
 from test_rbbo_objective import _fake_controllers
 
-from rbbo.cli import main, parse_duration
+from rbbo.cli import _terminate_as_interrupt, main, parse_duration
 
 TINY = ["--sim-dim", "6", "--control-dim", "2", "--init", "3", "--confirm-seeds", "2",
         "--no-progress"]  # fmt: skip
@@ -264,3 +266,24 @@ def test_a_signal_stops_a_run_cleanly_and_it_resumes(tmp_path, how):
     assert main(["resume", str(run), "--iterations", str(len(recorded) + 1), "--workers", "1",
                  "--no-progress"]) == 0  # fmt: skip
     assert len(_history(run)) > len(recorded)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_second_signal_does_not_break_off_the_shutdown(signum):
+    # ``timeout`` (``-s INT`` too) signals the process and then its group: the second signal
+    # arrives while the first one's shutdown runs and must not raise into it.
+    shutdown_finished = False
+    with pytest.raises(KeyboardInterrupt):
+        with _terminate_as_interrupt():
+            try:
+                os.kill(os.getpid(), signum)
+            finally:
+                os.kill(os.getpid(), signum)  # inside the shutdown (the finally blocks)
+                os.kill(os.getpid(), signal.SIGINT)
+                shutdown_finished = True
+    assert shutdown_finished
+    # Ctrl-C works again for an in-process caller; a late SIGTERM finds the process leaving.
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    if signum == signal.SIGTERM:
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
