@@ -60,17 +60,6 @@ SOFTROM_INLINE void gram_lower_body(const double* __restrict g, const double* __
     for (Index i = 0; i < j; ++i) out[i + j * width] = 0.0;
 }
 
-SOFTROM_INLINE void rows_times_body(const double* __restrict g, Index rows, Index width,
-                               const double* __restrict q, double* __restrict out) {
-  for (Index r = 0; r < rows; ++r) {
-    const double* gr = g + r * width;
-    double a[4] = {0.0, 0.0, 0.0, 0.0};
-    for (Index c = 0; c < width; c += 4)
-      for (int l = 0; l < 4; ++l) a[l] += gr[c + l] * q[c + l];
-    out[r] = (a[0] + a[1]) + (a[2] + a[3]);
-  }
-}
-
 SOFTROM_INLINE void rows_transpose_times_body(const double* __restrict g, Index rows, Index width,
                                          const double* __restrict p, double* __restrict out) {
   for (Index c = 0; c < width; ++c) out[c] = 0.0;
@@ -89,15 +78,16 @@ SOFTROM_INLINE void rows_transpose_times_body(const double* __restrict g, Index 
 }
 
 SOFTROM_INLINE void cols_times_body(const double* __restrict a, Index rows, Index cols,
-                               const double* __restrict x, double* __restrict out) {
+                                    const double* __restrict x, double* __restrict out) {
   for (Index r = 0; r < rows; ++r) out[r] = 0.0;
   Index c = 0;
-  for (; c + 2 <= cols; c += 2) {  // two columns per pass over out
-    const double x0 = x[c], x1 = x[c + 1];
+  for (; c + 4 <= cols; c += 4) {  // four columns per pass over out
+    const double x0 = x[c], x1 = x[c + 1], x2 = x[c + 2], x3 = x[c + 3];
     const double* a0 = a + c * rows;
-    for (Index r = 0; r < rows; ++r) out[r] += x0 * a0[r] + x1 * a0[rows + r];
+    for (Index r = 0; r < rows; ++r)
+      out[r] += (x0 * a0[r] + x1 * a0[rows + r]) + (x2 * a0[2 * rows + r] + x3 * a0[3 * rows + r]);
   }
-  if (c < cols) {
+  for (; c < cols; ++c) {
     const double xc = x[c];
     const double* ac = a + c * rows;
     for (Index r = 0; r < rows; ++r) out[r] += xc * ac[r];
@@ -124,7 +114,6 @@ SOFTROM_INLINE void element_hg_body(const double* __restrict h, const double* __
 struct Table {
   const char* name;
   void (*gram_lower)(const double*, const double*, Index, Index, double*);
-  void (*rows_times)(const double*, Index, Index, const double*, double*);
   void (*rows_transpose_times)(const double*, Index, Index, const double*, double*);
   void (*cols_times)(const double*, Index, Index, const double*, double*);
   void (*element_hg)(const double*, const double*, Index, double*);
@@ -134,10 +123,6 @@ struct Table {
   attr void gram_lower_##suffix(const double* g, const double* x, Index rows, Index width,     \
                                 double* out) {                                                 \
     gram_lower_body(g, x, rows, width, out);                                                   \
-  }                                                                                            \
-  attr void rows_times_##suffix(const double* g, Index rows, Index width, const double* q,     \
-                                double* out) {                                                 \
-    rows_times_body(g, rows, width, q, out);                                                   \
   }                                                                                            \
   attr void rows_transpose_times_##suffix(const double* g, Index rows, Index width,            \
                                           const double* p, double* out) {                      \
@@ -160,14 +145,14 @@ const Table& table() {
   // Chosen once, on first use: x86-64-v3 where the CPU has it, unless SOFTROM_KERNELS=baseline
   // asks for the baseline (the same round-off as a machine without AVX2).
   static const Table chosen = [] {
-    const Table baseline{"baseline", gram_lower_baseline, rows_times_baseline,
+    const Table baseline{"baseline", gram_lower_baseline,
                          rows_transpose_times_baseline, cols_times_baseline, element_hg_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
     __builtin_cpu_init();
     if (!forced && __builtin_cpu_supports("x86-64-v3"))
-      return Table{"x86-64-v3", gram_lower_v3, rows_times_v3, rows_transpose_times_v3,
+      return Table{"x86-64-v3", gram_lower_v3, rows_transpose_times_v3,
                    cols_times_v3, element_hg_v3};
 #endif
     return baseline;
@@ -181,9 +166,6 @@ const char* instruction_set() { return table().name; }
 
 void gram_lower(const double* g, const double* x, Index rows, Index width, double* out) {
   table().gram_lower(g, x, rows, width, out);
-}
-void rows_times(const double* g, Index rows, Index width, const double* q, double* out) {
-  table().rows_times(g, rows, width, q, out);
 }
 void rows_transpose_times(const double* g, Index rows, Index width, const double* p,
                           double* out) {

@@ -44,20 +44,15 @@ void ReducedModel::elastic_reference(const VecX& qe, bool project, double* energ
   }
 }
 
-// G q_e into ws.fall (vec F_k - vec I for every element) through the padded G: q_e is padded
-// with zeros to grad_fast_'s width in ws.q_pad.
+// G q_e into ws.fall (vec F_k - vec I for every element), through G's column-major copy.
 void ReducedModel::deformation_gradients_fast(const VecX& qe, Workspace& ws) const {
-  const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
-  ws.q_pad.resize(mp);
-  ws.q_pad.head(md) = qe;
-  ws.q_pad.tail(mp - md).setZero();
-  ws.fall.resize(grad_fast_.rows());
-  kernels::rows_times(grad_fast_.data(), grad_fast_.rows(), mp, ws.q_pad.data(), ws.fall.data());
+  ws.fall.resize(grad_cols_.rows());
+  kernels::cols_times(grad_cols_.data(), grad_cols_.rows(), grad_cols_.cols(), qe.data(),
+                      ws.fall.data());
 }
 
-// Energy and force in one pass: the determinant and cofactor are shared by psi and P. The
-// products with G use the padded copy grad_fast_ (q_e padded with zeros, the force's padding
-// dropped), the same sums.
+// Energy and force in one pass: the determinant and cofactor are shared by psi and P. G q_e
+// uses G's column-major copy, G^T P the padded row-major one (the padding's entries dropped).
 double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace& ws) const {
   const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());

@@ -38,6 +38,7 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
   }
   grad_fast_.setZero(9 * nk, (md + 3) / 4 * 4);  // a multiple of 4: dense_kernels.h
   grad_fast_.leftCols(md) = grad_;
+  grad_cols_ = grad_;
 
   const int ns = static_cast<int>(surface_nodes.size());
   surface_rows_.resize(3 * ns, basis.cols());

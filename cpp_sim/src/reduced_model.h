@@ -108,7 +108,7 @@ class ScopedTimer {
 // rows and allocated once per step.)
 struct Workspace {
   VecX fall, pall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
-  VecX q_pad, f_pad;  // q_e and the force padded to grad_fast_'s width
+  VecX f_pad;  // the force padded to grad_fast_'s width
   RowMatX hg;
   MatX k_pad;
   MatX k_el, a, h_inv, j_drag, j_pen, tmp;
@@ -243,6 +243,7 @@ class ReducedModel {
   // kernels of dense_kernels.h (measured in benchmarks/PROFILE.md). The reference kernel
   // (elastic_reference) keeps grad_; K_r(rest), which both solvers use, comes from this one.
   RowMatX grad_fast_;
+  MatX grad_cols_;  // G column-major, for G q_e (kernels::cols_times)
   std::vector<double> wvol_;
   StableNeoHookean material_;
   // Surface: rows of B_r (3 x (M + 6)) and rest positions of each surface node.
