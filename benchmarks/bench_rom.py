@@ -37,6 +37,10 @@ For each of the five benchmarks (cross swim, cross walk, beam, quadruped, tripod
   ||x_r - x_f|| / ||x_f - x_rigid|| summed over the trajectory. The full-space model has no
   ground, so this compares the deformation dynamics (subspace + cubature), not contact.
 
+It also prints (`kernels` in --json) the instruction set of the fast solver's dense kernels,
+`cpp_sim.kernel_instruction_set()`: x86-64-v3 where the CPU has AVX2 + FMA, else the baseline;
+run it with ``SOFTROM_KERNELS=baseline`` to measure the baseline set on the same machine.
+
     python benchmarks/bench_rom.py [--json] [--robots quadruped ...] [--seconds 1.0]
 """
 
@@ -304,7 +308,7 @@ def main() -> None:
     cols = ("full/s", "ref/s", "fast/s", "fast/ref", "speedup", "penalty/s", "batch2/s",
             "2thr/1thr", "cpu 2/1", "drop err", "vs MuJoCo")  # fmt: skip
     if not args.json:
-        print(f"fast solver's cubature kernels: {cpp_sim.kernel_instruction_set()}")
+        print(f"fast solver's dense kernels: {cpp_sim.kernel_instruction_set()}")
         print(f"{'benchmark':<15} {'nodes':>5} " + " ".join(f"{c:>10}" for c in cols))
     for name in args.robots:
         r = measure(name, args.full_steps, args.seconds)
