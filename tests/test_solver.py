@@ -325,7 +325,9 @@ def test_baseline_kernels_agree_with_the_dispatched_ones():
     # the beam stay together far below the contact tolerance's effect.
     base, auto = _kernel_probe("baseline"), _kernel_probe("auto")
     assert base["isa"] == "baseline"
-    assert auto["isa"] == cpp_sim.kernel_instruction_set()
+    assert auto["isa"] in ("x86-64-v3", "baseline")
+    if os.environ.get("SOFTROM_KERNELS", "auto") in ("", "auto"):  # this process chose freely
+        assert auto["isa"] == cpp_sim.kernel_instruction_set()
     k = np.array(auto["k"])
     np.testing.assert_allclose(base["k"], k, rtol=0, atol=1e-12 * np.abs(k).max())
     f = np.array(auto["f"])
