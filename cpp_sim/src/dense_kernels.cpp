@@ -94,6 +94,21 @@ SOFTROM_INLINE void cols_times_body(const double* __restrict a, Index rows, Inde
   }
 }
 
+SOFTROM_INLINE void lower_solve_rows_body(const double* __restrict l, Index n,
+                                          double* __restrict b, Index nrhs) {
+  for (Index i = 0; i < n; ++i) {
+    double* __restrict bi = b + i * nrhs;
+    for (Index j = 0; j < i; ++j) {
+      const double lij = l[i + j * n];
+      if (lij == 0.0) continue;
+      const double* __restrict bj = b + j * nrhs;
+      for (Index c = 0; c < nrhs; ++c) bi[c] -= lij * bj[c];
+    }
+    const double inv = 1.0 / l[i + i * n];
+    for (Index c = 0; c < nrhs; ++c) bi[c] *= inv;
+  }
+}
+
 // Each output row is the sum of the element's nine rows of G with the row's nine coefficients
 // held in registers across the whole row: one multiply-add per coefficient and packet.
 SOFTROM_INLINE void element_hg_body(const double* __restrict h, const double* __restrict g,
@@ -117,6 +132,7 @@ struct Table {
   void (*rows_transpose_times)(const double*, Index, Index, const double*, double*);
   void (*cols_times)(const double*, Index, Index, const double*, double*);
   void (*element_hg)(const double*, const double*, Index, double*);
+  void (*lower_solve_rows)(const double*, Index, double*, Index);
 };
 
 #define SOFTROM_KERNEL_SET(attr, suffix)                                                       \
@@ -134,6 +150,9 @@ struct Table {
   }                                                                                            \
   attr void element_hg_##suffix(const double* h, const double* g, Index width, double* out) {  \
     element_hg_body(h, g, width, out);                                                         \
+  }                                                                                            \
+  attr void lower_solve_rows_##suffix(const double* l, Index n, double* b, Index nrhs) {       \
+    lower_solve_rows_body(l, n, b, nrhs);                                                      \
   }
 
 SOFTROM_KERNEL_SET(, baseline)
@@ -146,14 +165,15 @@ const Table& table() {
   // asks for the baseline (the same round-off as a machine without AVX2).
   static const Table chosen = [] {
     const Table baseline{"baseline", gram_lower_baseline,
-                         rows_transpose_times_baseline, cols_times_baseline, element_hg_baseline};
+                         rows_transpose_times_baseline, cols_times_baseline, element_hg_baseline,
+                         lower_solve_rows_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
     __builtin_cpu_init();
     if (!forced && __builtin_cpu_supports("x86-64-v3"))
       return Table{"x86-64-v3", gram_lower_v3, rows_transpose_times_v3,
-                   cols_times_v3, element_hg_v3};
+                   cols_times_v3, element_hg_v3, lower_solve_rows_v3};
 #endif
     return baseline;
   }();
@@ -176,6 +196,9 @@ void cols_times(const double* a, Index rows, Index cols, const double* x, double
 }
 void element_hg(const double* h, const double* g, Index width, double* out) {
   table().element_hg(h, g, width, out);
+}
+void lower_solve_rows(const double* l, Index n, double* b, Index nrhs) {
+  table().lower_solve_rows(l, n, b, nrhs);
 }
 
 }  // namespace softrom::kernels

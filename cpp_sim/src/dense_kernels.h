@@ -30,6 +30,14 @@ void rows_transpose_times(const double* g, Index rows, Index width, const double
 // the row-major product; the contact solve's products with the candidates' normal rows.)
 void cols_times(const double* a, Index rows, Index cols, const double* x, double* out);
 
+// Solves L X = B in place for X, with L lower triangular (n x n, column-major, nonzero
+// diagonal) and B n x nrhs stored row-major (row i of B contiguous: the memory of an Eigen
+// MatrixXd J of nrhs x n is J^T in this layout). Forward substitution by rows, so the long
+// dimension (the right-hand sides) is the vectorised one. (The contact solve's
+// E^T = L^-1 J_n^T: Eigen's blocked triangular solve spends ~12 instructions per multiply-add
+// at n = 26, 64 right-hand sides.)
+void lower_solve_rows(const double* l, Index n, double* b, Index nrhs);
+
 // One cubature element's rows of H G: out (9 x width) = H g, for H 9 x 9 (column-major,
 // symmetric) and g the element's 9 rows of G.
 void element_hg(const double* h, const double* g, Index width, double* out);

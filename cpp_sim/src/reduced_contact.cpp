@@ -192,7 +192,14 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   // A^-1 J_n^T and A^-1 J_t^T once instead takes 3k right-hand sides (k candidates; ~130k
   // multiply-adds on the quadruped) for per-stagger products no cheaper than the solves.
   MatX g(m + 1, k);
-  g.topRows(m) = a_llt.matrixL().solve(jn.transpose());
+  if (fast) {
+    // jn's column-major memory is J_n^T row by row: solve in a copy, then transpose into g.
+    ws.et_rows = jn;
+    kernels::lower_solve_rows(a_llt.matrixLLT().data(), m, ws.et_rows.data(), k);
+    g.topRows(m) = Eigen::Map<const RowMatX>(ws.et_rows.data(), m, k);
+  } else {
+    g.topRows(m) = a_llt.matrixL().solve(jn.transpose());
+  }
   VecX response(m);
   auto velocity_after = [&](const MatX& j, const VecX& lam) -> const VecX& {
     if (fast) {

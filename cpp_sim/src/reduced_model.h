@@ -111,6 +111,7 @@ struct Workspace {
   VecX f_pad;  // the force padded to grad_fast_'s width
   RowMatX hg;
   MatX k_pad;
+  MatX et_rows;  // the contact solve's J_n, then L^-1 J_n^T in its memory (row-major m x k)
   MatX k_el, a, h_inv, j_drag, j_pen, tmp;
   VecX f_pen;
   // The drag Jacobian as a factor, J_d = -W W^T (W: M x drag_cols, one column per face
