@@ -34,8 +34,8 @@ void cols_times(const double* a, Index rows, Index cols, const double* x, double
 // diagonal) and B n x nrhs stored row-major (row i of B contiguous: the memory of an Eigen
 // MatrixXd J of nrhs x n is J^T in this layout). Forward substitution by rows, so the long
 // dimension (the right-hand sides) is the vectorised one. (The contact solve's
-// E^T = L^-1 J_n^T: Eigen's blocked triangular solve spends ~12 instructions per multiply-add
-// at n = 26, 64 right-hand sides.)
+// E^T = L^-1 J_n^T, n = 26 and ~64 right-hand sides on the quadruped: 0.08 M instructions
+// per contact step fewer than Eigen's blocked triangular solve, by callgrind.)
 void lower_solve_rows(const double* l, Index n, double* b, Index nrhs);
 
 // One cubature element's rows of H G: out (9 x width) = H g, for H 9 x 9 (column-major,
