@@ -248,6 +248,16 @@ def test_drop_and_bounce_never_gains_energy(box, solver):
     assert previous < e0  # the impact dissipated
 
 
+def stiffness_by_differences(model, q, eps: float):
+    """-d f / d q_e by central differences of the cubature forces, column by column."""
+    fd = np.empty((q.size, q.size))
+    for j in range(q.size):
+        dq = np.zeros_like(q)
+        dq[j] = eps
+        fd[:, j] = -(model.elastic_forces(q + dq) - model.elastic_forces(q - dq)) / (2 * eps)
+    return fd
+
+
 def test_cubature_stiffness_is_the_derivative_of_cubature_forces(beam_robot):
     model = build_reduced_model(beam_robot)
     rng = np.random.default_rng(3)
@@ -255,12 +265,9 @@ def test_cubature_stiffness_is_the_derivative_of_cubature_forces(beam_robot):
     k = model.elastic_stiffness(q)
     np.testing.assert_allclose(k, k.T, atol=1e-12 * np.abs(k).max())
     eps = 1e-6
-    fd = np.empty_like(k)
-    for j in range(q.size):
-        dq = np.zeros_like(q)
-        dq[j] = eps
-        fd[:, j] = -(model.elastic_forces(q + dq) - model.elastic_forces(q - dq)) / (2 * eps)
-    np.testing.assert_allclose(k, fd, atol=1e-6 * np.abs(k).max())
+    np.testing.assert_allclose(
+        k, stiffness_by_differences(model, q, eps), atol=1e-6 * np.abs(k).max()
+    )
     # The force is the gradient of the energy.
     f = model.elastic_forces(q)
     d = rng.standard_normal(q.size)
@@ -279,12 +286,9 @@ def test_dense_kernels_at_every_padded_width(box, modes):
     k = model.elastic_stiffness(q)
     np.testing.assert_array_equal(k, k.T)
     eps = 1e-6
-    fd = np.empty_like(k)
-    for j in range(q.size):
-        dq = np.zeros_like(q)
-        dq[j] = eps
-        fd[:, j] = -(model.elastic_forces(q + dq) - model.elastic_forces(q - dq)) / (2 * eps)
-    np.testing.assert_allclose(k, fd, atol=1e-6 * np.abs(k).max())
+    np.testing.assert_allclose(
+        k, stiffness_by_differences(model, q, eps), atol=1e-6 * np.abs(k).max()
+    )
     f = model.elastic_forces(q)
     grad = np.array(
         [

@@ -60,23 +60,6 @@ SOFTROM_INLINE void gram_lower_body(const double* __restrict g, const double* __
     for (Index i = 0; i < j; ++i) out[i + j * width] = 0.0;
 }
 
-SOFTROM_INLINE void rows_transpose_times_body(const double* __restrict g, Index rows, Index width,
-                                         const double* __restrict p, double* __restrict out) {
-  for (Index c = 0; c < width; ++c) out[c] = 0.0;
-  Index r = 0;
-  for (; r + 4 <= rows; r += 4) {  // four rows per pass over out
-    const double p0 = p[r], p1 = p[r + 1], p2 = p[r + 2], p3 = p[r + 3];
-    const double* g0 = g + r * width;
-    for (Index c = 0; c < width; ++c)
-      out[c] += (p0 * g0[c] + p1 * g0[width + c]) + (p2 * g0[2 * width + c] + p3 * g0[3 * width + c]);
-  }
-  for (; r < rows; ++r) {
-    const double pr = p[r];
-    const double* gr = g + r * width;
-    for (Index c = 0; c < width; ++c) out[c] += pr * gr[c];
-  }
-}
-
 SOFTROM_INLINE void cols_times_body(const double* __restrict a, Index rows, Index cols,
                                     const double* __restrict x, double* __restrict out) {
   for (Index r = 0; r < rows; ++r) out[r] = 0.0;
@@ -129,7 +112,6 @@ SOFTROM_INLINE void element_hg_body(const double* __restrict h, const double* __
 struct Table {
   const char* name;
   void (*gram_lower)(const double*, const double*, Index, Index, double*);
-  void (*rows_transpose_times)(const double*, Index, Index, const double*, double*);
   void (*cols_times)(const double*, Index, Index, const double*, double*);
   void (*element_hg)(const double*, const double*, Index, double*);
   void (*lower_solve_rows)(const double*, Index, double*, Index);
@@ -139,10 +121,6 @@ struct Table {
   attr void gram_lower_##suffix(const double* g, const double* x, Index rows, Index width,     \
                                 double* out) {                                                 \
     gram_lower_body(g, x, rows, width, out);                                                   \
-  }                                                                                            \
-  attr void rows_transpose_times_##suffix(const double* g, Index rows, Index width,            \
-                                          const double* p, double* out) {                      \
-    rows_transpose_times_body(g, rows, width, p, out);                                         \
   }                                                                                            \
   attr void cols_times_##suffix(const double* a, Index rows, Index cols, const double* x,      \
                                 double* out) {                                                 \
@@ -164,16 +142,15 @@ const Table& table() {
   // Chosen once, on first use: x86-64-v3 where the CPU has it, unless SOFTROM_KERNELS=baseline
   // asks for the baseline (the same round-off as a machine without AVX2).
   static const Table chosen = [] {
-    const Table baseline{"baseline", gram_lower_baseline,
-                         rows_transpose_times_baseline, cols_times_baseline, element_hg_baseline,
-                         lower_solve_rows_baseline};
+    const Table baseline{"baseline", gram_lower_baseline, cols_times_baseline,
+                         element_hg_baseline, lower_solve_rows_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
     __builtin_cpu_init();
     if (!forced && __builtin_cpu_supports("x86-64-v3"))
-      return Table{"x86-64-v3", gram_lower_v3, rows_transpose_times_v3,
-                   cols_times_v3, element_hg_v3, lower_solve_rows_v3};
+      return Table{"x86-64-v3", gram_lower_v3, cols_times_v3, element_hg_v3,
+                   lower_solve_rows_v3};
 #endif
     return baseline;
   }();
@@ -186,10 +163,6 @@ const char* instruction_set() { return table().name; }
 
 void gram_lower(const double* g, const double* x, Index rows, Index width, double* out) {
   table().gram_lower(g, x, rows, width, out);
-}
-void rows_transpose_times(const double* g, Index rows, Index width, const double* p,
-                          double* out) {
-  table().rows_transpose_times(g, rows, width, p, out);
 }
 void cols_times(const double* a, Index rows, Index cols, const double* x, double* out) {
   table().cols_times(a, rows, cols, x, out);

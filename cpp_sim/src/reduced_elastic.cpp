@@ -70,8 +70,8 @@ double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace
     Eigen::Map<Mat3>(ws.pall.data() + 9 * k) = (w * mu) * f + (w * (lambda * jm1 - mu)) * cof;
   }
   ws.f_pad.resize(mp);
-  kernels::rows_transpose_times(grad_fast_.data(), grad_fast_.rows(), mp, ws.pall.data(),
-                                ws.f_pad.data());
+  // The row-major G's memory is G^T column-major (mp x 9K).
+  kernels::cols_times(grad_fast_.data(), mp, grad_fast_.rows(), ws.pall.data(), ws.f_pad.data());
   force = -ws.f_pad.head(md);
   return en;
 }
