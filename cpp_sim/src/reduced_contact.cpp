@@ -5,6 +5,7 @@
 #include "dense_kernels.h"
 #include "nnls.h"
 #include "reduced_model.h"
+#include "small_cholesky.h"
 
 namespace softrom {
 
@@ -102,7 +103,7 @@ struct LoadedRows {
   std::vector<char> member;   // per candidate: in the set
   MatX y, d;
   VecX c;
-  Eigen::LLT<MatX> d_nn;      // the normal block of D, factored once per set
+  MatX d_nn;                  // the Cholesky factor of D's normal block, once per set
   bool normal_ok = false;     // W's normal rows independent (D_nn positive definite)
 };
 
@@ -200,6 +201,39 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   } else {
     g.topRows(m) = a_llt.matrixL().solve(jn.transpose());
   }
+  // x <- L^-T x with A = L L^T. The fast solver applies L^-1 and L^-T as products with
+  // explicit inverses, formed once per step (L^-1's rows by the row-oriented substitution,
+  // an (M + 6)^3 / 6 sum; the ~50 solves of a quadruped step each become a vectorised
+  // product); the reference solves by substitution.
+  MatX l_inv, l_inv_t;
+  VecX solve_tmp(m);
+  if (fast) {
+    l_inv_t.setIdentity(m, m);  // row-major L^-1 is column-major L^-T
+    kernels::lower_solve_rows(a_llt.matrixLLT().data(), m, l_inv_t.data(), m);
+    l_inv = l_inv_t.transpose();
+  }
+  auto upper_solve = [&](VecX& x) {
+    if (fast) {
+      kernels::cols_times(l_inv_t.data(), m, m, x.data(), solve_tmp.data());
+      x = solve_tmp;
+    } else {
+      a_llt.matrixU().solveInPlace(x);
+    }
+  };
+  // J_t,i x for candidate i (its two tangent rows): a loop over J_t's column-major memory in
+  // the fast solver (Eigen's general matrix-vector product costs more to set up than the 2 M
+  // multiply-adds), Eigen's product in the reference.
+  auto tangent = [&](int i, const VecX& x) -> Eigen::Vector2d {
+    if (!fast) return jt.middleRows(2 * i, 2) * x;
+    const double* p = jt.data() + 2 * i;
+    const Eigen::Index ld = jt.rows();
+    double s0 = 0.0, s1 = 0.0;
+    for (Eigen::Index r = 0; r < m; ++r) {
+      s0 += p[r * ld] * x[r];
+      s1 += p[r * ld + 1] * x[r];
+    }
+    return {s0, s1};
+  };
   VecX response(m);
   auto velocity_after = [&](const MatX& j, const VecX& lam) -> const VecX& {
     if (fast) {
@@ -211,7 +245,12 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     } else {
       response.noalias() = j.transpose() * lam;
     }
-    a_llt.solveInPlace(response);
+    if (fast) {
+      kernels::cols_times(l_inv.data(), m, m, response.data(), solve_tmp.data());
+      kernels::cols_times(l_inv_t.data(), m, m, solve_tmp.data(), response.data());
+    } else {
+      a_llt.solveInPlace(response);
+    }
     response += v_free;
     return response;
   };
@@ -228,7 +267,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     lam_ldp = lam_n;  // warm start: last stagger's (or step's) loaded nodes
     bool nnls_ok = true;
     if (least_distance(g, x_ldp, lam_ldp, nnls_ok, how, ws.nnls)) {
-      a_llt.matrixU().solveInPlace(x_ldp);
+      upper_solve(x_ldp);
       v = v_prime + x_ldp;
       lam_n = lam_ldp;
     } else {
@@ -259,32 +298,74 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   MatX hess(m, m), wjt(2 * k, m);
   std::vector<int> loaded;
   loaded.reserve(k);
+  // The loaded nodes' tangent rows J_t,l (2 nl x M + 6, column-major), gathered when the loaded
+  // set changes, so that their tangential velocities are one product (fast solver).
+  MatX jt_l;
+  std::vector<int> jt_l_set;
+  VecX ut_l;
+  auto loaded_tangents = [&](const VecX& x) -> const VecX& {
+    if (jt_l_set != loaded) {
+      jt_l.resize(2 * static_cast<Eigen::Index>(loaded.size()), m);
+      for (size_t l = 0; l < loaded.size(); ++l)
+        jt_l.middleRows(2 * l, 2) = jt.middleRows(2 * loaded[l], 2);
+      jt_l_set = loaded;
+    }
+    times(jt_l, x, ut_l);
+    return ut_l;
+  };
   MatX dual_sys;
   VecX rhs_l, lam_w, v_on(m);
-  Eigen::LLT<MatX> dual_llt;
   LoadedRows rows;
   rows.member.assign(k, 0);
+  // L^-1 J_t,i^T per candidate, solved when the candidate first enters a loaded set in this
+  // step and kept for the step (a set is rebuilt ~5 times per quadruped step, mostly from the
+  // same nodes).
+  MatX tangent_solved(m, 2 * k);
+  std::vector<char> tangent_ready(k, 0);
+  RowMatX pending, y_rows;
+  MatX gram;
   auto build_rows = [&](const std::vector<int>& set) {
     const int nw = static_cast<int>(set.size());
     for (int i : rows.set) rows.member[i] = 0;
     rows.set = set;
     for (int i : set) rows.member[i] = 1;
+    int fresh = 0;
+    for (int i : set) fresh += !tangent_ready[i];
+    if (fresh > 0) {  // the new candidates' J_t,i^T, one right-hand side per row
+      pending.resize(m, 2 * fresh);
+      int f = 0;
+      for (int i : set)
+        if (!tangent_ready[i]) {
+          pending.middleCols(2 * f++, 2) = jt.middleRows(2 * i, 2).transpose();
+        }
+      kernels::lower_solve_rows(a_llt.matrixLLT().data(), m, pending.data(), 2 * fresh);
+      f = 0;
+      for (int i : set)
+        if (!tangent_ready[i]) {
+          tangent_solved.middleCols(2 * i, 2) = pending.middleCols(2 * f++, 2);
+          tangent_ready[i] = 1;
+        }
+    }
     rows.y.resize(m, 3 * nw);
     rows.c.resize(3 * nw);
     for (int l = 0; l < nw; ++l) {
       const int i = set[l];
       rows.y.col(l) = g.col(i).head(m);
-      rows.y.middleCols(nw + 2 * l, 2) = jt.middleRows(2 * i, 2).transpose();
+      rows.y.middleCols(nw + 2 * l, 2) = tangent_solved.middleCols(2 * i, 2);
       rows.c[l] = jn.row(i).dot(v_free);
-      rows.c.segment<2>(nw + 2 * l).noalias() = jt.middleRows(2 * i, 2) * v_free;
+      rows.c.segment<2>(nw + 2 * l) = tangent(i, v_free);
     }
-    auto yt = rows.y.rightCols(2 * nw);
-    a_llt.matrixL().solveInPlace(yt);
+    // D = Y^T Y by the Gram kernel, on a row-major copy of Y padded to its 4-column tiles.
+    const Eigen::Index width = (3 * nw + 3) / 4 * 4;
+    y_rows.setZero(m, width);
+    y_rows.leftCols(3 * nw) = rows.y;
+    gram.resize(width, width);
+    kernels::gram_lower(y_rows.data(), y_rows.data(), m, width, gram.data());
     rows.d.resize(3 * nw, 3 * nw);
-    rows.d.triangularView<Eigen::Lower>() = rows.y.transpose() * rows.y;
+    rows.d.triangularView<Eigen::Lower>() = gram.topLeftCorner(3 * nw, 3 * nw);
     rows.d.triangularView<Eigen::StrictlyUpper>() = rows.d.transpose();
-    rows.d_nn.compute(rows.d.topLeftCorner(nw, nw));
-    rows.normal_ok = rows.d_nn.info() == Eigen::Success;
+    rows.d_nn = rows.d.topLeftCorner(nw, nw);
+    rows.normal_ok = small::cholesky_upper(rows.d_nn.data(), nw, nw);
   };
   // The normal half on the last stagger's loaded set W: J_n,W v = b_W with the friction
   // impulses held, i.e. D_nn lambda_n = b_W - c_n - D_nt lambda_t. It is the least-distance
@@ -306,11 +387,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       rhs_l[l] = b[rows.set[l]] - rows.c[l];
     }
     rhs_l.noalias() -= rows.d.block(0, nw, nw, 2 * nw) * lam_w.tail(2 * nw);
-    rows.d_nn.solveInPlace(rhs_l);
+    small::cholesky_upper_solve(rows.d_nn.data(), nw, nw, rhs_l.data());
     if (!(rhs_l.array() > 0.0).all()) return false;
     lam_w.head(nw) = rhs_l;
     times(rows.y, lam_w, v_on);
-    a_llt.matrixU().solveInPlace(v_on);
+    upper_solve(v_on);
     v_on += v_free;
     times(jn, v_on, row_gap);
     for (int i = 0; i < k; ++i)
@@ -352,9 +433,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       if (nl == 0) {
         v = v_second;
       } else {
+        const VecX* ut_fast = fast ? &loaded_tangents(v) : nullptr;
         for (int l = 0; l < nl; ++l) {
           const int i = loaded[l];
-          const Eigen::Vector2d ut = jt.middleRows(2 * i, 2) * v;
+          const Eigen::Vector2d ut =
+              fast ? Eigen::Vector2d(ut_fast->segment<2>(2 * l)) : tangent(i, v);
           weight[l] = mu * lam_n[i] / std::sqrt(ut.squaredNorm() + eps * eps);
         }
         // The step solves (A + J_l^T W J_l) v = A v'' (J_l: the loaded nodes' tangent rows,
@@ -373,23 +456,20 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
             rhs_l = rows.c.tail(2 * nl);
             rhs_l.noalias() += rows.d.block(nl, 0, 2 * nl, nl) * lam_w.head(nl);
           } else {
-            rhs_l.resize(2 * nl);
-            for (int l = 0; l < nl; ++l)
-              rhs_l.segment<2>(2 * l).noalias() = jt.middleRows(2 * loaded[l], 2) * v_second;
+            rhs_l = loaded_tangents(v_second);
           }
           for (int l = 0; l < nl; ++l)
             dual_sys.diagonal().segment<2>(2 * l).array() += 1.0 / weight[l];
-          dual_llt.compute(dual_sys);
-          if (dual_llt.info() == Eigen::Success) {
-            dual_llt.solveInPlace(rhs_l);
+          if (small::cholesky_upper(dual_sys.data(), 2 * nl, 2 * nl)) {
+            small::cholesky_upper_solve(dual_sys.data(), 2 * nl, 2 * nl, rhs_l.data());
             if (on_set) {  // v = v_free + L^-T Y (lambda_n, -z)
               lam_w.tail(2 * nl) = -rhs_l;
               times(rows.y, lam_w, response);
-              a_llt.matrixU().solveInPlace(response);
+              upper_solve(response);
               v = v_free + response;
             } else {
               response.noalias() = y_l * rhs_l;
-              a_llt.matrixU().solveInPlace(response);
+              upper_solve(response);
               v = v_second - response;
             }
             solved = v.allFinite();
@@ -403,9 +483,10 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
           hess.selfadjointView<Eigen::Lower>().rankUpdate(wjt.topRows(2 * nl).transpose());
           v = hess.selfadjointView<Eigen::Lower>().llt().solve(a * v_second);
         }
+        if (fast) loaded_tangents(v);
         for (int l = 0; l < nl; ++l) {
           const int i = loaded[l];
-          ut2.noalias() = jt.middleRows(2 * i, 2) * v;  // into a fixed-size vector: no heap
+          ut2 = fast ? Eigen::Vector2d(ut_l.segment<2>(2 * l)) : tangent(i, v);
           lam_t.segment<2>(2 * i) = -weight[l] * ut2;
         }
       }
@@ -420,11 +501,14 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       v_prev = v;
       times(jn, dv_stagger, row_gap);
       change = row_gap.cwiseAbs().maxCoeff();
-      for (int i = 0; i < k; ++i)
-        if (lam_n[i] > 0.0) {
-          ut2.noalias() = jt.middleRows(2 * i, 2) * dv_stagger;
-          change = std::max(change, ut2.cwiseAbs().maxCoeff());
-        }
+      if (mu > 0.0) {  // the loaded nodes are those with lambda_n > 0
+        if (!loaded.empty())
+          change = std::max(change, loaded_tangents(dv_stagger).cwiseAbs().maxCoeff());
+      } else {
+        for (int i = 0; i < k; ++i)
+          if (lam_n[i] > 0.0)
+            change = std::max(change, tangent(i, dv_stagger).cwiseAbs().maxCoeff());
+      }
     } else {
       contact_velocities(vc);
       change = (vc.head(k) - vc_prev.head(k)).cwiseAbs().maxCoeff();

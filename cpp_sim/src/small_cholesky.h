@@ -1,0 +1,59 @@
+// Cholesky factorisation and solve for the contact solve's small dense systems (fast solver
+// only): the friction half's 2 n x 2 n dual system, factored once per stagger, and the loaded
+// set's normal block D_nn, once per set (n ~ 7 loaded nodes on a walker).
+//
+// Eigen's dynamic-size LLT is blocked for large matrices: at these sizes its set-up costs more
+// than the arithmetic (callgrind on the quadruped: ~9 k instructions to factor a 14 x 14
+// matrix, whose work is ~460 multiply-adds). These are the textbook loops, for
+// column-major storage (an Eigen MatrixXd's memory).
+#pragma once
+
+#include <cmath>
+#include <cstddef>
+
+namespace softrom::small {
+
+using Index = std::ptrdiff_t;
+
+// Overwrites the upper triangle of the symmetric a (n x n, column-major, leading dimension
+// lda) with its Cholesky factor U (A = U^T U; the strictly lower triangle is not read or
+// written). Returns false, with a partly overwritten a, when a pivot is not positive and
+// finite (A not numerically positive definite). Column j of U above the diagonal is row j of
+// L = U^T, contiguous, so every entry is one dot product of two contiguous columns
+// (Cholesky-Crout). At these sizes a scalar dot product costs fewer instructions than short
+// vectorised updates: per factorisation of the quadruped's dual systems (callgrind), Eigen's
+// LLT ~9 k instructions, a right-looking column loop ~8.7 k, this ~3.9 k.
+inline bool cholesky_upper(double* a, Index n, Index lda) {
+  for (Index j = 0; j < n; ++j) {
+    double* cj = a + j * lda;
+    for (Index i = 0; i < j; ++i) {
+      const double* ci = a + i * lda;
+      double s = cj[i];
+      for (Index k = 0; k < i; ++k) s -= ci[k] * cj[k];
+      cj[i] = s / ci[i];
+    }
+    double d = cj[j];
+    for (Index k = 0; k < j; ++k) d -= cj[k] * cj[k];
+    if (!(d > 0.0) || !std::isfinite(d)) return false;
+    cj[j] = std::sqrt(d);
+  }
+  return true;
+}
+
+// b <- (U^T U)^-1 b, for U from cholesky_upper.
+inline void cholesky_upper_solve(const double* u, Index n, Index lda, double* b) {
+  for (Index i = 0; i < n; ++i) {  // U^T y = b: row i of U^T is column i of U
+    const double* ci = u + i * lda;
+    double s = b[i];
+    for (Index k = 0; k < i; ++k) s -= ci[k] * b[k];
+    b[i] = s / ci[i];
+  }
+  for (Index i = n - 1; i >= 0; --i) {  // U x = y, column by column
+    const double* ci = u + i * lda;
+    const double x = b[i] / ci[i];
+    b[i] = x;
+    for (Index k = 0; k < i; ++k) b[k] -= x * ci[k];
+  }
+}
+
+}  // namespace softrom::small
