@@ -8,6 +8,8 @@
 #include <cmath>
 #include <vector>
 
+#include "dense_kernels.h"
+
 namespace softrom {
 
 // How the least-squares subproblem on the passive columns is solved.
@@ -140,9 +142,13 @@ struct NnlsWorkspace {
 // p)) and shrinks by Givens rotations when variables leave the set (O(p^2)). A column that is
 // (numerically) a combination of the passive ones is not added: Lawson-Hanson never needs it,
 // and its Gram matrix would be singular. Same iterates as the QR variant, a fraction of the work.
-// The solution is left in ws.u; returns false when an iteration cap stopped it.
+// The solution is left in ws.u; returns false when an iteration cap stopped it. `gt`
+// (optional) is G^T kept by the caller (n x rows, column-major): the gradient G^T r, the
+// largest cost with hundreds of columns, is then a product over its contiguous columns
+// (kernels::cols_times) instead of n short dot products.
 inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
-                          const Eigen::VectorXd* guess, int max_iterations, NnlsWorkspace& ws) {
+                          const Eigen::VectorXd* guess, int max_iterations, NnlsWorkspace& ws,
+                          const Eigen::MatrixXd* gt = nullptr) {
   const Eigen::Index n = g.cols(), rows = g.rows();
   if (max_iterations <= 0) max_iterations = static_cast<int>(3 * n + 10);
   bool converged = true;
@@ -242,7 +248,11 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
     resid = d;
     for (Eigen::Index j = 0; j < n; ++j)
       if (u[j] != 0.0) resid.noalias() -= u[j] * g.col(j);
-    w.noalias() = g.transpose() * resid;
+    if (gt != nullptr) {
+      kernels::cols_times(gt->data(), n, rows, resid.data(), w.data());
+    } else {
+      w.noalias() = g.transpose() * resid;
+    }
   };
   gradient();
   int outer = 0;
@@ -302,16 +312,18 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
 // is copied once. Returns false if infeasible. On success x = E^T lambda with multipliers
 // lambda >= 0 (complementary to E x - f). `lambda` on entry (if sized k) warm-starts the
 // active set. `converged` is cleared when NNLS stopped at its iteration cap. `ws` is scratch
-// (the NNLS solution u is left in ws.u); the Qr variant still allocates its own.
+// (the NNLS solution u is left in ws.u); the Qr variant still allocates its own. `gt`
+// (optional, Gram variant) is g^T, as for nnls_cholesky.
 inline bool least_distance(const Eigen::MatrixXd& g, Eigen::VectorXd& x, Eigen::VectorXd& lambda,
-                           bool& converged, NnlsSolve how, NnlsWorkspace& ws) {
+                           bool& converged, NnlsSolve how, NnlsWorkspace& ws,
+                           const Eigen::MatrixXd* gt = nullptr) {
   const Eigen::Index m = g.rows() - 1, k = g.cols();
   Eigen::VectorXd& d = ws.d;
   d.setZero(m + 1);
   d[m] = 1.0;
   const Eigen::VectorXd* guess = lambda.size() == k ? &lambda : nullptr;
   if (how == NnlsSolve::Gram) {
-    converged = nnls_cholesky(g, d, guess, 0, ws) && converged;
+    converged = nnls_cholesky(g, d, guess, 0, ws, gt) && converged;
   } else {
     NnlsResult res = nnls(g, d, guess, 0, how);
     converged = converged && res.converged;

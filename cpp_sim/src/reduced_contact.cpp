@@ -193,11 +193,15 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   // A^-1 J_n^T and A^-1 J_t^T once instead takes 3k right-hand sides (k candidates; ~130k
   // multiply-adds on the quadruped) for per-stagger products no cheaper than the solves.
   MatX g(m + 1, k);
+  MatX gt;  // the fast solver's g^T = [E  b - J_n v'] (k x m + 1), for NNLS's gradient
   if (fast) {
     // jn's column-major memory is J_n^T row by row: solve in a copy, then transpose into g.
+    // The copy, read as a column-major k x m matrix, is E = J_n L^-T itself.
     ws.et_rows = jn;
     kernels::lower_solve_rows(a_llt.matrixLLT().data(), m, ws.et_rows.data(), k);
     g.topRows(m) = Eigen::Map<const RowMatX>(ws.et_rows.data(), m, k);
+    gt.resize(k, m + 1);
+    gt.leftCols(m) = ws.et_rows;
   } else {
     g.topRows(m) = a_llt.matrixL().solve(jn.transpose());
   }
@@ -264,9 +268,10 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     ScopedTimer timer(cfg.profile ? &info.time_normal : nullptr);
     times(jn, v_prime, row_gap);
     g.row(m) = (b - row_gap).transpose();
+    if (fast) gt.col(m) = g.row(m).transpose();
     lam_ldp = lam_n;  // warm start: last stagger's (or step's) loaded nodes
     bool nnls_ok = true;
-    if (least_distance(g, x_ldp, lam_ldp, nnls_ok, how, ws.nnls)) {
+    if (least_distance(g, x_ldp, lam_ldp, nnls_ok, how, ws.nnls, fast ? &gt : nullptr)) {
       upper_solve(x_ldp);
       v = v_prime + x_ldp;
       lam_n = lam_ldp;
@@ -479,9 +484,30 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
           if (on_set) v_second = velocity_after(jn, lam_n);
           for (int l = 0; l < nl; ++l)  // sqrt(w_i) J_t,i stacked: one rank update
             wjt.middleRows(2 * l, 2) = std::sqrt(weight[l]) * jt.middleRows(2 * loaded[l], 2);
-          hess = a;
-          hess.selfadjointView<Eigen::Lower>().rankUpdate(wjt.topRows(2 * nl).transpose());
-          v = hess.selfadjointView<Eigen::Lower>().llt().solve(a * v_second);
+          bool primal_done = false;
+          if (fast) {
+            // (Many loaded nodes: the cross lies on its arms.) J_l^T W J_l by the Gram kernel
+            // on a row-major copy padded to its 4-column tiles, the (M + 6)^2 system by the
+            // small Cholesky loops.
+            const Eigen::Index width = (m + 3) / 4 * 4;
+            y_rows.setZero(2 * nl, width);
+            y_rows.leftCols(m) = wjt.topRows(2 * nl);
+            gram.resize(width, width);
+            kernels::gram_lower(y_rows.data(), y_rows.data(), 2 * nl, width, gram.data());
+            hess = a;
+            hess.triangularView<Eigen::Lower>() += gram.topLeftCorner(m, m);
+            hess.triangularView<Eigen::StrictlyUpper>() = hess.transpose();
+            if (small::cholesky_upper(hess.data(), m, m)) {
+              v.noalias() = a * v_second;
+              small::cholesky_upper_solve(hess.data(), m, m, v.data());
+              primal_done = true;
+            }
+          }
+          if (!primal_done) {
+            hess = a;
+            hess.selfadjointView<Eigen::Lower>().rankUpdate(wjt.topRows(2 * nl).transpose());
+            v = hess.selfadjointView<Eigen::Lower>().llt().solve(a * v_second);
+          }
         }
         if (fast) loaded_tangents(v);
         for (int l = 0; l < nl; ++l) {

@@ -251,6 +251,7 @@ class ReducedModel {
   std::vector<int> surface_nodes_;
   RowMatX surface_rows_;   // (3 n_s) x (M + 6)
   RowMatX normal_rows_;    // n_s x (M + 6): the z rows alone, for the candidate search
+  MatX normal_cols_;       // the same, column-major, for the fast step's kernels::cols_times
   VecX surface_rest_;      // 3 n_s
   std::vector<std::array<int, 3>> faces_;  // indices into surface nodes
   RowMatX face_rows_;      // (3 n_f) x (M + 6): the mean of each face's three node rows
