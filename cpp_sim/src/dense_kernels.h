@@ -24,7 +24,8 @@ void gram_lower(const double* g, const double* x, Index rows, Index width, doubl
 // out (rows) = A x, for A of `rows` x `cols` in column-major order (an Eigen MatrixXd) and
 // x of `cols`; any `rows`. (G q on a column-major copy of G, which measured 2.2x faster than
 // the row-major product; G^T p on the row-major G, whose memory is G^T column-major; the
-// contact solve's products with the candidates' normal rows.)
+// contact solve's products with the candidates' normal rows, the loaded rows and L^-1, L^-T;
+// the candidate test's N q; NNLS's gradient G^T r on a kept G^T.)
 void cols_times(const double* a, Index rows, Index cols, const double* x, double* out);
 
 // Solves L X = B in place for X, with L lower triangular (n x n, column-major, nonzero
@@ -32,7 +33,8 @@ void cols_times(const double* a, Index rows, Index cols, const double* x, double
 // MatrixXd J of nrhs x n is J^T in this layout). Forward substitution by rows, so the long
 // dimension (the right-hand sides) is the vectorised one. (The contact solve's
 // E^T = L^-1 J_n^T, n = 26 and ~64 right-hand sides on the quadruped: 0.08 M instructions
-// per contact step fewer than Eigen's blocked triangular solve, by callgrind.)
+// per contact step fewer than Eigen's blocked triangular solve, by callgrind; also L^-1
+// itself and the loaded candidates' L^-1 J_t,i^T.)
 void lower_solve_rows(const double* l, Index n, double* b, Index nrhs);
 
 // One cubature element's rows of H G: out (9 x width) = H g, for H 9 x 9 (column-major,

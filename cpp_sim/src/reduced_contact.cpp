@@ -322,53 +322,76 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   VecX rhs_l, lam_w, v_on(m);
   LoadedRows rows;
   rows.member.assign(k, 0);
-  // L^-1 J_t,i^T per candidate, solved when the candidate first enters a loaded set in this
-  // step and kept for the step (a set is rebuilt ~5 times per quadruped step, mostly from the
-  // same nodes).
-  MatX tangent_solved(m, 2 * k);
-  std::vector<char> tangent_ready(k, 0);
-  RowMatX pending, y_rows;
+  // Every candidate that has been in a loaded set during this step (the pool, ~10 on a
+  // quadruped step) keeps its three columns of Y = L^-1 [J_n,i^T  J_t,i^T], their products
+  // with every other pool column (the pool's Gram matrix) and c_i = J_i v_free, so that a new
+  // loaded set (~5 per quadruped step) gathers its D and c instead of forming them: only a
+  // candidate's first entry costs a triangular solve and its columns' products with the pool.
+  std::vector<int> pool_slot(k, -1);
+  int pool_size = 0;
+  MatX pool_y, pool_gram;
+  VecX pool_c;
+  RowMatX pending, y_rows;  // (y_rows, gram: the primal friction system's buffers)
   MatX gram;
+  std::vector<Eigen::Index> slots;
+  auto enter_pool = [&](const std::vector<int>& set) {
+    int fresh = 0;
+    for (int i : set) fresh += pool_slot[i] < 0;
+    if (fresh == 0) return;
+    const int old = pool_size, total = old + fresh;
+    if (pool_y.cols() < 3 * total) {  // grow, keeping the columns and products formed so far
+      const Eigen::Index cap =
+          std::min<Eigen::Index>(3 * k, std::max<Eigen::Index>(3 * total + 12, 2 * pool_y.cols()));
+      pool_y.conservativeResize(m, cap);
+      pool_gram.conservativeResize(cap, cap);
+      pool_c.conservativeResize(cap);
+    }
+    pending.resize(m, 2 * fresh);  // the new candidates' J_t,i^T, one right-hand side per row
+    int f = 0;
+    for (int i : set)
+      if (pool_slot[i] < 0) {
+        pending.middleCols(2 * f, 2) = jt.middleRows(2 * i, 2).transpose();
+        pool_slot[i] = old + f++;
+      }
+    kernels::lower_solve_rows(a_llt.matrixLLT().data(), m, pending.data(), 2 * fresh);
+    for (int i : set) {
+      const int p = pool_slot[i];
+      if (p < old) continue;
+      pool_y.col(3 * p) = g.col(i).head(m);
+      pool_y.middleCols(3 * p + 1, 2) = pending.middleCols(2 * (p - old), 2);
+      pool_c[3 * p] = jn.row(i).dot(v_free);
+      pool_c.segment<2>(3 * p + 1) = tangent(i, v_free);
+    }
+    // The new columns against every pool column (the new ones included), then the mirror.
+    pool_gram.block(0, 3 * old, 3 * total, 3 * fresh).noalias() =
+        pool_y.leftCols(3 * total).transpose() * pool_y.middleCols(3 * old, 3 * fresh);
+    pool_gram.block(3 * old, 0, 3 * fresh, 3 * old) =
+        pool_gram.block(0, 3 * old, 3 * old, 3 * fresh).transpose();
+    pool_size = total;
+  };
   auto build_rows = [&](const std::vector<int>& set) {
     const int nw = static_cast<int>(set.size());
     for (int i : rows.set) rows.member[i] = 0;
     rows.set = set;
     for (int i : set) rows.member[i] = 1;
-    int fresh = 0;
-    for (int i : set) fresh += !tangent_ready[i];
-    if (fresh > 0) {  // the new candidates' J_t,i^T, one right-hand side per row
-      pending.resize(m, 2 * fresh);
-      int f = 0;
-      for (int i : set)
-        if (!tangent_ready[i]) {
-          pending.middleCols(2 * f++, 2) = jt.middleRows(2 * i, 2).transpose();
-        }
-      kernels::lower_solve_rows(a_llt.matrixLLT().data(), m, pending.data(), 2 * fresh);
-      f = 0;
-      for (int i : set)
-        if (!tangent_ready[i]) {
-          tangent_solved.middleCols(2 * i, 2) = pending.middleCols(2 * f++, 2);
-          tangent_ready[i] = 1;
-        }
+    enter_pool(set);
+    // Y's columns: the normals of W, then each node's two tangents; D and c gathered alike.
+    slots.resize(3 * nw);
+    for (int l = 0; l < nw; ++l) {
+      const Eigen::Index p = pool_slot[set[l]];
+      slots[l] = 3 * p;
+      slots[nw + 2 * l] = 3 * p + 1;
+      slots[nw + 2 * l + 1] = 3 * p + 2;
     }
     rows.y.resize(m, 3 * nw);
     rows.c.resize(3 * nw);
-    for (int l = 0; l < nw; ++l) {
-      const int i = set[l];
-      rows.y.col(l) = g.col(i).head(m);
-      rows.y.middleCols(nw + 2 * l, 2) = tangent_solved.middleCols(2 * i, 2);
-      rows.c[l] = jn.row(i).dot(v_free);
-      rows.c.segment<2>(nw + 2 * l) = tangent(i, v_free);
-    }
-    // D = Y^T Y by the Gram kernel, on a row-major copy of Y padded to its 4-column tiles.
-    const Eigen::Index width = (3 * nw + 3) / 4 * 4;
-    y_rows.setZero(m, width);
-    y_rows.leftCols(3 * nw) = rows.y;
-    gram.resize(width, width);
-    kernels::gram_lower(y_rows.data(), y_rows.data(), m, width, gram.data());
     rows.d.resize(3 * nw, 3 * nw);
-    rows.d.triangularView<Eigen::Lower>() = gram.topLeftCorner(3 * nw, 3 * nw);
-    rows.d.triangularView<Eigen::StrictlyUpper>() = rows.d.transpose();
+    for (int a = 0; a < 3 * nw; ++a) {
+      rows.y.col(a) = pool_y.col(slots[a]);
+      rows.c[a] = pool_c[slots[a]];
+    }
+    for (int b = 0; b < 3 * nw; ++b)
+      for (int a = 0; a < 3 * nw; ++a) rows.d(a, b) = pool_gram(slots[a], slots[b]);
     rows.d_nn = rows.d.topLeftCorner(nw, nw);
     rows.normal_ok = small::cholesky_upper(rows.d_nn.data(), nw, nw);
   };
