@@ -333,6 +333,27 @@ class SoftRobotEnv(gym.Env):
                           diverged, float(out["orientation"][0, 0]))  # fmt: skip
         return self._obs(self._state), reward, diverged, False, info
 
+    # ---------------------------------------------------------------- copying
+    def __getstate__(self) -> dict[str, Any]:
+        """Everything but the compiled model, for ``pickle`` and ``copy.deepcopy`` (a
+        ``ProcessPoolExecutor`` or a vector env sending an env to a worker, a planner copying
+        one). The model is rebuilt on unpickling from the robot, B_r, the current B_c and the
+        model's current settings, so a copy steps exactly as the original would."""
+        state = self.__dict__.copy()
+        config = state.pop("model").config
+        state["_model_settings"] = {name: getattr(config, name) for name in config.SETTINGS}
+        state["_renderer"] = None  # a copy renders with its own renderer
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        settings = dict(state)
+        model_settings = settings.pop("_model_settings")
+        self.__dict__.update(settings)
+        self.model = build_reduced_model(
+            self.robot, self.control_basis.shape[0], subspace=self.subspace,
+            control_basis=self.control_basis, **model_settings,
+        )  # fmt: skip
+
     # ---------------------------------------------------------------- control space
     def set_control_basis(self, control_basis: np.ndarray, orthonormalize: bool = False) -> None:
         """Swap the control space B_c (M x C, the same C) on this env, keeping its simulation
