@@ -358,6 +358,8 @@ def test_baseline_kernels_agree_with_the_dispatched_ones():
     assert auto["isa"] in ("x86-64-v3", "baseline")
     if os.environ.get("SOFTROM_KERNELS", "auto") in ("", "auto"):  # this process chose freely
         assert auto["isa"] == cpp_sim.kernel_instruction_set()
+    if auto["isa"] == "baseline":
+        pytest.skip("this CPU has no AVX2 + FMA: only the baseline kernel set runs here")
     k = np.array(auto["k"])
     np.testing.assert_allclose(base["k"], k, rtol=0, atol=1e-12 * np.abs(k).max())
     f = np.array(auto["f"])
