@@ -41,21 +41,29 @@ SOFTROM_INLINE void gram_tile(const double* __restrict g, const double* __restri
     for (int s = 0; s < IB; ++s) out[i0 + s + (j0 + t) * width] = acc[t][s];
 }
 
-SOFTROM_INLINE void gram_lower_body(const double* __restrict g, const double* __restrict x,
-                               Index rows, Index width, double* __restrict out) {
+// Adds the rows' outer products to `out` tile by tile. Every entry on or below the diagonal
+// belongs to one tile and gets its rows' products in row order, so splitting the rows into
+// consecutive calls changes no bit of the sum.
+SOFTROM_INLINE void gram_lower_add_body(const double* __restrict g, const double* __restrict x,
+                                        Index rows, Index width, double* __restrict out) {
   // Rows in chunks whose slices of G and X stay in L1 while every tile passes over them.
   constexpr Index kChunk = 48;
-  for (Index i = 0; i < width * width; ++i) out[i] = 0.0;
   for (Index r0 = 0; r0 < rows; r0 += kChunk) {
     const Index r1 = r0 + kChunk < rows ? r0 + kChunk : rows;
     for (Index j0 = 0; j0 < width; j0 += 4) {
       // Tiles on or below the diagonal; an 8-row tile from the last multiple of 8 at or
-      // above j0 (its entries above the diagonal are computed and then cleared below).
+      // above j0 (its entries above the diagonal are computed too, and are not the sum's).
       Index i0 = j0 - j0 % 8;
       for (; i0 + 8 <= width; i0 += 8) gram_tile<8>(g, x, r0, r1, width, i0, j0, out);
       if (i0 < width) gram_tile<4>(g, x, r0, r1, width, i0, j0, out);
     }
   }
+}
+
+SOFTROM_INLINE void gram_lower_body(const double* __restrict g, const double* __restrict x,
+                                    Index rows, Index width, double* __restrict out) {
+  for (Index i = 0; i < width * width; ++i) out[i] = 0.0;
+  gram_lower_add_body(g, x, rows, width, out);
   for (Index j = 1; j < width; ++j)
     for (Index i = 0; i < j; ++i) out[i + j * width] = 0.0;
 }
@@ -112,6 +120,7 @@ SOFTROM_INLINE void element_hg_body(const double* __restrict h, const double* __
 struct Table {
   const char* name;
   void (*gram_lower)(const double*, const double*, Index, Index, double*);
+  void (*gram_lower_add)(const double*, const double*, Index, Index, double*);
   void (*cols_times)(const double*, Index, Index, const double*, double*);
   void (*element_hg)(const double*, const double*, Index, double*);
   void (*lower_solve_rows)(const double*, Index, double*, Index);
@@ -121,6 +130,10 @@ struct Table {
   attr void gram_lower_##suffix(const double* g, const double* x, Index rows, Index width,     \
                                 double* out) {                                                 \
     gram_lower_body(g, x, rows, width, out);                                                   \
+  }                                                                                            \
+  attr void gram_lower_add_##suffix(const double* g, const double* x, Index rows, Index width, \
+                                    double* out) {                                             \
+    gram_lower_add_body(g, x, rows, width, out);                                               \
   }                                                                                            \
   attr void cols_times_##suffix(const double* a, Index rows, Index cols, const double* x,      \
                                 double* out) {                                                 \
@@ -142,15 +155,15 @@ const Table& table() {
   // Chosen once, on first use: x86-64-v3 where the CPU has it, unless SOFTROM_KERNELS=baseline
   // asks for the baseline (the same round-off as a machine without AVX2).
   static const Table chosen = [] {
-    const Table baseline{"baseline", gram_lower_baseline, cols_times_baseline,
-                         element_hg_baseline, lower_solve_rows_baseline};
+    const Table baseline{"baseline", gram_lower_baseline, gram_lower_add_baseline,
+                         cols_times_baseline, element_hg_baseline, lower_solve_rows_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
     __builtin_cpu_init();
     if (!forced && __builtin_cpu_supports("x86-64-v3"))
-      return Table{"x86-64-v3", gram_lower_v3, cols_times_v3, element_hg_v3,
-                   lower_solve_rows_v3};
+      return Table{"x86-64-v3", gram_lower_v3, gram_lower_add_v3, cols_times_v3,
+                   element_hg_v3, lower_solve_rows_v3};
 #endif
     return baseline;
   }();
@@ -163,6 +176,9 @@ const char* instruction_set() { return table().name; }
 
 void gram_lower(const double* g, const double* x, Index rows, Index width, double* out) {
   table().gram_lower(g, x, rows, width, out);
+}
+void gram_lower_add(const double* g, const double* x, Index rows, Index width, double* out) {
+  table().gram_lower_add(g, x, rows, width, out);
 }
 void cols_times(const double* a, Index rows, Index cols, const double* x, double* out) {
   table().cols_times(a, rows, cols, x, out);

@@ -21,6 +21,13 @@ const char* instruction_set();
 // `width`; the strictly upper triangle is left zero. (The reduced stiffness G^T (H G).)
 void gram_lower(const double* g, const double* x, Index rows, Index width, double* out);
 
+// Adds G^T X's lower triangle to out's, for G and X of `rows` x `width`, out as in
+// gram_lower; the strictly upper triangle gets partial sums that are not G^T X's (callers
+// read the lower triangle only). Calls over consecutive row ranges give out bit for bit what
+// one call over all the rows would. (The reduced stiffness, a few elements' rows at a time,
+// so each group's H G is still in L1 when the Gram product reads it.)
+void gram_lower_add(const double* g, const double* x, Index rows, Index width, double* out);
+
 // out (rows) = A x, for A of `rows` x `cols` in column-major order (an Eigen MatrixXd) and
 // x of `cols`; any `rows`. (G q on a column-major copy of G, which measured 2.2x faster than
 // the row-major product; G^T p on the row-major G, whose memory is G^T column-major; the
