@@ -590,6 +590,10 @@ class ReducedConfig:
     @stabilization.setter
     def stabilization(self, arg1: typing.Any) -> None:
         ...
+def _kernel_cols_times(a: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
+    """
+    A x through the fast solver's matrix-vector kernel (for its tests).
+    """
 def kernel_instruction_set() -> str:
     """
     The instruction set of the fast solver's dense kernels (cubature force and stiffness, contact products) in this process: 'x86-64-v3' (AVX2 + FMA, on an x86-64 CPU that has it, in GCC builds) or 'baseline'. Set the environment variable SOFTROM_KERNELS=baseline before the first step to use the baseline: the two round differently (fused multiply-adds), so chaotic trajectories computed with the two part at round-off level.

@@ -325,6 +325,23 @@ def test_dense_kernels_at_every_padded_width(box, modes):
     np.testing.assert_allclose(-f, grad, atol=1e-6 * np.abs(f).max())
 
 
+def test_matrix_vector_kernel_at_every_shape_class():
+    # cols_times keeps outputs of 4 to 32 rows in registers, reading up to three rows past each
+    # column but the last, and passes over taller ones eight columns at a time, then the
+    # remainder: every row count 1 to 33 (each register width and last-lane count) and column
+    # counts around the passes' widths, against numpy's product.
+    rng = np.random.default_rng(0)
+    for rows in [*range(1, 34), 64]:
+        for cols in [0, 1, 2, 3, 7, 8, 9, 15, 16, 23, 26]:
+            a = rng.standard_normal((rows, cols))
+            x = rng.standard_normal(cols)
+            out = cpp_sim._core._kernel_cols_times(a, x)
+            scale = 1e-14 * (np.abs(a) @ np.abs(x)).max(initial=1.0)
+            np.testing.assert_allclose(out, a @ x, rtol=0, atol=scale, err_msg=f"{rows}x{cols}")
+    with pytest.raises(ValueError, match="x has 3 entries, a has 2 columns"):
+        cpp_sim._core._kernel_cols_times(np.ones((4, 2)), np.ones(3))
+
+
 _KERNEL_PROBE = """
 import json, sys
 import numpy as np

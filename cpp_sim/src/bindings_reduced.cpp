@@ -469,4 +469,20 @@ diverged rollout keeps its last good state and earns zero reward from then on.)d
       "it, in GCC builds) or 'baseline'. Set the environment variable SOFTROM_KERNELS=baseline "
       "before the first step to use the baseline: the two round differently (fused "
       "multiply-adds), so chaotic trajectories computed with the two part at round-off level.");
+
+  m.def(
+      "_kernel_cols_times",
+      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& x) {
+        if (x.size() != a.cols()) {
+          std::ostringstream msg;
+          msg << "x has " << x.size() << " entries, a has " << a.cols() << " columns";
+          throw py::value_error(msg.str());
+        }
+        const MatX a_owned = a;  // exactly rows x cols, column-major: the kernel's layout
+        VecX out(a.rows());
+        kernels::cols_times(a_owned.data(), a.rows(), a.cols(), x.data(), out.data());
+        return out;
+      },
+      py::arg("a"), py::arg("x"),
+      "A x through the fast solver's matrix-vector kernel (for its tests).");
 }

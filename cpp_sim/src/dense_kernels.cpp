@@ -68,20 +68,85 @@ SOFTROM_INLINE void gram_lower_body(const double* __restrict g, const double* __
     for (Index i = 0; i < j; ++i) out[i + j * width] = 0.0;
 }
 
+// out = A x for A of `rows` x `cols` (column-major, 4 N - 4 < rows <= 4 N, rows >= 4): the
+// 4 N sums stay in registers while the columns stream past, each adding one broadcast times
+// one column. Every column but the last is read as 4 N rows: the up to three rows past its end
+// are the next column's first ones, summed into lanes that are dropped (reading them keeps
+// the loop free of a scalar tail, which measured slower than the products it saved).
+template <int N>
+SOFTROM_INLINE void cols_times_short(const double* __restrict a, Index rows, Index cols,
+                                     const double* __restrict x, double* __restrict out) {
+  double acc[4 * N];
+  for (int r = 0; r < 4 * N; ++r) acc[r] = 0.0;
+  for (Index c = 0; c + 1 < cols; ++c) {
+    const double xc = x[c];
+    const double* __restrict ac = a + c * rows;
+    for (int r = 0; r < 4 * N; ++r) acc[r] += xc * ac[r];
+  }
+  if (cols > 0) {
+    const double xc = x[cols - 1];
+    const double* __restrict ac = a + (cols - 1) * rows;
+    for (int r = 0; r < 4 * N - 4; ++r) acc[r] += xc * ac[r];
+    switch (rows - (4 * N - 4)) {  // the last four lanes, within the matrix
+      case 4: acc[4 * N - 1] += xc * ac[4 * N - 1]; [[fallthrough]];
+      case 3: acc[4 * N - 2] += xc * ac[4 * N - 2]; [[fallthrough]];
+      case 2: acc[4 * N - 3] += xc * ac[4 * N - 3]; [[fallthrough]];
+      default: acc[4 * N - 4] += xc * ac[4 * N - 4];
+    }
+  }
+  for (int r = 0; r < 4 * N - 4; ++r) out[r] = acc[r];
+  switch (rows - (4 * N - 4)) {
+    case 4: out[4 * N - 1] = acc[4 * N - 1]; [[fallthrough]];
+    case 3: out[4 * N - 2] = acc[4 * N - 2]; [[fallthrough]];
+    case 2: out[4 * N - 3] = acc[4 * N - 3]; [[fallthrough]];
+    default: out[4 * N - 4] = acc[4 * N - 4];
+  }
+}
+
+// K columns [c, c + K) of a tall A added to out in one pass over it.
+template <int K>
+SOFTROM_INLINE void cols_times_pass(const double* __restrict a, Index rows, Index c,
+                                    const double* __restrict x, double* __restrict out) {
+  double xs[K];
+  for (int t = 0; t < K; ++t) xs[t] = x[c + t];
+  const double* __restrict a0 = a + c * rows;
+  for (Index r = 0; r < rows; ++r) {
+    double o = out[r];
+    for (int t = 0; t < K; ++t) o += xs[t] * a0[t * rows + r];
+    out[r] = o;
+  }
+}
+
+// Short outputs (4 <= rows <= 32: G^T p on the padded G's mp rows, the contact solve's
+// products with L^-1 and L^-T and the loaded tangent rows) keep out in registers over all the
+// columns; tall ones (G q, the candidates' normal rows) pass over out once per eight columns.
+// Each out[r] is the sum over the columns in order (one multiply-add chain) in every path.
 SOFTROM_INLINE void cols_times_body(const double* __restrict a, Index rows, Index cols,
                                     const double* __restrict x, double* __restrict out) {
+  if (rows >= 4 && rows <= 32) {
+    switch ((rows + 3) / 4) {
+      case 8: cols_times_short<8>(a, rows, cols, x, out); return;
+      case 7: cols_times_short<7>(a, rows, cols, x, out); return;
+      case 6: cols_times_short<6>(a, rows, cols, x, out); return;
+      case 5: cols_times_short<5>(a, rows, cols, x, out); return;
+      case 4: cols_times_short<4>(a, rows, cols, x, out); return;
+      case 3: cols_times_short<3>(a, rows, cols, x, out); return;
+      case 2: cols_times_short<2>(a, rows, cols, x, out); return;
+      default: cols_times_short<1>(a, rows, cols, x, out); return;  // rows = 4
+    }
+  }
   for (Index r = 0; r < rows; ++r) out[r] = 0.0;
   Index c = 0;
-  for (; c + 4 <= cols; c += 4) {  // four columns per pass over out
-    const double x0 = x[c], x1 = x[c + 1], x2 = x[c + 2], x3 = x[c + 3];
-    const double* a0 = a + c * rows;
-    for (Index r = 0; r < rows; ++r)
-      out[r] += (x0 * a0[r] + x1 * a0[rows + r]) + (x2 * a0[2 * rows + r] + x3 * a0[3 * rows + r]);
-  }
-  for (; c < cols; ++c) {
-    const double xc = x[c];
-    const double* ac = a + c * rows;
-    for (Index r = 0; r < rows; ++r) out[r] += xc * ac[r];
+  for (; c + 8 <= cols; c += 8) cols_times_pass<8>(a, rows, c, x, out);
+  switch (cols - c) {
+    case 7: cols_times_pass<7>(a, rows, c, x, out); break;
+    case 6: cols_times_pass<6>(a, rows, c, x, out); break;
+    case 5: cols_times_pass<5>(a, rows, c, x, out); break;
+    case 4: cols_times_pass<4>(a, rows, c, x, out); break;
+    case 3: cols_times_pass<3>(a, rows, c, x, out); break;
+    case 2: cols_times_pass<2>(a, rows, c, x, out); break;
+    case 1: cols_times_pass<1>(a, rows, c, x, out); break;
+    default: break;
   }
 }
 
