@@ -17,6 +17,15 @@
 #define SOFTROM_INLINE inline
 #endif
 
+// "The iterations of the next loop are independent": GCC otherwise versions a loop with many
+// input and output streams for aliasing the __restrict pointers rule out, and with more
+// streams than its run-time alias checks allow (snh_element_hg: 9 in, 9 out) leaves it scalar.
+#if defined(__GNUC__) && !defined(__clang__)
+#define SOFTROM_IVDEP _Pragma("GCC ivdep")
+#else
+#define SOFTROM_IVDEP
+#endif
+
 namespace softrom::kernels {
 
 namespace {
@@ -165,19 +174,40 @@ SOFTROM_INLINE void lower_solve_rows_body(const double* __restrict l, Index n,
   }
 }
 
-// Each output row is the sum of the element's nine rows of G with the row's nine coefficients
-// held in registers across the whole row: one multiply-add per coefficient and packet.
-SOFTROM_INLINE void element_hg_body(const double* __restrict h, const double* __restrict g,
-                               Index width, double* __restrict out) {
-  for (int i = 0; i < 9; ++i) {
-    const double h0 = h[i], h1 = h[i + 9], h2 = h[i + 18], h3 = h[i + 27], h4 = h[i + 36];
-    const double h5 = h[i + 45], h6 = h[i + 54], h7 = h[i + 63], h8 = h[i + 72];
-    double* __restrict o = out + i * width;
-    for (Index c = 0; c < width; ++c) {
-      o[c] = h0 * g[c] + h1 * g[width + c] + h2 * g[2 * width + c] + h3 * g[3 * width + c] +
-             h4 * g[4 * width + c] + h5 * g[5 * width + c] + h6 * g[6 * width + c] +
-             h7 * g[7 * width + c] + h8 * g[8 * width + c];
-    }
+// H G for the stable Neo-Hookean H = w (mu I + lambda g g^T + s d(cof F)/dF) without forming
+// H: per column of G (one lane), with X_c = the lane's three rows of column c of dF,
+//   (H G)_c = w mu X_c + (w lambda g_c) (g . X) + (ws f_a x X_b - ws f_b x X_a),
+// (a, b) = (1, 2), (2, 0), (0, 1), the cofactor's derivative d(f_a x f_b) with ws f = w s F.
+// 63 multiply-adds per lane against the dense 9 x 9 product's 81, and no 9 x 9 matrix.
+SOFTROM_INLINE void snh_element_hg_body(const double* __restrict coef, const double* __restrict g,
+                                        Index width, double* __restrict out) {
+  const double g0 = coef[0], g1 = coef[1], g2 = coef[2], g3 = coef[3], g4 = coef[4];
+  const double g5 = coef[5], g6 = coef[6], g7 = coef[7], g8 = coef[8];
+  const double c0 = coef[9], c1 = coef[10], c2 = coef[11], c3 = coef[12], c4 = coef[13];
+  const double c5 = coef[14], c6 = coef[15], c7 = coef[16], c8 = coef[17];
+  const double p0 = coef[18], p1 = coef[19], p2 = coef[20];  // ws f_0
+  const double q0 = coef[21], q1 = coef[22], q2 = coef[23];  // ws f_1
+  const double r0 = coef[24], r1 = coef[25], r2 = coef[26];  // ws f_2
+  const double wmu = coef[27];
+  SOFTROM_IVDEP
+  for (Index l = 0; l < width; ++l) {
+    const double x0 = g[l], x1 = g[width + l], x2 = g[2 * width + l];
+    const double y0 = g[3 * width + l], y1 = g[4 * width + l], y2 = g[5 * width + l];
+    const double z0 = g[6 * width + l], z1 = g[7 * width + l], z2 = g[8 * width + l];
+    const double t = g0 * x0 + g1 * x1 + g2 * x2 + g3 * y0 + g4 * y1 + g5 * y2 + g6 * z0 +
+                     g7 * z1 + g8 * z2;
+    // column 0 of cof: f_1 x f_2, derivative q x Z - r x Y
+    out[l] = wmu * x0 + c0 * t + ((q1 * z2 - q2 * z1) - (r1 * y2 - r2 * y1));
+    out[width + l] = wmu * x1 + c1 * t + ((q2 * z0 - q0 * z2) - (r2 * y0 - r0 * y2));
+    out[2 * width + l] = wmu * x2 + c2 * t + ((q0 * z1 - q1 * z0) - (r0 * y1 - r1 * y0));
+    // column 1: f_2 x f_0, derivative r x X - p x Z
+    out[3 * width + l] = wmu * y0 + c3 * t + ((r1 * x2 - r2 * x1) - (p1 * z2 - p2 * z1));
+    out[4 * width + l] = wmu * y1 + c4 * t + ((r2 * x0 - r0 * x2) - (p2 * z0 - p0 * z2));
+    out[5 * width + l] = wmu * y2 + c5 * t + ((r0 * x1 - r1 * x0) - (p0 * z1 - p1 * z0));
+    // column 2: f_0 x f_1, derivative p x Y - q x X
+    out[6 * width + l] = wmu * z0 + c6 * t + ((p1 * y2 - p2 * y1) - (q1 * x2 - q2 * x1));
+    out[7 * width + l] = wmu * z1 + c7 * t + ((p2 * y0 - p0 * y2) - (q2 * x0 - q0 * x2));
+    out[8 * width + l] = wmu * z2 + c8 * t + ((p0 * y1 - p1 * y0) - (q0 * x1 - q1 * x0));
   }
 }
 
@@ -187,7 +217,7 @@ struct Table {
   void (*gram_lower)(const double*, const double*, Index, Index, double*);
   void (*gram_lower_add)(const double*, const double*, Index, Index, double*);
   void (*cols_times)(const double*, Index, Index, const double*, double*);
-  void (*element_hg)(const double*, const double*, Index, double*);
+  void (*snh_element_hg)(const double*, const double*, Index, double*);
   void (*lower_solve_rows)(const double*, Index, double*, Index);
 };
 
@@ -204,8 +234,9 @@ struct Table {
                                 double* out) {                                                 \
     cols_times_body(a, rows, cols, x, out);                                                    \
   }                                                                                            \
-  attr void element_hg_##suffix(const double* h, const double* g, Index width, double* out) {  \
-    element_hg_body(h, g, width, out);                                                         \
+  attr void snh_element_hg_##suffix(const double* coef, const double* g, Index width,          \
+                                    double* out) {                                             \
+    snh_element_hg_body(coef, g, width, out);                                                  \
   }                                                                                            \
   attr void lower_solve_rows_##suffix(const double* l, Index n, double* b, Index nrhs) {       \
     lower_solve_rows_body(l, n, b, nrhs);                                                      \
@@ -221,14 +252,15 @@ const Table& table() {
   // asks for the baseline (the same round-off as a machine without AVX2).
   static const Table chosen = [] {
     const Table baseline{"baseline", gram_lower_baseline, gram_lower_add_baseline,
-                         cols_times_baseline, element_hg_baseline, lower_solve_rows_baseline};
+                         cols_times_baseline, snh_element_hg_baseline,
+                         lower_solve_rows_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
     __builtin_cpu_init();
     if (!forced && __builtin_cpu_supports("x86-64-v3"))
       return Table{"x86-64-v3", gram_lower_v3, gram_lower_add_v3, cols_times_v3,
-                   element_hg_v3, lower_solve_rows_v3};
+                   snh_element_hg_v3, lower_solve_rows_v3};
 #endif
     return baseline;
   }();
@@ -248,8 +280,8 @@ void gram_lower_add(const double* g, const double* x, Index rows, Index width, d
 void cols_times(const double* a, Index rows, Index cols, const double* x, double* out) {
   table().cols_times(a, rows, cols, x, out);
 }
-void element_hg(const double* h, const double* g, Index width, double* out) {
-  table().element_hg(h, g, width, out);
+void snh_element_hg(const double* coef, const double* g, Index width, double* out) {
+  table().snh_element_hg(coef, g, width, out);
 }
 void lower_solve_rows(const double* l, Index n, double* b, Index nrhs) {
   table().lower_solve_rows(l, n, b, nrhs);

@@ -44,8 +44,11 @@ void cols_times(const double* a, Index rows, Index cols, const double* x, double
 // itself and the loaded candidates' L^-1 J_t,i^T.)
 void lower_solve_rows(const double* l, Index n, double* b, Index nrhs);
 
-// One cubature element's rows of H G: out (9 x width) = H g, for H 9 x 9 (column-major,
-// symmetric) and g the element's 9 rows of G.
-void element_hg(const double* h, const double* g, Index width, double* out);
+// One cubature element's rows of H G for the stable Neo-Hookean material (material.h), without
+// forming H = w dP/dF: out (9 x width) = H g, with coef = [vec cof F (9), w lambda vec cof F
+// (9), w s vec F (9), w mu], s = lambda (det F - 1) - mu, and g the element's 9 rows of G.
+// H = w (mu I + lambda vec cof F vec cof F^T + s d vec cof F / d vec F); the last term applied
+// as the derivative of the cofactor's cross products (63 multiply-adds per column, not 81).
+void snh_element_hg(const double* coef, const double* g, Index width, double* out);
 
 }  // namespace softrom::kernels

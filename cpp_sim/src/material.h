@@ -72,42 +72,6 @@ struct StableNeoHookean {
     h.block<3, 3>(6, 3) += f0;
     return h;
   }
-
-  // w dP/dF into out (81 doubles, column-major), bit for bit (w * dpdf(F)) but without Eigen's
-  // fixed-size temporaries: the fast stiffness calls it once per cubature element and
-  // evaluation, where dpdf measured ~850 instructions (callgrind, 2026-12-03).
-  void scaled_dpdf(const Mat3& F, double w, double* __restrict out) const {
-    const double jm1 = F.determinant() - 1.0;
-    const Mat3 g = cofactor(F);
-    const double* gv = g.data();
-    double lg[9];
-    for (int i = 0; i < 9; ++i) lg[i] = lambda * gv[i];
-    // (lambda g) g^T as Eigen's outer product forms it (column j is g_j (lambda g)), plus mu I.
-    for (int j = 0; j < 9; ++j) {
-      for (int i = 0; i < 9; ++i) out[i + 9 * j] = gv[j] * lg[i];
-      out[j + 9 * j] = mu + out[j + 9 * j];
-    }
-    // The Hessian of J, s * d(cof F)/dF: block (r, c) = +-s hat(F.col(k)), {r, c, k} = {0, 1, 2}.
-    const double s = lambda * jm1 - mu;
-    auto add_hat = [&](int r, int c, int k, double sign) {
-      const double x = F(0, k) * s, y = F(1, k) * s, z = F(2, k) * s;
-      double* b = out + 3 * r + 27 * c;  // block (r, c)'s (0, 0) entry
-      // hat(v) = [0 -z y; z 0 -x; -y x 0], column-major
-      b[1] += sign * z;
-      b[2] -= sign * y;
-      b[9] -= sign * z;
-      b[11] += sign * x;
-      b[18] += sign * y;
-      b[19] -= sign * x;
-    };
-    add_hat(0, 1, 2, -1.0);
-    add_hat(0, 2, 1, 1.0);
-    add_hat(1, 0, 2, 1.0);
-    add_hat(1, 2, 0, -1.0);
-    add_hat(2, 0, 1, -1.0);
-    add_hat(2, 1, 0, 1.0);
-    for (int i = 0; i < 81; ++i) out[i] *= w;
-  }
 };
 
 // Projects a symmetric matrix onto the positive semi-definite cone (negative eigenvalues

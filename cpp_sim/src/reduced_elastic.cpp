@@ -79,8 +79,9 @@ double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace
 }
 
 // The stiffness as two products on the padded G (grad_fast_; the padding's rows and columns of
-// the product are zero and dropped): H G, element by element (kernels::element_hg), and the
-// lower triangle of G^T (H G) (kernels::gram_lower_add). They go a few elements at a time, so
+// the product are zero and dropped): H G, element by element, from F and its cofactor without
+// forming H (kernels::snh_element_hg), and the lower triangle of G^T (H G)
+// (kernels::gram_lower_add). They go a few elements at a time, so
 // a group's 9 x mp blocks of H G are still in L1 when the Gram product reads them (the whole
 // H G is ~0.25 MB on the quadruped); the sum is the same, bit for bit, as one Gram product.
 void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace& ws) const {
@@ -90,15 +91,24 @@ void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace
   deformation_gradients_fast(qe, ws);
   ws.hg.resize(9 * kGroup, mp);
   ws.k_pad.setZero(mp, mp);
-  alignas(64) double dp[81];
+  const double mu = material_.mu, lambda = material_.lambda;
+  double coef[28];  // kernels::snh_element_hg's
   for (Eigen::Index k0 = 0; k0 < nk; k0 += kGroup) {
     const Eigen::Index k1 = std::min(k0 + kGroup, nk);
     for (Eigen::Index k = k0; k < k1; ++k) {
       Eigen::Map<Mat3> f(ws.fall.data() + 9 * k);
       f.diagonal().array() += 1.0;
-      material_.scaled_dpdf(f, wvol_[k], dp);
-      kernels::element_hg(dp, grad_fast_.data() + 9 * k * mp, mp,
-                          ws.hg.data() + 9 * (k - k0) * mp);
+      const Mat3 cof = StableNeoHookean::cofactor(f);
+      const double w = wvol_[k];
+      const double w_s = w * (lambda * (f.col(0).dot(cof.col(0)) - 1.0) - mu);
+      for (int i = 0; i < 9; ++i) {
+        coef[i] = cof.data()[i];
+        coef[9 + i] = (w * lambda) * cof.data()[i];
+        coef[18 + i] = w_s * f.data()[i];
+      }
+      coef[27] = w * mu;
+      kernels::snh_element_hg(coef, grad_fast_.data() + 9 * k * mp, mp,
+                              ws.hg.data() + 9 * (k - k0) * mp);
     }
     kernels::gram_lower_add(grad_fast_.data() + 9 * k0 * mp, ws.hg.data(), 9 * (k1 - k0), mp,
                             ws.k_pad.data());
