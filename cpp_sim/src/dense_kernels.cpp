@@ -92,24 +92,18 @@ SOFTROM_INLINE void cols_times_short(const double* __restrict a, Index rows, Ind
     const double* __restrict ac = a + c * rows;
     for (int r = 0; r < 4 * N; ++r) acc[r] += xc * ac[r];
   }
+  // The last column, and the stores, touch only the last packet's lanes inside the matrix
+  // (r < rows); the lanes' indices stay constants, so acc stays in registers.
   if (cols > 0) {
     const double xc = x[cols - 1];
     const double* __restrict ac = a + (cols - 1) * rows;
     for (int r = 0; r < 4 * N - 4; ++r) acc[r] += xc * ac[r];
-    switch (rows - (4 * N - 4)) {  // the last four lanes, within the matrix
-      case 4: acc[4 * N - 1] += xc * ac[4 * N - 1]; [[fallthrough]];
-      case 3: acc[4 * N - 2] += xc * ac[4 * N - 2]; [[fallthrough]];
-      case 2: acc[4 * N - 3] += xc * ac[4 * N - 3]; [[fallthrough]];
-      default: acc[4 * N - 4] += xc * ac[4 * N - 4];
-    }
+    for (int r = 4 * N - 4; r < 4 * N; ++r)
+      if (r < rows) acc[r] += xc * ac[r];
   }
   for (int r = 0; r < 4 * N - 4; ++r) out[r] = acc[r];
-  switch (rows - (4 * N - 4)) {
-    case 4: out[4 * N - 1] = acc[4 * N - 1]; [[fallthrough]];
-    case 3: out[4 * N - 2] = acc[4 * N - 2]; [[fallthrough]];
-    case 2: out[4 * N - 3] = acc[4 * N - 3]; [[fallthrough]];
-    default: out[4 * N - 4] = acc[4 * N - 4];
-  }
+  for (int r = 4 * N - 4; r < 4 * N; ++r)
+    if (r < rows) out[r] = acc[r];
 }
 
 // K columns [c, c + K) of a tall A added to out in one pass over it.
