@@ -54,7 +54,7 @@ PARTS = {
     "forces": r"softrom::ReducedModel::elastic_energy_force\(",
     "contact": r"softrom::ReducedModel::solve_contacts\((?!.*\{lambda)",
     "normal (LDP)": r"softrom::(least_distance|nnls_cholesky|nnls)\(",
-    "drag": r"softrom::ReducedModel::drag\(",
+    "drag": r"softrom::ReducedModel::drag(_fast)?\(",
 }
 
 

@@ -590,6 +590,10 @@ class ReducedConfig:
     @stabilization.setter
     def stabilization(self, arg1: typing.Any) -> None:
         ...
+def _kernel_cols_dot(a: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
+    """
+    A^T x through the fast solver's column-dot kernel (for its tests).
+    """
 def _kernel_cols_times(a: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
     """
     A x through the fast solver's matrix-vector kernel (for its tests).

@@ -342,6 +342,22 @@ def test_matrix_vector_kernel_at_every_shape_class():
         cpp_sim._core._kernel_cols_times(np.ones((4, 2)), np.ones(3))
 
 
+def test_column_dot_kernel_at_every_shape_class():
+    # cols_dot sums each column's products in four lanes over whole packets of rows, the rows
+    # past the last packet into the first lanes, four columns at a time and then one by one:
+    # row counts 0 to 13 and padded swimmer widths, column counts around the groups of four.
+    rng = np.random.default_rng(1)
+    for rows in [*range(14), 24, 26, 28]:
+        for cols in [0, 1, 3, 4, 5, 8, 11, 450]:
+            a = rng.standard_normal((rows, cols))
+            x = rng.standard_normal(rows)
+            out = cpp_sim._core._kernel_cols_dot(a, x)
+            scale = 1e-14 * (np.abs(a).T @ np.abs(x)).max(initial=1.0)
+            np.testing.assert_allclose(out, a.T @ x, rtol=0, atol=scale, err_msg=f"{rows}x{cols}")
+    with pytest.raises(ValueError, match="x has 3 entries, a has 2 rows"):
+        cpp_sim._core._kernel_cols_dot(np.ones((2, 4)), np.ones(3))
+
+
 _KERNEL_PROBE = """
 import json, sys
 import numpy as np

@@ -485,4 +485,20 @@ diverged rollout keeps its last good state and earns zero reward from then on.)d
       },
       py::arg("a"), py::arg("x"),
       "A x through the fast solver's matrix-vector kernel (for its tests).");
+
+  m.def(
+      "_kernel_cols_dot",
+      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& x) {
+        if (x.size() != a.rows()) {
+          std::ostringstream msg;
+          msg << "x has " << x.size() << " entries, a has " << a.rows() << " rows";
+          throw py::value_error(msg.str());
+        }
+        const MatX a_owned = a;  // exactly rows x cols, column-major: the kernel's layout
+        VecX out(a.cols());
+        kernels::cols_dot(a_owned.data(), a.rows(), a.cols(), x.data(), out.data());
+        return out;
+      },
+      py::arg("a"), py::arg("x"),
+      "A^T x through the fast solver's column-dot kernel (for its tests).");
 }

@@ -106,15 +106,18 @@ SOFTROM_INLINE void cols_times_short(const double* __restrict a, Index rows, Ind
     if (r < rows) out[r] = acc[r];
 }
 
-// K columns [c, c + K) of a tall A added to out in one pass over it.
-template <int K>
+// K columns [c, c + K) of a tall A added to out in one pass over it (the first pass writes
+// out instead: the same sums as adding to zeros, without a pass to clear it).
+template <int K, bool First = false>
 SOFTROM_INLINE void cols_times_pass(const double* __restrict a, Index rows, Index c,
                                     const double* __restrict x, double* __restrict out) {
   double xs[K];
   for (int t = 0; t < K; ++t) xs[t] = x[c + t];
   const double* __restrict a0 = a + c * rows;
   for (Index r = 0; r < rows; ++r) {
-    double o = out[r];
+    // (From a literal zero, not xs[0] a: GCC may fuse either product of a sum of two, and
+    // this keeps the order of the multiply-adds, so the sums are those of a cleared out.)
+    double o = First ? 0.0 : out[r];
     for (int t = 0; t < K; ++t) o += xs[t] * a0[t * rows + r];
     out[r] = o;
   }
@@ -138,8 +141,12 @@ SOFTROM_INLINE void cols_times_body(const double* __restrict a, Index rows, Inde
       default: cols_times_short<1>(a, rows, cols, x, out); return;  // rows = 4
     }
   }
-  for (Index r = 0; r < rows; ++r) out[r] = 0.0;
-  Index c = 0;
+  if (cols < 8) {
+    for (Index r = 0; r < rows; ++r) out[r] = 0.0;
+  } else {
+    cols_times_pass<8, true>(a, rows, 0, x, out);
+  }
+  Index c = cols < 8 ? 0 : 8;
   for (; c + 8 <= cols; c += 8) cols_times_pass<8>(a, rows, c, x, out);
   switch (cols - c) {
     case 7: cols_times_pass<7>(a, rows, c, x, out); break;
@@ -150,6 +157,87 @@ SOFTROM_INLINE void cols_times_body(const double* __restrict a, Index rows, Inde
     case 2: cols_times_pass<2>(a, rows, c, x, out); break;
     case 1: cols_times_pass<1>(a, rows, c, x, out); break;
     default: break;
+  }
+}
+
+// out = A^T x: each output the dot product of one column with x. Four columns at a time, each
+// with four per-lane partial sums over the rows in packets of four (the rows past the last
+// whole packet go into the first lanes), combined as (s0 + s1) + (s2 + s3). Written with
+// GCC's vector extension: as a plain loop, GCC vectorises the rows as in-order reductions (a
+// shuffle per product, slower than scalar code). The plain loop computes the same sums for
+// other compilers.
+#if defined(__GNUC__) && !defined(__clang__)
+#define SOFTROM_VECTOR_EXTENSION 1
+typedef double Packet4 __attribute__((vector_size(32)));
+typedef long long Mask4 __attribute__((vector_size(32)));
+SOFTROM_INLINE Packet4 load_packet(const double* p) {
+  Packet4 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+#else
+#define SOFTROM_VECTOR_EXTENSION 0
+#endif
+
+template <int T>
+SOFTROM_INLINE void cols_dot_group(const double* __restrict a, Index rows,
+                                   const double* __restrict x, double* __restrict out) {
+  const Index whole = rows - rows % 4;
+  double acc[T][4];
+#if SOFTROM_VECTOR_EXTENSION
+  Packet4 lanes[T];
+  for (int t = 0; t < T; ++t) lanes[t] = Packet4{0.0, 0.0, 0.0, 0.0};
+  for (Index r = 0; r < whole; r += 4) {
+    const Packet4 xr = load_packet(x + r);
+    for (int t = 0; t < T; ++t) lanes[t] += load_packet(a + t * rows + r) * xr;
+  }
+  if constexpr (T == 4) {
+    if (whole == rows) {
+      // The four columns' (s0 + s1) + (s2 + s3) as two rounds of pairwise sums across packets.
+      const Packet4 h0 = __builtin_shuffle(lanes[0], lanes[1], Mask4{0, 4, 2, 6}) +
+                         __builtin_shuffle(lanes[0], lanes[1], Mask4{1, 5, 3, 7});
+      const Packet4 h1 = __builtin_shuffle(lanes[2], lanes[3], Mask4{0, 4, 2, 6}) +
+                         __builtin_shuffle(lanes[2], lanes[3], Mask4{1, 5, 3, 7});
+      const Packet4 sums = __builtin_shuffle(h0, h1, Mask4{0, 1, 4, 5}) +
+                           __builtin_shuffle(h0, h1, Mask4{2, 3, 6, 7});
+      std::memcpy(out, &sums, sizeof sums);
+      return;
+    }
+  }
+  for (int t = 0; t < T; ++t) std::memcpy(acc[t], &lanes[t], sizeof lanes[t]);
+#else
+  for (int t = 0; t < T; ++t)
+    for (int l = 0; l < 4; ++l) acc[t][l] = 0.0;
+  for (Index r = 0; r < whole; r += 4)
+    for (int t = 0; t < T; ++t)
+      for (int l = 0; l < 4; ++l) acc[t][l] += a[t * rows + r + l] * x[r + l];
+#endif
+  for (int t = 0; t < T; ++t) {
+    for (Index r = whole; r < rows; ++r) acc[t][r - whole] += a[t * rows + r] * x[r];
+    out[t] = (acc[t][0] + acc[t][1]) + (acc[t][2] + acc[t][3]);
+  }
+}
+
+SOFTROM_INLINE void cols_dot_body(const double* __restrict a, Index rows, Index cols,
+                                  const double* __restrict x, double* __restrict out) {
+  Index c = 0;
+  for (; c + 4 <= cols; c += 4) cols_dot_group<4>(a + c * rows, rows, x, out + c);
+  for (; c < cols; ++c) cols_dot_group<1>(a + c * rows, rows, x, out + c);
+}
+
+// Column i of out (leading dimension ld) = the combination of a's three rows 3 b_i .. 3 b_i + 2
+// (row-major, `width` long) with weights w[3 i .. 3 i + 2], for i < count.
+SOFTROM_INLINE void combine_row_triples_body(const double* __restrict a, Index width,
+                                             const Index* __restrict blocks,
+                                             const double* __restrict w, Index count,
+                                             double* __restrict out, Index ld) {
+  for (Index i = 0; i < count; ++i) {
+    const double* __restrict r0 = a + 3 * blocks[i] * width;
+    const double* __restrict r1 = r0 + width;
+    const double* __restrict r2 = r1 + width;
+    const double w0 = w[3 * i], w1 = w[3 * i + 1], w2 = w[3 * i + 2];
+    double* __restrict o = out + i * ld;
+    for (Index j = 0; j < width; ++j) o[j] = w0 * r0[j] + w1 * r1[j] + w2 * r2[j];
   }
 }
 
@@ -211,6 +299,9 @@ struct Table {
   void (*gram_lower)(const double*, const double*, Index, Index, double*);
   void (*gram_lower_add)(const double*, const double*, Index, Index, double*);
   void (*cols_times)(const double*, Index, Index, const double*, double*);
+  void (*cols_dot)(const double*, Index, Index, const double*, double*);
+  void (*combine_row_triples)(const double*, Index, const Index*, const double*, Index, double*,
+                              Index);
   void (*snh_element_hg)(const double*, const double*, Index, double*);
   void (*lower_solve_rows)(const double*, Index, double*, Index);
 };
@@ -227,6 +318,14 @@ struct Table {
   attr void cols_times_##suffix(const double* a, Index rows, Index cols, const double* x,      \
                                 double* out) {                                                 \
     cols_times_body(a, rows, cols, x, out);                                                    \
+  }                                                                                            \
+  attr void cols_dot_##suffix(const double* a, Index rows, Index cols, const double* x,        \
+                              double* out) {                                                   \
+    cols_dot_body(a, rows, cols, x, out);                                                      \
+  }                                                                                            \
+  attr void combine_row_triples_##suffix(const double* a, Index width, const Index* blocks,    \
+                                         const double* w, Index count, double* out, Index ld) { \
+    combine_row_triples_body(a, width, blocks, w, count, out, ld);                             \
   }                                                                                            \
   attr void snh_element_hg_##suffix(const double* coef, const double* g, Index width,          \
                                     double* out) {                                             \
@@ -246,14 +345,16 @@ const Table& table() {
   // asks for the baseline (the same round-off as a machine without AVX2).
   static const Table chosen = [] {
     const Table baseline{"baseline", gram_lower_baseline, gram_lower_add_baseline,
-                         cols_times_baseline, snh_element_hg_baseline,
+                         cols_times_baseline, cols_dot_baseline,
+                         combine_row_triples_baseline, snh_element_hg_baseline,
                          lower_solve_rows_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
     __builtin_cpu_init();
     if (!forced && __builtin_cpu_supports("x86-64-v3"))
-      return Table{"x86-64-v3", gram_lower_v3, gram_lower_add_v3, cols_times_v3,
+      return Table{"x86-64-v3",       gram_lower_v3,  gram_lower_add_v3,
+                   cols_times_v3,     cols_dot_v3,    combine_row_triples_v3,
                    snh_element_hg_v3, lower_solve_rows_v3};
 #endif
     return baseline;
@@ -273,6 +374,13 @@ void gram_lower_add(const double* g, const double* x, Index rows, Index width, d
 }
 void cols_times(const double* a, Index rows, Index cols, const double* x, double* out) {
   table().cols_times(a, rows, cols, x, out);
+}
+void cols_dot(const double* a, Index rows, Index cols, const double* x, double* out) {
+  table().cols_dot(a, rows, cols, x, out);
+}
+void combine_row_triples(const double* a, Index width, const Index* blocks, const double* w,
+                         Index count, double* out, Index ld) {
+  table().combine_row_triples(a, width, blocks, w, count, out, ld);
 }
 void snh_element_hg(const double* coef, const double* g, Index width, double* out) {
   table().snh_element_hg(coef, g, width, out);

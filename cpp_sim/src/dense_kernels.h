@@ -35,6 +35,18 @@ void gram_lower_add(const double* g, const double* x, Index rows, Index width, d
 // the candidate test's N q; NNLS's gradient G^T r on a kept G^T.)
 void cols_times(const double* a, Index rows, Index cols, const double* x, double* out);
 
+// out (cols) = A^T x, for A of `rows` x `cols` in column-major order and x of `rows`: one dot
+// product per column, in per-lane partial sums (fastest when rows is a multiple of 4). (The
+// fast swimmer's W^T g, W the drag Jacobian's factor, one column per face.)
+void cols_dot(const double* a, Index rows, Index cols, const double* x, double* out);
+
+// For i < count: column i of out (leading dimension ld >= width) = w[3 i] a_(3 b_i) +
+// w[3 i + 1] a_(3 b_i + 1) + w[3 i + 2] a_(3 b_i + 2), a_r the r-th row of the row-major a
+// (`width` columns), b_i = blocks[i]; rows past width of out are left as they are. (The fast
+// swimmer's drag factor: each advancing face's column U_t^T n from its three rows of U_t.)
+void combine_row_triples(const double* a, Index width, const Index* blocks, const double* w,
+                         Index count, double* out, Index ld);
+
 // Solves L X = B in place for X, with L lower triangular (n x n, column-major, nonzero
 // diagonal) and B n x nrhs stored row-major (row i of B contiguous: the memory of an Eigen
 // MatrixXd J of nrhs x n is J^T in this layout). Forward substitution by rows, so the long

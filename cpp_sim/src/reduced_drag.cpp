@@ -1,6 +1,7 @@
 // Quadratic fluid drag on the surface (the paper's swimming model).
 #include <cmath>
 
+#include "dense_kernels.h"
 #include "reduced_model.h"
 
 namespace softrom {
@@ -48,10 +49,81 @@ void ReducedModel::drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdo
   if (jac != nullptr) drag_jacobian(w, cols, *jac);
 }
 
+// The fast solver's drag: the same law, force and factor W as drag(), through the dense
+// kernels (the surface's positions and velocities by the column-major copy of its rows, the
+// advancing faces' columns of W as combinations of their three rows), into the workspace.
+// W's rows are padded with zeros to a multiple of 4 (ws.drag_w is mp x faces), so the
+// potential's W^T g (kernels::cols_dot) runs over whole packets. (Measured in
+// benchmarks/PROFILE.md, session 16.)
+void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX& qdot,
+                             Workspace& ws) const {
+  const Eigen::Index m = basis_cols_, mp = (m + 3) / 4 * 4;
+  const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
+  const Eigen::Index ns3 = surface_cols_.rows();
+  VecX& xs = ws.drag_xs;
+  VecX& vs = ws.drag_vs;
+  xs.resize(ns3);
+  vs.resize(ns3);
+  kernels::cols_times(surface_cols_.data(), ns3, m, q.data(), xs.data());
+  xs += surface_rest_;
+  kernels::cols_times(surface_cols_.data(), ns3, m, qdot.data(), vs.data());
+  const double c = 0.5 * cfg.fluid_density * cfg.drag_coefficient;
+  MatX& w = ws.drag_w;
+  // The padding rows stay zero: the kernel below writes rows 0..m-1 of a column only.
+  if (w.rows() != mp || w.cols() < nf) w.setZero(mp, nf);
+  VecX& load = ws.drag_load;  // ca vn^2, the face's force along -n
+  VecX& scale = ws.drag_scale;  // sqrt(2 ca vn), the column's scale in the factor
+  load.resize(nf);
+  scale.resize(nf);
+  ws.drag_faces.resize(nf);
+  ws.drag_normals.resize(3 * nf);
+  Eigen::Index n_adv = 0;
+  const double* x = xs.data();
+  const double* u = vs.data();
+  for (Eigen::Index t = 0; t < nf; ++t) {
+    // Scalar arithmetic on the corners (Eigen's 3-vectors cost twice the instructions here),
+    // and the normal scaled only for the faces that advance.
+    const double* pa = x + 3 * faces_[t][0];
+    const double* pb = x + 3 * faces_[t][1];
+    const double* pd = x + 3 * faces_[t][2];
+    const double e0 = pb[0] - pa[0], e1 = pb[1] - pa[1], e2 = pb[2] - pa[2];
+    const double g0 = pd[0] - pa[0], g1 = pd[1] - pa[1], g2 = pd[2] - pa[2];
+    const double n0 = e1 * g2 - e2 * g1, n1 = e2 * g0 - e0 * g2, n2 = e0 * g1 - e1 * g0;
+    const double* ua = u + 3 * faces_[t][0];
+    const double* ub = u + 3 * faces_[t][1];
+    const double* ud = u + 3 * faces_[t][2];
+    const double nv = n0 * (ua[0] + ub[0] + ud[0]) + n1 * (ua[1] + ub[1] + ud[1]) +
+                      n2 * (ua[2] + ub[2] + ud[2]);
+    if (nv <= 0.0) continue;  // receding, or degenerate (n = 0); NaN goes on, to be caught
+    const double twice_area = std::sqrt(n0 * n0 + n1 * n1 + n2 * n2);
+    const double inv = 1.0 / twice_area;
+    const double vn = nv * inv / 3.0;
+    double* n = ws.drag_normals.data() + 3 * n_adv;
+    n[0] = n0 * inv;
+    n[1] = n1 * inv;
+    n[2] = n2 * inv;
+    const double ca = c * 0.5 * twice_area;
+    ws.drag_faces[n_adv] = t;
+    load[n_adv] = ca * vn * vn;
+    scale[n_adv] = std::sqrt(2.0 * ca * vn);
+    ++n_adv;
+  }
+  // W's columns U_t^T n from each face's three rows of face_rows_.
+  kernels::combine_row_triples(face_rows_.data(), m, ws.drag_faces.data(), ws.drag_normals.data(),
+                               n_adv, w.data(), mp);
+  // f = -sum ca vn^2 w,  W's columns scaled for df/dv = -W W^T.
+  ws.drag_pad.resize(mp);
+  kernels::cols_times(w.data(), mp, n_adv, load.data(), ws.drag_pad.data());
+  ws.f_drag = -ws.drag_pad.head(m);
+  for (Eigen::Index t = 0; t < n_adv; ++t) w.col(t).head(m) *= scale[t];
+  ws.drag_cols = n_adv;
+}
+
 void ReducedModel::drag_jacobian(const MatX& w, Eigen::Index cols, MatX& jac) const {
   const Eigen::Index m = basis_cols_;
   jac.setZero(m, m);
-  jac.selfadjointView<Eigen::Lower>().rankUpdate(w.leftCols(cols), -1.0);
+  // (w may have padding rows past m: drag_fast's.)
+  jac.selfadjointView<Eigen::Lower>().rankUpdate(w.topLeftCorner(m, cols), -1.0);
   jac.triangularView<Eigen::StrictlyUpper>() = jac.transpose();
 }
 

@@ -58,8 +58,13 @@ void ReducedModel::step_loads(const StepInputs& in, const ReducedState& s, const
   ws.drag_jacobian_formed = false;
   if (in.config.fluid_density > 0.0) {
     ScopedTimer timer(in.config.profile ? &info.time_drag : nullptr);
-    drag(in.config, s.q, s.qdot, ws.f_drag, jacobian ? &ws.j_drag : nullptr, ws.drag_w,
-         ws.drag_cols);
+    if (in.config.solver == Solver::Fast) {
+      drag_fast(in.config, s.q, s.qdot, ws);
+      if (jacobian) drag_jacobian(ws.drag_w, ws.drag_cols, ws.j_drag);
+    } else {
+      drag(in.config, s.q, s.qdot, ws.f_drag, jacobian ? &ws.j_drag : nullptr, ws.drag_w,
+           ws.drag_cols);
+    }
     ws.drag_jacobian_formed = jacobian;
   }
 }
@@ -250,12 +255,16 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
     grad = v - s.qdot;
     double phi = 0.5 * grad.squaredNorm() - h * f_ext.dot(v) + psi;
     if (swim) {
-      // J_d (v - v_n) = -W (W^T (v - v_n)).
-      const auto w = ws.drag_w.leftCols(ws.drag_cols);
-      const VecX wg = w.transpose() * grad;
-      phi -= h * ws.f_drag.dot(v) - 0.5 * h * wg.squaredNorm();
+      // J_d (v - v_n) = -W (W^T (v - v_n)), W (drag_fast's) with its rows padded to mp.
+      const Eigen::Index mp = ws.drag_w.rows(), nw = ws.drag_cols;
+      ws.drag_pad.setZero(mp);
+      ws.drag_pad.head(m) = grad;
+      ws.drag_wg.resize(nw);
+      kernels::cols_dot(ws.drag_w.data(), mp, nw, ws.drag_pad.data(), ws.drag_wg.data());
+      phi -= h * ws.f_drag.dot(v) - 0.5 * h * ws.drag_wg.squaredNorm();
       grad -= h * ws.f_drag;
-      grad.noalias() += h * (w * wg);
+      kernels::cols_times(ws.drag_w.data(), mp, nw, ws.drag_wg.data(), ws.drag_pad.data());
+      grad += h * ws.drag_pad.head(m);
     }
     grad -= h * f_ext;
     grad.tail(md) -= h * ws.f_el;

@@ -55,6 +55,7 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
     node_mass_surface_[c] = mass[i];
   }
   normal_cols_ = normal_rows_;
+  surface_cols_ = surface_rows_;
   faces_.reserve(surface_faces.size());
   for (const auto& f : surface_faces) {
     std::array<int, 3> lf{local[f[0]], local[f[1]], local[f[2]]};

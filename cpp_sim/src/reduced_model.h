@@ -118,6 +118,8 @@ struct Workspace {
   // advancing into the fluid), for the fast solver's matrix-free products.
   MatX drag_w;
   Eigen::Index drag_cols = 0;
+  VecX drag_xs, drag_vs, drag_load, drag_scale, drag_pad, drag_wg, drag_normals;  // drag_fast's
+  std::vector<std::ptrdiff_t> drag_faces;                                        // scratch
   bool drag_jacobian_formed = false;
   NnlsWorkspace nnls;  // the contact solve's least-distance programmes, one per stagger
   // N q and N v (N: the surface nodes' normal rows) of the step's end, from near_ground for
@@ -222,6 +224,9 @@ class ReducedModel {
   // 0..cols-1 of w), and J_d itself when jac is not null.
   void drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f, MatX* jac,
             MatX& w, Eigen::Index& cols) const;
+  // The same into ws.f_drag, ws.drag_w (rows padded to a multiple of 4) and ws.drag_cols,
+  // through the dense kernels (fast solver).
+  void drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, Workspace& ws) const;
   void drag_jacobian(const MatX& w, Eigen::Index cols, MatX& jac) const;
   int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                      const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses, Workspace& ws,
@@ -252,6 +257,7 @@ class ReducedModel {
   RowMatX surface_rows_;   // (3 n_s) x (M + 6)
   RowMatX normal_rows_;    // n_s x (M + 6): the z rows alone, for the candidate search
   MatX normal_cols_;       // the same, column-major, for the fast step's kernels::cols_times
+  MatX surface_cols_;      // surface_rows_ column-major, for the fast drag's kernels::cols_times
   VecX surface_rest_;      // 3 n_s
   std::vector<std::array<int, 3>> faces_;  // indices into surface nodes
   RowMatX face_rows_;      // (3 n_f) x (M + 6): the mean of each face's three node rows
