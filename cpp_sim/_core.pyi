@@ -178,6 +178,10 @@ class ReducedModel:
     SOLVERS: typing.ClassVar[tuple] = ('reference', 'fast')
     def __init__(self, nodes: typing.Any, tets: typing.Any, youngs_modulus: typing.SupportsFloat | typing.SupportsIndex, poisson_ratio: typing.SupportsFloat | typing.SupportsIndex, density: typing.SupportsFloat | typing.SupportsIndex, basis: typing.Any, cubature_elements: typing.Any, cubature_weights: typing.Any, surface_nodes: typing.Any, surface_faces: typing.Any) -> None:
         ...
+    def _elastic_energy_fast(self, q_e: typing.Any) -> float:
+        """
+        The cubature energy as the fast solver's line search computes it (for its tests).
+        """
     def com(self, q: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """
         Centre of mass (3,) of reduced coordinates q.

@@ -323,6 +323,10 @@ def test_dense_kernels_at_every_padded_width(box, modes):
         ]
     )
     np.testing.assert_allclose(-f, grad, atol=1e-6 * np.abs(f).max())
+    # The fast kernel's energy (the line search's), four elements per vector with a padded last
+    # block, is the reference kernel's.
+    energy = model.elastic_energy(q)
+    assert model._elastic_energy_fast(q) == pytest.approx(energy, rel=1e-12)
 
 
 def test_matrix_vector_kernel_at_every_shape_class():

@@ -422,6 +422,12 @@ diverged rollout keeps its last good state and earns zero reward from then on.)d
           },
           py::arg("q_e"), "Reduced elastic force B_e^T f(X + B_e q_e) (M + 3,) by cubature, q_e = q[3:].")
       .def(
+          "_elastic_energy_fast",
+          [](const ReducedModel& r, py::handle qd) {
+            return r.elastic_energy_fast(vector_in(qd, "q_e", r.elastic_dim()));
+          },
+          py::arg("q_e"), "The cubature energy as the fast solver's line search computes it (for its tests).")
+      .def(
           "elastic_stiffness",
           [](const ReducedModel& r, py::handle qd, bool project) {
             return r.elastic_stiffness(vector_in(qd, "q_e", r.elastic_dim()), project);

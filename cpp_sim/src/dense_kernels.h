@@ -63,4 +63,12 @@ void lower_solve_rows(const double* l, Index n, double* b, Index nrhs);
 // as the derivative of the cofactor's cross products (63 multiply-adds per column, not 81).
 void snh_element_hg(const double* coef, const double* g, Index width, double* out);
 
+// The stable Neo-Hookean cubature stresses (material.h): for each of `count` elements k, with
+// F_k = I + the element's nine entries of f_minus_i (column-major vec F - I, element after
+// element), p's nine entries get w_k P(F_k) = w_k (mu F + (lambda (det F - 1) - mu) cof F);
+// returns sum_k w_k psi(F_k), psi = mu/2 (|F|^2 - 3) - mu (det F - 1) + lambda/2 (det F - 1)^2.
+// Four elements at a time, one per lane. (The reduced force's per-element part.)
+double snh_stress(const double* f_minus_i, const double* w, Index count, double mu, double lambda,
+                  double* p);
+
 }  // namespace softrom::kernels

@@ -53,24 +53,16 @@ void ReducedModel::deformation_gradients_fast(const VecX& qe, Workspace& ws) con
                       ws.fall.data());
 }
 
-// Energy and force in one pass: the determinant and cofactor are shared by psi and P. G q_e
-// uses G's column-major copy, G^T P the padded row-major one (the padding's entries dropped).
+// Energy and force in one pass: the determinant and cofactor are shared by psi and P
+// (kernels::snh_stress, four elements per vector). G q_e uses G's column-major copy, G^T P the
+// padded row-major one (the padding's entries dropped).
 double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace& ws) const {
   const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
   deformation_gradients_fast(qe, ws);
   ws.pall.resize(9 * nk);
-  const double mu = material_.mu, lambda = material_.lambda;
-  double en = 0.0;
-  for (Eigen::Index k = 0; k < nk; ++k) {
-    Eigen::Map<Mat3> f(ws.fall.data() + 9 * k);
-    f.diagonal().array() += 1.0;
-    const Mat3 cof = StableNeoHookean::cofactor(f);
-    const double jm1 = f.col(0).dot(cof.col(0)) - 1.0;
-    const double w = wvol_[k];
-    en += w * (0.5 * mu * (f.squaredNorm() - 3.0) - mu * jm1 + 0.5 * lambda * jm1 * jm1);
-    Eigen::Map<Mat3>(ws.pall.data() + 9 * k) = (w * mu) * f + (w * (lambda * jm1 - mu)) * cof;
-  }
+  const double en = kernels::snh_stress(ws.fall.data(), wvol_.data(), nk, material_.mu,
+                                        material_.lambda, ws.pall.data());
   ws.f_pad.resize(mp);
   // The row-major G's memory is G^T column-major (mp x 9K).
   kernels::cols_times(grad_fast_.data(), mp, grad_fast_.rows(), ws.pall.data(), ws.f_pad.data());
@@ -122,6 +114,12 @@ double ReducedModel::elastic_energy(const VecX& qe) const {
   double e;
   elastic_reference(qe, false, &e, nullptr, nullptr);
   return e;
+}
+
+double ReducedModel::elastic_energy_fast(const VecX& qe) const {
+  Workspace ws;
+  VecX f;
+  return elastic_energy_force(qe, f, ws);
 }
 
 VecX ReducedModel::elastic_forces(const VecX& qe) const {

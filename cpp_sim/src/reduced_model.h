@@ -176,6 +176,7 @@ class ReducedModel {
   // Elastic energy / reduced forces / reduced stiffness of the elastic coordinates q_e = q[3:]
   // (rotations and deformation, M + 3).
   double elastic_energy(const VecX& qe) const;
+  double elastic_energy_fast(const VecX& qe) const;  // the fast kernels' (kernels::snh_stress)
   VecX elastic_forces(const VecX& qe) const;
   MatX elastic_stiffness(const VecX& qe, bool project) const;
 
