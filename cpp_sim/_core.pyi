@@ -598,9 +598,17 @@ def _kernel_cols_dot(a: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[
     """
     A^T x through the fast solver's column-dot kernel (for its tests).
     """
+def _kernel_cols_dot_times(a: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> tuple[typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]]:
+    """
+    (A^T x, A A^T x) through the fast solver's fused kernel (for its tests).
+    """
 def _kernel_cols_times(a: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
     """
     A x through the fast solver's matrix-vector kernel (for its tests).
+    """
+def _kernel_cols_times_pair(a: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], y: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> tuple[typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]]:
+    """
+    (A x, A y) through the fast solver's one-pass kernel (for its tests).
     """
 def kernel_instruction_set() -> str:
     """

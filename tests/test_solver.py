@@ -388,6 +388,35 @@ def test_column_dot_kernel_at_every_shape_class():
         cpp_sim._core._kernel_cols_dot(np.ones((2, 4)), np.ones(3))
 
 
+def test_one_pass_kernels_give_the_sums_of_the_separate_ones():
+    # cols_times_pair (two products in one pass over a tall A) and cols_dot_times (A^T x then
+    # A (A^T x) in one sweep, rows a multiple of 4 up to 32) form the separate kernels' sums,
+    # each entry one multiply-add chain over the columns in order. The compiler may fuse a
+    # multiply-add differently in the short kernel's unrolled forms, so they are held to
+    # round-off here; at the cross swimmer's width (28 rows) they give the same bits, which
+    # keeps its trajectories those of the separate kernels.
+    rng = np.random.default_rng(2)
+    for rows in [3, 4, 8, 26, 28, 32, 33, 40, 1350]:
+        for cols in [0, 1, 3, 4, 5, 9, 26, 450]:
+            a = rng.standard_normal((rows, cols))
+            x, y = rng.standard_normal(cols), rng.standard_normal(cols)
+            out_x, out_y = cpp_sim._core._kernel_cols_times_pair(a, x, y)
+            for out, v in ((out_x, x), (out_y, y)):
+                scale = 1e-14 * (np.abs(a) @ np.abs(v)).max(initial=1.0)
+                np.testing.assert_allclose(out, a @ v, rtol=0, atol=scale)
+            g = rng.standard_normal(rows)
+            dots, out = cpp_sim._core._kernel_cols_dot_times(a, g)
+            np.testing.assert_array_equal(dots, cpp_sim._core._kernel_cols_dot(a, g))
+            scale = 1e-14 * (np.abs(a) @ np.abs(dots)).max(initial=1.0)
+            np.testing.assert_allclose(out, a @ dots, rtol=0, atol=scale)
+            if rows == 28:
+                np.testing.assert_array_equal(out, cpp_sim._core._kernel_cols_times(a, dots))
+    with pytest.raises(ValueError, match="x and y have 2 and 3 entries, a has 2 columns"):
+        cpp_sim._core._kernel_cols_times_pair(np.ones((4, 2)), np.ones(2), np.ones(3))
+    with pytest.raises(ValueError, match="x has 3 entries, a has 2 rows"):
+        cpp_sim._core._kernel_cols_dot_times(np.ones((2, 4)), np.ones(3))
+
+
 _KERNEL_PROBE = """
 import json, sys
 import numpy as np

@@ -507,4 +507,40 @@ diverged rollout keeps its last good state and earns zero reward from then on.)d
       },
       py::arg("a"), py::arg("x"),
       "A^T x through the fast solver's column-dot kernel (for its tests).");
+
+  m.def(
+      "_kernel_cols_times_pair",
+      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& x,
+         const Eigen::Ref<const VecX>& y) {
+        if (x.size() != a.cols() || y.size() != a.cols()) {
+          std::ostringstream msg;
+          msg << "x and y have " << x.size() << " and " << y.size() << " entries, a has "
+              << a.cols() << " columns";
+          throw py::value_error(msg.str());
+        }
+        const MatX a_owned = a;
+        VecX out_x(a.rows()), out_y(a.rows());
+        kernels::cols_times_pair(a_owned.data(), a.rows(), a.cols(), x.data(), y.data(),
+                                 out_x.data(), out_y.data());
+        return py::make_tuple(out_x, out_y);
+      },
+      py::arg("a"), py::arg("x"), py::arg("y"),
+      "(A x, A y) through the fast solver's one-pass kernel (for its tests).");
+
+  m.def(
+      "_kernel_cols_dot_times",
+      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& x) {
+        if (x.size() != a.rows()) {
+          std::ostringstream msg;
+          msg << "x has " << x.size() << " entries, a has " << a.rows() << " rows";
+          throw py::value_error(msg.str());
+        }
+        const MatX a_owned = a;
+        VecX dots(a.cols()), out(a.rows());
+        kernels::cols_dot_times(a_owned.data(), a.rows(), a.cols(), x.data(), dots.data(),
+                                out.data());
+        return py::make_tuple(dots, out);
+      },
+      py::arg("a"), py::arg("x"),
+      "(A^T x, A A^T x) through the fast solver's fused kernel (for its tests).");
 }

@@ -225,6 +225,58 @@ SOFTROM_INLINE void cols_dot_body(const double* __restrict a, Index rows, Index 
   for (; c < cols; ++c) cols_dot_group<1>(a + c * rows, rows, x, out + c);
 }
 
+// dots = A^T x, then out = A dots, in one sweep over A where its columns are whole packets in
+// registers (rows a multiple of 4, at most 32): each group of columns' dot products, then their
+// multiples added to out while the columns are in L1. The sums of cols_dot followed by
+// cols_times (out's entries one multiply-add chain over the columns in order).
+#if SOFTROM_VECTOR_EXTENSION
+template <int P>
+SOFTROM_INLINE void cols_dot_times_short(const double* __restrict a, Index cols,
+                                         const double* __restrict x, double* __restrict dots,
+                                         double* __restrict out) {
+  constexpr Index rows = 4 * P;
+  Packet4 acc[P];
+  for (int p = 0; p < P; ++p) acc[p] = Packet4{0.0, 0.0, 0.0, 0.0};
+  auto add_column = [&](Index c) {
+    const double d = dots[c];
+    const Packet4 dv{d, d, d, d};
+    const double* __restrict ac = a + c * rows;
+    for (int p = 0; p < P; ++p) acc[p] += dv * load_packet(ac + 4 * p);
+  };
+  Index c = 0;
+  for (; c + 4 <= cols; c += 4) {
+    cols_dot_group<4>(a + c * rows, rows, x, dots + c);
+    for (int t = 0; t < 4; ++t) add_column(c + t);
+  }
+  for (; c < cols; ++c) {
+    cols_dot_group<1>(a + c * rows, rows, x, dots + c);
+    add_column(c);
+  }
+  for (int p = 0; p < P; ++p) std::memcpy(out + 4 * p, &acc[p], sizeof acc[p]);
+}
+#endif
+
+SOFTROM_INLINE void cols_dot_times_body(const double* __restrict a, Index rows, Index cols,
+                                        const double* __restrict x, double* __restrict dots,
+                                        double* __restrict out) {
+#if SOFTROM_VECTOR_EXTENSION
+  if (rows % 4 == 0 && rows >= 4 && rows <= 32) {
+    switch (rows / 4) {
+      case 8: cols_dot_times_short<8>(a, cols, x, dots, out); return;
+      case 7: cols_dot_times_short<7>(a, cols, x, dots, out); return;
+      case 6: cols_dot_times_short<6>(a, cols, x, dots, out); return;
+      case 5: cols_dot_times_short<5>(a, cols, x, dots, out); return;
+      case 4: cols_dot_times_short<4>(a, cols, x, dots, out); return;
+      case 3: cols_dot_times_short<3>(a, cols, x, dots, out); return;
+      case 2: cols_dot_times_short<2>(a, cols, x, dots, out); return;
+      default: cols_dot_times_short<1>(a, cols, x, dots, out); return;
+    }
+  }
+#endif
+  cols_dot_body(a, rows, cols, x, dots);
+  cols_times_body(a, rows, cols, dots, out);
+}
+
 // Column i of out (leading dimension ld) = the combination of a's three rows 3 b_i .. 3 b_i + 2
 // (row-major, `width` long) with weights w[3 i .. 3 i + 2], for i < count.
 SOFTROM_INLINE void combine_row_triples_body(const double* __restrict a, Index width,
@@ -238,6 +290,51 @@ SOFTROM_INLINE void combine_row_triples_body(const double* __restrict a, Index w
     const double w0 = w[3 * i], w1 = w[3 * i + 1], w2 = w[3 * i + 2];
     double* __restrict o = out + i * ld;
     for (Index j = 0; j < width; ++j) o[j] = w0 * r0[j] + w1 * r1[j] + w2 * r2[j];
+  }
+}
+
+// K columns [c, c + K) of a tall A added to two outputs in one pass over it, out_x += A x and
+// out_y += A y: each entry the same multiply-add chain over the columns as cols_times_pass
+// gives it, with A read once for both.
+template <int K, bool First = false>
+SOFTROM_INLINE void cols_times_pair_pass(const double* __restrict a, Index rows, Index c,
+                                         const double* __restrict x, const double* __restrict y,
+                                         double* __restrict out_x, double* __restrict out_y) {
+  double xs[K], ys[K];
+  for (int t = 0; t < K; ++t) {
+    xs[t] = x[c + t];
+    ys[t] = y[c + t];
+  }
+  const double* __restrict a0 = a + c * rows;
+  for (Index r = 0; r < rows; ++r) {
+    double o = First ? 0.0 : out_x[r];
+    double p = First ? 0.0 : out_y[r];
+    for (int t = 0; t < K; ++t) {
+      const double v = a0[t * rows + r];
+      o += xs[t] * v;
+      p += ys[t] * v;
+    }
+    out_x[r] = o;
+    out_y[r] = p;
+  }
+}
+
+SOFTROM_INLINE void cols_times_pair_body(const double* __restrict a, Index rows, Index cols,
+                                         const double* __restrict x, const double* __restrict y,
+                                         double* __restrict out_x, double* __restrict out_y) {
+  if (rows <= 32 || cols < 4) {  // short outputs: in registers, one product at a time
+    cols_times_body(a, rows, cols, x, out_x);
+    cols_times_body(a, rows, cols, y, out_y);
+    return;
+  }
+  cols_times_pair_pass<4, true>(a, rows, 0, x, y, out_x, out_y);
+  Index c = 4;
+  for (; c + 4 <= cols; c += 4) cols_times_pair_pass<4>(a, rows, c, x, y, out_x, out_y);
+  switch (cols - c) {
+    case 3: cols_times_pair_pass<3>(a, rows, c, x, y, out_x, out_y); break;
+    case 2: cols_times_pair_pass<2>(a, rows, c, x, y, out_x, out_y); break;
+    case 1: cols_times_pair_pass<1>(a, rows, c, x, y, out_x, out_y); break;
+    default: break;
   }
 }
 
@@ -347,6 +444,9 @@ struct Table {
   void (*gram_lower_add)(const double*, const double*, Index, Index, double*);
   void (*cols_times)(const double*, Index, Index, const double*, double*);
   void (*cols_dot)(const double*, Index, Index, const double*, double*);
+  void (*cols_times_pair)(const double*, Index, Index, const double*, const double*, double*,
+                          double*);
+  void (*cols_dot_times)(const double*, Index, Index, const double*, double*, double*);
   void (*combine_row_triples)(const double*, Index, const Index*, const double*, Index, double*,
                               Index);
   void (*snh_element_hg)(const double*, const double*, Index, double*);
@@ -370,6 +470,14 @@ struct Table {
   attr void cols_dot_##suffix(const double* a, Index rows, Index cols, const double* x,        \
                               double* out) {                                                   \
     cols_dot_body(a, rows, cols, x, out);                                                      \
+  }                                                                                            \
+  attr void cols_times_pair_##suffix(const double* a, Index rows, Index cols, const double* x, \
+                                     const double* y, double* out_x, double* out_y) {          \
+    cols_times_pair_body(a, rows, cols, x, y, out_x, out_y);                                   \
+  }                                                                                            \
+  attr void cols_dot_times_##suffix(const double* a, Index rows, Index cols, const double* x,  \
+                                    double* dots, double* out) {                               \
+    cols_dot_times_body(a, rows, cols, x, dots, out);                                          \
   }                                                                                            \
   attr void combine_row_triples_##suffix(const double* a, Index width, const Index* blocks,    \
                                          const double* w, Index count, double* out, Index ld) { \
@@ -397,17 +505,18 @@ const Table& table() {
   // asks for the baseline (the same round-off as a machine without AVX2).
   static const Table chosen = [] {
     const Table baseline{"baseline", gram_lower_baseline, gram_lower_add_baseline,
-                         cols_times_baseline, cols_dot_baseline,
-                         combine_row_triples_baseline, snh_element_hg_baseline,
+                         cols_times_baseline, cols_dot_baseline, cols_times_pair_baseline,
+                         cols_dot_times_baseline, combine_row_triples_baseline, snh_element_hg_baseline,
                          snh_stress_baseline, lower_solve_rows_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
     __builtin_cpu_init();
     if (!forced && __builtin_cpu_supports("x86-64-v3"))
-      return Table{"x86-64-v3",       gram_lower_v3, gram_lower_add_v3,
-                   cols_times_v3,     cols_dot_v3,   combine_row_triples_v3,
-                   snh_element_hg_v3, snh_stress_v3, lower_solve_rows_v3};
+      return Table{"x86-64-v3",        gram_lower_v3,     gram_lower_add_v3,
+                   cols_times_v3,      cols_dot_v3,       cols_times_pair_v3,
+                   cols_dot_times_v3,  combine_row_triples_v3,
+                   snh_element_hg_v3,  snh_stress_v3,     lower_solve_rows_v3};
 #endif
     return baseline;
   }();
@@ -429,6 +538,14 @@ void cols_times(const double* a, Index rows, Index cols, const double* x, double
 }
 void cols_dot(const double* a, Index rows, Index cols, const double* x, double* out) {
   table().cols_dot(a, rows, cols, x, out);
+}
+void cols_times_pair(const double* a, Index rows, Index cols, const double* x, const double* y,
+                     double* out_x, double* out_y) {
+  table().cols_times_pair(a, rows, cols, x, y, out_x, out_y);
+}
+void cols_dot_times(const double* a, Index rows, Index cols, const double* x, double* dots,
+                    double* out) {
+  table().cols_dot_times(a, rows, cols, x, dots, out);
 }
 void combine_row_triples(const double* a, Index width, const Index* blocks, const double* w,
                          Index count, double* out, Index ld) {

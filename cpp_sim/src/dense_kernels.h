@@ -40,6 +40,20 @@ void cols_times(const double* a, Index rows, Index cols, const double* x, double
 // fast swimmer's W^T g, W the drag Jacobian's factor, one column per face.)
 void cols_dot(const double* a, Index rows, Index cols, const double* x, double* out);
 
+// out_x = A x and out_y = A y in one pass over A (column-major, `rows` x `cols`), the sums of
+// two calls of cols_times (each entry one multiply-add chain over the columns in order). (The
+// fast drag's surface positions and velocities: one read of the surface rows for both.)
+void cols_times_pair(const double* a, Index rows, Index cols, const double* x, const double* y,
+                     double* out_x, double* out_y);
+
+// dots (cols) = A^T x and out (rows) = A dots, for A of `rows` x `cols` in column-major order:
+// the sums of cols_dot then cols_times, in one sweep over A when rows is a multiple of 4 up to
+// 32. (GCC fuses cols_times' short forms below 20 rows differently, so there out may differ
+// from its in the last bit; at the cross swimmer's 28 rows the bits are the same.) (The fast
+// swimmer's potential: W^T g and W (W^T g), W the drag's factor.)
+void cols_dot_times(const double* a, Index rows, Index cols, const double* x, double* dots,
+                    double* out);
+
 // For i < count: column i of out (leading dimension ld >= width) = w[3 i] a_(3 b_i) +
 // w[3 i + 1] a_(3 b_i + 1) + w[3 i + 2] a_(3 b_i + 2), a_r the r-th row of the row-major a
 // (`width` columns), b_i = blocks[i]; rows past width of out are left as they are. (The fast

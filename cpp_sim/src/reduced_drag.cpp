@@ -64,9 +64,9 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
   VecX& vs = ws.drag_vs;
   xs.resize(ns3);
   vs.resize(ns3);
-  kernels::cols_times(surface_cols_.data(), ns3, m, q.data(), xs.data());
+  kernels::cols_times_pair(surface_cols_.data(), ns3, m, q.data(), qdot.data(), xs.data(),
+                           vs.data());
   xs += surface_rest_;
-  kernels::cols_times(surface_cols_.data(), ns3, m, qdot.data(), vs.data());
   const double c = 0.5 * cfg.fluid_density * cfg.drag_coefficient;
   MatX& w = ws.drag_w;
   // The padding rows stay zero: the kernel below writes rows 0..m-1 of a column only.

@@ -260,11 +260,12 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
       ws.drag_pad.setZero(mp);
       ws.drag_pad.head(m) = grad;
       ws.drag_wg.resize(nw);
-      kernels::cols_dot(ws.drag_w.data(), mp, nw, ws.drag_pad.data(), ws.drag_wg.data());
+      ws.drag_wwg.resize(mp);
+      kernels::cols_dot_times(ws.drag_w.data(), mp, nw, ws.drag_pad.data(), ws.drag_wg.data(),
+                              ws.drag_wwg.data());
       phi -= h * ws.f_drag.dot(v) - 0.5 * h * ws.drag_wg.squaredNorm();
       grad -= h * ws.f_drag;
-      kernels::cols_times(ws.drag_w.data(), mp, nw, ws.drag_wg.data(), ws.drag_pad.data());
-      grad += h * ws.drag_pad.head(m);
+      grad += h * ws.drag_wwg.head(m);
     }
     grad -= h * f_ext;
     grad.tail(md) -= h * ws.f_el;

@@ -118,8 +118,8 @@ struct Workspace {
   // advancing into the fluid), for the fast solver's matrix-free products.
   MatX drag_w;
   Eigen::Index drag_cols = 0;
-  VecX drag_xs, drag_vs, drag_load, drag_scale, drag_pad, drag_wg, drag_normals;  // drag_fast's
-  std::vector<std::ptrdiff_t> drag_faces;                                        // scratch
+  VecX drag_xs, drag_vs, drag_load, drag_scale, drag_pad, drag_wg, drag_wwg, drag_normals;
+  std::vector<std::ptrdiff_t> drag_faces;  // (drag_fast's and the potential's scratch)
   bool drag_jacobian_formed = false;
   NnlsWorkspace nnls;  // the contact solve's least-distance programmes, one per stagger
   // N q and N v (N: the surface nodes' normal rows) of the step's end, from near_ground for
