@@ -114,8 +114,9 @@ struct Workspace {
   MatX et_rows;  // the contact solve's J_n, then L^-1 J_n^T in its memory (row-major m x k)
   MatX k_el, a, h_inv, j_drag, j_pen, tmp;
   VecX f_pen;
-  // The drag Jacobian as a factor, J_d = -W W^T (W: M x drag_cols, one column per face
-  // advancing into the fluid), for the fast solver's matrix-free products.
+  // The drag Jacobian as a factor, J_d = -W W^T (W: M + 6 rows, one column per face advancing
+  // into the fluid, drag_cols of them), for the fast solver's matrix-free products; drag_fast
+  // pads its rows with zeros to a multiple of 4.
   MatX drag_w;
   Eigen::Index drag_cols = 0;
   VecX drag_xs, drag_vs, drag_load, drag_scale, drag_pad, drag_wg, drag_wwg, drag_normals;
@@ -258,7 +259,7 @@ class ReducedModel {
   RowMatX surface_rows_;   // (3 n_s) x (M + 6)
   RowMatX normal_rows_;    // n_s x (M + 6): the z rows alone, for the candidate search
   MatX normal_cols_;       // the same, column-major, for the fast step's kernels::cols_times
-  MatX surface_cols_;      // surface_rows_ column-major, for the fast drag's kernels::cols_times
+  MatX surface_cols_;      // surface_rows_ column-major, for the fast drag (cols_times_pair)
   VecX surface_rest_;      // 3 n_s
   std::vector<std::array<int, 3>> faces_;  // indices into surface nodes
   RowMatX face_rows_;      // (3 n_f) x (M + 6): the mean of each face's three node rows
