@@ -277,12 +277,43 @@ SOFTROM_INLINE void cols_dot_times_body(const double* __restrict a, Index rows, 
   cols_times_body(a, rows, cols, dots, out);
 }
 
+// The same at a width of 4 N (N packets, known to the compiler): each column a few whole
+// packets with no loop or remainder around them, a third of the instructions of the loop
+// below at the cross swimmer's 22 + 2 columns.
+template <int N>
+SOFTROM_INLINE void combine_row_triples_fixed(const double* __restrict a,
+                                              const Index* __restrict blocks,
+                                              const double* __restrict w, Index count,
+                                              double* __restrict out, Index ld) {
+  constexpr Index kWidth = 4 * N;
+  for (Index i = 0; i < count; ++i) {
+    const double* __restrict r0 = a + 3 * blocks[i] * kWidth;
+    const double* __restrict r1 = r0 + kWidth;
+    const double* __restrict r2 = r1 + kWidth;
+    const double w0 = w[3 * i], w1 = w[3 * i + 1], w2 = w[3 * i + 2];
+    double* __restrict o = out + i * ld;
+    for (Index j = 0; j < kWidth; ++j) o[j] = w0 * r0[j] + w1 * r1[j] + w2 * r2[j];
+  }
+}
+
 // Column i of out (leading dimension ld) = the combination of a's three rows 3 b_i .. 3 b_i + 2
 // (row-major, `width` long) with weights w[3 i .. 3 i + 2], for i < count.
 SOFTROM_INLINE void combine_row_triples_body(const double* __restrict a, Index width,
                                              const Index* __restrict blocks,
                                              const double* __restrict w, Index count,
                                              double* __restrict out, Index ld) {
+  if (width % 4 == 0 && width >= 4 && width <= 32) {
+    switch (width / 4) {
+      case 8: combine_row_triples_fixed<8>(a, blocks, w, count, out, ld); return;
+      case 7: combine_row_triples_fixed<7>(a, blocks, w, count, out, ld); return;
+      case 6: combine_row_triples_fixed<6>(a, blocks, w, count, out, ld); return;
+      case 5: combine_row_triples_fixed<5>(a, blocks, w, count, out, ld); return;
+      case 4: combine_row_triples_fixed<4>(a, blocks, w, count, out, ld); return;
+      case 3: combine_row_triples_fixed<3>(a, blocks, w, count, out, ld); return;
+      case 2: combine_row_triples_fixed<2>(a, blocks, w, count, out, ld); return;
+      default: combine_row_triples_fixed<1>(a, blocks, w, count, out, ld); return;
+    }
+  }
   for (Index i = 0; i < count; ++i) {
     const double* __restrict r0 = a + 3 * blocks[i] * width;
     const double* __restrict r1 = r0 + width;

@@ -53,11 +53,12 @@ void ReducedModel::drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdo
 // kernels (the surface's positions and velocities by the column-major copy of its rows, the
 // advancing faces' columns of W as combinations of their three rows), into the workspace.
 // W's rows are padded with zeros to a multiple of 4 (ws.drag_w is mp x faces), so the
-// potential's W^T g (kernels::cols_dot) runs over whole packets. (Measured in
-// benchmarks/PROFILE.md, session 16.)
+// potential's W^T g (kernels::cols_dot_times) runs over whole packets. Each column comes out
+// already scaled for the factor (df/dv = -W W^T), and the force is formed from the scaled
+// columns. (Measured in benchmarks/PROFILE.md, sessions 16 and 17.)
 void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX& qdot,
                              Workspace& ws) const {
-  const Eigen::Index m = basis_cols_, mp = (m + 3) / 4 * 4;
+  const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols();
   const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
   const Eigen::Index ns3 = surface_cols_.rows();
   VecX& xs = ws.drag_xs;
@@ -69,12 +70,10 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
   xs += surface_rest_;
   const double c = 0.5 * cfg.fluid_density * cfg.drag_coefficient;
   MatX& w = ws.drag_w;
-  // The padding rows stay zero: the kernel below writes rows 0..m-1 of a column only.
-  if (w.rows() != mp || w.cols() < nf) w.setZero(mp, nf);
-  VecX& load = ws.drag_load;  // ca vn^2, the face's force along -n
-  VecX& scale = ws.drag_scale;  // sqrt(2 ca vn), the column's scale in the factor
-  load.resize(nf);
-  scale.resize(nf);
+  if (w.rows() != mp || w.cols() < nf) w.resize(mp, nf);
+  // The face's force along -n, ca vn^2, is coef * scale: the force is -W coef.
+  VecX& coef = ws.drag_load;
+  coef.resize(nf);
   ws.drag_faces.resize(nf);
   ws.drag_normals.resize(3 * nf);
   Eigen::Index n_adv = 0;
@@ -98,24 +97,25 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
     const double twice_area = std::sqrt(n0 * n0 + n1 * n1 + n2 * n2);
     const double inv = 1.0 / twice_area;
     const double vn = nv * inv / 3.0;
-    double* n = ws.drag_normals.data() + 3 * n_adv;
-    n[0] = n0 * inv;
-    n[1] = n1 * inv;
-    n[2] = n2 * inv;
     const double ca = c * 0.5 * twice_area;
+    // The column's scale sqrt(2 ca vn), so that the columns' outer products sum to -df/dv; then
+    // ca vn^2 = (vn scale / 2) scale.
+    const double scale = std::sqrt(2.0 * ca * vn);
+    const double ns = inv * scale;
+    double* n = ws.drag_normals.data() + 3 * n_adv;
+    n[0] = n0 * ns;
+    n[1] = n1 * ns;
+    n[2] = n2 * ns;
     ws.drag_faces[n_adv] = t;
-    load[n_adv] = ca * vn * vn;
-    scale[n_adv] = std::sqrt(2.0 * ca * vn);
+    coef[n_adv] = 0.5 * vn * scale;
     ++n_adv;
   }
-  // W's columns U_t^T n from each face's three rows of face_rows_.
-  kernels::combine_row_triples(face_rows_.data(), m, ws.drag_faces.data(), ws.drag_normals.data(),
-                               n_adv, w.data(), mp);
-  // f = -sum ca vn^2 w,  W's columns scaled for df/dv = -W W^T.
+  // W's scaled columns U_t^T n scale from each face's three rows (padded with zeros to mp).
+  kernels::combine_row_triples(face_rows_pad_.data(), mp, ws.drag_faces.data(),
+                               ws.drag_normals.data(), n_adv, w.data(), mp);
   ws.drag_pad.resize(mp);
-  kernels::cols_times(w.data(), mp, n_adv, load.data(), ws.drag_pad.data());
+  kernels::cols_times(w.data(), mp, n_adv, coef.data(), ws.drag_pad.data());
   ws.f_drag = -ws.drag_pad.head(m);
-  for (Eigen::Index t = 0; t < n_adv; ++t) w.col(t).head(m) *= scale[t];
   ws.drag_cols = n_adv;
 }
 

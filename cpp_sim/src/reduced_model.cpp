@@ -71,6 +71,8 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
                                        surface_rows_.middleRows(3 * f[2], 3)) /
                                       3.0;
   }
+  face_rows_pad_ = RowMatX::Zero(face_rows_.rows(), (face_rows_.cols() + 3) / 4 * 4);
+  face_rows_pad_.leftCols(face_rows_.cols()) = face_rows_;
   if (ns > 0) {
     const double z_min = surface_rest_(Eigen::seqN(2, ns, 3)).minCoeff();
     int on_ground = 0;

@@ -108,6 +108,7 @@ class ScopedTimer {
 // rows and allocated once per step.)
 struct Workspace {
   VecX fall, pall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
+  VecX q_next, impulses_next;  // finish_step's candidate state, swapped in when it is good
   VecX f_pad;  // the force padded to grad_fast_'s width
   RowMatX hg;
   MatX k_pad;
@@ -119,7 +120,7 @@ struct Workspace {
   // pads its rows with zeros to a multiple of 4.
   MatX drag_w;
   Eigen::Index drag_cols = 0;
-  VecX drag_xs, drag_vs, drag_load, drag_scale, drag_pad, drag_wg, drag_wwg, drag_normals;
+  VecX drag_xs, drag_vs, drag_load, drag_pad, drag_wg, drag_wwg, drag_normals;
   std::vector<std::ptrdiff_t> drag_faces;  // (drag_fast's and the potential's scratch)
   bool drag_jacobian_formed = false;
   NnlsWorkspace nnls;  // the contact solve's least-distance programmes, one per stagger
@@ -263,6 +264,7 @@ class ReducedModel {
   VecX surface_rest_;      // 3 n_s
   std::vector<std::array<int, 3>> faces_;  // indices into surface nodes
   RowMatX face_rows_;      // (3 n_f) x (M + 6): the mean of each face's three node rows
+  RowMatX face_rows_pad_;  // the same with zero columns up to a multiple of 4 (drag_fast's)
   VecX node_mass_surface_; // lumped mass of each surface node
   MatX basis_;             // full B_r, for positions()
   VecX rest_;
