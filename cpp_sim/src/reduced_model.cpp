@@ -71,6 +71,9 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
                                        surface_rows_.middleRows(3 * f[2], 3)) /
                                       3.0;
   }
+  face_corners_.reserve(3 * faces_.size());
+  for (const auto& f : faces_)
+    for (int k = 0; k < 3; ++k) face_corners_.push_back(3 * static_cast<std::ptrdiff_t>(f[k]));
   face_rows_pad_ = RowMatX::Zero(face_rows_.rows(), (face_rows_.cols() + 3) / 4 * 4);
   face_rows_pad_.leftCols(face_rows_.cols()) = face_rows_;
   if (ns > 0) {
