@@ -68,10 +68,10 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
   kernels::cols_times_pair(surface_cols_.data(), ns3, m, q.data(), qdot.data(), xs.data(),
                            vs.data());
   xs += surface_rest_;
-  const double c = 0.5 * cfg.fluid_density * cfg.drag_coefficient;
+  const double c_third = 0.5 * cfg.fluid_density * cfg.drag_coefficient / 3.0;
   MatX& w = ws.drag_w;
   if (w.rows() != mp || w.cols() < nf) w.resize(mp, nf);
-  // The face's force along -n, ca vn^2, is coef * scale: the force is -W coef.
+  // The face's force along -n, ca vn^2, is coef times its column's scale: the force is -W coef.
   VecX& coef = ws.drag_load;
   coef.resize(nf);
   ws.drag_faces.resize(nf);
@@ -96,20 +96,17 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
     const double nv = n0 * (ua[0] + ub[0] + ud[0]) + n1 * (ua[1] + ub[1] + ud[1]) +
                       n2 * (ua[2] + ub[2] + ud[2]);
     if (nv <= 0.0) continue;  // receding, or degenerate (n = 0); NaN goes on, to be caught
-    const double twice_area = std::sqrt(n0 * n0 + n1 * n1 + n2 * n2);
-    const double inv = 1.0 / twice_area;
-    const double vn = nv * inv / 3.0;
-    const double ca = c * 0.5 * twice_area;
-    // The column's scale sqrt(2 ca vn), so that the columns' outer products sum to -df/dv; then
-    // ca vn^2 = (vn scale / 2) scale.
-    const double scale = std::sqrt(2.0 * ca * vn);
-    const double ns = inv * scale;
+    // With A = |n| / 2 the area, vn = nv / (3 |n|) the normal speed and ca = c A, the column's
+    // scale sqrt(2 ca vn) (its outer products sum to -df/dv) is sqrt(c nv / 3): the area
+    // cancels, and the unit normal times the scale is n sqrt(c nv / (3 |n|^2)), one square
+    // root and one division a face. The force along -n, ca vn^2, is then (nv ns / 6) scale.
+    const double ns = std::sqrt(c_third * nv / (n0 * n0 + n1 * n1 + n2 * n2));
     double* n = ws.drag_normals.data() + 3 * n_adv;
     n[0] = n0 * ns;
     n[1] = n1 * ns;
     n[2] = n2 * ns;
+    coef[n_adv] = nv * ns * (1.0 / 6.0);
     ws.drag_faces[n_adv] = t;
-    coef[n_adv] = 0.5 * vn * scale;
     ++n_adv;
   }
   // W's scaled columns U_t^T n scale from each face's three rows (padded with zeros to mp).
