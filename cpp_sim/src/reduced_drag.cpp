@@ -72,7 +72,7 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
   MatX& w = ws.drag_w;
   if (w.rows() != mp || w.cols() < nf) w.resize(mp, nf);
   // The face's force along -n, ca vn^2, is coef times its column's scale: the force is -W coef.
-  VecX& coef = ws.drag_load;
+  VecX& coef = ws.drag_coef;
   coef.resize(nf);
   ws.drag_faces.resize(nf);
   ws.drag_normals.resize(3 * nf);

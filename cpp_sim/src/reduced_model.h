@@ -120,7 +120,7 @@ struct Workspace {
   // pads its rows with zeros to a multiple of 4.
   MatX drag_w;
   Eigen::Index drag_cols = 0;
-  VecX drag_xs, drag_vs, drag_load, drag_pad, drag_wg, drag_wwg, drag_normals;
+  VecX drag_xs, drag_vs, drag_coef, drag_pad, drag_wg, drag_wwg, drag_normals;
   std::vector<std::ptrdiff_t> drag_faces;  // (drag_fast's and the potential's scratch)
   bool drag_jacobian_formed = false;
   NnlsWorkspace nnls;  // the contact solve's least-distance programmes, one per stagger
