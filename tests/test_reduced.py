@@ -148,6 +148,22 @@ def test_drag_decelerates_a_coasting_body_monotonically(swimmer):
     assert np.all(np.diff(speeds) < 0)
 
 
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_without_contact_a_step_keeps_the_impulses_and_counts_no_contacts(swimmer, solver):
+    # Only the staggered projection solves impulses; without it a step passes the state's
+    # impulses through untouched (the fast step skips them entirely) and reports no contacts,
+    # even when the state carries positive normal impulses from an earlier contact model.
+    model = swim_model(swimmer, solver=solver, control_basis=np.eye(20)[:, :3])
+    rest = model.rest_state()
+    impulses = np.zeros_like(rest.impulses)
+    impulses[2::3] = np.linspace(0.0, 1e-3, impulses.size // 3)
+    state = cpp_sim.ReducedState(rest.q, rest.qdot, impulses)
+    state, info = model.step(state, np.array([5.0, -3.0, 1.0]))
+    np.testing.assert_array_equal(state.impulses, impulses)
+    assert info["contacts"] == 0 and info["stagger_iterations"] == 0
+    assert np.abs(state.qdot).max() > 0.0
+
+
 def test_drag_on_a_broadside_plate_matches_quadratic_law(swimmer):
     # Moving along +z, only the top face (area A) advances into the fluid:
     # m dv/dt = -1/2 rho C_d A v^2  =>  v(t) = v0 / (1 + k v0 t), k = rho C_d A / (2 m).

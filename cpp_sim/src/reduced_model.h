@@ -76,7 +76,7 @@ struct StepInfo {
   int normal_iterations = 0;      // normal (LDP) solves
   int friction_iterations = 0;    // reweighted least-squares solves of the friction problem
   int active_rows = 0;            // contact candidates this step
-  int contacts = 0;
+  int contacts = 0;  // surface nodes loaded (lambda_n > 0) by the staggered projection; else 0
   bool converged = true;          // Newton reached newton_tolerance
   bool contact_converged = true;  // staggering reached contact_tolerance, NNLS within its cap
   bool diverged = false;
