@@ -279,7 +279,7 @@ SOFTROM_INLINE void cols_dot_times_body(const double* __restrict a, Index rows, 
 
 // The same at a width of 4 N (N packets, known to the compiler): each column a few whole
 // packets with no loop or remainder around them, a third of the instructions of the loop
-// below at the cross swimmer's 22 + 2 columns.
+// below at the cross swimmer's 26 + 2 columns.
 template <int N>
 SOFTROM_INLINE void combine_row_triples_fixed(const double* __restrict a,
                                               const Index* __restrict blocks,
