@@ -277,43 +277,17 @@ SOFTROM_INLINE void cols_dot_times_body(const double* __restrict a, Index rows, 
   cols_times_body(a, rows, cols, dots, out);
 }
 
-// The same at a width of 4 N (N packets, known to the compiler): each column a few whole
-// packets with no loop or remainder around them, a third of the instructions of the loop
-// below at the cross swimmer's 26 + 2 columns.
+// Column i of out (leading dimension ld) = the combination of a's three rows 3 b_i .. 3 b_i + 2
+// (row-major, `width` long) with weights w[3 i .. 3 i + 2], for i < count. N > 0 fixes the width
+// at 4 N for the compiler: each column is then a few whole packets with no loop or remainder
+// around them, a third of the instructions of the run-time width (N = 0) at the cross
+// swimmer's 26 + 2 columns.
 template <int N>
-SOFTROM_INLINE void combine_row_triples_fixed(const double* __restrict a,
+SOFTROM_INLINE void combine_row_triples_width(const double* __restrict a, Index run_width,
                                               const Index* __restrict blocks,
                                               const double* __restrict w, Index count,
                                               double* __restrict out, Index ld) {
-  constexpr Index kWidth = 4 * N;
-  for (Index i = 0; i < count; ++i) {
-    const double* __restrict r0 = a + 3 * blocks[i] * kWidth;
-    const double* __restrict r1 = r0 + kWidth;
-    const double* __restrict r2 = r1 + kWidth;
-    const double w0 = w[3 * i], w1 = w[3 * i + 1], w2 = w[3 * i + 2];
-    double* __restrict o = out + i * ld;
-    for (Index j = 0; j < kWidth; ++j) o[j] = w0 * r0[j] + w1 * r1[j] + w2 * r2[j];
-  }
-}
-
-// Column i of out (leading dimension ld) = the combination of a's three rows 3 b_i .. 3 b_i + 2
-// (row-major, `width` long) with weights w[3 i .. 3 i + 2], for i < count.
-SOFTROM_INLINE void combine_row_triples_body(const double* __restrict a, Index width,
-                                             const Index* __restrict blocks,
-                                             const double* __restrict w, Index count,
-                                             double* __restrict out, Index ld) {
-  if (width % 4 == 0 && width >= 4 && width <= 32) {
-    switch (width / 4) {
-      case 8: combine_row_triples_fixed<8>(a, blocks, w, count, out, ld); return;
-      case 7: combine_row_triples_fixed<7>(a, blocks, w, count, out, ld); return;
-      case 6: combine_row_triples_fixed<6>(a, blocks, w, count, out, ld); return;
-      case 5: combine_row_triples_fixed<5>(a, blocks, w, count, out, ld); return;
-      case 4: combine_row_triples_fixed<4>(a, blocks, w, count, out, ld); return;
-      case 3: combine_row_triples_fixed<3>(a, blocks, w, count, out, ld); return;
-      case 2: combine_row_triples_fixed<2>(a, blocks, w, count, out, ld); return;
-      default: combine_row_triples_fixed<1>(a, blocks, w, count, out, ld); return;
-    }
-  }
+  const Index width = N > 0 ? 4 * N : run_width;
   for (Index i = 0; i < count; ++i) {
     const double* __restrict r0 = a + 3 * blocks[i] * width;
     const double* __restrict r1 = r0 + width;
@@ -322,6 +296,25 @@ SOFTROM_INLINE void combine_row_triples_body(const double* __restrict a, Index w
     double* __restrict o = out + i * ld;
     for (Index j = 0; j < width; ++j) o[j] = w0 * r0[j] + w1 * r1[j] + w2 * r2[j];
   }
+}
+
+SOFTROM_INLINE void combine_row_triples_body(const double* __restrict a, Index width,
+                                             const Index* __restrict blocks,
+                                             const double* __restrict w, Index count,
+                                             double* __restrict out, Index ld) {
+  if (width % 4 == 0 && width >= 4 && width <= 32) {
+    switch (width / 4) {
+      case 8: combine_row_triples_width<8>(a, width, blocks, w, count, out, ld); return;
+      case 7: combine_row_triples_width<7>(a, width, blocks, w, count, out, ld); return;
+      case 6: combine_row_triples_width<6>(a, width, blocks, w, count, out, ld); return;
+      case 5: combine_row_triples_width<5>(a, width, blocks, w, count, out, ld); return;
+      case 4: combine_row_triples_width<4>(a, width, blocks, w, count, out, ld); return;
+      case 3: combine_row_triples_width<3>(a, width, blocks, w, count, out, ld); return;
+      case 2: combine_row_triples_width<2>(a, width, blocks, w, count, out, ld); return;
+      default: combine_row_triples_width<1>(a, width, blocks, w, count, out, ld); return;
+    }
+  }
+  combine_row_triples_width<0>(a, width, blocks, w, count, out, ld);
 }
 
 // K columns [c, c + K) of a tall A added to two outputs in one pass over it, out_x += A x and
@@ -537,8 +530,8 @@ const Table& table() {
   static const Table chosen = [] {
     const Table baseline{"baseline", gram_lower_baseline, gram_lower_add_baseline,
                          cols_times_baseline, cols_dot_baseline, cols_times_pair_baseline,
-                         cols_dot_times_baseline, combine_row_triples_baseline, snh_element_hg_baseline,
-                         snh_stress_baseline, lower_solve_rows_baseline};
+                         cols_dot_times_baseline, combine_row_triples_baseline,
+                         snh_element_hg_baseline, snh_stress_baseline, lower_solve_rows_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;

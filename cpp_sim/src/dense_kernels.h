@@ -37,7 +37,7 @@ void cols_times(const double* a, Index rows, Index cols, const double* x, double
 
 // out (cols) = A^T x, for A of `rows` x `cols` in column-major order and x of `rows`: one dot
 // product per column, in per-lane partial sums (fastest when rows is a multiple of 4). (The
-// fast swimmer's W^T g, W the drag Jacobian's factor, one column per face.)
+// dot half of cols_dot_times, which the fast swimmer uses; on its own, for the tests.)
 void cols_dot(const double* a, Index rows, Index cols, const double* x, double* out);
 
 // out_x = A x and out_y = A y in one pass over A (column-major, `rows` x `cols`), the sums of

@@ -264,8 +264,8 @@ class ReducedModel {
   VecX surface_rest_;      // 3 n_s
   std::vector<std::array<int, 3>> faces_;  // indices into surface nodes
   RowMatX face_rows_;      // (3 n_f) x (M + 6): the mean of each face's three node rows
-  std::vector<std::ptrdiff_t> face_corners_;  // 3 per face: its nodes' offsets 3 c in x_s
   RowMatX face_rows_pad_;  // the same with zero columns up to a multiple of 4 (drag_fast's)
+  std::vector<std::ptrdiff_t> face_corners_;  // 3 per face: its nodes' offsets 3 c in x_s
   VecX node_mass_surface_; // lumped mass of each surface node
   MatX basis_;             // full B_r, for positions()
   VecX rest_;
