@@ -260,8 +260,9 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
   h_inv = in.rest_newton_inverse;
 
   VecX tmp_e(md);
-  // Phi(v) and its gradient (the reference's residual).
-  auto potential = [&](const VecX& v, VecX& grad) -> double {
+  // Phi(v) and its gradient (the reference's residual). `at_start`: v is the step's starting
+  // velocity v_n, where the drag's correction J_d (v - v_n) is zero and not computed.
+  auto potential = [&](const VecX& v, VecX& grad, bool at_start) -> double {
     tmp_e = s.q.tail(md) + h * v.tail(md);
     const double psi = elastic_energy_force(tmp_e, ws.f_el, ws);
     grad = v - s.qdot;
@@ -273,8 +274,13 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
       ws.drag_pad.head(m) = grad;
       ws.drag_wg.resize(nw);
       ws.drag_wwg.resize(mp);
-      kernels::cols_dot_times(ws.drag_w.data(), mp, nw, ws.drag_pad.data(), ws.drag_wg.data(),
-                              ws.drag_wwg.data());
+      if (at_start) {  // (the products' sums of +0 terms, without the pass over W)
+        ws.drag_wg.setZero();
+        ws.drag_wwg.setZero();
+      } else {
+        kernels::cols_dot_times(ws.drag_w.data(), mp, nw, ws.drag_pad.data(), ws.drag_wg.data(),
+                                ws.drag_wwg.data());
+      }
       phi -= h * ws.f_drag.dot(v) - 0.5 * h * ws.drag_wg.squaredNorm();
       grad -= h * ws.f_drag;
       grad += h * ws.drag_wwg.head(m);
@@ -321,7 +327,7 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
   VecX& sv = ws.s;
   VecX& y = ws.y;
   VecX& hy = ws.hy;
-  double phi = potential(v, g);
+  double phi = potential(v, g, true);
   double prev_norm = std::numeric_limits<double>::infinity();
   bool refreshed = false;
   info.converged = false;
@@ -355,7 +361,7 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
     double t = 1.0, phi_trial = 0.0;
     for (int ls = 0; ls < 30; ++ls) {
       v_trial = v + t * dv;
-      phi_trial = potential(v_trial, g_trial);
+      phi_trial = potential(v_trial, g_trial, false);
       if (phi_trial <= phi + kArmijo * t * slope + kRoundoff * std::abs(phi)) break;
       t *= 0.5;
     }
