@@ -1,6 +1,7 @@
 // Cholesky factorisation and solve for the contact solve's small dense systems (fast solver
 // only): the friction half's 2 n x 2 n dual system, factored once per stagger, and the loaded
-// set's normal block D_nn, once per set (n ~ 7 loaded nodes on a walker).
+// set's normal block D_nn, once per set (n ~ 7 loaded nodes on a walker); and the triangular
+// solves of the least-distance programme's growing factor (nnls_cholesky).
 //
 // Eigen's dynamic-size LLT is blocked for large matrices: at these sizes its set-up costs more
 // than the arithmetic (callgrind on the quadruped: ~9 k instructions to factor a 14 x 14
@@ -40,20 +41,31 @@ inline bool cholesky_upper(double* a, Index n, Index lda) {
   return true;
 }
 
-// b <- (U^T U)^-1 b, for U from cholesky_upper.
-inline void cholesky_upper_solve(const double* u, Index n, Index lda, double* b) {
-  for (Index i = 0; i < n; ++i) {  // U^T y = b: row i of U^T is column i of U
+// b <- U^-T b for an upper triangular U (n x n, column-major, leading dimension lda): row i
+// of U^T is column i of U, contiguous, so each entry is one dot product.
+inline void upper_transpose_solve(const double* u, Index n, Index lda, double* b) {
+  for (Index i = 0; i < n; ++i) {
     const double* ci = u + i * lda;
     double s = b[i];
     for (Index k = 0; k < i; ++k) s -= ci[k] * b[k];
     b[i] = s / ci[i];
   }
-  for (Index i = n - 1; i >= 0; --i) {  // U x = y, column by column
+}
+
+// b <- U^-1 b for an upper triangular U, column by column.
+inline void upper_solve(const double* u, Index n, Index lda, double* b) {
+  for (Index i = n - 1; i >= 0; --i) {
     const double* ci = u + i * lda;
     const double x = b[i] / ci[i];
     b[i] = x;
     for (Index k = 0; k < i; ++k) b[k] -= x * ci[k];
   }
+}
+
+// b <- (U^T U)^-1 b, for U from cholesky_upper.
+inline void cholesky_upper_solve(const double* u, Index n, Index lda, double* b) {
+  upper_transpose_solve(u, n, lda, b);
+  upper_solve(u, n, lda, b);
 }
 
 }  // namespace softrom::small
