@@ -4,8 +4,8 @@ For each of the five benchmarks (cross swim, cross walk, beam, quadruped, tripod
 
 * full-space implicit steps/s (squashed body released, as bench_fem.py: under gravity for the
   walkers, without for the swimmer, no ground or drag) and its Newton iterations per step
-  (`full_newton_iterations`), timed in the same three alternating rounds as the reduced
-  solvers, best of each;
+  (`full_newton_iterations`), timed in the same alternating rounds as the reduced solvers
+  (three, or ``--rounds``), best of each;
 * reduced steps/s (M = 20, cubature, one thread, one C++ rollout so that no Python overhead
   is counted) with the task's physics on — staggered-projection ground contact for walkers,
   quadratic drag for the swimmer — under random actuation of 0.5 body weight in the first
@@ -239,16 +239,16 @@ def mujoco_sim_rate(robot, seconds: float) -> tuple[float, float, float] | None:
     return None
 
 
-def measure(name: str, full_steps: int, seconds: float) -> dict:
+def measure(name: str, full_steps: int, seconds: float, rounds: int = 3) -> dict:
     robot_name, task = BENCHMARKS[name]
     robot = ROBOTS[robot_name]()
     model = task_model(robot, task)
     reference = task_model(robot, task, solver="reference")
     steps = round(seconds / DT)
-    # Alternate full space and the two reduced solvers, best of 3 each, so that machine load
-    # hits all three alike.
+    # Alternate full space and the two reduced solvers, best of `rounds` each, so that machine
+    # load hits all three alike (more rounds: a steadier best on a busy machine).
     full = ref_rate = fast_rate = 0.0
-    for _ in range(3):
+    for _ in range(rounds):
         full_rate, full_newton = full_steps_per_s(robot, full_steps, gravity=task == "walk")
         full = max(full, full_rate)
         ref_rate = max(ref_rate, reduced_steps_per_s(reference, steps))
@@ -302,16 +302,22 @@ def main() -> None:
     parser.add_argument("--robots", nargs="*", default=list(BENCHMARKS), choices=list(BENCHMARKS))
     parser.add_argument("--seconds", type=float, default=1.0, help="simulated time per test")
     parser.add_argument("--full-steps", type=int, default=20, help="timed full-space steps")
+    parser.add_argument(
+        "--rounds", type=int, default=3,
+        help="alternating timing rounds of full space and both reduced solvers (best of each)",
+    )  # fmt: skip
     args = parser.parse_args()
     if not args.seconds >= 5 * DT or args.full_steps < 1:
         parser.error(f"--seconds must be >= {5 * DT} (5 steps) and --full-steps >= 1")
+    if args.rounds < 1:
+        parser.error(f"--rounds must be >= 1, got {args.rounds}")
     cols = ("full/s", "ref/s", "fast/s", "fast/ref", "speedup", "penalty/s", "batch2/s",
             "2thr/1thr", "cpu 2/1", "drop err", "vs MuJoCo")  # fmt: skip
     if not args.json:
         print(f"fast solver's dense kernels: {cpp_sim.kernel_instruction_set()}")
         print(f"{'benchmark':<15} {'nodes':>5} " + " ".join(f"{c:>10}" for c in cols))
     for name in args.robots:
-        r = measure(name, args.full_steps, args.seconds)
+        r = measure(name, args.full_steps, args.seconds, args.rounds)
         if args.json:
             print(json.dumps(r), flush=True)
             continue
