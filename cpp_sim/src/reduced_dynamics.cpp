@@ -270,14 +270,14 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
     if (swim) {
       // J_d (v - v_n) = -W (W^T (v - v_n)), W (drag_fast's) with its rows padded to mp.
       const Eigen::Index mp = ws.drag_w.rows(), nw = ws.drag_cols;
-      ws.drag_pad.setZero(mp);
-      ws.drag_pad.head(m) = grad;
-      ws.drag_wg.resize(nw);
-      ws.drag_wwg.resize(mp);
       if (at_start) {  // (the products' sums of +0 terms, without the pass over W)
-        ws.drag_wg.setZero();
-        ws.drag_wwg.setZero();
+        ws.drag_wg.setZero(nw);
+        ws.drag_wwg.setZero(mp);
       } else {
+        ws.drag_pad.setZero(mp);
+        ws.drag_pad.head(m) = grad;
+        ws.drag_wg.resize(nw);
+        ws.drag_wwg.resize(mp);
         kernels::cols_dot_times(ws.drag_w.data(), mp, nw, ws.drag_pad.data(), ws.drag_wg.data(),
                                 ws.drag_wwg.data());
       }
