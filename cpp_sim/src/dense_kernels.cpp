@@ -64,8 +64,9 @@ SOFTROM_INLINE void gram_lower_add_body(const double* __restrict g, const double
       // 8-row tiles from the diagonal block down, and a 4-row one at the end (the diagonal
       // block's entries above the diagonal are computed too, and are not the sum's). Starting
       // at the diagonal block rather than at the last multiple of 8 above it computes no block
-      // above it: 11 % fewer instructions on the stiffness's 28-wide Gram (12-row tiles spill,
-      // and cost more; benchmarks/PROFILE.md, session 18).
+      // above it: 11 % fewer instructions on the stiffness's 28-wide Gram in a standalone
+      // harness. 12-row tiles, which need all 16 AVX2 registers, cost 15 % more than 8-row
+      // ones there (benchmarks/PROFILE.md, session 18).
       Index i0 = j0;
       for (; i0 + 8 <= width; i0 += 8) gram_tile<8>(g, x, r0, r1, width, i0, j0, out);
       if (i0 < width) gram_tile<4>(g, x, r0, r1, width, i0, j0, out);
