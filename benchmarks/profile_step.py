@@ -8,8 +8,10 @@ three deformation modes (the same sequence for every row):
 * ``step`` in four configurations — ``free`` (no gravity, contact or drag), ``drag``
   (quadratic fluid drag), ``staggered`` (gravity + staggered-projection ground, the walkers'
   default) and ``penalty`` (gravity + penalty ground) — in µs per step, with the mean Newton
-  iterations, staggers and candidate contact rows per step, and the share of steps that ended
-  at an iteration cap (``newton cap`` / ``stagger cap``: results the solver did not certify);
+  iterations, staggers and candidate contact rows per step, the spread of the staggers over
+  the steps (``p10/50/90``: a mean can hide that a few hard steps take most of them), and the
+  share of steps that ended at an iteration cap (``newton cap`` / ``stagger cap``: results the
+  solver did not certify);
 * the split of a step's time (µs, measured inside C++ with ``profile=True``): ``dynamics``
   (the implicit solve), ``drag``, and the staggered projection's ``normal`` and ``friction``
   halves; the remainder of ``us/step`` is binding overhead and bookkeeping, and for the fast
@@ -59,7 +61,8 @@ def time_step(model, steps: int) -> dict:
     state = model.rest_state()
     for n in range(10):  # settle contact and warm the caches
         state, _ = model.step(state, controls[n])
-    newton = stagger = rows = 0
+    newton = rows = 0
+    staggers = np.zeros(steps, dtype=int)
     newton_cap = stagger_cap = 0
     parts = dict.fromkeys(("time_dynamics", "time_drag", "time_normal", "time_friction"), 0.0)
     model.profile = True
@@ -67,7 +70,7 @@ def time_step(model, steps: int) -> dict:
     for n in range(steps):
         state, info = model.step(state, controls[n])
         newton += info["newton_iterations"]
-        stagger += info["stagger_iterations"]
+        staggers[n] = info["stagger_iterations"]
         rows += info["active_rows"]
         newton_cap += not info.get("converged", True)
         stagger_cap += not info.get("contact_converged", True)
@@ -77,7 +80,8 @@ def time_step(model, steps: int) -> dict:
     return {
         "us_per_step": 1e6 * wall / steps,
         "newton_per_step": newton / steps,
-        "staggers_per_step": stagger / steps,
+        "staggers_per_step": staggers.mean(),
+        **{f"staggers_p{p}": float(np.percentile(staggers, p)) for p in (10, 50, 90)},
         "rows_per_step": rows / steps,
         "newton_cap_share": newton_cap / steps,
         "stagger_cap_share": stagger_cap / steps,
@@ -125,6 +129,11 @@ def profile(robot_name: str, steps: int) -> list[dict]:
     return rows
 
 
+def spread(row: dict) -> str:
+    """The staggers' 10th, 50th and 90th percentiles over the timed steps, as ``a/b/c``."""
+    return "/".join(f"{row[f'staggers_p{p}']:.0f}" for p in (10, 50, 90))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", nargs="*", default=list(ROBOTS), choices=list(ROBOTS))
@@ -136,7 +145,8 @@ def main() -> None:
     if not args.json:
         print(
             f"{'robot':<10} {'config':<10} {'solver':<10} {'us/step':>9} {'newton':>7} "
-            f"{'stagger':>8} {'rows':>6} {'newton cap':>11} {'stagger cap':>12} "
+            f"{'stagger':>8} {'p10/50/90':>10} {'rows':>6} {'newton cap':>11} "
+            f"{'stagger cap':>12} "
             f"{'dynamics':>9} {'drag':>6} {'normal':>7} {'friction':>9}"
         )
     for name in args.robots:
@@ -153,6 +163,7 @@ def main() -> None:
                 print(
                     f"{name:<10} {r['config']:<10} {r['solver']:<10} {r['us_per_step']:>9.0f} "
                     f"{r['newton_per_step']:>7.2f} {r['staggers_per_step']:>8.2f} "
+                    f"{spread(r):>10} "
                     f"{r['rows_per_step']:>6.1f} {r['newton_cap_share']:>11.1%} "
                     f"{r['stagger_cap_share']:>12.1%} {r['dynamics_us']:>9.0f} "
                     f"{r['drag_us']:>6.0f} {r['normal_us']:>7.0f} {r['friction_us']:>9.0f}",
