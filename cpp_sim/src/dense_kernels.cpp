@@ -78,8 +78,6 @@ SOFTROM_INLINE void gram_lower_body(const double* __restrict g, const double* __
                                     Index rows, Index width, double* __restrict out) {
   for (Index i = 0; i < width * width; ++i) out[i] = 0.0;
   gram_lower_add_body(g, x, rows, width, out);
-  for (Index j = 1; j < width; ++j)
-    for (Index i = 0; i < j; ++i) out[i + j * width] = 0.0;
 }
 
 // out = A x for A of `rows` x `cols` (column-major, 4 N - 4 < rows <= 4 N, rows >= 4): the

@@ -513,7 +513,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
             // on a row-major copy padded to its 4-column tiles, the (M + 6)^2 system by the
             // small Cholesky loops.
             const Eigen::Index width = (m + 3) / 4 * 4;
-            y_rows.setZero(2 * nl, width);
+            y_rows.resize(2 * nl, width);  // only the padding needs zeros
+            y_rows.rightCols(width - m).setZero();
             y_rows.leftCols(m) = wjt.topRows(2 * nl);
             gram.resize(width, width);
             kernels::gram_lower(y_rows.data(), y_rows.data(), 2 * nl, width, gram.data());
