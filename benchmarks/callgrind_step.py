@@ -16,7 +16,10 @@ step's parts, with the iteration counts that explain them:
 * ``other``: the rest of the step (set-up, line-search bookkeeping, the state update).
 
 Instruction counts are not time (a GEMM kernel retires several per cycle, a cache miss
-none), but two builds or two settings compared on one robot are compared exactly. It needs
+none), but two builds or two settings compared on one robot are compared exactly. One trap:
+glibc's memset fills large buffers (a few KB up) with ``rep stosb``, which callgrind counts
+once per iteration, i.e. per byte, so a 6 KB fill reads as ~6,300 instructions (1 KB: 70) for the
+few hundred cycles it takes; a saving found in ``__memset_*`` is mostly not time. It needs
 ``valgrind`` (Debian: ``apt install valgrind``); about 25 s per 200 steps of the quadruped.
 
     python benchmarks/callgrind_step.py [--robots quadruped beam] [--solver fast] [--steps 200]
