@@ -518,9 +518,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
             y_rows.leftCols(m) = wjt.topRows(2 * nl);
             gram.resize(width, width);
             kernels::gram_lower(y_rows.data(), y_rows.data(), 2 * nl, width, gram.data());
-            hess = a;
-            hess.triangularView<Eigen::Lower>() += gram.topLeftCorner(m, m);
-            hess.triangularView<Eigen::StrictlyUpper>() = hess.transpose();
+            // cholesky_upper reads the upper triangle only: it gets (A + J_l^T W J_l)'s
+            // lower triangle, transposed, in one pass (the same sums as forming the lower
+            // triangle and mirroring it, which cost three passes of Eigen's triangular views).
+            for (Eigen::Index c = 0; c < m; ++c)
+              for (Eigen::Index r = c; r < m; ++r) hess(c, r) = a(r, c) + gram(r, c);
             if (small::cholesky_upper(hess.data(), m, m)) {
               v.noalias() = a * v_second;
               small::cholesky_upper_solve(hess.data(), m, m, v.data());
