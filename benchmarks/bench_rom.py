@@ -9,10 +9,11 @@ For each of the five benchmarks (cross swim, cross walk, beam, quadruped, tripod
 * reduced steps/s (M = 20, cubature, one thread, one C++ rollout so that no Python overhead
   is counted) with the task's physics on — staggered-projection ground contact for walkers,
   quadratic drag for the swimmer — under random actuation of 0.5 body weight in the first
-  three modes from rest, for the exact ``solver="reference"`` path
-  (`reference_steps_per_s`) and the fast default (`reduced_steps_per_s`), and their ratio
-  (`fast_over_reference`; target >= 10 on every benchmark); the same with the penalty ground
-  model (`penalty_steps_per_s`, fast solver);
+  three modes from rest (drawn anew every step; ``--actuation gait`` drives each rollout with
+  one open-loop sinusoidal gait instead, as a controller's splines would), for the exact
+  ``solver="reference"`` path (`reference_steps_per_s`) and the fast default
+  (`reduced_steps_per_s`), and their ratio (`fast_over_reference`; target >= 10 on every
+  benchmark); the same with the penalty ground model (`penalty_steps_per_s`, fast solver);
 * `speedup`: the fast reduced step over the full-space step (reported, whatever it is). The
   two sides do not run the same motion: the full-space body recovers from a 20 % squash (a
   transient of several Newton iterations per step, no contact), the reduced one walks or
@@ -42,6 +43,7 @@ It also prints (`kernels` in --json) the instruction set of the fast solver's de
 run it with ``SOFTROM_KERNELS=baseline`` to measure the baseline set on the same machine.
 
     python benchmarks/bench_rom.py [--json] [--robots quadruped ...] [--seconds 1.0]
+        [--actuation random|gait]
 """
 
 from __future__ import annotations
@@ -101,15 +103,29 @@ def lifted(model, height: float):
     return cpp_sim.ReducedState(q, s.qdot, s.impulses)
 
 
-def actuation(model, shape: tuple[int, ...], seed: int = 0) -> np.ndarray:
-    """Random modal forces of up to 0.5 body weight (uniform), the same for every solver."""
-    amp = 0.5 * np.sqrt(model.total_mass) * 9.81
-    return amp * np.random.default_rng(seed).uniform(-1.0, 1.0, shape)
+def actuation(model, shape: tuple[int, ...], seed: int = 0, kind: str = "random") -> np.ndarray:
+    """Modal forces of shape (rollouts, steps, C), the same for every solver: uniform random
+    of up to 0.5 body weight, new every step, or (``kind="gait"``) one sinusoid per rollout
+    (frequency 0.5-4 Hz, amplitude 0.5-1 body weight, a random phase per mode)."""
+    rng = np.random.default_rng(seed)
+    weight = np.sqrt(model.total_mass) * 9.81
+    if kind == "random":
+        return 0.5 * weight * rng.uniform(-1.0, 1.0, shape)
+    if kind != "gait":
+        raise ValueError(f"actuation must be 'random' or 'gait', got {kind!r}")
+    rollouts, steps, modes = shape
+    t = np.arange(steps) * model.dt
+    out = np.empty(shape)
+    for b in range(rollouts):
+        f, a = rng.uniform(0.5, 4.0), rng.uniform(0.5, 1.0)
+        phase = rng.uniform(0, 2 * np.pi, modes)
+        out[b] = a * weight * np.sin(2 * np.pi * f * t[:, None] + phase[None, :])
+    return out
 
 
-def reduced_steps_per_s(model, steps: int) -> float:
+def reduced_steps_per_s(model, steps: int, kind: str = "random") -> float:
     """Physics steps/s of one rollout of ``steps`` actuated steps from rest, one thread."""
-    controls = actuation(model, (1, steps, 3))
+    controls = actuation(model, (1, steps, 3), kind=kind)
     state = model.rest_state()
     model.rollout(state, controls[:, :5], threads=1)  # warm-up
     start = time.perf_counter()
@@ -120,12 +136,12 @@ def reduced_steps_per_s(model, steps: int) -> float:
     return steps / wall
 
 
-def thread_speedup(model, repeats: int = 5) -> tuple[float, float, float]:
+def thread_speedup(model, repeats: int = 5, kind: str = "random") -> tuple[float, float, float]:
     """Batched rollouts (64 x 100 steps) on 2 threads vs 1: the ratio of the best of
     ``repeats`` alternating wall times each, the 2-thread throughput in physics steps/s, and
     the CPU seconds the 2-thread run spent per CPU second of the 1-thread run (1.0: the
     workers do not slow each other down, so a wall ratio under 2 is the machine's noise)."""
-    controls = actuation(model, (64, 100, 3), seed=1)
+    controls = actuation(model, (64, 100, 3), seed=1, kind=kind)
     state = model.rest_state()
     model.rollout(state, controls[:2, :5], threads=2)  # warm-up
     wall = {1: np.inf, 2: np.inf}
@@ -239,7 +255,9 @@ def mujoco_sim_rate(robot, seconds: float) -> tuple[float, float, float] | None:
     return None
 
 
-def measure(name: str, full_steps: int, seconds: float, rounds: int = 3) -> dict:
+def measure(
+    name: str, full_steps: int, seconds: float, rounds: int = 3, kind: str = "random"
+) -> dict:
     robot_name, task = BENCHMARKS[name]
     robot = ROBOTS[robot_name]()
     model = task_model(robot, task)
@@ -251,14 +269,15 @@ def measure(name: str, full_steps: int, seconds: float, rounds: int = 3) -> dict
     for _ in range(rounds):
         full_rate, full_newton = full_steps_per_s(robot, full_steps, gravity=task == "walk")
         full = max(full, full_rate)
-        ref_rate = max(ref_rate, reduced_steps_per_s(reference, steps))
-        fast_rate = max(fast_rate, reduced_steps_per_s(model, steps))
+        ref_rate = max(ref_rate, reduced_steps_per_s(reference, steps, kind))
+        fast_rate = max(fast_rate, reduced_steps_per_s(model, steps, kind))
     row = {
         "kernels": cpp_sim.kernel_instruction_set(),
         "robot": name,
         "nodes": robot.num_nodes,
         "tets": robot.num_tets,
         "contact": "none (drag)" if task == "swim" else model.contact,
+        "actuation": kind,
         "full_steps_per_s": full,
         "full_newton_iterations": full_newton,
         "reference_steps_per_s": ref_rate,
@@ -268,11 +287,11 @@ def measure(name: str, full_steps: int, seconds: float, rounds: int = 3) -> dict
     }
     if task == "walk":
         penalty = task_model(robot, task, contact="penalty")
-        row["penalty_steps_per_s"] = reduced_steps_per_s(penalty, steps)
+        row["penalty_steps_per_s"] = reduced_steps_per_s(penalty, steps, kind)
     else:
         row["penalty_steps_per_s"] = None
     row["thread_speedup"], row["batched_rollout_steps_per_s"], row["thread_cpu_ratio"] = (
-        thread_speedup(model)
+        thread_speedup(model, kind=kind)
     )
     row.update(
         mujoco_dt=None, mujoco_sim_rate=None, mujoco_steps_per_s=None,
@@ -306,6 +325,10 @@ def main() -> None:
         "--rounds", type=int, default=3,
         help="alternating timing rounds of full space and both reduced solvers (best of each)",
     )  # fmt: skip
+    parser.add_argument(
+        "--actuation", choices=("random", "gait"), default="random",
+        help="the reduced rollouts' modal forces: random each step, or a sinusoidal gait",
+    )  # fmt: skip
     args = parser.parse_args()
     if not args.seconds >= 5 * DT or args.full_steps < 1:
         parser.error(f"--seconds must be >= {5 * DT} (5 steps) and --full-steps >= 1")
@@ -314,10 +337,11 @@ def main() -> None:
     cols = ("full/s", "ref/s", "fast/s", "fast/ref", "speedup", "penalty/s", "batch2/s",
             "2thr/1thr", "cpu 2/1", "drop err", "vs MuJoCo")  # fmt: skip
     if not args.json:
-        print(f"fast solver's dense kernels: {cpp_sim.kernel_instruction_set()}")
+        print(f"fast solver's dense kernels: {cpp_sim.kernel_instruction_set()}; "
+              f"actuation: {args.actuation}")  # fmt: skip
         print(f"{'benchmark':<15} {'nodes':>5} " + " ".join(f"{c:>10}" for c in cols))
     for name in args.robots:
-        r = measure(name, args.full_steps, args.seconds, args.rounds)
+        r = measure(name, args.full_steps, args.seconds, args.rounds, args.actuation)
         if args.json:
             print(json.dumps(r), flush=True)
             continue

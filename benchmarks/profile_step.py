@@ -1,7 +1,9 @@
 """Where a reduced step goes: per benchmark robot, per physics configuration, per solver.
 
 For each robot it times, on one thread, with random actuation of 0.5 body weight in the first
-three deformation modes (the same sequence for every row):
+three deformation modes, drawn anew every step (the same sequence for every row; or, with
+``--actuation gait``, one open-loop sinusoidal gait as in ``accuracy_solvers.py``, smooth as a
+controller's splines are):
 
 * ``forces`` / ``stiffness``: one cubature evaluation of the reduced elastic force f_r(q_r)
   and of the reduced stiffness K_r(q_r) at a pose taken from the actuated run;
@@ -20,7 +22,14 @@ three deformation modes (the same sequence for every row):
 * for each solver the model offers (``reference``: the exact Newton path; ``fast``: the
   default), so the two columns read side by side.
 
-    python benchmarks/profile_step.py [--robots quadruped ...] [--steps 200] [--json]
+``--warm-start converged`` is a bound, not a mode to run: each timed step is taken a second
+time from the same state with the first try's converged impulses as its warm start (the
+first try untimed), so the staggers read what a perfect prediction of the contact impulses
+would leave to do; the default, ``previous``, warm-starts from the last step's impulses as
+every step does.
+
+    python benchmarks/profile_step.py [--robots quadruped ...] [--steps 200]
+        [--actuation random|gait] [--warm-start previous|converged] [--json]
 
 The summary it printed when committed is in ``benchmarks/PROFILE.md``.
 """
@@ -50,14 +59,25 @@ def solvers() -> list[str]:
     return list(getattr(cpp_sim.ReducedModel, "SOLVERS", ("reference",)))
 
 
-def actuation(model, steps: int) -> np.ndarray:
+def actuation(model, steps: int, kind: str = "random") -> np.ndarray:
+    """Modal forces for ``steps`` steps: uniform random of up to 0.5 body weight, new every
+    step, or one sinusoidal gait (frequency 0.5-4 Hz, amplitude 0.5-1 body weight, a random
+    phase per mode; the first of ``accuracy_solvers.py``'s gaits)."""
     rng = np.random.default_rng(0)
-    amp = 0.5 * np.sqrt(model.total_mass) * 9.81
-    return amp * rng.uniform(-1.0, 1.0, (steps, model.C))
+    weight = np.sqrt(model.total_mass) * 9.81
+    if kind == "random":
+        return 0.5 * weight * rng.uniform(-1.0, 1.0, (steps, model.C))
+    if kind != "gait":
+        raise ValueError(f"actuation must be 'random' or 'gait', got {kind!r}")
+    t = np.arange(steps) * model.dt
+    f, a, phase = rng.uniform(0.5, 4.0), rng.uniform(0.5, 1.0), rng.uniform(0, 2 * np.pi, 3)
+    return a * weight * np.sin(2 * np.pi * f * t[:, None] + phase[None, : model.C])
 
 
-def time_step(model, steps: int) -> dict:
-    controls = actuation(model, steps)
+def time_step(model, steps: int, kind: str = "random", warm_start: str = "previous") -> dict:
+    if warm_start not in ("previous", "converged"):
+        raise ValueError(f"warm_start must be 'previous' or 'converged', got {warm_start!r}")
+    controls = actuation(model, steps + 10, kind)
     state = model.rest_state()
     for n in range(10):  # settle contact and warm the caches
         state, _ = model.step(state, controls[n])
@@ -66,9 +86,16 @@ def time_step(model, steps: int) -> dict:
     newton_cap = stagger_cap = 0
     parts = dict.fromkeys(("time_dynamics", "time_drag", "time_normal", "time_friction"), 0.0)
     model.profile = True
-    start = time.perf_counter()
+    wall = 0.0
+    offset = 10 if kind == "gait" else 0  # a gait goes on in time; the random draws repeat
     for n in range(steps):
-        state, info = model.step(state, controls[n])
+        u = controls[offset + n]
+        if warm_start == "converged":  # the first try, untimed, gives the warm start
+            first, _ = model.step(state, u)
+            state = cpp_sim.ReducedState(state.q, state.qdot, first.impulses)
+        start = time.perf_counter()
+        state, info = model.step(state, u)
+        wall += time.perf_counter() - start
         newton += info["newton_iterations"]
         staggers[n] = info["stagger_iterations"]
         rows += info["active_rows"]
@@ -76,7 +103,6 @@ def time_step(model, steps: int) -> dict:
         stagger_cap += not info.get("contact_converged", True)
         for key in parts:
             parts[key] += info.get(key, 0.0)
-    wall = time.perf_counter() - start
     return {
         "us_per_step": 1e6 * wall / steps,
         "newton_per_step": newton / steps,
@@ -101,20 +127,32 @@ def time_call(fn, *args, repeats: int = 200) -> float:
     return 1e6 * best
 
 
-def profile(robot_name: str, steps: int) -> list[dict]:
+def profile(
+    robot_name: str,
+    steps: int,
+    kind: str = "random",
+    warm_start: str = "previous",
+    configs: list[str] | None = None,
+) -> list[dict]:
     robot = ROBOTS[robot_name]()
     rows = []
     pose = None
-    for config, settings in CONFIGS.items():
+    for config in configs or list(CONFIGS):
+        settings = CONFIGS[config]
         for solver in solvers():
             extra = {"solver": solver} if len(solvers()) > 1 else {}
             model = build_reduced_model(
                 robot, control_basis=np.eye(20)[:, :3], **settings, **extra
             )  # fmt: skip
-            r = time_step(model, steps)
+            r = time_step(model, steps, kind, warm_start)
             last = r.pop("pose")  # an array: not a row's value (nor JSON)
-            pose = last if config == "staggered" else pose
-            rows.append({"robot": robot_name, "config": config, "solver": solver, **r})
+            pose = last if config == "staggered" or pose is None else pose
+            rows.append(
+                {
+                    "robot": robot_name, "config": config, "solver": solver,
+                    "actuation": kind, "warm_start": warm_start, **r,
+                }
+            )  # fmt: skip
     model = build_reduced_model(robot, control_basis=np.eye(20)[:, :3])
     q_e = pose[3:]
     rows.append(
@@ -138,11 +176,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", nargs="*", default=list(ROBOTS), choices=list(ROBOTS))
     parser.add_argument("--steps", type=int, default=200, help="timed steps per row")
+    parser.add_argument("--configs", nargs="*", default=list(CONFIGS), choices=list(CONFIGS))
+    parser.add_argument("--actuation", choices=("random", "gait"), default="random")
+    parser.add_argument(
+        "--warm-start",
+        choices=("previous", "converged"),
+        default="previous",
+        help="converged: each step retaken from its own converged impulses (a bound)",
+    )
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
     args = parser.parse_args()
     if args.steps < 10:  # the first 10 of them also warm up each row, untimed
         parser.error(f"--steps must be >= 10, got {args.steps}")
     if not args.json:
+        print(f"actuation: {args.actuation}; warm start: {args.warm_start}")
         print(
             f"{'robot':<10} {'config':<10} {'solver':<10} {'us/step':>9} {'newton':>7} "
             f"{'stagger':>8} {'p10/50/90':>10} {'rows':>6} {'newton cap':>11} "
@@ -150,7 +197,7 @@ def main() -> None:
             f"{'dynamics':>9} {'drag':>6} {'normal':>7} {'friction':>9}"
         )
     for name in args.robots:
-        for r in profile(name, args.steps):
+        for r in profile(name, args.steps, args.actuation, args.warm_start, args.configs):
             if args.json:
                 print(json.dumps(r), flush=True)
             elif r["config"] == "kernels":
