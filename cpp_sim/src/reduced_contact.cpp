@@ -188,6 +188,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   };
   const VecX v_free = v;
   const double eps = tol;  // smoothing of |v_t|: sticking nodes creep at most ~eps
+  ws.nnls.carry_valid = false;  // E changes with the step: no factor carries over into it
   // Constant within the step: E^T = L^-1 J_n^T (the LDP's constraint matrix). The velocity
   // response to the impulses, A^-1 J^T lambda, is two triangular solves per stagger: forming
   // A^-1 J_n^T and A^-1 J_t^T once instead takes 3k right-hand sides (k candidates; ~130k
@@ -271,7 +272,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     if (fast) gt.col(m) = g.row(m).transpose();
     lam_ldp = lam_n;  // warm start: last stagger's (or step's) loaded nodes
     bool nnls_ok = true;
-    if (least_distance(g, x_ldp, lam_ldp, nnls_ok, how, ws.nnls, fast ? &gt : nullptr)) {
+    if (least_distance(g, x_ldp, lam_ldp, nnls_ok, how, ws.nnls, fast ? &gt : nullptr, fast)) {
       upper_solve(x_ldp);
       v = v_prime + x_ldp;
       lam_n = lam_ldp;

@@ -62,6 +62,45 @@ inline void upper_solve(const double* u, Index n, Index lda, double* b) {
   }
 }
 
+// U^T U + x x^T = U'^T U' in place (U upper, n x n, column-major, leading dimension lda), by
+// Givens rotations; x (n) is overwritten.
+// (One division per row: the rotation's 1 / c is multiplied, not divided by, along the row.)
+inline void cholesky_upper_update(double* u, Index n, Index lda, double* x) {
+  for (Index k = 0; k < n; ++k) {
+    const double ukk = u[k + k * lda];
+    const double r = std::sqrt(ukk * ukk + x[k] * x[k]);
+    const double inv_ukk = 1.0 / ukk;
+    const double c = r * inv_ukk, s = x[k] * inv_ukk, inv_c = ukk / r;
+    u[k + k * lda] = r;
+    for (Index j = k + 1; j < n; ++j) {
+      double& ukj = u[k + j * lda];
+      ukj = (ukj + s * x[j]) * inv_c;
+      x[j] = c * x[j] - s * ukj;
+    }
+  }
+}
+
+// U^T U - x x^T = U'^T U' in place, by hyperbolic rotations; x is overwritten. Returns false,
+// with U partly overwritten, when a pivot would fall below `rel` times its square (the
+// difference not numerically positive definite).
+inline bool cholesky_upper_downdate(double* u, Index n, Index lda, double* x, double rel) {
+  for (Index k = 0; k < n; ++k) {
+    const double ukk = u[k + k * lda];
+    const double r2 = ukk * ukk - x[k] * x[k];
+    if (!(r2 > rel * ukk * ukk) || !std::isfinite(r2)) return false;
+    const double r = std::sqrt(r2);
+    const double inv_ukk = 1.0 / ukk;
+    const double c = r * inv_ukk, s = x[k] * inv_ukk, inv_c = ukk / r;
+    u[k + k * lda] = r;
+    for (Index j = k + 1; j < n; ++j) {
+      double& ukj = u[k + j * lda];
+      ukj = (ukj - s * x[j]) * inv_c;
+      x[j] = c * x[j] - s * ukj;
+    }
+  }
+  return true;
+}
+
 // b <- (U^T U)^-1 b, for U from cholesky_upper.
 inline void cholesky_upper_solve(const double* u, Index n, Index lda, double* b) {
   upper_transpose_solve(u, n, lda, b);
