@@ -84,6 +84,9 @@ def child(site: str, data: str, solver: str, steps: int, robots: list[str], out:
 
     import cpp_sim
 
+    sys.path.insert(1, str(Path(__file__).parent))
+    from _actuation import modal_forces
+
     models = np.load(data)
     result: dict = {"rates": {}, "solver": None, "q": {}}
     trajectories = {}
@@ -103,8 +106,7 @@ def child(site: str, data: str, solver: str, steps: int, robots: list[str], out:
             model.solver = solver
             result["solver"] = solver
         model.control_basis = np.eye(20)[:, :3]
-        amp = 0.5 * np.sqrt(model.total_mass) * 9.81
-        controls = amp * np.random.default_rng(0).uniform(-1.0, 1.0, (1, steps, 3))
+        controls = modal_forces(model, (1, steps, 3))
         state = model.rest_state()
         model.rollout(state, controls[:, :5], threads=1)  # warm-up
         best = np.inf

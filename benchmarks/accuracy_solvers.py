@@ -26,12 +26,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 
 import cpp_sim
 from softrom_gym.robots import ROBOTS
 from softrom_gym.rom import build_reduced_model
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _actuation import modal_forces
 
 BENCHMARKS = {
     "cross-swim": ("cross", "swim"),
@@ -40,7 +45,6 @@ BENCHMARKS = {
     "quadruped-walk": ("quadruped", "walk"),
     "tripod-walk": ("tripod", "walk"),
 }
-G = 9.81
 
 
 def model(robot, task: str, solver: str, **extra):
@@ -52,14 +56,7 @@ def model(robot, task: str, solver: str, **extra):
 
 
 def gaits(m, count: int, seconds: float, seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    t = np.arange(round(seconds / m.dt)) * m.dt
-    amp = np.sqrt(m.total_mass) * G
-    out = []
-    for _ in range(count):
-        f, a, phase = rng.uniform(0.5, 4.0), rng.uniform(0.5, 1.0), rng.uniform(0, 2 * np.pi, 3)
-        out.append(a * amp * np.sin(2 * np.pi * f * t[:, None] + phase[None, :]))
-    return np.array(out)
+    return modal_forces(m, (count, round(seconds / m.dt), 3), seed=seed, kind="gait")
 
 
 def one_step_errors(robot, task: str, steps: int = 150) -> dict:

@@ -50,13 +50,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
 import cpp_sim
 from softrom_gym.robots import ROBOTS
 from softrom_gym.rom import build_reduced_model, build_subspace
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _actuation import KINDS, modal_forces
 
 BENCHMARKS = {
     "cross-swim": ("cross", "swim"),
@@ -103,29 +108,9 @@ def lifted(model, height: float):
     return cpp_sim.ReducedState(q, s.qdot, s.impulses)
 
 
-def actuation(model, shape: tuple[int, ...], seed: int = 0, kind: str = "random") -> np.ndarray:
-    """Modal forces of shape (rollouts, steps, C), the same for every solver: uniform random
-    of up to 0.5 body weight, new every step, or (``kind="gait"``) one sinusoid per rollout
-    (frequency 0.5-4 Hz, amplitude 0.5-1 body weight, a random phase per mode)."""
-    rng = np.random.default_rng(seed)
-    weight = np.sqrt(model.total_mass) * 9.81
-    if kind == "random":
-        return 0.5 * weight * rng.uniform(-1.0, 1.0, shape)
-    if kind != "gait":
-        raise ValueError(f"actuation must be 'random' or 'gait', got {kind!r}")
-    rollouts, steps, modes = shape
-    t = np.arange(steps) * model.dt
-    out = np.empty(shape)
-    for b in range(rollouts):
-        f, a = rng.uniform(0.5, 4.0), rng.uniform(0.5, 1.0)
-        phase = rng.uniform(0, 2 * np.pi, modes)
-        out[b] = a * weight * np.sin(2 * np.pi * f * t[:, None] + phase[None, :])
-    return out
-
-
 def reduced_steps_per_s(model, steps: int, kind: str = "random") -> float:
     """Physics steps/s of one rollout of ``steps`` actuated steps from rest, one thread."""
-    controls = actuation(model, (1, steps, 3), kind=kind)
+    controls = modal_forces(model, (1, steps, 3), kind=kind)
     state = model.rest_state()
     model.rollout(state, controls[:, :5], threads=1)  # warm-up
     start = time.perf_counter()
@@ -141,7 +126,7 @@ def thread_speedup(model, repeats: int = 5, kind: str = "random") -> tuple[float
     ``repeats`` alternating wall times each, the 2-thread throughput in physics steps/s, and
     the CPU seconds the 2-thread run spent per CPU second of the 1-thread run (1.0: the
     workers do not slow each other down, so a wall ratio under 2 is the machine's noise)."""
-    controls = actuation(model, (64, 100, 3), seed=1, kind=kind)
+    controls = modal_forces(model, (64, 100, 3), seed=1, kind=kind)
     state = model.rest_state()
     model.rollout(state, controls[:2, :5], threads=2)  # warm-up
     wall = {1: np.inf, 2: np.inf}
@@ -326,7 +311,7 @@ def main() -> None:
         help="alternating timing rounds of full space and both reduced solvers (best of each)",
     )  # fmt: skip
     parser.add_argument(
-        "--actuation", choices=("random", "gait"), default="random",
+        "--actuation", choices=KINDS, default="random",
         help="the reduced rollouts' modal forces: random each step, or a sinusoidal gait",
     )  # fmt: skip
     args = parser.parse_args()

@@ -77,8 +77,10 @@ def child(robot_name: str, solver: str, steps: int, task: str) -> None:
         settings.update(contact="none", gravity=[0.0, 0.0, 0.0], fluid_density=1000.0)
     model = build_reduced_model(ROBOTS[robot_name](), control_basis=np.eye(20)[:, :3],
                                 **settings)  # fmt: skip
-    rng = np.random.default_rng(0)
-    controls = 0.5 * np.sqrt(model.total_mass) * 9.81 * rng.uniform(-1, 1, (steps, 3))
+    sys.path.insert(1, str(Path(__file__).parent))
+    from _actuation import modal_forces
+
+    controls = modal_forces(model, (1, steps, 3))[0]
     state = model.rest_state()
     totals = dict.fromkeys(("newton_iterations", "stiffness_evaluations", "stagger_iterations",
                             "normal_iterations", "active_rows"), 0)  # fmt: skip

@@ -38,13 +38,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
 import cpp_sim
 from softrom_gym.robots import ROBOTS
 from softrom_gym.rom import build_reduced_model
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _actuation import KINDS, modal_forces
 
 CONFIGS = {
     "free": {"contact": "none", "gravity": [0.0, 0.0, 0.0]},
@@ -59,25 +64,10 @@ def solvers() -> list[str]:
     return list(getattr(cpp_sim.ReducedModel, "SOLVERS", ("reference",)))
 
 
-def actuation(model, steps: int, kind: str = "random") -> np.ndarray:
-    """Modal forces for ``steps`` steps: uniform random of up to 0.5 body weight, new every
-    step, or one sinusoidal gait (frequency 0.5-4 Hz, amplitude 0.5-1 body weight, a random
-    phase per mode; the first of ``accuracy_solvers.py``'s gaits)."""
-    rng = np.random.default_rng(0)
-    weight = np.sqrt(model.total_mass) * 9.81
-    if kind == "random":
-        return 0.5 * weight * rng.uniform(-1.0, 1.0, (steps, model.C))
-    if kind != "gait":
-        raise ValueError(f"actuation must be 'random' or 'gait', got {kind!r}")
-    t = np.arange(steps) * model.dt
-    f, a, phase = rng.uniform(0.5, 4.0), rng.uniform(0.5, 1.0), rng.uniform(0, 2 * np.pi, 3)
-    return a * weight * np.sin(2 * np.pi * f * t[:, None] + phase[None, : model.C])
-
-
 def time_step(model, steps: int, kind: str = "random", warm_start: str = "previous") -> dict:
     if warm_start not in ("previous", "converged"):
         raise ValueError(f"warm_start must be 'previous' or 'converged', got {warm_start!r}")
-    controls = actuation(model, steps + 10, kind)
+    controls = modal_forces(model, (1, steps + 10, model.C), kind=kind)[0]
     state = model.rest_state()
     for n in range(10):  # settle contact and warm the caches
         state, _ = model.step(state, controls[n])
@@ -177,7 +167,7 @@ def main() -> None:
     parser.add_argument("--robots", nargs="*", default=list(ROBOTS), choices=list(ROBOTS))
     parser.add_argument("--steps", type=int, default=200, help="timed steps per row")
     parser.add_argument("--configs", nargs="*", default=list(CONFIGS), choices=list(CONFIGS))
-    parser.add_argument("--actuation", choices=("random", "gait"), default="random")
+    parser.add_argument("--actuation", choices=KINDS, default="random")
     parser.add_argument(
         "--warm-start",
         choices=("previous", "converged"),
