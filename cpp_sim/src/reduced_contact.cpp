@@ -450,9 +450,13 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       // the friction impulses -c_i J_t,i v / |J_t,i v|_eps stay inside the Coulomb discs. The
       // stagger loop iterates to the joint fixed point. (Measured on the quadruped: staggering
       // converges linearly at a rate near 0.95 per stagger; solving this half to convergence
-      // by Newton's method, or Anderson-accelerating the stagger map, made it oscillate
-      // instead: the slow part is the normal-friction coupling, a sliding node's load creeping
-      // up stagger by stagger, which the guarded Aitken jump above shortens.)
+      // by Newton's method made it oscillate instead: the slow part is the normal-friction
+      // coupling, a sliding node's load creeping up stagger by stagger, which the guarded
+      // Aitken jump above shortens. Anderson acceleration of the stagger map on the loaded
+      // friction impulses, restarted when the loaded set changes or the residual grows, took
+      // 1-22 % fewer staggers than the Aitken jump but stopped further from the converged
+      // step on three of eight gait and random rows, and saved 1-4 % of a step's
+      // instructions: benchmarks/PROFILE.md, session 21.)
       // Only loaded nodes (lambda_n > 0) carry friction: the others have zero weight.
       loaded.clear();
       for (int i = 0; i < k; ++i)
