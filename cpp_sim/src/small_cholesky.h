@@ -64,7 +64,8 @@ inline void upper_solve(const double* u, Index n, Index lda, double* b) {
 
 // U^T U + x x^T = U'^T U' in place (U upper, n x n, column-major, leading dimension lda), by
 // Givens rotations; x (n) is overwritten.
-// (One division per row: the rotation's 1 / c is multiplied, not divided by, along the row.)
+// (Two divisions per row, 1 / u_kk and 1 / c, each multiplied along the row instead of a
+// division per entry.)
 inline void cholesky_upper_update(double* u, Index n, Index lda, double* x) {
   for (Index k = 0; k < n; ++k) {
     const double ukk = u[k + k * lda];
