@@ -417,51 +417,107 @@ SOFTROM_INLINE void snh_element_hg_body(const double* __restrict coef, const dou
   }
 }
 
-// The cubature elements' weighted first Piola-Kirchhoff stresses and energies, four elements at
-// a time with one element per lane: each block's nine entries of F - I are gathered from the
-// element-major input into nine 4-lane rows, the stable Neo-Hookean arithmetic runs on the lanes
-// (so it vectorises), and P is scattered back. A last partial block pads its lanes with F = I,
-// w = 0. The energy is summed over the elements in order.
-SOFTROM_INLINE double snh_stress_body(const double* __restrict f_minus_i,
-                                      const double* __restrict w, Index count, double mu,
-                                      double lambda, double* __restrict p) {
-  double energy = 0.0;
-  for (Index k0 = 0; k0 < count; k0 += 4) {
-    const int lanes = count - k0 < 4 ? static_cast<int>(count - k0) : 4;
-    double f[9][4], wl[4], out[9][4], e[4];
-    for (int l = 0; l < 4; ++l) {
-      for (int i = 0; i < 9; ++i) f[i][l] = l < lanes ? f_minus_i[9 * (k0 + l) + i] : 0.0;
-      wl[l] = l < lanes ? w[k0 + l] : 0.0;
-    }
-    for (int l = 0; l < 4; ++l) {
-      const double x0 = f[0][l] + 1.0, x1 = f[1][l], x2 = f[2][l];  // column f_0 of F
-      const double y0 = f[3][l], y1 = f[4][l] + 1.0, y2 = f[5][l];  // f_1
-      const double z0 = f[6][l], z1 = f[7][l], z2 = f[8][l] + 1.0;  // f_2
-      // cof F = [f_1 x f_2, f_2 x f_0, f_0 x f_1], det F = f_0 . (f_1 x f_2)
-      const double c0 = y1 * z2 - y2 * z1, c1 = y2 * z0 - y0 * z2, c2 = y0 * z1 - y1 * z0;
-      const double c3 = z1 * x2 - z2 * x1, c4 = z2 * x0 - z0 * x2, c5 = z0 * x1 - z1 * x0;
-      const double c6 = x1 * y2 - x2 * y1, c7 = x2 * y0 - x0 * y2, c8 = x0 * y1 - x1 * y0;
-      const double jm1 = (x0 * c0 + x1 * c1 + x2 * c2) - 1.0;
-      const double sq = (x0 * x0 + x1 * x1 + x2 * x2) + (y0 * y0 + y1 * y1 + y2 * y2) +
-                        (z0 * z0 + z1 * z1 + z2 * z2);
-      e[l] = wl[l] * (0.5 * mu * (sq - 3.0) - mu * jm1 + 0.5 * lambda * jm1 * jm1);
-      const double a = wl[l] * mu, b = wl[l] * (lambda * jm1 - mu);
-      out[0][l] = a * x0 + b * c0;
-      out[1][l] = a * x1 + b * c1;
-      out[2][l] = a * x2 + b * c2;
-      out[3][l] = a * y0 + b * c3;
-      out[4][l] = a * y1 + b * c4;
-      out[5][l] = a * y2 + b * c5;
-      out[6][l] = a * z0 + b * c6;
-      out[7][l] = a * z1 + b * c7;
-      out[8][l] = a * z2 + b * c8;
-    }
-    for (int l = 0; l < lanes; ++l) {
-      for (int i = 0; i < 9; ++i) p[9 * (k0 + l) + i] = out[i][l];
-      energy += e[l];
-    }
+// The stable Neo-Hookean arithmetic on four lanes, one element per lane: from the nine entries
+// of F - I (column-major vec), the weighted stress w P(F) into out and the weighted energy
+// density w psi(F) into e. A lane with F = I and w = 0 (padding) gets zeros.
+SOFTROM_INLINE void snh_lanes(const double (&f)[9][4], const double* __restrict wl, double mu,
+                              double lambda, double (&out)[9][4], double (&e)[4]) {
+  for (int l = 0; l < 4; ++l) {
+    const double x0 = f[0][l] + 1.0, x1 = f[1][l], x2 = f[2][l];  // column f_0 of F
+    const double y0 = f[3][l], y1 = f[4][l] + 1.0, y2 = f[5][l];  // f_1
+    const double z0 = f[6][l], z1 = f[7][l], z2 = f[8][l] + 1.0;  // f_2
+    // cof F = [f_1 x f_2, f_2 x f_0, f_0 x f_1], det F = f_0 . (f_1 x f_2)
+    const double c0 = y1 * z2 - y2 * z1, c1 = y2 * z0 - y0 * z2, c2 = y0 * z1 - y1 * z0;
+    const double c3 = z1 * x2 - z2 * x1, c4 = z2 * x0 - z0 * x2, c5 = z0 * x1 - z1 * x0;
+    const double c6 = x1 * y2 - x2 * y1, c7 = x2 * y0 - x0 * y2, c8 = x0 * y1 - x1 * y0;
+    const double jm1 = (x0 * c0 + x1 * c1 + x2 * c2) - 1.0;
+    const double sq = (x0 * x0 + x1 * x1 + x2 * x2) + (y0 * y0 + y1 * y1 + y2 * y2) +
+                      (z0 * z0 + z1 * z1 + z2 * z2);
+    e[l] = wl[l] * (0.5 * mu * (sq - 3.0) - mu * jm1 + 0.5 * lambda * jm1 * jm1);
+    const double a = wl[l] * mu, b = wl[l] * (lambda * jm1 - mu);
+    out[0][l] = a * x0 + b * c0;
+    out[1][l] = a * x1 + b * c1;
+    out[2][l] = a * x2 + b * c2;
+    out[3][l] = a * y0 + b * c3;
+    out[4][l] = a * y1 + b * c4;
+    out[5][l] = a * y2 + b * c5;
+    out[6][l] = a * z0 + b * c6;
+    out[7][l] = a * z1 + b * c7;
+    out[8][l] = a * z2 + b * c8;
   }
+}
+
+// F - I = G_g q for one group of four elements of the interleaved G (dense_kernels.h): nine
+// 4-lane sums, each one multiply-add chain over q's entries in order (the chains cols_times
+// made on a column-major copy of G, which this layout replaced: F is the same to the bit).
+SOFTROM_INLINE void group_deformation(const double* __restrict blk, Index width,
+                                      const double* __restrict q, double (&f)[9][4]) {
+#if SOFTROM_VECTOR_EXTENSION
+  Packet4 acc[9];
+  for (int i = 0; i < 9; ++i) acc[i] = Packet4{0.0, 0.0, 0.0, 0.0};
+  for (Index j = 0; j < width; ++j) {
+    const double qj = q[j];
+    const Packet4 qv = {qj, qj, qj, qj};
+    for (int i = 0; i < 9; ++i) acc[i] += qv * load_packet(blk + 36 * j + 4 * i);
+  }
+  for (int i = 0; i < 9; ++i) std::memcpy(f[i], &acc[i], sizeof acc[i]);
+#else
+  for (int i = 0; i < 9; ++i)
+    for (int l = 0; l < 4; ++l) f[i][l] = 0.0;
+  for (Index j = 0; j < width; ++j)
+    for (int i = 0; i < 9; ++i)
+      for (int l = 0; l < 4; ++l) f[i][l] += q[j] * blk[36 * j + 4 * i + l];
+#endif
+}
+
+// The cubature energy and G^T P in one pass over the interleaved G: per group of four
+// elements, F - I = G_g q, the stresses on the lanes, then G_g^T P into per-lane partial sums
+// of each of G's columns, while the group's 36 x width block is still in L1. Reading G once
+// per evaluation, not twice (G q and G^T P each streamed a copy of G from L2, the force's
+// bound: benchmarks/PROFILE.md, session 22). The partial sums are combined as
+// (s0 + s1) + (s2 + s3) at the end; the energy is summed over the elements in order.
+SOFTROM_INLINE double snh_force_body(const double* __restrict gi, Index groups, Index width,
+                                     const double* __restrict q, const double* __restrict w,
+                                     double mu, double lambda, double* __restrict lanes,
+                                     double* __restrict gtp) {
+  for (Index j = 0; j < 4 * width; ++j) lanes[j] = 0.0;
+  double energy = 0.0;
+  for (Index g = 0; g < groups; ++g) {
+    const double* blk = gi + 36 * width * g;
+    double f[9][4], p[9][4], e[4];
+    group_deformation(blk, width, q, f);
+    snh_lanes(f, w + 4 * g, mu, lambda, p, e);
+#if SOFTROM_VECTOR_EXTENSION
+    Packet4 pv[9];
+    for (int i = 0; i < 9; ++i) std::memcpy(&pv[i], p[i], sizeof pv[i]);
+    for (Index j = 0; j < width; ++j) {
+      Packet4 s = load_packet(lanes + 4 * j);
+      for (int i = 0; i < 9; ++i) s += load_packet(blk + 36 * j + 4 * i) * pv[i];
+      std::memcpy(lanes + 4 * j, &s, sizeof s);
+    }
+#else
+    for (Index j = 0; j < width; ++j)
+      for (int i = 0; i < 9; ++i)
+        for (int l = 0; l < 4; ++l) lanes[4 * j + l] += blk[36 * j + 4 * i + l] * p[i][l];
+#endif
+    for (int l = 0; l < 4; ++l) energy += e[l];
+  }
+  for (Index j = 0; j < width; ++j)
+    gtp[j] = (lanes[4 * j] + lanes[4 * j + 1]) + (lanes[4 * j + 2] + lanes[4 * j + 3]);
   return energy;
+}
+
+// F - I for the first `count` elements of the interleaved G, element-major (9 entries each).
+SOFTROM_INLINE void interleaved_deformation_body(const double* __restrict gi, Index count,
+                                                 Index width, const double* __restrict q,
+                                                 double* __restrict f_minus_i) {
+  for (Index k0 = 0; k0 < count; k0 += 4) {
+    double f[9][4];
+    group_deformation(gi + 9 * width * k0, width, q, f);
+    const int lanes = count - k0 < 4 ? static_cast<int>(count - k0) : 4;
+    for (int l = 0; l < lanes; ++l)
+      for (int i = 0; i < 9; ++i) f_minus_i[9 * (k0 + l) + i] = f[i][l];
+  }
 }
 
 // Each kernel twice: the same body compiled for the baseline and for x86-64-v3.
@@ -477,7 +533,9 @@ struct Table {
   void (*combine_row_triples)(const double*, Index, const Index*, const double*, Index, double*,
                               Index);
   void (*snh_element_hg)(const double*, const double*, Index, double*);
-  double (*snh_stress)(const double*, const double*, Index, double, double, double*);
+  double (*snh_force)(const double*, Index, Index, const double*, const double*, double, double,
+                      double*, double*);
+  void (*interleaved_deformation)(const double*, Index, Index, const double*, double*);
   void (*lower_solve_rows)(const double*, Index, double*, Index);
 };
 
@@ -514,9 +572,14 @@ struct Table {
                                     double* out) {                                             \
     snh_element_hg_body(coef, g, width, out);                                                  \
   }                                                                                            \
-  attr double snh_stress_##suffix(const double* f_minus_i, const double* w, Index count,       \
-                                  double mu, double lambda, double* p) {                       \
-    return snh_stress_body(f_minus_i, w, count, mu, lambda, p);                                \
+  attr double snh_force_##suffix(const double* gi, Index groups, Index width, const double* q, \
+                                 const double* w, double mu, double lambda, double* lanes,     \
+                                 double* gtp) {                                                \
+    return snh_force_body(gi, groups, width, q, w, mu, lambda, lanes, gtp);                    \
+  }                                                                                            \
+  attr void interleaved_deformation_##suffix(const double* gi, Index count, Index width,       \
+                                             const double* q, double* f_minus_i) {             \
+    interleaved_deformation_body(gi, count, width, q, f_minus_i);                              \
   }                                                                                            \
   attr void lower_solve_rows_##suffix(const double* l, Index n, double* b, Index nrhs) {       \
     lower_solve_rows_body(l, n, b, nrhs);                                                      \
@@ -534,7 +597,8 @@ const Table& table() {
     const Table baseline{"baseline", gram_lower_baseline, gram_lower_add_baseline,
                          cols_times_baseline, cols_dot_baseline, cols_times_pair_baseline,
                          cols_dot_times_baseline, combine_row_triples_baseline,
-                         snh_element_hg_baseline, snh_stress_baseline, lower_solve_rows_baseline};
+                         snh_element_hg_baseline, snh_force_baseline,
+                         interleaved_deformation_baseline, lower_solve_rows_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
@@ -543,7 +607,8 @@ const Table& table() {
       return Table{"x86-64-v3",        gram_lower_v3,     gram_lower_add_v3,
                    cols_times_v3,      cols_dot_v3,       cols_times_pair_v3,
                    cols_dot_times_v3,  combine_row_triples_v3,
-                   snh_element_hg_v3,  snh_stress_v3,     lower_solve_rows_v3};
+                   snh_element_hg_v3,  snh_force_v3,
+                   interleaved_deformation_v3,         lower_solve_rows_v3};
 #endif
     return baseline;
   }();
@@ -581,9 +646,13 @@ void combine_row_triples(const double* a, Index width, const Index* blocks, cons
 void snh_element_hg(const double* coef, const double* g, Index width, double* out) {
   table().snh_element_hg(coef, g, width, out);
 }
-double snh_stress(const double* f_minus_i, const double* w, Index count, double mu, double lambda,
-                  double* p) {
-  return table().snh_stress(f_minus_i, w, count, mu, lambda, p);
+double snh_force(const double* gi, Index groups, Index width, const double* q, const double* w,
+                 double mu, double lambda, double* lanes, double* gtp) {
+  return table().snh_force(gi, groups, width, q, w, mu, lambda, lanes, gtp);
+}
+void interleaved_deformation(const double* gi, Index count, Index width, const double* q,
+                             double* f_minus_i) {
+  table().interleaved_deformation(gi, count, width, q, f_minus_i);
 }
 void lower_solve_rows(const double* l, Index n, double* b, Index nrhs) {
   table().lower_solve_rows(l, n, b, nrhs);

@@ -31,10 +31,9 @@ void gram_lower(const double* g, const double* x, Index rows, Index width, doubl
 void gram_lower_add(const double* g, const double* x, Index rows, Index width, double* out);
 
 // out (rows) = A x, for A of `rows` x `cols` in column-major order (an Eigen MatrixXd) and
-// x of `cols`; any `rows`. (G q on a column-major copy of G, which measured 2.2x faster than
-// the row-major product; G^T p on the row-major G, whose memory is G^T column-major; the
-// contact solve's products with the candidates' normal rows, the loaded rows and L^-1, L^-T;
-// the candidate test's N q; NNLS's gradient G^T r on a kept G^T.)
+// x of `cols`; any `rows`. (The contact solve's products with the candidates' normal rows, the
+// loaded rows and L^-1, L^-T; the candidate test's N q; NNLS's gradient G^T r on a kept G^T;
+// the drag's and the damping's products.)
 void cols_times(const double* a, Index rows, Index cols, const double* x, double* out);
 
 // out (cols) = A^T x, for A of `rows` x `cols` in column-major order and x of `rows`: one dot
@@ -79,12 +78,22 @@ void lower_solve_rows(const double* l, Index n, double* b, Index nrhs);
 // as the derivative of the cofactor's cross products (63 multiply-adds per column, not 81).
 void snh_element_hg(const double* coef, const double* g, Index width, double* out);
 
-// The stable Neo-Hookean cubature stresses (material.h): for each of `count` elements k, with
-// F_k = I + the element's nine entries of f_minus_i (column-major vec F - I, element after
-// element), p's nine entries get w_k P(F_k) = w_k (mu F + (lambda (det F - 1) - mu) cof F);
-// returns sum_k w_k psi(F_k), psi = mu/2 (|F|^2 - 3) - mu (det F - 1) + lambda/2 (det F - 1)^2.
-// Four elements at a time, one per lane. (The reduced force's per-element part.)
-double snh_stress(const double* f_minus_i, const double* w, Index count, double mu, double lambda,
-                  double* p);
+// G interleaved by elements: the cubature elements in groups of four (the last group padded with
+// zero rows), each group a block of 36 x width doubles, gi[36 (g width + j) + 4 i + l] =
+// G[9 (4 g + l) + i, j], i.e. for each of G's columns the group's nine rows as 4-lane packets,
+// one element per lane. Both products of a force evaluation read it once (snh_force).
+
+// The stable Neo-Hookean cubature energy and force in one pass over the interleaved G of
+// `groups` groups: returns sum_k w_k psi(F_k) and sets gtp (width) = G^T P, P's nine entries per
+// element w_k P(F_k), F_k = I + G_k q. w has 4 groups entries (0 on the padding), `lanes` is
+// 4 width doubles of scratch. (The reduced force's evaluation, the quasi-Newton's line search.)
+double snh_force(const double* gi, Index groups, Index width, const double* q, const double* w,
+                 double mu, double lambda, double* lanes, double* gtp);
+
+// f_minus_i (9 count, element-major) = G q for the first `count` elements of the interleaved G
+// (vec F_k - vec I; each entry one multiply-add chain over q's entries in order, as in
+// snh_force). (The stiffness's deformation gradients.)
+void interleaved_deformation(const double* gi, Index count, Index width, const double* q,
+                             double* f_minus_i);
 
 }  // namespace softrom::kernels

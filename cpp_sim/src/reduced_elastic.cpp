@@ -46,27 +46,24 @@ void ReducedModel::elastic_reference(const VecX& qe, bool project, double* energ
   }
 }
 
-// G q_e into ws.fall (vec F_k - vec I for every element), through G's column-major copy.
+// G q_e into ws.fall (vec F_k - vec I for every element), from the interleaved G.
 void ReducedModel::deformation_gradients_fast(const VecX& qe, Workspace& ws) const {
-  ws.fall.resize(grad_cols_.rows());
-  kernels::cols_times(grad_cols_.data(), grad_cols_.rows(), grad_cols_.cols(), qe.data(),
-                      ws.fall.data());
+  const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
+  ws.fall.resize(9 * nk);
+  kernels::interleaved_deformation(grad_lanes_.data(), nk, qe.size(), qe.data(), ws.fall.data());
 }
 
-// Energy and force in one pass: the determinant and cofactor are shared by psi and P
-// (kernels::snh_stress, four elements per vector). G q_e uses G's column-major copy, G^T P the
-// padded row-major one (the padding's entries dropped).
+// Energy and force in one pass over the interleaved G (kernels::snh_force): each group of four
+// elements' F, stresses and G^T P while its block of G is in L1.
 double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace& ws) const {
-  const Eigen::Index md = qe.size(), mp = grad_fast_.cols();
-  const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
-  deformation_gradients_fast(qe, ws);
-  ws.pall.resize(9 * nk);
-  const double en = kernels::snh_stress(ws.fall.data(), wvol_.data(), nk, material_.mu,
-                                        material_.lambda, ws.pall.data());
-  ws.f_pad.resize(mp);
-  // The row-major G's memory is G^T column-major (mp x 9K).
-  kernels::cols_times(grad_fast_.data(), mp, grad_fast_.rows(), ws.pall.data(), ws.f_pad.data());
-  force = -ws.f_pad.head(md);
+  const Eigen::Index md = qe.size();
+  const Eigen::Index groups = static_cast<Eigen::Index>(wvol_lanes_.size()) / 4;
+  ws.force_lanes.resize(4 * md);
+  ws.f_pad.resize(md);
+  const double en =
+      kernels::snh_force(grad_lanes_.data(), groups, md, qe.data(), wvol_lanes_.data(),
+                         material_.mu, material_.lambda, ws.force_lanes.data(), ws.f_pad.data());
+  force = -ws.f_pad;
   return en;
 }
 

@@ -38,7 +38,15 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
   }
   grad_fast_.setZero(9 * nk, (md + 3) / 4 * 4);  // a multiple of 4: dense_kernels.h
   grad_fast_.leftCols(md) = grad_;
-  grad_cols_ = grad_;
+  const Eigen::Index groups = (nk + 3) / 4;
+  grad_lanes_.assign(static_cast<std::size_t>(36 * md * groups), 0.0);
+  wvol_lanes_.assign(static_cast<std::size_t>(4 * groups), 0.0);
+  for (Eigen::Index k = 0; k < nk; ++k) {
+    const Eigen::Index g = k / 4, l = k % 4;
+    wvol_lanes_[4 * g + l] = wvol_[k];
+    for (Eigen::Index j = 0; j < md; ++j)
+      for (int i = 0; i < 9; ++i) grad_lanes_[36 * (g * md + j) + 4 * i + l] = grad_(9 * k + i, j);
+  }
 
   const int ns = static_cast<int>(surface_nodes.size());
   surface_rows_.resize(3 * ns, basis.cols());

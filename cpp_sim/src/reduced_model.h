@@ -107,9 +107,10 @@ class ScopedTimer {
 // times a walking step. (The contact solve's own matrices are sized by each step's candidate
 // rows and allocated once per step.)
 struct Workspace {
-  VecX fall, pall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
+  VecX fall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
   VecX q_next, impulses_next;  // finish_step's candidate state, swapped in when it is good
-  VecX f_pad;  // the force padded to grad_fast_'s width
+  VecX f_pad;  // G^T P (snh_force's), then the force
+  VecX force_lanes;  // snh_force's per-lane partial sums
   RowMatX hg;
   MatX k_pad;
   MatX et_rows;  // the contact solve's J_n, then L^-1 J_n^T in its memory (row-major m x k)
@@ -178,7 +179,7 @@ class ReducedModel {
   // Elastic energy / reduced forces / reduced stiffness of the elastic coordinates q_e = q[3:]
   // (rotations and deformation, M + 3).
   double elastic_energy(const VecX& qe) const;
-  double elastic_energy_fast(const VecX& qe) const;  // the fast kernels' (kernels::snh_stress)
+  double elastic_energy_fast(const VecX& qe) const;  // the fast kernels' (kernels::snh_force)
   VecX elastic_forces(const VecX& qe) const;
   MatX elastic_stiffness(const VecX& qe, bool project) const;
 
@@ -252,7 +253,9 @@ class ReducedModel {
   // kernels of dense_kernels.h (measured in benchmarks/PROFILE.md). The reference kernel
   // (elastic_reference) keeps grad_; K_r(rest), which both solvers use, comes from this one.
   RowMatX grad_fast_;
-  MatX grad_cols_;  // G column-major, for G q_e (kernels::cols_times)
+  // G interleaved by elements (dense_kernels.h) for the force's one pass and the stiffness's
+  // deformation gradients, and the cubature weights w_k V_k padded to its groups of four.
+  std::vector<double> grad_lanes_, wvol_lanes_;
   std::vector<double> wvol_;
   StableNeoHookean material_;
   // Surface: rows of B_r (3 x (M + 6)) and rest positions of each surface node.
