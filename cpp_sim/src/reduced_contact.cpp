@@ -107,6 +107,101 @@ struct LoadedRows {
   bool normal_ok = false;     // W's normal rows independent (D_nn positive definite)
 };
 
+
+// Newton's method on staggering's fixed point over a held loaded set W of n nodes (fast solver
+// only), taken where the Aitken jump above would be: the set has held and the staggers creep.
+// With the normal half exact on W (LoadedRows), the normal impulses and the loaded nodes'
+// tangential velocities are affine in W's friction impulses lambda (2 n):
+//   lambda_n = a0 + N lambda,   a0 = D_nn^-1 (b_W - c_n),   N = -D_nn^-1 D_nt,
+//   u = u0 + T lambda,          u0 = c_t + D_tn a0,          T = D_tt + D_tn N,
+// and the fixed point of the smoothed law lambda_l = -r_l u_l / s_l (r = mu lambda_n,
+// s_l = sqrt(|u_l|^2 + eps^2)) is the root of F_l = r_l u_l + s_l lambda_l. Newton on the
+// law in that form, with s_l an unknown (F2_l = s_l^2 - |u_l|^2 - eps^2) eliminated from the
+// step (ds_l = (-F2_l + 2 u_l^T T_l dlambda) / (2 s_l)), solves
+//   [(r_l I + lambda_l u_l^T / s_l) T_l + mu u_l N_l + s_l E_l] dlambda
+//       = -F_l + lambda_l F2_l / (2 s_l)
+// (T_l, N_l: node l's rows; E_l picks lambda_l). Unlike Newton on lambda_l + r_l u_l / s_l,
+// whose derivative mu lambda_n / eps at a sticking node confines its steps to ~eps (measured:
+// it hovered there, benchmarks/PROFILE.md, the coupled Newton entry of 2026-12-03), this
+// primal-dual form keeps lambda free of the law until the root, so a node crossing the
+// stick-slip boundary costs an iteration or two. s is reset to sqrt(|u|^2 + eps^2) after each
+// step (F2 = 0 at every iterate). A try fails, and staggering goes on as before, when a step
+// would take a node's load to zero or below (the answer needs another set: staggering's normal
+// half finds it) or after kMaxIterations. The answer is staggering's own fixed point: the
+// stagger after it must reproduce its velocity to the contact tolerance before the step ends
+// (benchmarks/PROFILE.md, session 22).
+class HeldSetNewton {
+ public:
+  // lam: W's friction impulses, node by node in the set's order (in: staggering's last; out:
+  // the root). d, c: W's Delassus matrix and free contact velocities (LoadedRows), d_nn_factor
+  // D_nn's Cholesky factor, b_w W's normal bounds.
+  bool solve(const MatX& d, const VecX& c, const MatX& d_nn_factor, const VecX& b_w, double mu,
+             double eps, double tol, VecX& lam) {
+    const Eigen::Index n = b_w.size(), n2 = 2 * n;
+    a0_ = b_w - c.head(n);
+    small::cholesky_upper_solve(d_nn_factor.data(), n, n, a0_.data());
+    nm_ = -d.block(0, n, n, n2);
+    for (Eigen::Index j = 0; j < n2; ++j)
+      small::cholesky_upper_solve(d_nn_factor.data(), n, n, nm_.col(j).data());
+    t_ = d.bottomRightCorner(n2, n2);
+    t_.noalias() += d.block(n, 0, n2, n) * nm_;
+    u_ = c.tail(n2);
+    u_.noalias() += d.block(n, 0, n2, n) * a0_;
+    u_.noalias() += t_ * lam;
+    r_ = a0_;
+    r_.noalias() += nm_ * lam;
+    r_ *= mu;
+    s_.resize(n);
+    for (Eigen::Index l = 0; l < n; ++l)
+      s_[l] = std::sqrt(u_.segment<2>(2 * l).squaredNorm() + eps * eps);
+    jac_.resize(n2, n2);
+    step_.resize(n2);
+    for (int it = 0; it < kMaxIterations; ++it) {
+      if (!(r_.array() > 0.0).all()) return false;
+      for (Eigen::Index l = 0; l < n; ++l) {
+        const double u0 = u_[2 * l], u1 = u_[2 * l + 1], l0 = lam[2 * l], l1 = lam[2 * l + 1];
+        const double g = (s_[l] * s_[l] - (u0 * u0 + u1 * u1) - eps * eps) / (2.0 * s_[l]);
+        step_[2 * l] = -(r_[l] * u0 + s_[l] * l0) + l0 * g;
+        step_[2 * l + 1] = -(r_[l] * u1 + s_[l] * l1) + l1 * g;
+        const double is = 1.0 / s_[l];
+        const double p00 = r_[l] + l0 * u0 * is, p01 = l0 * u1 * is;
+        const double p10 = l1 * u0 * is, p11 = r_[l] + l1 * u1 * is;
+        const double m0 = mu * u0, m1 = mu * u1;
+        for (Eigen::Index j = 0; j < n2; ++j) {
+          const double t0 = t_(2 * l, j), t1 = t_(2 * l + 1, j), nj = nm_(l, j);
+          jac_(2 * l, j) = p00 * t0 + p01 * t1 + m0 * nj;
+          jac_(2 * l + 1, j) = p10 * t0 + p11 * t1 + m1 * nj;
+        }
+        jac_(2 * l, 2 * l) += s_[l];
+        jac_(2 * l + 1, 2 * l + 1) += s_[l];
+      }
+      if (!small::lu_solve(jac_.data(), n2, step_.data()) || !step_.allFinite()) return false;
+      du_.noalias() = t_ * step_;
+      dr_.noalias() = nm_ * step_;
+      dr_ *= mu;
+      for (Eigen::Index l = 0; l < n; ++l)
+        if (r_[l] + dr_[l] <= 0.0) return false;  // a node leaves W
+      lam += step_;
+      u_ += du_;
+      r_ += dr_;
+      for (Eigen::Index l = 0; l < n; ++l)
+        s_[l] = std::sqrt(u_.segment<2>(2 * l).squaredNorm() + eps * eps);
+      // (Quadratic near the root: the next stagger's change is then far below tol.)
+      if (du_.cwiseAbs().maxCoeff() < 0.1 * tol) return true;
+    }
+    return false;
+  }
+
+  // The normal impulses lambda_n = a0 + N lambda of the last solve's set.
+  VecX normal_impulses(const VecX& lam) const { return a0_ + nm_ * lam; }
+
+ private:
+  // Measured on the walkers' tries (session 22): roots are reached in 2-8 iterations, most in 3-5.
+  static constexpr int kMaxIterations = 8;
+  MatX nm_, t_, jac_;
+  VecX a0_, u_, r_, s_, step_, du_, dr_;
+};
+
 }  // namespace
 
 // Staggered projection (Kaufman, Sueda, James & Pai 2008) in reduced coordinates.
@@ -435,6 +530,9 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   bool converged = false;
   StaggerExtrapolation extrapolation(lam_n, lam_t);
   bool after_jump = false;  // the stagger after a jump may not declare convergence
+  constexpr int kMaxNewtonTries = 3;
+  int newton_tries = 0;
+  HeldSetNewton held_newton;
   for (; stagger < cfg.max_stagger_iterations; ++stagger) {
     // --- Normal problem with the friction impulses held fixed.
     const bool on_set = fast && normal_on_loaded_set();
@@ -451,12 +549,13 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       // stagger loop iterates to the joint fixed point. (Measured on the quadruped: staggering
       // converges linearly at a rate near 0.95 per stagger; solving this half to convergence
       // by Newton's method made it oscillate instead: the slow part is the normal-friction
-      // coupling, a sliding node's load creeping up stagger by stagger, which the guarded
-      // Aitken jump above shortens. Anderson acceleration of the stagger map on the loaded
-      // friction impulses, restarted when the loaded set changes or the residual grows, took
-      // 1-22 % fewer staggers than the Aitken jump but stopped further from the converged
-      // step on three of eight gait and random rows, and saved 1-4 % of a step's
-      // instructions: benchmarks/PROFILE.md, session 21.)
+      // coupling, a sliding node's load creeping up stagger by stagger, which Newton on the
+      // held set's fixed point (HeldSetNewton) or else the guarded Aitken jump shortens.
+      // Anderson acceleration of the stagger map on the loaded friction impulses, restarted
+      // when the loaded set changes or the residual grows, took 1-22 % fewer staggers than
+      // the Aitken jump but stopped further from the converged step on three of eight gait
+      // and random rows, and saved 1-4 % of a step's instructions: benchmarks/PROFILE.md,
+      // session 21.)
       // Only loaded nodes (lambda_n > 0) carry friction: the others have zero weight.
       loaded.clear();
       for (int i = 0; i < k; ++i)
@@ -585,6 +684,31 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     if (fast && stagger + 3 < cfg.max_stagger_iterations) {
       // (No jump in the last staggers: a capped step must end on plain iterates.)
       const double f = extrapolation.observe(lam_n, lam_t, loaded);
+      // Where staggering creeps on a held set, Newton on its fixed point first (at most
+      // kMaxNewtonTries a step), the Aitken jump if Newton fails.
+      if (f > 0.0 && on_set && loaded == rows.set && newton_tries < kMaxNewtonTries) {
+        ++newton_tries;
+        const int nw = static_cast<int>(rows.set.size());
+        VecX lam_held(2 * nw), b_held(nw);
+        for (int l = 0; l < nw; ++l) {
+          lam_held.segment<2>(2 * l) = lam_t.segment<2>(2 * rows.set[l]);
+          b_held[l] = b[rows.set[l]];
+        }
+        if (held_newton.solve(rows.d, rows.c, rows.d_nn, b_held, mu, eps, tol, lam_held)) {
+          for (int l = 0; l < nw; ++l)
+            lam_t.segment<2>(2 * rows.set[l]) = lam_held.segment<2>(2 * l);
+          extrapolation.jumped(lam_t);
+          // The next stagger is judged against the velocity of Newton's impulses: at a fixed
+          // point it reproduces it, and staggering ends one stagger later.
+          lam_w.resize(3 * nw);
+          lam_w.head(nw) = held_newton.normal_impulses(lam_held);
+          lam_w.tail(2 * nw) = lam_held;
+          times(rows.y, lam_w, v_on);
+          upper_solve(v_on);
+          v_prev = v_free + v_on;
+          continue;
+        }
+      }
       if (f > 0.0) {
         lam_t += f * extrapolation.friction_change();
         extrapolation.jumped(lam_t);

@@ -1,7 +1,8 @@
 // Cholesky factorisation and solve for the contact solve's small dense systems (fast solver
 // only): the friction half's 2 n x 2 n dual system, factored once per stagger, and the loaded
 // set's normal block D_nn, once per set (n ~ 7 loaded nodes on a walker); and the triangular
-// solves of the least-distance programme's growing factor (nnls_cholesky).
+// solves of the least-distance programme's growing factor (nnls_cholesky); and an LU solve for
+// the held-set Newton step's unsymmetric 2 n x 2 n system.
 //
 // Eigen's dynamic-size LLT is blocked for large matrices: at these sizes its set-up costs more
 // than the arithmetic (callgrind on the quadruped: ~9 k instructions to factor a 14 x 14
@@ -11,6 +12,7 @@
 
 #include <cmath>
 #include <cstddef>
+#include <utility>
 
 namespace softrom::small {
 
@@ -106,6 +108,38 @@ inline bool cholesky_upper_downdate(double* u, Index n, Index lda, double* x, do
 inline void cholesky_upper_solve(const double* u, Index n, Index lda, double* b) {
   upper_transpose_solve(u, n, lda, b);
   upper_solve(u, n, lda, b);
+}
+
+// Solves A x = b in place (x holds b on entry), for a general a (n x n, column-major, leading
+// dimension n, overwritten by its LU factors with partial pivoting). Returns false on a zero
+// or non-finite pivot.
+inline bool lu_solve(double* a, Index n, double* x) {
+  for (Index c = 0; c < n; ++c) {
+    Index p = c;
+    double best = std::abs(a[c + c * n]);
+    for (Index r = c + 1; r < n; ++r)
+      if (std::abs(a[r + c * n]) > best) {
+        best = std::abs(a[r + c * n]);
+        p = r;
+      }
+    if (!(best > 0.0) || !std::isfinite(best)) return false;
+    if (p != c) {
+      for (Index j = 0; j < n; ++j) std::swap(a[c + j * n], a[p + j * n]);
+      std::swap(x[c], x[p]);
+    }
+    const double inv = 1.0 / a[c + c * n];
+    for (Index r = c + 1; r < n; ++r) a[r + c * n] *= inv;
+    for (Index j = c + 1; j < n; ++j) {
+      const double f = a[c + j * n];
+      for (Index r = c + 1; r < n; ++r) a[r + j * n] -= a[r + c * n] * f;
+    }
+    for (Index r = c + 1; r < n; ++r) x[r] -= a[r + c * n] * x[c];
+  }
+  for (Index c = n - 1; c >= 0; --c) {
+    x[c] /= a[c + c * n];
+    for (Index r = 0; r < c; ++r) x[r] -= a[r + c * n] * x[c];
+  }
+  return true;
 }
 
 }  // namespace softrom::small
