@@ -55,10 +55,12 @@ def test_solver_setting_is_validated(beam_robot):
 def test_fast_and_reference_staggering_reach_the_same_contact_fixed_point(beam_robot):
     # Staggering converges linearly, so a solver stops somewhere within the slack of its
     # stopping test (two successive staggers within contact_tolerance), and the fast solver,
-    # which extrapolates the stagger sequence, stops elsewhere in it than the reference. Both
-    # approach one fixed point: from every state of a walking trajectory, with a tight contact
-    # tolerance the two steps agree to far below the default tolerance, and with the default
-    # one the fast step is at least as close to a tightly converged step as the reference's.
+    # which solves for a held loaded set's fixed point by Newton's method (or else extrapolates
+    # the stagger sequence), stops elsewhere than the reference. Both approach one fixed point:
+    # from every state of a walking trajectory, with a tight contact tolerance the two steps
+    # agree to far below the default tolerance, and with the default one the fast step is much
+    # closer to a tightly converged step than the reference's (measured: 0.17 of its error;
+    # 0.66 with the extrapolation alone, before the Newton step).
     kw = {"control_basis": np.eye(20)[:, :3]}
     tight_contact = {"contact_tolerance": 1e-7, "max_stagger_iterations": 2000}
     ref = build_reduced_model(beam_robot, solver="reference", **kw)
@@ -88,7 +90,7 @@ def test_fast_and_reference_staggering_reach_the_same_contact_fixed_point(beam_r
     assert contacts == 120  # it walked on the ground throughout
     # m/s RMS over nodes; a step changes the velocity by ~5e-2, the default tolerance is 1e-4
     assert max(tight_gap) < 1e-5
-    assert np.mean(err_fast) <= 1.1 * np.mean(err_ref)
+    assert np.mean(err_fast) <= 0.4 * np.mean(err_ref)
 
 
 def test_fast_step_matches_reference_step_while_swimming():
