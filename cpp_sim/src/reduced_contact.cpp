@@ -107,7 +107,6 @@ struct LoadedRows {
   bool normal_ok = false;     // W's normal rows independent (D_nn positive definite)
 };
 
-
 // Newton's method on staggering's fixed point over a held loaded set W of n nodes (fast solver
 // only), taken where the Aitken jump above would be: the set has held and the staggers creep.
 // With the normal half exact on W (LoadedRows), the normal impulses and the loaded nodes'
@@ -120,16 +119,16 @@ struct LoadedRows {
 // step (ds_l = (-F2_l + 2 u_l^T T_l dlambda) / (2 s_l)), solves
 //   [(r_l I + lambda_l u_l^T / s_l) T_l + mu u_l N_l + s_l E_l] dlambda
 //       = -F_l + lambda_l F2_l / (2 s_l)
-// (T_l, N_l: node l's rows; E_l picks lambda_l). Unlike Newton on lambda_l + r_l u_l / s_l,
-// whose derivative mu lambda_n / eps at a sticking node confines its steps to ~eps (measured:
-// it hovered there, benchmarks/PROFILE.md, the coupled Newton entry of 2026-12-03), this
-// primal-dual form keeps lambda free of the law until the root, so a node crossing the
-// stick-slip boundary costs an iteration or two. s is reset to sqrt(|u|^2 + eps^2) after each
-// step (F2 = 0 at every iterate). A try fails, and staggering goes on as before, when a step
-// would take a node's load to zero or below (the answer needs another set: staggering's normal
-// half finds it) or after kMaxIterations. The answer is staggering's own fixed point: the
-// stagger after it must reproduce its velocity to the contact tolerance before the step ends
-// (benchmarks/PROFILE.md, session 22).
+// (T_l, N_l: node l's rows; E_l picks lambda_l), whose F2 term is zero here: s is reset to
+// sqrt(|u|^2 + eps^2) after every step, so F2 = 0 at every iterate. Unlike Newton on
+// lambda_l + r_l u_l / s_l, whose derivative mu lambda_n / eps at a sticking node confines its
+// steps to ~eps (measured: it hovered there, benchmarks/PROFILE.md, the coupled Newton entry
+// of 2026-12-03), this primal-dual form keeps lambda free of the law until the root, so a node
+// crossing the stick-slip boundary costs an iteration or two. A try fails, and staggering goes
+// on as before, when a step would take a node's load to zero or below (the answer needs
+// another set: staggering's normal half finds it) or after kMaxIterations. The answer is
+// staggering's own fixed point: the stagger after it must reproduce its velocity to the
+// contact tolerance before the step ends (benchmarks/PROFILE.md, session 22).
 class HeldSetNewton {
  public:
   // lam: W's friction impulses, node by node in the set's order (in: staggering's last; out:
@@ -160,9 +159,8 @@ class HeldSetNewton {
       if (!(r_.array() > 0.0).all()) return false;
       for (Eigen::Index l = 0; l < n; ++l) {
         const double u0 = u_[2 * l], u1 = u_[2 * l + 1], l0 = lam[2 * l], l1 = lam[2 * l + 1];
-        const double g = (s_[l] * s_[l] - (u0 * u0 + u1 * u1) - eps * eps) / (2.0 * s_[l]);
-        step_[2 * l] = -(r_[l] * u0 + s_[l] * l0) + l0 * g;
-        step_[2 * l + 1] = -(r_[l] * u1 + s_[l] * l1) + l1 * g;
+        step_[2 * l] = -(r_[l] * u0 + s_[l] * l0);
+        step_[2 * l + 1] = -(r_[l] * u1 + s_[l] * l1);
         const double is = 1.0 / s_[l];
         const double p00 = r_[l] + l0 * u0 * is, p01 = l0 * u1 * is;
         const double p10 = l1 * u0 * is, p11 = r_[l] + l1 * u1 * is;

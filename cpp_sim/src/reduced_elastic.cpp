@@ -59,11 +59,11 @@ double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace
   const Eigen::Index md = qe.size();
   const Eigen::Index groups = static_cast<Eigen::Index>(wvol_lanes_.size()) / 4;
   ws.force_lanes.resize(4 * md);
-  ws.f_pad.resize(md);
+  force.resize(md);
   const double en =
       kernels::snh_force(grad_lanes_.data(), groups, md, qe.data(), wvol_lanes_.data(),
-                         material_.mu, material_.lambda, ws.force_lanes.data(), ws.f_pad.data());
-  force = -ws.f_pad;
+                         material_.mu, material_.lambda, ws.force_lanes.data(), force.data());
+  force = -force;  // f_e = -G^T P
   return en;
 }
 

@@ -109,7 +109,6 @@ class ScopedTimer {
 struct Workspace {
   VecX fall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
   VecX q_next, impulses_next;  // finish_step's candidate state, swapped in when it is good
-  VecX f_pad;  // G^T P (snh_force's), then the force
   VecX force_lanes;  // snh_force's per-lane partial sums
   RowMatX hg;
   MatX k_pad;
