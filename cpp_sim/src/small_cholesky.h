@@ -26,31 +26,38 @@ using Index = std::ptrdiff_t;
 // (Cholesky-Crout). At these sizes a scalar dot product costs fewer instructions than short
 // vectorised updates: per factorisation of the quadruped's dual systems (callgrind), Eigen's
 // LLT ~9 k instructions, a right-looking column loop ~8.7 k, this ~3.9 k.
+// The entries are formed row by row of U: the dot products of one row (one per later column)
+// are independent, so the core overlaps their multiply-add chains, where column by column
+// each entry waited for the one above it. Every entry is the same sum in the same order as
+// column by column, so the factor is the same to the bit; in a standalone harness (x86-64-v3)
+// it took a third of the time at n = 10-26 (14 x 14: 883 -> 299 ns).
 inline bool cholesky_upper(double* a, Index n, Index lda) {
-  for (Index j = 0; j < n; ++j) {
-    double* cj = a + j * lda;
-    for (Index i = 0; i < j; ++i) {
-      const double* ci = a + i * lda;
+  for (Index i = 0; i < n; ++i) {
+    double* ci = a + i * lda;
+    double d = ci[i];
+    for (Index k = 0; k < i; ++k) d -= ci[k] * ci[k];
+    if (!(d > 0.0) || !std::isfinite(d)) return false;
+    const double uii = std::sqrt(d);
+    ci[i] = uii;
+    for (Index j = i + 1; j < n; ++j) {
+      double* cj = a + j * lda;
       double s = cj[i];
       for (Index k = 0; k < i; ++k) s -= ci[k] * cj[k];
-      cj[i] = s / ci[i];
+      cj[i] = s / uii;
     }
-    double d = cj[j];
-    for (Index k = 0; k < j; ++k) d -= cj[k] * cj[k];
-    if (!(d > 0.0) || !std::isfinite(d)) return false;
-    cj[j] = std::sqrt(d);
   }
   return true;
 }
 
-// b <- U^-T b for an upper triangular U (n x n, column-major, leading dimension lda): row i
-// of U^T is column i of U, contiguous, so each entry is one dot product.
+// b <- U^-T b for an upper triangular U (n x n, column-major, leading dimension lda), by
+// updates along U's rows: b_j -= u_ij x_i as soon as x_i is known, in the order of the
+// dot-product form's sum (the same bits), but with the later entries' chains independent
+// (26 x 26 in the harness above: 262 -> 207 ns).
 inline void upper_transpose_solve(const double* u, Index n, Index lda, double* b) {
   for (Index i = 0; i < n; ++i) {
-    const double* ci = u + i * lda;
-    double s = b[i];
-    for (Index k = 0; k < i; ++k) s -= ci[k] * b[k];
-    b[i] = s / ci[i];
+    const double x = b[i] / u[i + i * lda];
+    b[i] = x;
+    for (Index j = i + 1; j < n; ++j) b[j] -= u[i + j * lda] * x;
   }
 }
 
