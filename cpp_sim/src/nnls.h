@@ -152,7 +152,8 @@ struct NnlsWorkspace {
 // p)) and shrinks by Givens rotations when variables leave the set (O(p^2)). A column that is
 // (numerically) a combination of the passive ones is not added: Lawson-Hanson never needs it,
 // and its Gram matrix would be singular. Same iterates as the QR variant, a fraction of the work.
-// The solution is left in ws.u; returns false when an iteration cap stopped it. `gt`
+// The solution is left in ws.u, and its residual d - G u in ws.resid; returns false when an
+// iteration cap stopped it. `gt`
 // (optional) is G^T kept by the caller (n x rows, column-major): the gradient G^T r, the
 // largest cost with hundreds of columns, is then a product over its contiguous columns
 // (kernels::cols_times) instead of n short dot products.
@@ -382,9 +383,15 @@ inline bool least_distance(const Eigen::MatrixXd& g, Eigen::VectorXd& x, Eigen::
     converged = converged && res.converged;
     ws.u.swap(res.u);
   }
+  // r = G u - d. nnls_cholesky leaves d - G u in ws.resid (its last gradient's, formed from
+  // the passive columns alone), so the Gram variant skips the product over all k columns.
   Eigen::VectorXd& r = ws.r_ldp;
-  r.noalias() = g * ws.u;
-  r -= d;
+  if (how == NnlsSolve::Gram) {
+    r = -ws.resid;
+  } else {
+    r.noalias() = g * ws.u;
+    r -= d;
+  }
   if (!(r[m] < -1e-14)) return false;
   x = -r.head(m) / r[m];
   lambda = -ws.u / r[m];
