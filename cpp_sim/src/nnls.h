@@ -145,6 +145,7 @@ struct NnlsWorkspace {
   Eigen::MatrixXd carry_r;
   Eigen::VectorXd carry_f, carry_x;
   bool carry_valid = false;
+  double carry_top_max = 0.0;  // max |G_ij| over the rows but the last (valid with carry_valid)
 };
 
 // Lawson-Hanson with the passive set's Gram matrix G_p^T G_p = R^T R kept as an upper
@@ -173,7 +174,14 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
   bool converged = true;
   Eigen::VectorXd& u = ws.u;
   u.setZero(n);
-  const double tol = 1e-12 * std::max(1.0, g.cwiseAbs().maxCoeff() * d.cwiseAbs().maxCoeff());
+  // The rows but the last are the previous carried call's, so their largest entry is too
+  // (a pass over all of G per call was ~5 k loads on the cross's 185 candidates).
+  const bool top_known = carry && ws.carry_valid && ws.carry_r.rows() == rows;
+  const double top_max = top_known   ? ws.carry_top_max
+                         : rows > 1 ? g.topRows(rows - 1).cwiseAbs().maxCoeff()
+                                    : 0.0;
+  const double g_max = std::max(top_max, g.row(rows - 1).cwiseAbs().maxCoeff());
+  const double tol = 1e-12 * std::max(1.0, g_max * d.cwiseAbs().maxCoeff());
   // G^T d from d's nonzero rows (a least-distance programme has one: d = e_last), exactly
   // the dense product's value at a fraction of its cost with hundreds of columns.
   Eigen::VectorXd& gtd = ws.gtd;
@@ -357,6 +365,7 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
     ws.carry_f.resize(p);
     for (Eigen::Index c = 0; c < p; ++c) ws.carry_f[c] = g(rows - 1, set[c]);
     ws.carry_valid = true;
+    ws.carry_top_max = top_max;
   }
   return converged;
 }
