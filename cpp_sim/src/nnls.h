@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "dense_kernels.h"
+#include "scratch.h"
 #include "small_cholesky.h"
 
 namespace softrom {
@@ -29,12 +30,12 @@ struct NnlsResult {
 
 // min |G u - d| subject to u >= 0.
 //
-// `guess` (optional, size G.cols()) warm-starts the passive set with its positive entries:
+// `guess` (optional, G.cols() entries) warm-starts the passive set with its positive entries:
 // the least-squares solution on that set, pruned until positive, is a valid starting point
 // for Lawson-Hanson, and a good guess (last solve's support) leaves little to do.
-inline NnlsResult nnls(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
-                       const Eigen::VectorXd* guess = nullptr, int max_iterations = 0,
-                       NnlsSolve how = NnlsSolve::Qr) {
+inline NnlsResult nnls(const Eigen::Ref<const Eigen::MatrixXd>& g,
+                       const Eigen::Ref<const Eigen::VectorXd>& d, const double* guess = nullptr,
+                       int max_iterations = 0, NnlsSolve how = NnlsSolve::Qr) {
   const Eigen::Index n = g.cols();
   if (max_iterations <= 0) max_iterations = static_cast<int>(3 * n + 10);
   NnlsResult res;
@@ -69,9 +70,9 @@ inline NnlsResult nnls(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
     z.setZero();
     for (Eigen::Index c = 0; c < p; ++c) z[idx[c]] = zp[c];
   };
-  if (guess != nullptr && guess->size() == n) {
+  if (guess != nullptr) {
     int limit = 0;
-    for (Eigen::Index j = 0; j < n; ++j) passive[j] = (*guess)[j] > 0.0 ? 1 : 0;
+    for (Eigen::Index j = 0; j < n; ++j) passive[j] = guess[j] > 0.0 ? 1 : 0;
     for (int it = 0; it < static_cast<int>(n) + 1; ++it) {
       limit = 0;
       for (Eigen::Index j = 0; j < n; ++j) limit += passive[j];
@@ -131,10 +132,11 @@ inline NnlsResult nnls(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
 }
 
 // Scratch buffers of nnls_cholesky and least_distance, reused from call to call: a contact
-// solve calls them once per stagger, ~30 times a walking step.
+// solve calls them once per stagger, ~30 times a walking step, and their sizes change with
+// the step's candidates and the passive set (scratch.h: memory that only grows).
 struct NnlsWorkspace {
-  Eigen::VectorXd u, gtd, z, col, rhs, w, resid, d, r_ldp;
-  Eigen::MatrixXd r;
+  ScratchVec u, gtd, z, col, rhs, w, resid, d, r_ldp;
+  ScratchMat r;
   std::vector<Eigen::Index> set, order;
   std::vector<char> passive;
   // Carried from one solve to the next (nnls_cholesky's `carry`), for a sequence of problems
@@ -142,8 +144,8 @@ struct NnlsWorkspace {
   // passive set, its Gram factor, and G's last row on the set. The caller clears carry_valid
   // when the other rows change.
   std::vector<Eigen::Index> carry_set;
-  Eigen::MatrixXd carry_r;
-  Eigen::VectorXd carry_f, carry_x;
+  ScratchMat carry_r;
+  ScratchVec carry_f, carry_x;
   bool carry_valid = false;
   double carry_top_max = 0.0;  // max |G_ij| over the rows but the last (valid with carry_valid)
 };
@@ -154,7 +156,7 @@ struct NnlsWorkspace {
 // (numerically) a combination of the passive ones is not added: Lawson-Hanson never needs it,
 // and its Gram matrix would be singular. Same iterates as the QR variant, a fraction of the work.
 // The solution is left in ws.u, and its residual d - G u in ws.resid; returns false when an
-// iteration cap stopped it. `gt`
+// iteration cap stopped it. `guess` (optional) has n entries. `gt`
 // (optional) is G^T kept by the caller (n x rows, column-major): the gradient G^T r, the
 // largest cost with hundreds of columns, is then a product over its contiguous columns
 // (kernels::cols_times) instead of n short dot products.
@@ -166,13 +168,14 @@ struct NnlsWorkspace {
 // formed again column by column, O(rows p^2). (The cross walker's 20-26 passive candidates:
 // ~22 k instructions a solve re-forming it, by callgrind.) A downdate that is not
 // numerically positive definite falls back to forming it.
-inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
-                          const Eigen::VectorXd* guess, int max_iterations, NnlsWorkspace& ws,
-                          const Eigen::MatrixXd* gt = nullptr, bool carry = false) {
+inline bool nnls_cholesky(const Eigen::Ref<const Eigen::MatrixXd>& g,
+                          const Eigen::Ref<const Eigen::VectorXd>& d, const double* guess,
+                          int max_iterations, NnlsWorkspace& ws, const double* gt = nullptr,
+                          bool carry = false) {
   const Eigen::Index n = g.cols(), rows = g.rows();
   if (max_iterations <= 0) max_iterations = static_cast<int>(3 * n + 10);
   bool converged = true;
-  Eigen::VectorXd& u = ws.u;
+  ScratchVec& u = ws.u;
   u.setZero(n);
   // The rows but the last are the previous carried call's, so their largest entry is too
   // (a pass over all of G per call was ~5 k loads on the cross's 185 candidates).
@@ -184,7 +187,7 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
   const double tol = 1e-12 * std::max(1.0, g_max * d.cwiseAbs().maxCoeff());
   // G^T d from d's nonzero rows (a least-distance programme has one: d = e_last), exactly
   // the dense product's value at a fraction of its cost with hundreds of columns.
-  Eigen::VectorXd& gtd = ws.gtd;
+  ScratchVec& gtd = ws.gtd;
   gtd.setZero(n);
   for (Eigen::Index r = 0; r < rows; ++r)
     if (d[r] != 0.0) gtd.noalias() += d[r] * g.row(r).transpose();
@@ -192,9 +195,9 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
   set.clear();
   std::vector<char>& passive = ws.passive;
   passive.assign(n, 0);
-  Eigen::MatrixXd& r = ws.r;  // upper triangular, p x p in use (p <= rows)
+  ScratchMat& r = ws.r;  // upper triangular, p x p in use (p <= rows)
   r.resize(rows, rows);
-  Eigen::VectorXd &z = ws.z, &col = ws.col, &rhs = ws.rhs;
+  ScratchVec &z = ws.z, &col = ws.col, &rhs = ws.rhs;
   z.resize(n);
   col.resize(rows);
   rhs.resize(rows);
@@ -249,12 +252,12 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
     if (!carry || !ws.carry_valid || ws.carry_r.rows() != rows || guess == nullptr) return false;
     const Eigen::Index p = static_cast<Eigen::Index>(ws.carry_set.size());
     Eigen::Index support = 0;
-    for (Eigen::Index j = 0; j < n; ++j) support += (*guess)[j] > 0.0;
+    for (Eigen::Index j = 0; j < n; ++j) support += guess[j] > 0.0;
     if (p == 0 || support != p) return false;
     for (Eigen::Index j : ws.carry_set)
-      if (!((*guess)[j] > 0.0)) return false;
+      if (!(guess[j] > 0.0)) return false;
     r.topLeftCorner(p, p) = ws.carry_r.topLeftCorner(p, p);
-    Eigen::VectorXd& x = ws.carry_x;
+    ScratchVec& x = ws.carry_x;
     x.resize(p);
     for (Eigen::Index c = 0; c < p; ++c) x[c] = g(rows - 1, ws.carry_set[c]);
     small::cholesky_upper_update(r.data(), p, rows, x.data());
@@ -264,10 +267,10 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
     for (Eigen::Index j : set) passive[j] = 1;
     return true;
   };
-  if (guess != nullptr && guess->size() == n) {
+  if (guess != nullptr) {
     if (!carried())
       for (Eigen::Index j = 0; j < n; ++j)
-        if ((*guess)[j] > 0.0) add(j);
+        if (guess[j] > 0.0) add(j);
     for (int it = 0; it < static_cast<int>(n) + 1 && !set.empty(); ++it) {
       solve();
       bool pruned = false;
@@ -291,7 +294,7 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
   // Instead of testing two flags per candidate, the passive entries of w are set to -inf
   // here, and a blocked one when it is found (a block lasts until the next gradient), so the
   // selection is a plain arg-max over w (the cross's 185-candidate scans were 10 % of NNLS).
-  Eigen::VectorXd &w = ws.w, &resid = ws.resid;
+  ScratchVec &w = ws.w, &resid = ws.resid;
   std::vector<Eigen::Index>& order = ws.order;
   w.resize(n);
   resid.resize(rows);
@@ -303,7 +306,7 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
     for (Eigen::Index j : order)
       if (u[j] != 0.0) resid.noalias() -= u[j] * g.col(j);
     if (gt != nullptr) {
-      kernels::cols_times(gt->data(), n, rows, resid.data(), w.data());
+      kernels::cols_times(gt, n, rows, resid.data(), w.data());
     } else {
       w.noalias() = g.transpose() * resid;
     }
@@ -375,26 +378,26 @@ inline bool nnls_cholesky(const Eigen::MatrixXd& g, const Eigen::VectorXd& d,
 // is copied once. Returns false if infeasible. On success x = E^T lambda with multipliers
 // lambda >= 0 (complementary to E x - f). `lambda` on entry (if sized k) warm-starts the
 // active set. `converged` is cleared when NNLS stopped at its iteration cap. `ws` is scratch
-// (the NNLS solution u is left in ws.u); the Qr variant still allocates its own. `gt`
-// (optional, Gram variant) is g^T, as for nnls_cholesky.
-inline bool least_distance(const Eigen::MatrixXd& g, Eigen::VectorXd& x, Eigen::VectorXd& lambda,
-                           bool& converged, NnlsSolve how, NnlsWorkspace& ws,
-                           const Eigen::MatrixXd* gt = nullptr, bool carry = false) {
+// (the NNLS solution u is left in ws.u); the Qr variant (the reference) still allocates its
+// own. `gt` (optional, Gram variant) is g^T's memory, as for nnls_cholesky. x has m entries.
+inline bool least_distance(const Eigen::Ref<const Eigen::MatrixXd>& g, Eigen::Ref<Eigen::VectorXd> x,
+                           Eigen::Ref<Eigen::VectorXd> lambda, bool& converged, NnlsSolve how,
+                           NnlsWorkspace& ws, const double* gt = nullptr, bool carry = false) {
   const Eigen::Index m = g.rows() - 1, k = g.cols();
-  Eigen::VectorXd& d = ws.d;
+  ScratchVec& d = ws.d;
   d.setZero(m + 1);
   d[m] = 1.0;
-  const Eigen::VectorXd* guess = lambda.size() == k ? &lambda : nullptr;
+  const double* guess = lambda.size() == k ? lambda.data() : nullptr;
   if (how == NnlsSolve::Gram) {
     converged = nnls_cholesky(g, d, guess, 0, ws, gt, carry) && converged;
   } else {
     NnlsResult res = nnls(g, d, guess, 0, how);
     converged = converged && res.converged;
-    ws.u.swap(res.u);
+    ws.u = res.u;
   }
   // r = G u - d. nnls_cholesky leaves d - G u in ws.resid (its last gradient's, formed from
   // the passive columns alone), so the Gram variant skips the product over all k columns.
-  Eigen::VectorXd& r = ws.r_ldp;
+  ScratchVec& r = ws.r_ldp;
   if (how == NnlsSolve::Gram) {
     r = -ws.resid;
   } else {

@@ -5,6 +5,7 @@
 #include "dense_kernels.h"
 #include "nnls.h"
 #include "reduced_model.h"
+#include "scratch.h"
 #include "small_cholesky.h"
 
 namespace softrom {
@@ -33,15 +34,22 @@ namespace {
 // jump limit).
 class StaggerExtrapolation {
  public:
-  StaggerExtrapolation(const VecX& lam_n, const VecX& lam_t)
-      : k_(lam_n.size()), last_(3 * k_), d_(3 * k_), d_prev_(3 * k_) {
+  // A step's start, from its first impulses.
+  void reset(const ScratchVec& lam_n, const ScratchVec& lam_t) {
+    k_ = lam_n.size();
+    last_.resize(3 * k_);
+    d_.resize(3 * k_);
+    d_prev_.resize(3 * k_);
     last_ << lam_n, lam_t;
-    loaded_.reserve(k_);
+    loaded_.clear();
+    held_ = 0;
+    jumps_ = 0;
+    have_d_ = false;
   }
 
   // The impulses at the end of a stagger; returns the factor f of the jump
   // lambda_t += f (lambda_t - lambda_t,prev), 0 for none.
-  double observe(const VecX& lam_n, const VecX& lam_t, const std::vector<int>& loaded) {
+  double observe(const ScratchVec& lam_n, const ScratchVec& lam_t, const std::vector<int>& loaded) {
     if (loaded == loaded_) {
       ++held_;
     } else {
@@ -65,7 +73,7 @@ class StaggerExtrapolation {
   }
 
   // After a jump: lambda_t moved by f d_t, and the history starts again.
-  void jumped(const VecX& lam_t) {
+  void jumped(const ScratchVec& lam_t) {
     ++jumps_;
     last_.tail(2 * k_) = lam_t;
     have_d_ = false;
@@ -81,8 +89,8 @@ class StaggerExtrapolation {
   static constexpr double kMinRatio = 0.5;  // faster sequences converge without help
   static constexpr double kMaxFactor = 10.0;
   static constexpr int kMaxJumps = 5;  // per step (the plateau of 4-6 measured on the tripod)
-  Eigen::Index k_;
-  VecX last_, d_, d_prev_;  // (lambda_n, lambda_t): the last impulses and their changes
+  Eigen::Index k_ = 0;
+  ScratchVec last_, d_, d_prev_;  // (lambda_n, lambda_t): the last impulses and their changes
   std::vector<int> loaded_;
   int held_ = 0, jumps_ = 0;
   bool have_d_ = false;
@@ -101,10 +109,17 @@ class StaggerExtrapolation {
 struct LoadedRows {
   std::vector<int> set;       // the loaded candidates, in the order of Y's columns
   std::vector<char> member;   // per candidate: in the set
-  MatX y, d;
-  VecX c;
-  MatX d_nn;                  // the Cholesky factor of D's normal block, once per set
+  ScratchMat y, d;
+  ScratchVec c;
+  ScratchMat d_nn;            // the Cholesky factor of D's normal block, once per set
   bool normal_ok = false;     // W's normal rows independent (D_nn positive definite)
+
+  // A step's start (k candidates): no set.
+  void reset(int k) {
+    set.clear();
+    member.assign(k, 0);
+    normal_ok = false;
+  }
 };
 
 // Newton's method on staggering's fixed point over a held loaded set W of n nodes (fast solver
@@ -134,8 +149,8 @@ class HeldSetNewton {
   // lam: W's friction impulses, node by node in the set's order (in: staggering's last; out:
   // the root). d, c: W's Delassus matrix and free contact velocities (LoadedRows), d_nn_factor
   // D_nn's Cholesky factor, b_w W's normal bounds.
-  bool solve(const MatX& d, const VecX& c, const MatX& d_nn_factor, const VecX& b_w, double mu,
-             double eps, double tol, VecX& lam) {
+  bool solve(const ScratchMat& d, const ScratchVec& c, const ScratchMat& d_nn_factor,
+             const ScratchVec& b_w, double mu, double eps, double tol, ScratchVec& lam) {
     const Eigen::Index n = b_w.size(), n2 = 2 * n;
     a0_ = b_w - c.head(n);
     small::cholesky_upper_solve(d_nn_factor.data(), n, n, a0_.data());
@@ -155,6 +170,8 @@ class HeldSetNewton {
       s_[l] = std::sqrt(u_.segment<2>(2 * l).squaredNorm() + eps * eps);
     jac_.resize(n2, n2);
     step_.resize(n2);
+    du_.resize(n2);
+    dr_.resize(n);
     for (int it = 0; it < kMaxIterations; ++it) {
       if (!(r_.array() > 0.0).all()) return false;
       for (Eigen::Index l = 0; l < n; ++l) {
@@ -190,17 +207,42 @@ class HeldSetNewton {
     return false;
   }
 
-  // The normal impulses lambda_n = a0 + N lambda of the last solve's set.
-  VecX normal_impulses(const VecX& lam) const { return a0_ + nm_ * lam; }
+  // The normal impulses lambda_n = a0 + N lambda of the last solve's set, into out (n).
+  template <class Out>
+  void normal_impulses(const ScratchVec& lam, Out&& out) const {
+    out = a0_;
+    out.noalias() += nm_ * lam;
+  }
 
  private:
   // Measured on the walkers' tries (session 22): roots are reached in 2-8 iterations, most in 3-5.
   static constexpr int kMaxIterations = 8;
-  MatX nm_, t_, jac_;
-  VecX a0_, u_, r_, s_, step_, du_, dr_;
+  ScratchMat nm_, t_, jac_;
+  ScratchVec a0_, u_, r_, s_, step_, du_, dr_;
 };
 
 }  // namespace
+
+// Everything a contact step works in, kept by the worker's Workspace from step to step, so a
+// step allocates nothing once the worker has seen its largest sizes (scratch.h). The names are
+// solve_contacts' (below), where each is explained.
+struct ContactScratch {
+  std::vector<int> active, loaded, jt_l_set, pool_slot;
+  std::vector<double> gap;
+  std::vector<Eigen::Index> slots;
+  ScratchVec old, b, lam_n, lam_t, v_free, solve_tmp, response, x_ldp, lam_ldp, row_gap, vc_prev,
+      vc, weight, v_prev, dv_stagger, v_second, ut_l, rhs_l, lam_w, v_on, pool_c, tangent_row,
+      lam_held, b_held;
+  ScratchMat jn, jt, g, gt, et_rows, l_inv, l_inv_t, hess, wjt, jt_l, dual_sys, pool_y, pool_gram,
+      gram;
+  ScratchRowMat y_rows;
+  LoadedRows rows;
+  StaggerExtrapolation extrapolation;
+  HeldSetNewton held_newton;
+};
+
+Workspace::Workspace() = default;
+Workspace::~Workspace() = default;
 
 // Staggered projection (Kaufman, Sueda, James & Pai 2008) in reduced coordinates.
 //
@@ -244,8 +286,12 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   ws.ground_rows_ready = false;
   const VecX& z_all = ws.ground_z;
   const VecX& vn_all = ws.ground_vn;
-  std::vector<int> active;
-  std::vector<double> gap;
+  if (!ws.contact) ws.contact = std::make_unique<ContactScratch>();
+  ContactScratch& sc = *ws.contact;
+  std::vector<int>& active = sc.active;
+  std::vector<double>& gap = sc.gap;
+  active.clear();
+  gap.clear();
   for (int c = 0; c < ns; ++c) {
     const double z = surface_rest_[3 * c + 2] + z_all[c] - cfg.ground_height;
     if (z + 2.0 * h * std::min(vn_all[c], 0.0) < cfg.contact_margin) {
@@ -253,14 +299,23 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       gap.push_back(z);
     }
   }
-  const VecX old = impulses;
-  impulses.setZero();
   const int k = static_cast<int>(active.size());
   info.active_rows = k;
-  if (k == 0) return 0;
+  if (k == 0) {
+    impulses.setZero();
+    return 0;
+  }
+  ScratchVec& old = sc.old;
+  old = impulses;
+  impulses.setZero();
 
-  MatX jn(k, m), jt(2 * k, m);
-  VecX b(k), lam_n(k), lam_t(2 * k);
+  ScratchMat &jn = sc.jn, &jt = sc.jt;
+  ScratchVec &b = sc.b, &lam_n = sc.lam_n, &lam_t = sc.lam_t;
+  jn.resize(k, m);
+  jt.resize(2 * k, m);
+  b.resize(k);
+  lam_n.resize(k);
+  lam_t.resize(2 * k);
   for (int i = 0; i < k; ++i) {
     const int c = active[i];
     jn.row(i) = surface_rows_.row(3 * c + 2);
@@ -271,7 +326,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     lam_t.segment<2>(2 * i) = old.segment<2>(3 * c);
   }
   // out = A x for a column-major A (J_n, Y): the fast solver's kernel, Eigen's in the reference.
-  auto times = [fast](const MatX& a, const VecX& x, VecX& out) {
+  auto times = [fast](const auto& a, const auto& x, ScratchVec& out) {
     if (fast) {
       out.resize(a.rows());
       kernels::cols_times(a.data(), a.rows(), a.cols(), x.data(), out.data());
@@ -279,23 +334,27 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       out.noalias() = a * x;
     }
   };
-  const VecX v_free = v;
+  ScratchVec& v_free_store = sc.v_free;
+  v_free_store = v;
+  const ScratchVec& v_free = v_free_store;
   const double eps = tol;  // smoothing of |v_t|: sticking nodes creep at most ~eps
   ws.nnls.carry_valid = false;  // E changes with the step: no factor carries over into it
   // Constant within the step: E^T = L^-1 J_n^T (the LDP's constraint matrix). The velocity
   // response to the impulses, A^-1 J^T lambda, is two triangular solves per stagger: forming
   // A^-1 J_n^T and A^-1 J_t^T once instead takes 3k right-hand sides (k candidates; ~130k
   // multiply-adds on the quadruped) for per-stagger products no cheaper than the solves.
-  MatX g(m + 1, k);
-  MatX gt;  // the fast solver's g^T = [E  b - J_n v'] (k x m + 1), for NNLS's gradient
+  ScratchMat& g = sc.g;
+  g.resize(m + 1, k);
+  ScratchMat& gt = sc.gt;  // the fast solver's g^T = [E  b - J_n v'] (k x m + 1), for NNLS's gradient
   if (fast) {
     // jn's column-major memory is J_n^T row by row: solve in a copy, then transpose into g.
     // The copy, read as a column-major k x m matrix, is E = J_n L^-T itself.
-    ws.et_rows = jn;
-    kernels::lower_solve_rows(a_llt.matrixLLT().data(), m, ws.et_rows.data(), k);
-    g.topRows(m) = Eigen::Map<const RowMatX>(ws.et_rows.data(), m, k);
+    ScratchMat& et_rows = sc.et_rows;
+    et_rows = jn;
+    kernels::lower_solve_rows(a_llt.matrixLLT().data(), m, et_rows.data(), k);
+    g.topRows(m) = Eigen::Map<const RowMatX>(et_rows.data(), m, k);
     gt.resize(k, m + 1);
-    gt.leftCols(m) = ws.et_rows;
+    gt.leftCols(m) = et_rows;
   } else {
     g.topRows(m) = a_llt.matrixL().solve(jn.transpose());
   }
@@ -303,14 +362,15 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   // explicit inverses, formed once per step (L^-1's rows by the row-oriented substitution,
   // an (M + 6)^3 / 6 sum; the ~50 solves of a quadruped step each become a vectorised
   // product); the reference solves by substitution.
-  MatX l_inv, l_inv_t;
-  VecX solve_tmp(m);
+  ScratchMat &l_inv = sc.l_inv, &l_inv_t = sc.l_inv_t;
+  ScratchVec& solve_tmp = sc.solve_tmp;
+  solve_tmp.resize(m);
   if (fast) {
     l_inv_t.setIdentity(m, m);  // row-major L^-1 is column-major L^-T
     kernels::lower_solve_rows(a_llt.matrixLLT().data(), m, l_inv_t.data(), m);
     l_inv = l_inv_t.transpose();
   }
-  auto upper_solve = [&](VecX& x) {
+  auto upper_solve = [&](ScratchVec& x) {
     if (fast) {
       kernels::cols_times(l_inv_t.data(), m, m, x.data(), solve_tmp.data());
       x = solve_tmp;
@@ -321,7 +381,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   // J_t,i x for candidate i (its two tangent rows): a loop over J_t's column-major memory in
   // the fast solver (Eigen's general matrix-vector product costs more to set up than the 2 M
   // multiply-adds), Eigen's product in the reference.
-  auto tangent = [&](int i, const VecX& x) -> Eigen::Vector2d {
+  auto tangent = [&](int i, const auto& x) -> Eigen::Vector2d {
     if (!fast) return jt.middleRows(2 * i, 2) * x;
     const double* p = jt.data() + 2 * i;
     const Eigen::Index ld = jt.rows();
@@ -332,8 +392,9 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     }
     return {s0, s1};
   };
-  VecX response(m);
-  auto velocity_after = [&](const MatX& j, const VecX& lam) -> const VecX& {
+  ScratchVec& response = sc.response;
+  response.resize(m);
+  auto velocity_after = [&](const ScratchMat& j, const ScratchVec& lam) -> const ScratchVec& {
     if (fast) {
       // Only loaded nodes carry impulses (~7 of 64 candidates on a walker): J^T lambda from
       // their rows, not a product over every row.
@@ -353,8 +414,12 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     return response;
   };
 
-  VecX x_ldp(m), lam_ldp(k), row_gap(k);  // per-stagger buffers (row_gap: a J_n product)
-  auto normal_solve = [&](const VecX& v_prime) {
+  // Per-stagger buffers (row_gap: a J_n product).
+  ScratchVec &x_ldp = sc.x_ldp, &lam_ldp = sc.lam_ldp, &row_gap = sc.row_gap;
+  x_ldp.resize(m);
+  lam_ldp.resize(k);
+  row_gap.resize(k);
+  auto normal_solve = [&](const ScratchVec& v_prime) {
     // With A = L L^T and x = L^T (v - v'), the normal problem is the least-distance programme
     // min |x| s.t. J_n L^-T x >= b - J_n v', solved exactly by NNLS (Lawson & Hanson), whose
     // active set copes with the redundant rows; the multipliers are the normal impulses.
@@ -365,7 +430,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     if (fast) gt.col(m) = g.row(m).transpose();
     lam_ldp = lam_n;  // warm start: last stagger's (or step's) loaded nodes
     bool nnls_ok = true;
-    if (least_distance(g, x_ldp, lam_ldp, nnls_ok, how, ws.nnls, fast ? &gt : nullptr, fast)) {
+    if (least_distance(g, x_ldp, lam_ldp, nnls_ok, how, ws.nnls, fast ? gt.data() : nullptr,
+                       fast)) {
       upper_solve(x_ldp);
       v = v_prime + x_ldp;
       lam_n = lam_ldp;
@@ -383,9 +449,14 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     if (!nnls_ok) info.contact_converged = false;
   };
 
-  VecX vc_prev, vc, weight(k), v_prev = v, dv_stagger(m), v_second(m);
+  ScratchVec &vc_prev = sc.vc_prev, &vc = sc.vc, &weight = sc.weight, &v_prev = sc.v_prev,
+             &dv_stagger = sc.dv_stagger, &v_second = sc.v_second;
+  weight.resize(k);
+  v_prev = v;
+  dv_stagger.resize(m);
+  v_second.resize(m);
   Eigen::Vector2d ut2;
-  auto contact_velocities = [&](VecX& out) {
+  auto contact_velocities = [&](ScratchVec& out) {
     out.head(k).noalias() = jn * v;
     out.tail(2 * k).noalias() = jt * v;
   };
@@ -394,15 +465,19 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     vc.resize(3 * k);
     contact_velocities(vc_prev);
   }
-  MatX hess(m, m), wjt(2 * k, m);
-  std::vector<int> loaded;
-  loaded.reserve(k);
+  ScratchMat &hess = sc.hess, &wjt = sc.wjt;
+  hess.resize(m, m);
+  wjt.resize(2 * k, m);
+  std::vector<int>& loaded = sc.loaded;
+  loaded.clear();
   // The loaded nodes' tangent rows J_t,l (2 nl x M + 6, column-major), gathered when the loaded
   // set changes, so that their tangential velocities are one product (fast solver).
-  MatX jt_l;
-  std::vector<int> jt_l_set;
-  VecX ut_l;
-  auto loaded_tangents = [&](const VecX& x) -> const VecX& {
+  ScratchMat& jt_l = sc.jt_l;
+  std::vector<int>& jt_l_set = sc.jt_l_set;
+  jt_l.resize(0, m);
+  jt_l_set.clear();
+  ScratchVec& ut_l = sc.ut_l;
+  auto loaded_tangents = [&](const auto& x) -> const ScratchVec& {
     if (jt_l_set != loaded) {
       jt_l.resize(2 * static_cast<Eigen::Index>(loaded.size()), m);
       for (size_t l = 0; l < loaded.size(); ++l)
@@ -412,23 +487,30 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     times(jt_l, x, ut_l);
     return ut_l;
   };
-  MatX dual_sys;
-  VecX rhs_l, lam_w, v_on(m);
-  LoadedRows rows;
-  rows.member.assign(k, 0);
+  ScratchMat& dual_sys = sc.dual_sys;
+  ScratchVec &rhs_l = sc.rhs_l, &lam_w = sc.lam_w, &v_on = sc.v_on;
+  v_on.resize(m);
+  LoadedRows& rows = sc.rows;
+  rows.reset(k);
   // Every candidate that has been in a loaded set during this step (the pool, ~10 on a
   // quadruped step) keeps its three columns of Y = L^-1 [J_n,i^T  J_t,i^T], their products
   // with every other pool column (the pool's Gram matrix) and c_i = J_i v_free, so that a new
   // loaded set (~5 per quadruped step) gathers its D and c instead of forming them: only a
   // candidate's first entry costs a triangular solve and its columns' products with the pool.
-  std::vector<int> pool_slot(k, -1);
+  // (The pool's memory is the worker's: its capacity may be a former step's.)
+  std::vector<int>& pool_slot = sc.pool_slot;
+  pool_slot.assign(k, -1);
   int pool_size = 0;
-  MatX pool_y, pool_gram;
-  VecX pool_c;
-  RowMatX y_rows;  // (y_rows, gram: the primal friction system's buffers)
-  VecX tangent_row(m);
-  MatX gram;
-  std::vector<Eigen::Index> slots;
+  ScratchMat &pool_y = sc.pool_y, &pool_gram = sc.pool_gram;
+  ScratchVec& pool_c = sc.pool_c;
+  pool_y.resize(m, 0);  // empty, as the pool starts each step (the memory stays)
+  pool_gram.resize(0, 0);
+  pool_c.resize(0);
+  ScratchRowMat& y_rows = sc.y_rows;  // (y_rows, gram: the primal friction system's buffers)
+  ScratchVec& tangent_row = sc.tangent_row;
+  tangent_row.resize(m);
+  ScratchMat& gram = sc.gram;
+  std::vector<Eigen::Index>& slots = sc.slots;
   auto enter_pool = [&](const std::vector<int>& set) {
     int fresh = 0;
     for (int i : set) fresh += pool_slot[i] < 0;
@@ -437,9 +519,9 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     if (pool_y.cols() < 3 * total) {  // grow, keeping the columns and products formed so far
       const Eigen::Index cap =
           std::min<Eigen::Index>(3 * k, std::max<Eigen::Index>(3 * total + 12, 2 * pool_y.cols()));
-      pool_y.conservativeResize(m, cap);
-      pool_gram.conservativeResize(cap, cap);
-      pool_c.conservativeResize(cap);
+      pool_y.conservative_resize(m, cap);
+      pool_gram.conservative_resize(cap, cap);
+      pool_c.conservative_resize(cap, 1);
     }
     // The new candidates' L^-1 J_t,i^T as products with L^-1 (formed once per step): one or two
     // candidates enter at a time, too few right-hand sides for the row-wise substitution to
@@ -529,11 +611,12 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   };
   int stagger = 0;
   bool converged = false;
-  StaggerExtrapolation extrapolation(lam_n, lam_t);
+  StaggerExtrapolation& extrapolation = sc.extrapolation;
+  extrapolation.reset(lam_n, lam_t);
   bool after_jump = false;  // the stagger after a jump may not declare convergence
   constexpr int kMaxNewtonTries = 3;
   int newton_tries = 0;
-  HeldSetNewton held_newton;
+  HeldSetNewton& held_newton = sc.held_newton;
   for (; stagger < cfg.max_stagger_iterations; ++stagger) {
     // --- Normal problem with the friction impulses held fixed.
     const bool on_set = fast && normal_on_loaded_set();
@@ -566,7 +649,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       if (nl == 0) {
         v = v_second;
       } else {
-        const VecX* ut_fast = fast ? &loaded_tangents(v) : nullptr;
+        const ScratchVec* ut_fast = fast ? &loaded_tangents(v) : nullptr;
         for (int l = 0; l < nl; ++l) {
           const int i = loaded[l];
           const Eigen::Vector2d ut =
@@ -690,7 +773,9 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       if (f > 0.0 && on_set && loaded == rows.set && newton_tries < kMaxNewtonTries) {
         ++newton_tries;
         const int nw = static_cast<int>(rows.set.size());
-        VecX lam_held(2 * nw), b_held(nw);
+        ScratchVec &lam_held = sc.lam_held, &b_held = sc.b_held;
+        lam_held.resize(2 * nw);
+        b_held.resize(nw);
         for (int l = 0; l < nw; ++l) {
           lam_held.segment<2>(2 * l) = lam_t.segment<2>(2 * rows.set[l]);
           b_held[l] = b[rows.set[l]];
@@ -702,7 +787,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
           // The next stagger is judged against the velocity of Newton's impulses: at a fixed
           // point it reproduces it, and staggering ends one stagger later.
           lam_w.resize(3 * nw);
-          lam_w.head(nw) = held_newton.normal_impulses(lam_held);
+          held_newton.normal_impulses(lam_held, lam_w.head(nw));
           lam_w.tail(2 * nw) = lam_held;
           times(rows.y, lam_w, v_on);
           upper_solve(v_on);

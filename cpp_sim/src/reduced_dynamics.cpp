@@ -253,13 +253,15 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
     }
   };
   // The factor of A is formed by refresh() below, the only place that needs it (every step
-  // that can meet the ground ends with one).
-  Eigen::LLT<MatX> a_llt(m);
+  // that can meet the ground ends with one; a step without one has no contact candidates, so
+  // the contact solve does not read it).
+  Eigen::LLT<MatX>& a_llt = ws.a_llt;
   if (in.rest_newton_inverse.rows() != m) return step_reference(in, s, fc, ws);
   MatX& h_inv = ws.h_inv;
   h_inv = in.rest_newton_inverse;
 
-  VecX tmp_e(md);
+  VecX& tmp_e = ws.tmp_e;
+  tmp_e.resize(md);
   // Phi(v) and its gradient (the reference's residual). `at_start`: v is the step's starting
   // velocity v_n, where the drag's correction J_d (v - v_n) is zero and not computed.
   auto potential = [&](const VecX& v, VecX& grad, bool at_start) -> double {
@@ -319,7 +321,8 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
     return true;
   };
 
-  VecX v = s.qdot;
+  VecX& v = ws.v;
+  v = s.qdot;
   VecX& g = ws.g;
   VecX& g_trial = ws.g_trial;
   VecX& v_trial = ws.v_trial;

@@ -15,10 +15,12 @@
 #include <Eigen/Dense>
 #include <array>
 #include <chrono>
+#include <memory>
 #include <vector>
 
 #include "material.h"
 #include "nnls.h"
+#include "scratch.h"
 #include "tet_mesh.h"
 
 namespace softrom {
@@ -102,17 +104,26 @@ class ScopedTimer {
   std::chrono::steady_clock::time_point start_;
 };
 
-// Per-thread scratch memory, sized once and reused from step to step by a rollout worker: the
-// dynamics' buffers and the contact solve's least-distance (NNLS) buffers, which it uses ~30
-// times a walking step. (The contact solve's own matrices are sized by each step's candidate
-// rows and allocated once per step.)
+struct ContactScratch;  // the contact solve's buffers (reduced_contact.cpp)
+
+// Per-thread scratch memory, reused from step to step by a rollout worker (one per thread, as
+// MuJoCo's rollout gives each thread its own mjData): the dynamics' buffers, the contact
+// solve's and its least-distance (NNLS) programmes'. The contact buffers change size with each
+// step's candidates and loaded sets, so they keep their memory as they shrink (scratch.h): once
+// a worker has seen its largest sizes, the fast solver's step allocates nothing.
 struct Workspace {
+  Workspace();
+  ~Workspace();
+  Workspace(const Workspace&) = delete;
+  Workspace& operator=(const Workspace&) = delete;
+
   VecX fall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
+  VecX v, tmp_e;  // the fast step's velocity iterate and elastic coordinates
+  Eigen::LLT<MatX> a_llt;  // the fast step's factor of A (its last stiffness refresh)
   VecX q_next, impulses_next;  // finish_step's candidate state, swapped in when it is good
   VecX force_lanes;  // snh_force's per-lane partial sums
   RowMatX hg;
   MatX k_pad;
-  MatX et_rows;  // the contact solve's J_n, then L^-1 J_n^T in its memory (row-major m x k)
   MatX k_el, a, h_inv, j_drag, j_pen, tmp;
   VecX f_pen;
   // The drag Jacobian as a factor, J_d = -W W^T (W: M + 6 rows, one column per face advancing
@@ -120,10 +131,12 @@ struct Workspace {
   // pads its rows with zeros to a multiple of 4.
   MatX drag_w;
   Eigen::Index drag_cols = 0;
-  VecX drag_xs, drag_vs, drag_coef, drag_pad, drag_wg, drag_wwg, drag_normals;
+  VecX drag_xs, drag_vs, drag_coef, drag_pad, drag_wwg, drag_normals;
+  ScratchVec drag_wg;  // W^T g: one entry per advancing face, a number that changes each step
   std::vector<std::ptrdiff_t> drag_faces;  // (drag_fast's and the potential's scratch)
   bool drag_jacobian_formed = false;
   NnlsWorkspace nnls;  // the contact solve's least-distance programmes, one per stagger
+  std::unique_ptr<ContactScratch> contact;  // made by the first contact solve
   // N q and N v (N: the surface nodes' normal rows) of the step's end, from near_ground for
   // the contact solve that follows it (two products over every surface node, ~0.1 M
   // instructions each on the quadruped); cleared at each step's start.
