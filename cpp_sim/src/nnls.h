@@ -380,9 +380,10 @@ inline bool nnls_cholesky(const Eigen::Ref<const Eigen::MatrixXd>& g,
 // active set. `converged` is cleared when NNLS stopped at its iteration cap. `ws` is scratch
 // (the NNLS solution u is left in ws.u); the Qr variant (the reference) still allocates its
 // own. `gt` (optional, Gram variant) is g^T's memory, as for nnls_cholesky. x has m entries.
-inline bool least_distance(const Eigen::Ref<const Eigen::MatrixXd>& g, Eigen::Ref<Eigen::VectorXd> x,
-                           Eigen::Ref<Eigen::VectorXd> lambda, bool& converged, NnlsSolve how,
-                           NnlsWorkspace& ws, const double* gt = nullptr, bool carry = false) {
+inline bool least_distance(const Eigen::Ref<const Eigen::MatrixXd>& g,
+                           Eigen::Ref<Eigen::VectorXd> x, Eigen::Ref<Eigen::VectorXd> lambda,
+                           bool& converged, NnlsSolve how, NnlsWorkspace& ws,
+                           const double* gt = nullptr, bool carry = false) {
   const Eigen::Index m = g.rows() - 1, k = g.cols();
   ScratchVec& d = ws.d;
   d.setZero(m + 1);

@@ -170,8 +170,6 @@ class HeldSetNewton {
       s_[l] = std::sqrt(u_.segment<2>(2 * l).squaredNorm() + eps * eps);
     jac_.resize(n2, n2);
     step_.resize(n2);
-    du_.resize(n2);
-    dr_.resize(n);
     for (int it = 0; it < kMaxIterations; ++it) {
       if (!(r_.array() > 0.0).all()) return false;
       for (Eigen::Index l = 0; l < n; ++l) {
@@ -334,9 +332,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
       out.noalias() = a * x;
     }
   };
-  ScratchVec& v_free_store = sc.v_free;
-  v_free_store = v;
-  const ScratchVec& v_free = v_free_store;
+  ScratchVec& v_free = sc.v_free;
+  v_free = v;
   const double eps = tol;  // smoothing of |v_t|: sticking nodes creep at most ~eps
   ws.nnls.carry_valid = false;  // E changes with the step: no factor carries over into it
   // Constant within the step: E^T = L^-1 J_n^T (the LDP's constraint matrix). The velocity
@@ -345,7 +342,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   // multiply-adds on the quadruped) for per-stagger products no cheaper than the solves.
   ScratchMat& g = sc.g;
   g.resize(m + 1, k);
-  ScratchMat& gt = sc.gt;  // the fast solver's g^T = [E  b - J_n v'] (k x m + 1), for NNLS's gradient
+  // The fast solver's g^T = [E  b - J_n v'] (k x m + 1), for NNLS's gradient.
+  ScratchMat& gt = sc.gt;
   if (fast) {
     // jn's column-major memory is J_n^T row by row: solve in a copy, then transpose into g.
     // The copy, read as a column-major k x m matrix, is E = J_n L^-T itself.

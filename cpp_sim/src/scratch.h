@@ -31,8 +31,6 @@ class Scratch : public Eigen::Map<Plain, Eigen::AlignedMax> {
   static constexpr bool kVector = Plain::ColsAtCompileTime == 1;
 
   Scratch() : Base(nullptr, 0, kVector ? 1 : 0) {}
-  explicit Scratch(Index n) : Scratch() { resize(n); }
-  Scratch(Index rows, Index cols) : Scratch() { resize(rows, cols); }
   // A Map's copy would point into the other's storage: copy by value instead.
   Scratch(const Scratch& other) : Scratch() { *this = other; }
   Scratch& operator=(const Scratch& other) {
@@ -67,10 +65,6 @@ class Scratch : public Eigen::Map<Plain, Eigen::AlignedMax> {
   }
   void setZero(Index n) {
     resize(n);
-    Base::setZero();
-  }
-  void setZero(Index rows, Index cols) {
-    resize(rows, cols);
     Base::setZero();
   }
   using Base::setZero;
@@ -123,8 +117,6 @@ class Scratch : public Eigen::Map<Plain, Eigen::AlignedMax> {
     reseat(ro, co);
     other.reseat(r, c);
   }
-
-  Index capacity() const { return store_.size(); }
 
  private:
   // Geometric growth, so a size that creeps up step by step reallocates O(log) times.
