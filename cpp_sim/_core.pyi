@@ -390,7 +390,7 @@ class ReducedModel:
     @property
     def profile(self) -> typing.Any:
         """
-        time the parts of each step: step() then reports time_dynamics, time_drag, time_normal, time_friction (s)
+        time the parts of each step: step() then reports time_dynamics, time_drag, time_normal, time_friction (s), and stagger_trace, the staggered projection's course (benchmarks/trace_staggers.py)
         """
     @profile.setter
     def profile(self, arg1: typing.Any) -> None:
@@ -573,7 +573,7 @@ class ReducedConfig:
     @property
     def profile(self) -> typing.Any:
         """
-        time the parts of each step: step() then reports time_dynamics, time_drag, time_normal, time_friction (s)
+        time the parts of each step: step() then reports time_dynamics, time_drag, time_normal, time_friction (s), and stagger_trace, the staggered projection's course (benchmarks/trace_staggers.py)
         """
     @profile.setter
     def profile(self, arg1: typing.Any) -> None:

@@ -1,8 +1,10 @@
 """The reduced step's solvers: the fast default against the exact reference path, convergence
 reporting, contact conditions of the returned impulses, energy, and the cubature kernels."""
 
+import itertools
 import json
 import os
+import re
 import subprocess
 import sys
 
@@ -258,6 +260,40 @@ def test_stagger_extrapolation_lets_staggering_settle():
             if k >= 40:  # after the drop onto the ground
                 unsettled.append(not info["contact_converged"])
     assert np.mean(unsettled) < 0.03
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_stagger_trace_accounts_for_every_stagger(beam_robot, solver):
+    # profile=True reports the stagger loop's course (StepInfo's grammar): one N/S token per
+    # stagger, each loaded count the previous one plus the nodes that entered minus those that
+    # left, the last one the step's loaded nodes; tracing must not change the physics.
+    token = re.compile(r"^([NS])(\d+)(?:\(\+(\d+)-(\d+)\))?$")
+    kw = {"control_basis": np.eye(20)[:, :3], "solver": solver}
+    traced = build_reduced_model(beam_robot, **kw)
+    traced.profile = True
+    plain = build_reduced_model(beam_robot, **kw)
+    state = other = traced.rest_state()
+    kinds = set()
+    for u in gait(traced, 80):
+        state, info = traced.step(state, u)
+        other, plain_info = plain.step(other, u)
+        np.testing.assert_array_equal(state.qdot, other.qdot)
+        assert "stagger_trace" not in plain_info
+        tokens = info["stagger_trace"].split()
+        staggers = [token.match(t) for t in tokens if token.match(t)]
+        assert len(staggers) == info["stagger_iterations"]
+        if not staggers:
+            assert tokens == [] and info["active_rows"] == 0
+            continue
+        assert tokens[-1] == ("ok" if info["contact_converged"] else "cap")
+        assert set(tokens) - {"W", "w", "J", "ok", "cap"} == {m.group(0) for m in staggers}
+        for before, after in itertools.pairwise(staggers):
+            entered, left = (int(after.group(g) or 0) for g in (3, 4))
+            assert int(after.group(2)) == int(before.group(2)) + entered - left
+        if info["contact_converged"]:
+            assert int(staggers[-1].group(2)) == info["contacts"]
+        kinds.update(m.group(1) for m in staggers)
+    assert kinds == ({"N", "S"} if solver == "fast" else {"N"})
 
 
 def test_stagger_cap_is_reported_and_normals_still_hold(box):

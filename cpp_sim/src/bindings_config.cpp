@@ -172,7 +172,8 @@ const std::vector<Setting>& settings() {
       {"profile", [](const ReducedConfig& c) -> py::object { return py::bool_(c.profile); },
        [](ReducedConfig& c, py::handle x) { c.profile = x.cast<bool>(); },
        "time the parts of each step: step() then reports time_dynamics, time_drag, "
-       "time_normal, time_friction (s)"},
+       "time_normal, time_friction (s), and stagger_trace, the staggered projection's course "
+       "(benchmarks/trace_staggers.py)"},
   };
   return table;
 }

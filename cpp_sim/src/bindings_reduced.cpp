@@ -319,6 +319,7 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
               d["time_drag"] = info.time_drag;
               d["time_normal"] = info.time_normal;
               d["time_friction"] = info.time_friction;
+              d["stagger_trace"] = info.stagger_trace;
             }
             return py::make_tuple(out, d);
           },

@@ -1,6 +1,7 @@
 // Ground contact: staggered projection (the default, Kaufman et al. 2008) and a penalty model.
 #include <algorithm>
 #include <cmath>
+#include <string>
 
 #include "dense_kernels.h"
 #include "nnls.h"
@@ -226,6 +227,7 @@ class HeldSetNewton {
 // solve_contacts' (below), where each is explained.
 struct ContactScratch {
   std::vector<int> active, loaded, jt_l_set, pool_slot;
+  std::vector<char> traced;  // with config.profile: loaded at the last traced stagger
   std::vector<double> gap;
   std::vector<Eigen::Index> slots;
   ScratchVec old, b, lam_n, lam_t, v_free, solve_tmp, response, x_ldp, lam_ldp, row_gap, vc_prev,
@@ -607,6 +609,29 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     ++info.normal_iterations;
     return true;
   };
+  // With config.profile, the stagger loop's course in info.stagger_trace (StepInfo's grammar).
+  const bool trace = cfg.profile;
+  std::vector<char>& traced = sc.traced;
+  if (trace) {
+    traced.resize(k);
+    for (int i = 0; i < k; ++i) traced[i] = lam_n[i] > 0.0;  // the warm start's loaded set
+  }
+  auto trace_normal = [&](bool on_set) {
+    int n = 0, entered = 0, left = 0;
+    for (int i = 0; i < k; ++i) {
+      const char now = lam_n[i] > 0.0;
+      n += now;
+      entered += now && !traced[i];
+      left += !now && traced[i];
+      traced[i] = now;
+    }
+    std::string& t = info.stagger_trace;
+    t += on_set ? 'S' : 'N';
+    t += std::to_string(n);
+    if (entered > 0 || left > 0)
+      t += "(+" + std::to_string(entered) + "-" + std::to_string(left) + ")";
+    t += ' ';
+  };
   int stagger = 0;
   bool converged = false;
   StaggerExtrapolation& extrapolation = sc.extrapolation;
@@ -619,6 +644,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
     // --- Normal problem with the friction impulses held fixed.
     const bool on_set = fast && normal_on_loaded_set();
     if (!on_set) normal_solve(velocity_after(jt, lam_t));
+    if (trace) trace_normal(on_set);
     // --- Friction problem with the normal impulses held fixed.
     if (!on_set) v_second = velocity_after(jn, lam_n);
     ++info.friction_iterations;
@@ -778,7 +804,10 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
           lam_held.segment<2>(2 * l) = lam_t.segment<2>(2 * rows.set[l]);
           b_held[l] = b[rows.set[l]];
         }
-        if (held_newton.solve(rows.d, rows.c, rows.d_nn, b_held, mu, eps, tol, lam_held)) {
+        const bool root =
+            held_newton.solve(rows.d, rows.c, rows.d_nn, b_held, mu, eps, tol, lam_held);
+        if (trace) info.stagger_trace += root ? "W " : "w ";
+        if (root) {
           for (int l = 0; l < nw; ++l)
             lam_t.segment<2>(2 * rows.set[l]) = lam_held.segment<2>(2 * l);
           extrapolation.jumped(lam_t);
@@ -794,12 +823,14 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
         }
       }
       if (f > 0.0) {
+        if (trace) info.stagger_trace += "J ";
         lam_t += f * extrapolation.friction_change();
         extrapolation.jumped(lam_t);
         after_jump = true;
       }
     }
   }
+  if (trace) info.stagger_trace += converged ? "ok" : "cap";
   if (!converged) {
     // Capped after a friction half-step: restore the normal constraints with the last
     // friction impulses held, and say that the pair did not settle.

@@ -16,6 +16,7 @@
 #include <array>
 #include <chrono>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "material.h"
@@ -84,6 +85,15 @@ struct StepInfo {
   bool diverged = false;
   // With config.profile: seconds spent in each part of the step.
   double time_dynamics = 0.0, time_drag = 0.0, time_normal = 0.0, time_friction = 0.0;
+  // With config.profile, staggered projection's course, a token per event (profiling allocates
+  // for it; the plain step does not):
+  //   N<n> / S<n>  a stagger's normal half by NNLS over every candidate / on the held loaded
+  //                set, n nodes loaded after it; (+a-b) when a nodes entered and b left the
+  //                previous stagger's set (the first stagger: the warm start's);
+  //   W / w        the held-set Newton reached the root / failed;   J  an Aitken jump;
+  //   ok / cap     the end: converged / at max_stagger_iterations (a last normal solve follows).
+  // Empty when no node is a contact candidate.
+  std::string stagger_trace;
 };
 
 // Adds the seconds since construction to `*target` on destruction (when target is not null).
