@@ -135,7 +135,7 @@ inline NnlsResult nnls(const Eigen::Ref<const Eigen::MatrixXd>& g,
 // solve calls them once per stagger, ~30 times a walking step, and their sizes change with
 // the step's candidates and the passive set (scratch.h: memory that only grows).
 struct NnlsWorkspace {
-  ScratchVec u, gtd, z, col, rhs, w, resid, d, r_ldp;
+  ScratchVec u, gtd, z, col, rhs, w, resid, d, r_ldp, y;
   ScratchMat r;
   std::vector<Eigen::Index> set, order;
   std::vector<char> passive;
@@ -201,6 +201,13 @@ inline bool nnls_cholesky(const Eigen::Ref<const Eigen::MatrixXd>& g,
   z.resize(n);
   col.resize(rows);
   rhs.resize(rows);
+  // y = R^-T G_p^T d, the forward half of solve(), kept while R only grows: a new column adds
+  // one entry to it (O(p), the row the forward substitution would add, in its order, so the
+  // same bits), where solving again costs O(p^2) (strided reads of R's rows). Dropping a
+  // variable or carrying a factor over invalidates it.
+  ScratchVec& y = ws.y;
+  y.resize(rows);
+  bool y_valid = false;
   auto add = [&](Eigen::Index t) -> bool {
     const Eigen::Index p = static_cast<Eigen::Index>(set.size());
     if (p >= rows) return false;
@@ -214,6 +221,11 @@ inline bool nnls_cholesky(const Eigen::Ref<const Eigen::MatrixXd>& g,
     r.col(p).head(p) = col.head(p);
     r(p, p) = std::sqrt(rho2);
     r.row(p).head(p).setZero();
+    if (y_valid) {
+      double s = gtd[t];
+      for (Eigen::Index c = 0; c < p; ++c) s -= col[c] * y[c];
+      y[p] = s / r(p, p);
+    }
     set.push_back(t);
     passive[t] = 1;
     return true;
@@ -223,6 +235,7 @@ inline bool nnls_cholesky(const Eigen::Ref<const Eigen::MatrixXd>& g,
     // restore the triangle with Givens rotations on adjacent rows (they keep R^T R, the Gram
     // matrix of the remaining columns). O(p^2), against O(rows p^2) to add the rest again.
     const Eigen::Index p = static_cast<Eigen::Index>(set.size());
+    y_valid = false;
     for (Eigen::Index j = c; j + 1 < p; ++j) r.col(j).head(p) = r.col(j + 1).head(p);
     for (Eigen::Index j = c; j + 1 < p; ++j) {
       const double a = r(j, j), b = r(j + 1, j);
@@ -242,8 +255,13 @@ inline bool nnls_cholesky(const Eigen::Ref<const Eigen::MatrixXd>& g,
   };
   auto solve = [&]() {  // z on the passive set, 0 elsewhere
     const Eigen::Index p = static_cast<Eigen::Index>(set.size());
-    for (Eigen::Index c = 0; c < p; ++c) rhs[c] = gtd[set[c]];
-    small::cholesky_upper_solve(r.data(), p, rows, rhs.data());
+    if (!y_valid) {
+      for (Eigen::Index c = 0; c < p; ++c) y[c] = gtd[set[c]];
+      small::upper_transpose_solve(r.data(), p, rows, y.data());
+      y_valid = true;
+    }
+    rhs.head(p) = y.head(p);
+    small::upper_solve(r.data(), p, rows, rhs.data());
     z.setZero();
     for (Eigen::Index c = 0; c < p; ++c) z[set[c]] = rhs[c];
   };
