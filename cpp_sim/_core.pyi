@@ -610,6 +610,10 @@ def _kernel_cols_times_pair(a: typing.Annotated[numpy.typing.NDArray[numpy.float
     """
     (A x, A y) through the fast solver's one-pass kernel (for its tests).
     """
+def _least_distance_sequence(e: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], fs: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], solver: str = 'fast') -> list:
+    """
+    The least-distance programmes min |x| s.t. E x >= f for each row f of fs, solved in sequence as the staggered projection's normal half solves them (warm-started, and with the fast solver the NNLS factor carried over): a list of (x, lambda, feasible, converged) (for its tests).
+    """
 def kernel_instruction_set() -> str:
     """
     The instruction set of the fast solver's dense kernels (cubature force and stiffness, contact products) in this process: 'x86-64-v3' (AVX2 + FMA, on an x86-64 CPU that has it, in GCC builds) or 'baseline'. Set the environment variable SOFTROM_KERNELS=baseline before the first step to use the baseline: the two round differently (fused multiply-adds), so chaotic trajectories computed with the two part at round-off level.

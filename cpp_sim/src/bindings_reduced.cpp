@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <sstream>
+#include <string>
 #include <thread>
 
 #ifdef __linux__
@@ -544,4 +545,44 @@ diverged rollout keeps its last good state and earns zero reward from then on.)d
       },
       py::arg("a"), py::arg("x"),
       "(A^T x, A A^T x) through the fast solver's fused kernel (for its tests).");
+
+  m.def(
+      "_least_distance_sequence",
+      [](const Eigen::Ref<const MatX>& e, const Eigen::Ref<const MatX>& fs,
+         const std::string& solver) {
+        const Eigen::Index k = e.rows(), m = e.cols();
+        if (k < 1 || m < 1 || fs.cols() != k) {
+          std::ostringstream msg;
+          msg << "need e (k x m, k, m >= 1) and fs (S x k); got e " << k << " x " << m
+              << " and fs " << fs.rows() << " x " << fs.cols();
+          throw py::value_error(msg.str());
+        }
+        if (solver != "fast" && solver != "reference")
+          throw py::value_error("solver must be 'fast' or 'reference', got '" + solver + "'");
+        // As the contact solve calls it: g = [E^T; f^T] with only f changing from call to call,
+        // the last call's multipliers as the warm start, and (fast) G^T kept and the factor
+        // carried over.
+        const bool fast = solver == "fast";
+        MatX g(m + 1, k), gt(k, m + 1);
+        g.topRows(m) = e.transpose();
+        gt.leftCols(m) = e;
+        NnlsWorkspace ws;
+        VecX lambda = VecX::Zero(k), x(m);
+        py::list out;
+        for (Eigen::Index s = 0; s < fs.rows(); ++s) {
+          g.row(m) = fs.row(s);
+          gt.col(m) = fs.row(s).transpose();
+          bool converged = true;
+          const bool ok = least_distance(g, x, lambda, converged,
+                                         fast ? NnlsSolve::Gram : NnlsSolve::Qr, ws,
+                                         fast ? gt.data() : nullptr, fast);
+          out.append(py::make_tuple(VecX(x), VecX(lambda), ok, converged));
+        }
+        return out;
+      },
+      py::arg("e"), py::arg("fs"), py::arg("solver") = "fast",
+      "The least-distance programmes min |x| s.t. E x >= f for each row f of fs, solved in "
+      "sequence as the staggered projection's normal half solves them (warm-started, and "
+      "with the fast solver the NNLS factor carried over): a list of (x, lambda, feasible, "
+      "converged) (for its tests).");
 }
