@@ -235,7 +235,7 @@ class ReducedModel:
     @property
     def contact(self) -> typing.Any:
         """
-        'staggered' (default: staggered projection, the accurate model), 'penalty' (a fast approximate spring ground) or 'none'
+        'staggered' (default: staggered projection, the accurate model), 'penalty' (an approximate spring ground, slower than 'staggered' with the fast solver) or 'none'
         """
     @contact.setter
     def contact(self, arg1: typing.Any) -> None:
@@ -437,7 +437,7 @@ class ReducedConfig:
     @property
     def contact(self) -> typing.Any:
         """
-        'staggered' (default: staggered projection, the accurate model), 'penalty' (a fast approximate spring ground) or 'none'
+        'staggered' (default: staggered projection, the accurate model), 'penalty' (an approximate spring ground, slower than 'staggered' with the fast solver) or 'none'
         """
     @contact.setter
     def contact(self, arg1: typing.Any) -> None:

@@ -112,8 +112,8 @@ const std::vector<Setting>& settings() {
          else if (s == "none") c.contact = ContactModel::None;
          else throw py::value_error("contact must be one of 'staggered', 'penalty', 'none'; got '" + s + "'");
        },
-       "'staggered' (default: staggered projection, the accurate model), 'penalty' (a fast "
-       "approximate spring ground) or 'none'"},
+       "'staggered' (default: staggered projection, the accurate model), 'penalty' (an "
+       "approximate spring ground, slower than 'staggered' with the fast solver) or 'none'"},
       {"solver", [](const ReducedConfig& c) -> py::object {
          return py::str(c.solver == Solver::Fast ? "fast" : "reference");
        },
