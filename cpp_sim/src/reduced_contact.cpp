@@ -172,7 +172,8 @@ class HeldSetNewton {
     jac_.resize(n2, n2);
     step_.resize(n2);
     for (int it = 0; it < kMaxIterations; ++it) {
-      if (!(r_.array() > 0.0).all()) return false;
+      iterations_ = it;
+      if (!(r_.array() > 0.0).all()) return fail('r');
       for (Eigen::Index l = 0; l < n; ++l) {
         const double u0 = u_[2 * l], u1 = u_[2 * l + 1], l0 = lam[2 * l], l1 = lam[2 * l + 1];
         step_[2 * l] = -(r_[l] * u0 + s_[l] * l0);
@@ -189,22 +190,34 @@ class HeldSetNewton {
         jac_(2 * l, 2 * l) += s_[l];
         jac_(2 * l + 1, 2 * l + 1) += s_[l];
       }
-      if (!small::lu_solve(jac_.data(), n2, step_.data()) || !step_.allFinite()) return false;
+      if (!small::lu_solve(jac_.data(), n2, step_.data()) || !step_.allFinite())
+        return fail('s');
       du_.noalias() = t_ * step_;
       dr_.noalias() = nm_ * step_;
       dr_ *= mu;
       for (Eigen::Index l = 0; l < n; ++l)
-        if (r_[l] + dr_[l] <= 0.0) return false;  // a node leaves W
+        if (r_[l] + dr_[l] <= 0.0) return fail('l');  // a node leaves W
       lam += step_;
       u_ += du_;
       r_ += dr_;
       for (Eigen::Index l = 0; l < n; ++l)
         s_[l] = std::sqrt(u_.segment<2>(2 * l).squaredNorm() + eps * eps);
       // (Quadratic near the root: the next stagger's change is then far below tol.)
-      if (du_.cwiseAbs().maxCoeff() < 0.1 * tol) return true;
+      if (du_.cwiseAbs().maxCoeff() < 0.1 * tol) {
+        iterations_ = it + 1;
+        failure_ = 0;
+        return true;
+      }
     }
-    return false;
+    iterations_ = kMaxIterations;
+    return fail('c');
   }
+
+  // The last solve's Newton steps taken, and why it failed ('l': a node would leave W, 'r': a
+  // load was not positive, 's': a singular step, 'c': the iteration cap; 0 after a root), for
+  // the stagger trace.
+  int iterations() const { return iterations_; }
+  char failure() const { return failure_; }
 
   // The normal impulses lambda_n = a0 + N lambda of the last solve's set, into out (n).
   template <class Out>
@@ -216,6 +229,12 @@ class HeldSetNewton {
  private:
   // Measured on the walkers' tries (session 22): roots are reached in 2-8 iterations, most in 3-5.
   static constexpr int kMaxIterations = 8;
+  bool fail(char why) {
+    failure_ = why;
+    return false;
+  }
+  int iterations_ = 0;
+  char failure_ = 0;
   ScratchMat nm_, t_, jac_;
   ScratchVec a0_, u_, r_, s_, step_, du_, dr_;
 };
@@ -806,7 +825,12 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
         }
         const bool root =
             held_newton.solve(rows.d, rows.c, rows.d_nn, b_held, mu, eps, tol, lam_held);
-        if (trace) info.stagger_trace += root ? "W " : "w ";
+        if (trace) {
+          info.stagger_trace += root ? 'W' : 'w';
+          info.stagger_trace += std::to_string(held_newton.iterations());
+          if (!root) info.stagger_trace += held_newton.failure();
+          info.stagger_trace += ' ';
+        }
         if (root) {
           for (int l = 0; l < nw; ++l)
             lam_t.segment<2>(2 * rows.set[l]) = lam_held.segment<2>(2 * l);

@@ -90,7 +90,9 @@ struct StepInfo {
   //   N<n> / S<n>  a stagger's normal half by NNLS over every candidate / on the held loaded
   //                set, n nodes loaded after it; (+a-b) when a nodes entered and b left the
   //                previous stagger's set (the first stagger: the warm start's);
-  //   W / w        the held-set Newton reached the root / failed;   J  an Aitken jump;
+  //   W<i> / w<i><why>  the held-set Newton reached the root in i steps / failed after i
+  //                (why: l a node would leave the set, r a load not positive, s a singular
+  //                step, c the iteration cap);   J  an Aitken jump;
   //   ok / cap     the end: converged / at max_stagger_iterations (a last normal solve follows).
   // Empty when no node is a contact candidate.
   std::string stagger_trace;
