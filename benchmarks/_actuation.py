@@ -1,4 +1,5 @@
-"""Shared by the benchmark scripts: the modal forces they drive the robots with.
+"""Shared by the benchmark scripts: the five benchmarks (``BENCHMARKS``: name -> robot, task)
+and the modal forces they drive the robots with.
 
 ``random``: uniform random forces of up to 0.5 body weight in each control direction, drawn
 anew every step (a stress test: the contact state changes from step to step). ``gait``: one
@@ -13,6 +14,13 @@ import numpy as np
 
 G = 9.81
 KINDS = ("random", "gait")
+BENCHMARKS = {
+    "cross-swim": ("cross", "swim"),
+    "cross-walk": ("cross", "walk"),
+    "beam-walk": ("beam", "walk"),
+    "quadruped-walk": ("quadruped", "walk"),
+    "tripod-walk": ("tripod", "walk"),
+}
 
 
 def modal_forces(model, shape: tuple[int, int, int], seed: int = 0, kind: str = "random"):

@@ -36,15 +36,7 @@ from softrom_gym.robots import ROBOTS
 from softrom_gym.rom import build_reduced_model
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _actuation import modal_forces
-
-BENCHMARKS = {
-    "cross-swim": ("cross", "swim"),
-    "cross-walk": ("cross", "walk"),
-    "beam-walk": ("beam", "walk"),
-    "quadruped-walk": ("quadruped", "walk"),
-    "tripod-walk": ("tripod", "walk"),
-}
+from _actuation import BENCHMARKS, modal_forces
 
 
 def model(robot, task: str, solver: str, **extra):

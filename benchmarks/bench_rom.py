@@ -61,15 +61,8 @@ from softrom_gym.robots import ROBOTS
 from softrom_gym.rom import build_reduced_model, build_subspace
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _actuation import KINDS, modal_forces
+from _actuation import BENCHMARKS, KINDS, modal_forces
 
-BENCHMARKS = {
-    "cross-swim": ("cross", "swim"),
-    "cross-walk": ("cross", "walk"),
-    "beam-walk": ("beam", "walk"),
-    "quadruped-walk": ("quadruped", "walk"),
-    "tripod-walk": ("tripod", "walk"),
-}
 DT = 1.0 / 200.0
 
 

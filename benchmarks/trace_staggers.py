@@ -41,14 +41,9 @@ from softrom_gym.robots import ROBOTS
 from softrom_gym.rom import build_reduced_model
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _actuation import KINDS, modal_forces
+from _actuation import BENCHMARKS, KINDS, modal_forces
 
-WALKERS = {
-    "cross-walk": "cross",
-    "beam-walk": "beam",
-    "quadruped-walk": "quadruped",
-    "tripod-walk": "tripod",
-}
+WALKERS = [name for name, (_, task) in BENCHMARKS.items() if task == "walk"]
 NORMAL = re.compile(r"^([NS])(\d+)(?:\(\+(\d+)-(\d+)\))?$")
 NEWTON = re.compile(r"^([Ww])(\d+)([lrsc]?)$")
 FAILURES = {"l": "leave", "r": "unloaded", "s": "singular", "c": "cap"}
@@ -91,7 +86,7 @@ def trace_robot(
 ) -> tuple[dict, list[str]]:
     """Steps ``name`` from rest; returns the summary over the traced steps and their traces."""
     model = build_reduced_model(
-        ROBOTS[WALKERS[name]](), control_basis=np.eye(20)[:, :3], solver=solver
+        ROBOTS[BENCHMARKS[name][0]](), control_basis=np.eye(20)[:, :3], solver=solver
     )  # fmt: skip
     model.profile = True
     controls = modal_forces(model, (1, settle + steps, model.C), seed=seed, kind=kind)[0]
@@ -132,7 +127,7 @@ def trace_robot(
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--robots", nargs="*", default=list(WALKERS), choices=list(WALKERS))
+    parser.add_argument("--robots", nargs="*", default=WALKERS, choices=WALKERS)
     parser.add_argument("--steps", type=int, default=200, help="traced steps per robot")
     parser.add_argument("--settle", type=int, default=20, help="untraced steps first")
     parser.add_argument("--actuation", choices=KINDS, default="random")
