@@ -130,6 +130,11 @@ def _parser() -> argparse.ArgumentParser:
                      help="random initial points before the GP proposes (default 5)")  # fmt: skip
     opt.add_argument("--workers", type=_positive_int, default=1,
                      help="evaluations run at once (default 1)")  # fmt: skip
+    opt.add_argument("--deterministic", action="store_true",
+                     help="tell results in proposal order, so that a run with the same "
+                     "--workers and --iterations repeats bitwise (a worker may wait for "
+                     "an older evaluation; default: a free worker gets a new point at "
+                     "once)")  # fmt: skip
     opt.add_argument("--executor", choices=["process", "ray", "serial"], default="process")
     opt.add_argument("--address", help="Ray cluster address (with --executor ray)")
     opt.add_argument("--timeout", type=parse_duration, default=600.0,
@@ -293,7 +298,8 @@ def _make_executor(objective, execution: dict):
                              execution["timeout_s"], execution.get("address"))  # fmt: skip
 
 
-def _execute(opt, executor, max_evaluations, budget_s, progress: bool) -> int:
+def _execute(opt, executor, max_evaluations, budget_s, progress: bool,
+             deterministic: bool = False) -> int:  # fmt: skip
     from .optimizer import EvaluationsFailing
     from .report import format_table, plot_convergence, report_row
 
@@ -304,7 +310,7 @@ def _execute(opt, executor, max_evaluations, budget_s, progress: bool) -> int:
         opt.run(executor=executor,
                 max_evaluations=unlimited if max_evaluations is None else max_evaluations,
                 budget_s=unlimited if budget_s is None else budget_s,
-                callback=callback)  # fmt: skip
+                callback=callback, deterministic=deterministic)  # fmt: skip
     except KeyboardInterrupt:
         close()
         executor.shutdown(wait=False)
@@ -371,7 +377,8 @@ def cmd_optimize(args) -> int:
         name = args.env_id.split("/")[-1].split(":")[0]
         out = Path("runs") / f"{name}-{datetime.now():%Y%m%d-%H%M%S}"
     execution = {"executor": args.executor, "workers": args.workers,
-                 "timeout_s": args.timeout, "address": args.address}  # fmt: skip
+                 "timeout_s": args.timeout, "address": args.address,
+                 "deterministic": args.deterministic}  # fmt: skip
     executor = _make_executor(objective, execution)
     try:
         with _bad_input():
@@ -391,7 +398,8 @@ def cmd_optimize(args) -> int:
             print(f"note: {spec['env_id']} has no tuned planner settings; {args.controller} "
                   "runs with its library settings and replans every env step (slower than "
                   "on a benchmark; see controllers.DEFAULTS)", file=sys.stderr)  # fmt: skip
-    return _execute(opt, executor, iterations, budget, not args.no_progress)
+    return _execute(opt, executor, iterations, budget, not args.no_progress,
+                    args.deterministic)  # fmt: skip
 
 
 def _objective_of(opt):
@@ -437,7 +445,8 @@ def cmd_resume(args) -> int:
               "--budget or --iterations to go on", file=sys.stderr)  # fmt: skip
     started = time.monotonic()
     executor = _make_executor(objective, execution)
-    code = _execute(opt, executor, iterations, budget, not args.no_progress)
+    code = _execute(opt, executor, iterations, budget, not args.no_progress,
+                    bool(execution.get("deterministic", False)))  # fmt: skip
     if code == 0:
         print(f"resumed for {time.monotonic() - started:.0f} s", file=sys.stderr)
     return code

@@ -17,7 +17,11 @@
 - Every evaluation uses the same seeds (common random numbers), so bases are compared under
   the same MPC noise. A proposal is handed out as soon as a worker is free, so with several
   workers the data a proposal sees depends on which evaluation finished first and two runs
-  differ; with one worker (or ask/tell in a fixed order) a run repeats bitwise.
+  differ; with one worker (or ask/tell in a fixed order) a run repeats bitwise. With
+  ``run(..., deterministic=True)`` results are told in the order they were proposed: a worker
+  that finishes before an older evaluation waits for it, so proposal k sees the results of
+  proposals 0 .. k - W and fantasies for the W - 1 after them (W workers) whatever the
+  timing, and a run with a given W and evaluation count repeats bitwise.
 - Recommendation: among the bases evaluated at T_max, the one with the highest GP posterior
   mean (noise-aware, not the luckiest sample). At the end of :meth:`RBBO.run` it and the
   identity are evaluated on ``n_confirm`` fresh seeds at T_max: R* and R_init.
@@ -303,6 +307,7 @@ class RBBO:
         budget_s: float | None = None,
         confirm: bool = True,
         callback: Callable[[Evaluation], None] | None = None,
+        deterministic: bool = False,
     ) -> RBBOResult:
         """Optimise until ``max_evaluations`` or ``budget_s`` (defaults: the config's).
 
@@ -319,6 +324,11 @@ class RBBO:
             Measure R_init and R* on fresh seeds at the end.
         callback : callable, optional
             Called with each recorded Evaluation.
+        deterministic : bool
+            Tell results in proposal order (see module doc): the run repeats bitwise for a
+            given number of workers and ``max_evaluations`` (not under ``budget_s``, which is
+            wall time), at the cost of a worker idling while an older evaluation finishes.
+            Default False: a free worker gets a new point at once.
         """
         cfg = self.config
         max_evaluations = cfg.max_evaluations if max_evaluations is None else max_evaluations
@@ -351,7 +361,9 @@ class RBBO:
                     in_flight[executor.submit(proposal.task())] = proposal
                 if not in_flight:
                     break
-                done, _ = wait(list(in_flight), timeout=1.0, return_when=FIRST_COMPLETED)
+                # in_flight keeps submission order, so its first entry is the oldest proposal
+                waiting = [next(iter(in_flight))] if deterministic else list(in_flight)
+                done, _ = wait(waiting, timeout=1.0, return_when=FIRST_COMPLETED)
                 for future in done:
                     proposal = in_flight.pop(future)
                     evaluation = self._tell_outcome(proposal, future.result(), callback)

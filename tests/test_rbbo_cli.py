@@ -63,6 +63,31 @@ def test_optimize_report_resume_rollout_on_a_synthetic_objective(tmp_path, capsy
     assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == 10
 
 
+def test_deterministic_runs_on_two_workers_repeat_and_resume_so(tmp_path, capsys, monkeypatch):
+    told = []
+    from rbbo import optimizer
+
+    real_run = optimizer.RBBO.run
+
+    def spy(self, *args, **kwargs):
+        told.append(kwargs.get("deterministic"))
+        return real_run(self, *args, **kwargs)
+
+    monkeypatch.setattr(optimizer.RBBO, "run", spy)
+    runs = [tmp_path / "a", tmp_path / "b"]
+    for run in runs:
+        assert main(["optimize", "synthetic:noise=0.01", *TINY, "--iterations", "7",
+                     "--workers", "2", "--deterministic", "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    first, second = (_history(run) for run in runs)
+    assert [h["index"] for h in first] == list(range(len(first)))  # told in proposal order
+    assert [(h["basis"], h["R"]) for h in first] == [(h["basis"], h["R"]) for h in second]
+    config = json.loads((runs[0] / "config.json").read_text())
+    assert config["execution"]["deterministic"] is True
+    assert main(["resume", str(runs[0]), "--iterations", "8", "--no-progress"]) == 0
+    assert told == [True, True, True]  # the resumed session keeps the run's schedule
+
+
 def test_optimize_an_env_with_mpc(tmp_path, capsys, monkeypatch):
     """The env path: ENV_ID resolution, node count, settled reward per second, config."""
     monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))

@@ -6,13 +6,17 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
 
 from rbbo import RBBO, RBBOConfig, SyntheticObjective
 from rbbo.baselines import random_search
+from rbbo.executors import Executor
+from rbbo.executors.base import evaluate_task
 from rbbo.grassmann import identity_basis, projection_distance, validate_basis
 from rbbo.store import RunDirectoryError
 
@@ -67,6 +71,51 @@ def test_a_serial_run_is_reproducible_and_answer_order_decides_the_next_proposal
     # Answers arriving in the other order (what parallel workers do) change the GP's data
     # order, and so the proposal: why a run with --workers > 1 does not repeat exactly.
     assert not np.array_equal(run("ab"), run("ba"))
+
+
+class _ScrambledExecutor(Executor):
+    """Two threads whose evaluations finish out of proposal order: an index in ``slow`` waits
+    until the proposal after it has finished (both are in flight together on 2 workers)."""
+
+    def __init__(self, objective, slow, last):
+        self.objective, self.slow, self.last, self.workers = objective, slow, last, 2
+        self.finished: list[int] = []
+        self._done = {i: threading.Event() for i in range(last + 1)}
+        self._pool = ThreadPoolExecutor(2)
+
+    def submit(self, task):
+        def evaluate():
+            if task.index in self.slow and task.index < self.last:
+                self._done[task.index + 1].wait(timeout=10.0)
+            outcome = evaluate_task(self.objective, task, "thread")
+            self.finished.append(task.index)
+            self._done[task.index].set()
+            return outcome
+
+        return self._pool.submit(evaluate)
+
+    def shutdown(self, wait=True):
+        self._pool.shutdown(wait=wait)
+
+
+def test_a_deterministic_parallel_run_repeats_whatever_order_results_arrive_in():
+    def run(slow):
+        objective = SyntheticObjective(6, 2, optimum_seed=2, noise=0.01)
+        opt = RBBO(RBBOConfig(6, 2, n_init=3, seed=4, max_evaluations=10, n_confirm=0, **FAST))
+        with _ScrambledExecutor(objective, slow, last=9) as executor:
+            opt.run(executor=executor, deterministic=True)
+        return opt.history, executor.finished
+
+    first, finished_first = run(slow=set(range(0, 10, 2)))
+    second, finished_second = run(slow=set(range(1, 10, 2)))
+    # the workers finished in two different orders, neither of them the proposals' ...
+    assert finished_first == [1, 0, 3, 2, 5, 4, 7, 6, 9, 8]
+    assert finished_second == [0, 2, 1, 4, 3, 6, 5, 8, 7, 9]
+    # ... and both runs told every result in proposal order and made the same run, bitwise
+    assert [e.index for e in first] == [e.index for e in second] == list(range(10))
+    assert [e.R for e in first] == [e.R for e in second]
+    for a, b in zip(first, second, strict=True):
+        np.testing.assert_array_equal(a.basis, b.basis)
 
 
 def test_pending_points_get_fantasies_so_parallel_proposals_differ():
