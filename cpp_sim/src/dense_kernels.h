@@ -1,6 +1,6 @@
 // The dense kernels of the cubature force and stiffness (reduced_elastic.cpp) and the contact
-// solve's matrix-vector products (reduced_contact.cpp, fast solver), built for two instruction
-// sets in one binary: the x86-64 baseline (SSE2), which every x86-64 machine runs, and
+// solve's matrix-vector products (staggered_projection.cpp, fast solver), built for two
+// instruction sets in one binary: the x86-64 baseline (SSE2), which every x86-64 machine runs, and
 // x86-64-v3 (AVX2 + FMA), used where the CPU has it unless the environment variable
 // SOFTROM_KERNELS=baseline asks for the baseline. The two sets compute the same sums and round
 // differently (fused multiply-adds). Other compilers and architectures (arm64, clang, MSVC)

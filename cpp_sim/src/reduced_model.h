@@ -7,7 +7,8 @@
 //   reduced_model.cpp     construction, kinematics (positions, centre of mass)
 //   reduced_elastic.cpp   cubature energy, forces and stiffness (the hot kernels)
 //   reduced_dynamics.cpp  the implicit step: reference Newton and the fast quasi-Newton
-//   reduced_contact.cpp   staggered projection (normal LDP + friction), penalty ground
+//   reduced_contact.cpp   contact candidates (then staggered_projection.cpp: staggered
+//                         projection, normal LDP + friction), penalty ground
 //   reduced_drag.cpp      quadratic surface drag
 //   reduced_rollout.cpp   batched rollouts on the thread pool (thread_pool.h)
 #pragma once
@@ -116,7 +117,7 @@ class ScopedTimer {
   std::chrono::steady_clock::time_point start_;
 };
 
-struct ContactScratch;  // the contact solve's buffers (reduced_contact.cpp)
+class StaggeredProjection;  // the contact solve and its buffers (staggered_projection.h)
 
 // Per-thread scratch memory, reused from step to step by a rollout worker (one per thread, as
 // MuJoCo's rollout gives each thread its own mjData): the dynamics' buffers, the contact
@@ -148,7 +149,9 @@ struct Workspace {
   std::vector<std::ptrdiff_t> drag_faces;  // (drag_fast's and the potential's scratch)
   bool drag_jacobian_formed = false;
   NnlsWorkspace nnls;  // the contact solve's least-distance programmes, one per stagger
-  std::unique_ptr<ContactScratch> contact;  // made by the first contact solve
+  std::unique_ptr<StaggeredProjection> contact;  // made by the first contact solve
+  std::vector<int> contact_active;     // the step's contact candidates (surface node ids) ...
+  std::vector<double> contact_gap;     // ... and their heights above the ground
   // N q and N v (N: the surface nodes' normal rows) of the step's end, from near_ground for
   // the contact solve that follows it (two products over every surface node, ~0.1 M
   // instructions each on the quadruped); cleared at each step's start.
