@@ -594,6 +594,10 @@ class ReducedConfig:
     @stabilization.setter
     def stabilization(self, arg1: typing.Any) -> None:
         ...
+def _kernel_cholesky(a: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], b: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> tuple[bool, typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], bool, typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]]:
+    """
+    (ok, L padded with 3 rows, x, ok, U, x): A = L L^T by the lower Cholesky kernel and A = U^T U by the scalar loops, each with its solve of A x = b (for their tests).
+    """
 def _kernel_cols_dot(a: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
     """
     A^T x through the fast solver's column-dot kernel (for its tests).

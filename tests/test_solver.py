@@ -459,6 +459,32 @@ def test_one_pass_kernels_give_the_sums_of_the_separate_ones():
         cpp_sim._core._kernel_cols_dot_times(np.ones((2, 4)), np.ones(3))
 
 
+def test_lower_cholesky_kernel_is_the_scalar_factor_to_the_bit():
+    # The primal friction half factors its (M + 6)-square system with the vectorised lower
+    # kernel from 20 columns on and with the scalar loops below: the choice by size may change
+    # no result, so the two factors must be transposes of each other to the bit and their
+    # solves equal, at every size around the kernel's 4-row packets and its 32-row cap.
+    rng = np.random.default_rng(3)
+    for n in [1, 2, 3, 4, 5, 7, 8, 13, 19, 20, 26, 29, 32, 33, 40, 70]:
+        b = rng.standard_normal((n, n))
+        a = b @ b.T + 0.1 * np.eye(n)
+        rhs = rng.standard_normal(n)
+        lower_ok, lower, x_lower, upper_ok, upper, x_upper = cpp_sim._core._kernel_cholesky(a, rhs)
+        assert lower_ok and upper_ok, n
+        factor = np.tril(lower[:n])
+        np.testing.assert_array_equal(factor, np.triu(upper).T, err_msg=f"n = {n}")
+        np.testing.assert_array_equal(lower[n:], 0.0, err_msg=f"padding, n = {n}")
+        np.testing.assert_array_equal(x_lower, x_upper, err_msg=f"n = {n}")
+        np.testing.assert_allclose(factor @ factor.T, a, rtol=0, atol=1e-12 * np.abs(a).max())
+        np.testing.assert_allclose(a @ x_lower, rhs, rtol=0, atol=1e-9 * np.abs(rhs).max())
+    # Not positive definite: both refuse (a pivot of -3 at the second column).
+    indefinite = np.array([[1.0, 2.0], [2.0, 1.0]])
+    lower_ok, *_, upper_ok, _, _ = cpp_sim._core._kernel_cholesky(indefinite, np.ones(2))
+    assert not lower_ok and not upper_ok
+    with pytest.raises(ValueError, match="need a square a and b of its size; got a 2 x 3"):
+        cpp_sim._core._kernel_cholesky(np.ones((2, 3)), np.ones(2))
+
+
 _KERNEL_PROBE = """
 import json, sys
 import numpy as np

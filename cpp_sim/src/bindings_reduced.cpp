@@ -16,6 +16,7 @@
 #include "dense_kernels.h"
 #include "fem_model.h"
 #include "reduced_model.h"
+#include "small_cholesky.h"
 #include "validate.h"
 
 namespace py = pybind11;
@@ -545,6 +546,32 @@ diverged rollout keeps its last good state and earns zero reward from then on.)d
       },
       py::arg("a"), py::arg("x"),
       "(A^T x, A A^T x) through the fast solver's fused kernel (for its tests).");
+
+  m.def(
+      "_kernel_cholesky",
+      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& b) {
+        const Eigen::Index n = a.rows();
+        if (a.cols() != n || b.size() != n) {
+          std::ostringstream msg;
+          msg << "need a square a and b of its size; got a " << a.rows() << " x " << a.cols()
+              << " and b of " << b.size();
+          throw py::value_error(msg.str());
+        }
+        // As the primal friction half calls them: the lower kernel on a copy with three zero
+        // rows of padding (returned with the factor, so a test sees them kept), the scalar
+        // loops on the upper triangle; each factor then solves A x = b.
+        MatX lower = MatX::Zero(n + 3, n), upper = a;
+        lower.topRows(n).triangularView<Eigen::Lower>() = a;
+        VecX x_lower = b, x_upper = b;
+        const bool lower_ok = kernels::cholesky_lower(lower.data(), n, n + 3);
+        if (lower_ok) small::cholesky_lower_solve(lower.data(), n, n + 3, x_lower.data());
+        const bool upper_ok = small::cholesky_upper(upper.data(), n, n);
+        if (upper_ok) small::cholesky_upper_solve(upper.data(), n, n, x_upper.data());
+        return py::make_tuple(lower_ok, lower, x_lower, upper_ok, upper, x_upper);
+      },
+      py::arg("a"), py::arg("b"),
+      "(ok, L padded with 3 rows, x, ok, U, x): A = L L^T by the lower Cholesky kernel and "
+      "A = U^T U by the scalar loops, each with its solve of A x = b (for their tests).");
 
   m.def(
       "_least_distance_sequence",

@@ -6,6 +6,7 @@
 // the baseline on a machine with AVX2, which the tests and SOFTROM_KERNELS=baseline need.)
 #include "dense_kernels.h"
 
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
 
@@ -418,6 +419,70 @@ SOFTROM_INLINE void lower_solve_rows_body(const double* __restrict l, Index n,
   }
 }
 
+// Column i of the lower Cholesky factor, rows [i, i + 4 N) (N = ceil((n - i) / 4); the rows past
+// n are the caller's zero padding): the 4 N entries stay in registers while the earlier
+// columns stream past, each subtracting L(i, k) times its rows, in k's order: entry (j, i) is
+// a_ji - L(i,0) L(j,0) - L(i,1) L(j,1) - ..., Cholesky-Crout's sum in its order.
+template <int N, bool kLanes>
+SOFTROM_INLINE void cholesky_lower_column(double* __restrict a, Index lda, Index i) {
+  double* __restrict ci = a + i * lda + i;
+  if constexpr (kLanes) {
+    Lanes4 acc[N];
+    for (int v = 0; v < N; ++v) acc[v] = *reinterpret_cast<const Lanes4*>(ci + 4 * v);
+    for (Index k = 0; k < i; ++k) {
+      const double* __restrict ck = a + k * lda + i;
+      const double lik = ck[0];
+      for (int v = 0; v < N; ++v) acc[v] = acc[v] - *reinterpret_cast<const Lanes4*>(ck + 4 * v) * lik;
+    }
+    for (int v = 0; v < N; ++v) *reinterpret_cast<Lanes4*>(ci + 4 * v) = acc[v];
+  } else {
+    double acc[4 * N];
+    for (int r = 0; r < 4 * N; ++r) acc[r] = ci[r];
+    for (Index k = 0; k < i; ++k) {
+      const double* __restrict ck = a + k * lda + i;
+      const double lik = ck[0];
+      for (int r = 0; r < 4 * N; ++r) acc[r] = acc[r] - ck[r] * lik;
+    }
+    for (int r = 0; r < 4 * N; ++r) ci[r] = acc[r];
+  }
+}
+
+template <bool kLanes>
+SOFTROM_INLINE bool cholesky_lower_body(double* __restrict a, Index n, Index lda) {
+  for (Index i = 0; i < n; ++i) {
+    switch ((n - i + 3) / 4) {
+      case 1: cholesky_lower_column<1, kLanes>(a, lda, i); break;
+      case 2: cholesky_lower_column<2, kLanes>(a, lda, i); break;
+      case 3: cholesky_lower_column<3, kLanes>(a, lda, i); break;
+      case 4: cholesky_lower_column<4, kLanes>(a, lda, i); break;
+      case 5: cholesky_lower_column<5, kLanes>(a, lda, i); break;
+      case 6: cholesky_lower_column<6, kLanes>(a, lda, i); break;
+      case 7: cholesky_lower_column<7, kLanes>(a, lda, i); break;
+      case 8: cholesky_lower_column<8, kLanes>(a, lda, i); break;
+      default:  // wider than 32 rows: the same sums, 32 rows at a time
+        for (Index r0 = i; r0 < n; r0 += 32) {
+          double* __restrict ci = a + i * lda;
+          double acc[32];
+          const Index len = n - r0 < 32 ? n - r0 : 32;
+          for (Index r = 0; r < len; ++r) acc[r] = ci[r0 + r];
+          for (Index k = 0; k < i; ++k) {
+            const double lik = a[i + k * lda];
+            const double* __restrict ck = a + k * lda + r0;
+            for (Index r = 0; r < len; ++r) acc[r] = acc[r] - ck[r] * lik;
+          }
+          for (Index r = 0; r < len; ++r) ci[r0 + r] = acc[r];
+        }
+    }
+    double* __restrict ci = a + i * lda;
+    const double d = ci[i];
+    if (!(d > 0.0) || !std::isfinite(d)) return false;
+    const double lii = std::sqrt(d);
+    ci[i] = lii;
+    for (Index j = i + 1; j < n; ++j) ci[j] = ci[j] / lii;
+  }
+  return true;
+}
+
 // H G for the stable Neo-Hookean H = w (mu I + lambda g g^T + s d(cof F)/dF) without forming
 // H: per column of G (one lane), with X_c = the lane's three rows of column c of dF,
 //   (H G)_c = w mu X_c + (w lambda g_c) (g . X) + (ws f_a x X_b - ws f_b x X_a),
@@ -575,9 +640,10 @@ struct Table {
                       double*, double*);
   void (*interleaved_deformation)(const double*, Index, Index, const double*, double*);
   void (*lower_solve_rows)(const double*, Index, double*, Index);
+  bool (*cholesky_lower)(double*, Index, Index);
 };
 
-#define SOFTROM_KERNEL_SET(attr, suffix, wide)                                                 \
+#define SOFTROM_KERNEL_SET(attr, contract_off, suffix, wide)                                   \
   attr void gram_lower_##suffix(const double* g, const double* x, Index rows, Index width,     \
                                 double* out) {                                                 \
     gram_lower_body<wide>(g, x, rows, width, out);                                             \
@@ -621,11 +687,18 @@ struct Table {
   }                                                                                            \
   attr void lower_solve_rows_##suffix(const double* l, Index n, double* b, Index nrhs) {       \
     lower_solve_rows_body(l, n, b, nrhs);                                                      \
+  }                                                                                            \
+  attr contract_off bool cholesky_lower_##suffix(double* a, Index n, Index lda) {              \
+    return cholesky_lower_body<wide>(a, n, lda);                                               \
   }
 
-SOFTROM_KERNEL_SET(, baseline, false)
+SOFTROM_KERNEL_SET(, , baseline, false)
 #if SOFTROM_KERNEL_DISPATCH
-SOFTROM_KERNEL_SET(__attribute__((target("arch=x86-64-v3"))), v3, true)
+// (cholesky_lower's v3 build does not fuse its products and differences: multiply-adds there
+// bought ~5 % in a harness, and unfused it gives the factor of small::cholesky_upper, the
+// baseline's loops, to the bit.)
+SOFTROM_KERNEL_SET(__attribute__((target("arch=x86-64-v3"))),
+                   __attribute__((optimize("fp-contract=off"))), v3, true)
 #endif
 
 const Table& table() {
@@ -636,7 +709,8 @@ const Table& table() {
                          cols_times_baseline, cols_dot_baseline, cols_times_pair_baseline,
                          cols_dot_times_baseline, combine_row_triples_baseline,
                          snh_element_hg_baseline, snh_force_baseline,
-                         interleaved_deformation_baseline, lower_solve_rows_baseline};
+                         interleaved_deformation_baseline, lower_solve_rows_baseline,
+                         cholesky_lower_baseline};
 #if SOFTROM_KERNEL_DISPATCH
     const char* want = std::getenv("SOFTROM_KERNELS");
     const bool forced = want != nullptr && std::strcmp(want, "baseline") == 0;
@@ -646,7 +720,8 @@ const Table& table() {
                    cols_times_v3,      cols_dot_v3,       cols_times_pair_v3,
                    cols_dot_times_v3,  combine_row_triples_v3,
                    snh_element_hg_v3,  snh_force_v3,
-                   interleaved_deformation_v3,         lower_solve_rows_v3};
+                   interleaved_deformation_v3,         lower_solve_rows_v3,
+                   cholesky_lower_v3};
 #endif
     return baseline;
   }();
@@ -695,5 +770,7 @@ void interleaved_deformation(const double* gi, Index count, Index width, const d
 void lower_solve_rows(const double* l, Index n, double* b, Index nrhs) {
   table().lower_solve_rows(l, n, b, nrhs);
 }
+
+bool cholesky_lower(double* a, Index n, Index lda) { return table().cholesky_lower(a, n, lda); }
 
 }  // namespace softrom::kernels

@@ -117,6 +117,25 @@ inline void cholesky_upper_solve(const double* u, Index n, Index lda, double* b)
   upper_solve(u, n, lda, b);
 }
 
+// b <- (L L^T)^-1 b, for L lower triangular (n x n, column-major, leading dimension lda; from
+// kernels::cholesky_lower). L = U^T for the U of cholesky_upper, and the two substitutions are
+// cholesky_upper_solve's, entry for entry, so the answer is its answer to the bit: forward
+// along L's columns, then backward by updates along L's rows (strided, but independent, where
+// the dot products along its columns would be one chain).
+inline void cholesky_lower_solve(const double* l, Index n, Index lda, double* b) {
+  for (Index i = 0; i < n; ++i) {
+    const double* ci = l + i * lda;
+    const double x = b[i] / ci[i];
+    b[i] = x;
+    for (Index j = i + 1; j < n; ++j) b[j] -= ci[j] * x;
+  }
+  for (Index i = n - 1; i >= 0; --i) {
+    const double x = b[i] / l[i + i * lda];
+    b[i] = x;
+    for (Index k = 0; k < i; ++k) b[k] -= x * l[i + k * lda];
+  }
+}
+
 // Solves A x = b in place (x holds b on entry), for a general a (n x n, column-major, leading
 // dimension n, overwritten by its LU factors with partial pivoting). Returns false on a zero
 // or non-finite pivot.
