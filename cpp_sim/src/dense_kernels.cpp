@@ -432,7 +432,8 @@ SOFTROM_INLINE void cholesky_lower_column(double* __restrict a, Index lda, Index
     for (Index k = 0; k < i; ++k) {
       const double* __restrict ck = a + k * lda + i;
       const double lik = ck[0];
-      for (int v = 0; v < N; ++v) acc[v] = acc[v] - *reinterpret_cast<const Lanes4*>(ck + 4 * v) * lik;
+      for (int v = 0; v < N; ++v)
+        acc[v] = acc[v] - *reinterpret_cast<const Lanes4*>(ck + 4 * v) * lik;
     }
     for (int v = 0; v < N; ++v) *reinterpret_cast<Lanes4*>(ci + 4 * v) = acc[v];
   } else {
