@@ -461,9 +461,9 @@ def test_one_pass_kernels_give_the_sums_of_the_separate_ones():
 
 def test_lower_cholesky_kernel_is_the_scalar_factor_to_the_bit():
     # The primal friction half factors its (M + 6)-square system with the vectorised lower
-    # kernel from 20 columns on and with the scalar loops below: the choice by size may change
-    # no result, so the two factors must be transposes of each other to the bit and their
-    # solves equal, at every size around the kernel's 4-row packets and its 32-row cap.
+    # kernel in place of the scalar loops it replaced, which must change no result: the two
+    # factors must be transposes of each other to the bit and their solves equal, at every
+    # size around the kernel's 4-row packets and its 32-row cap.
     rng = np.random.default_rng(3)
     for n in [1, 2, 3, 4, 5, 7, 8, 13, 19, 20, 26, 29, 32, 33, 40, 70]:
         b = rng.standard_normal((n, n))

@@ -34,12 +34,6 @@
 
 namespace softrom {
 
-namespace {
-// From this many reduced velocities on, the primal friction system is factored by the
-// vectorised lower Cholesky kernel (friction_half).
-constexpr Eigen::Index kWideCholesky = 20;
-}  // namespace
-
 int StaggeredProjection::solve(const ReducedConfig& cfg, const RowMatX& surface_rows,
                                const std::vector<int>& active, const std::vector<double>& gap,
                                const MatX& a, const Eigen::LLT<MatX>& a_llt, VecX& v,
@@ -544,31 +538,17 @@ void StaggeredProjection::friction_half(bool on_set) {
       }
       gram_.resize(width, width);
       kernels::gram_lower(y_rows_.data(), y_rows_.data(), 2 * nl, width, gram_.data());
-      // (A + J_l^T W J_l)'s lower triangle, for the lower Cholesky kernel, whose column
-      // updates are vectorised (0.54x the scalar loops' time at M + 6 = 26; the same factor to
-      // the bit, so the choice by size changes no result), on three zero rows of padding; below
-      // 20 columns the scalar loops, which read the upper triangle, get it transposed.
-      const bool wide = m >= kWideCholesky;
-      if (wide) {
-        hess_.resize(m + 3, m);
-        for (Eigen::Index c = 0; c < m; ++c) {
-          for (Eigen::Index r = c; r < m; ++r) hess_(r, c) = a(r, c) + gram_(r, c);
-          hess_(m, c) = hess_(m + 1, c) = hess_(m + 2, c) = 0.0;
-        }
-      } else {
-        hess_.resize(m, m);
-        for (Eigen::Index c = 0; c < m; ++c)
-          for (Eigen::Index r = c; r < m; ++r) hess_(c, r) = a(r, c) + gram_(r, c);
+      // (A + J_l^T W J_l)'s lower triangle, on the three zero rows of padding the lower
+      // Cholesky kernel reads: its column updates are vectorised (0.54x the scalar loops' time
+      // at M + 6 = 26, for the same factor to the bit).
+      hess_.resize(m + 3, m);
+      for (Eigen::Index c = 0; c < m; ++c) {
+        for (Eigen::Index r = c; r < m; ++r) hess_(r, c) = a(r, c) + gram_(r, c);
+        hess_(m, c) = hess_(m + 1, c) = hess_(m + 2, c) = 0.0;
       }
-      const Eigen::Index ld = hess_.rows();
-      if (wide ? kernels::cholesky_lower(hess_.data(), m, ld)
-               : small::cholesky_upper(hess_.data(), m, ld)) {
+      if (kernels::cholesky_lower(hess_.data(), m, m + 3)) {
         v.noalias() = a * v_second_;
-        if (wide) {
-          small::cholesky_lower_solve(hess_.data(), m, ld, v.data());
-        } else {
-          small::cholesky_upper_solve(hess_.data(), m, ld, v.data());
-        }
+        small::cholesky_lower_solve(hess_.data(), m, m + 3, v.data());
         primal_done = true;
       }
     }
