@@ -9,7 +9,7 @@ import re
 import numpy as np
 import pytest
 
-from rbbo.cli import main
+from rbbo.cli import _parser, main
 from rbbo.reproduce import ReproducePlan, confidence_interval, parse_markdown
 
 TINY = [
@@ -290,6 +290,14 @@ def test_plan_validates_and_round_trips():
     assert plan.differences(ReproducePlan(benchmarks=["BeamWalk-v0"], seed=1)) == ["seed"]
     longer_rl = ReproducePlan(benchmarks=["BeamWalk-v0"], rl_steps=10**5, rl_algos=["ppo"])
     assert plan.differences(longer_rl) == []  # RL runs continue from their checkpoints
+    in_order = ReproducePlan(benchmarks=["BeamWalk-v0"], deterministic=True)
+    assert plan.differences(in_order) == []  # how results are told, not what is measured
+    assert ReproducePlan.from_dict(in_order.to_dict()) == in_order
+    stored = plan.to_dict()
+    del stored["deterministic"]  # a reproduce.json written before the setting existed
+    assert ReproducePlan.from_dict(stored) == plan
+    with pytest.raises(ValueError, match="deterministic must be True or False, got 'yes'"):
+        ReproducePlan(deterministic="yes")
     np.testing.assert_allclose(ReproducePlan(directions=4).direction_angles_deg(),
                                [0, 90, 180, 270])  # fmt: skip
     with pytest.raises(ValueError, match="perturbations"):
@@ -306,6 +314,44 @@ def test_plan_validates_and_round_trips():
         ReproducePlan(rl_steps={"ppo": 500_000})
     with pytest.raises(ValueError, match="steps of sac must be a positive integer, got 0"):
         ReproducePlan(rl_steps={"ppo": 5, "sac": 0})
+
+
+def test_deterministic_reaches_each_optimisation_run_its_record_and_the_report(
+    tmp_path, monkeypatch
+):
+    from rbbo.optimizer import RBBO
+    from rbbo.reproduce import document, runner
+    from rbbo.reproduce.cli import _plan
+
+    class Stop(Exception):
+        pass
+
+    told = []
+
+    def run(self, **kwargs):  # the search itself is rbbo optimize's, tested there
+        told.append(kwargs["deterministic"])
+        raise Stop
+
+    monkeypatch.setattr(RBBO, "run", run)
+    for flag in (False, True):
+        argv = [*TINY, "--stages", "table", *(["--deterministic"] if flag else [])]
+        plan = _plan(_parser().parse_args(argv))
+        assert plan.deterministic is flag
+        path = tmp_path / f"run-{flag}"
+        objective = runner._objective(plan, "CrossSwim-v0")
+        with pytest.raises(Stop):
+            runner.optimise(path, plan, objective, "boca", 60.0, False, lambda message: None)
+        # recorded in the run, so that `rbbo resume` of it tells results the same way
+        execution = json.loads((path / "config.json").read_text())["execution"]
+        assert execution["deterministic"] is flag
+    assert told == [False, True]
+    sessions = [{"deterministic": False}, {"deterministic": True}, {"deterministic": True}]
+    assert document._told_in_order(sessions[:1], False) == ""
+    assert document._told_in_order(sessions[1:], False) == " (results told in proposal order)"
+    assert document._told_in_order(sessions, True) == (
+        " (results told in proposal order in sessions 2, 3)"
+    )
+    assert document._told_in_order([], True) == " (results told in proposal order)"
 
 
 def test_rl_stage_without_stable_baselines3_is_a_usage_error(

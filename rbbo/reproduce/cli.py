@@ -98,6 +98,10 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    help="wall time of each benchmark's RBBO run (default 45m)")  # fmt: skip
     p.add_argument("--iterations", type=positive_int, help="cap on evaluations per run")
     p.add_argument("--workers", type=positive_int, default=defaults.workers)
+    p.add_argument("--deterministic", action="store_true",
+                   help="tell each optimisation run's results in proposal order, so that with "
+                   "--iterations the runs repeat bitwise on one install (a worker may wait "
+                   "for an older evaluation)")  # fmt: skip
     p.add_argument("--executor", choices=["process", "serial", "ray"], default="process")
     p.add_argument("--controller", choices=["mppi", "gn"], default=defaults.controller)
     p.add_argument("--sim-dim", type=positive_int, default=defaults.sim_dim)
@@ -151,7 +155,8 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
 def _plan(args) -> ReproducePlan:
     return ReproducePlan(
         benchmarks=args.benchmarks, budget_s=args.budget_per_benchmark,
-        iterations=args.iterations, workers=args.workers, executor=args.executor,
+        iterations=args.iterations, workers=args.workers, deterministic=args.deterministic,
+        executor=args.executor,
         controller=args.controller, sim_dim=args.sim_dim, control_dim=args.control_dim,
         t_min=args.t_min, t_max=args.t_max, settle_time=args.settle_time, n_init=args.init,
         confirm_seeds=args.confirm_seeds, seed=args.seed, stages=args.stages,

@@ -84,6 +84,18 @@ def _session_values(sessions: list[dict[str, Any]], key: str, current: float) ->
     return " / ".join(f"{v:g}" for v in values)
 
 
+def _told_in_order(sessions: list[dict[str, Any]], current: bool) -> str:
+    """Which sessions told the optimisation runs' results in proposal order
+    (``--deterministic``), as the report says it after the workers."""
+    flags = [bool(s.get("deterministic", False)) for s in sessions] or [current]
+    if not any(flags):
+        return ""
+    if all(flags):
+        return " (results told in proposal order)"
+    which = ", ".join(str(i + 1) for i, flag in enumerate(flags) if flag)
+    return f" (results told in proposal order in session{'s' if ',' in which else ''} {which})"
+
+
 def _relink(lines: list[str], out: Path, folder: Path) -> list[str]:
     """Rewrite the report's links (relative to ``out``) to be relative to ``folder``."""
     prefix = Path(os.path.relpath(out.resolve(), folder.resolve())).as_posix()
@@ -127,7 +139,8 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
     beside = "; the BO run beside it had the same" if progress["bo"][0] or panels else ""
     lines += [f"Total wall time {total / 60:.1f} min on {_machine(sessions)}. Budget per "
               f"benchmark {_session_values(sessions, 'budget_s', plan.budget_s)} min{cap} "
-              f"(BOCA{beside}), {_session_values(sessions, 'workers', plan.workers)} workers, "
+              f"(BOCA{beside}), {_session_values(sessions, 'workers', plan.workers)} workers"
+              f"{_told_in_order(sessions, plan.deterministic)}, "
               f"controller {plan.controller}, M = {plan.sim_dim}, "
               f"C = {plan.control_dim}, T in [{plan.t_min:g}, {plan.t_max:g}] s, R measured "
               f"from t = {plan.settle_time:g} s, R_init and R* each on {plan.confirm_seeds} "

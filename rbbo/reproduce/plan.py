@@ -51,6 +51,11 @@ class ReproducePlan:
         Optional cap on the evaluations of each optimisation run.
     workers : int
         Evaluation workers (processes) per run.
+    deterministic : bool
+        Tell each optimisation run's results in the order they were proposed (``rbbo
+        optimize --deterministic``), so that with ``iterations`` set a run repeats bitwise on
+        one install whatever order its workers finish in. Under a wall-time budget alone the
+        number of evaluations still depends on the machine.
     executor : str
         "process" (default), "serial" or "ray".
     controller : str
@@ -103,6 +108,7 @@ class ReproducePlan:
     budget_s: float = 45 * 60.0
     iterations: int | None = None
     workers: int = 2
+    deterministic: bool = False
     executor: str = "process"
     controller: str = "mppi"
     sim_dim: int = 20
@@ -161,6 +167,8 @@ class ReproducePlan:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if not isinstance(self.deterministic, bool):
+            raise ValueError(f"deterministic must be True or False, got {self.deterministic!r}")
         if self.iterations is not None and (not isinstance(self.iterations, int)
                                             or self.iterations < 1):  # fmt: skip
             raise ValueError(f"iterations must be an integer >= 1, got {self.iterations!r}")
@@ -193,7 +201,8 @@ class ReproducePlan:
     # it runs); everything else defines the experiment and must stay the same. The RL
     # baselines train in their own folders, each continued from its latest checkpoint, so a
     # later session may train them longer or on more benchmarks.
-    RESUMABLE = ("budget_s", "direction_budget_s", "iterations", "workers", "executor",
+    RESUMABLE = ("budget_s", "direction_budget_s", "iterations", "workers", "deterministic",
+                 "executor",
                  "timeout_s", "stages", "rl_benchmarks", "rl_algos", "rl_steps")  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:

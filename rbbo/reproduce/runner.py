@@ -108,7 +108,8 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
     else:
         problem = {"env_id": objective.env_id, "N": objective.node_count()}
         execution = {"executor": plan.executor, "workers": plan.workers,
-                     "timeout_s": plan.timeout_s}  # fmt: skip
+                     "timeout_s": plan.timeout_s,
+                     "deterministic": plan.deterministic}  # fmt: skip
         opt = RBBO.create(path, config, objective_spec=objective.spec(),
                           extra={"execution": execution, "problem": problem})  # fmt: skip
     # The code is recorded per run as well as per session: each run starts fresh workers,
@@ -132,7 +133,7 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
     finished = False
     try:
         result = opt.run(executor=executor, max_evaluations=plan.iterations, budget_s=budget_s,
-                         callback=callback)  # fmt: skip
+                         callback=callback, deterministic=plan.deterministic)  # fmt: skip
         finished = True
     finally:
         # On an interrupt the workers are killed, not waited for: they ignore the group's
@@ -405,7 +406,7 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     session = {"command": command or " ".join(sys.argv), "started": time.time(), "wall_s": 0.0,
                "source": source_version(), "machine": machine_description(),
                "budget_s": plan.budget_s, "direction_budget_s": plan.direction_budget_s,
-               "workers": plan.workers}  # fmt: skip
+               "workers": plan.workers, "deterministic": plan.deterministic}  # fmt: skip
     document["sessions"].append(session)
     log(f"session {len(document['sessions'])}: {session['command']} ({session['source']})")
     started = time.perf_counter()
