@@ -79,8 +79,9 @@ void lower_solve_rows(const double* l, Index n, double* b, Index nrhs);
 // column is a register-resident update by the earlier ones (left-looking), vectorised over its
 // rows; every entry is the sum of small::cholesky_upper (Cholesky-Crout) in its order, without
 // fused multiply-adds, so the factor is that one's, transposed, to the bit. In a standalone
-// harness (x86-64-v3) it took 0.52x its time at n = 26, 0.75x at 20 and 1.0x at 14. (The
-// primal friction half's (M + 6)-square system, factored once per stagger.)
+// harness (x86-64-v3) it took 0.54x the scalar loops' time at n = 26, 0.73x at 20 and 1.31x at 14
+// (benchmarks/PROFILE.md, session 27). (The primal friction half's (M + 6)-square system,
+// factored once per stagger.)
 bool cholesky_lower(double* a, Index n, Index lda);
 
 // One cubature element's rows of H G for the stable Neo-Hookean material (material.h), without
