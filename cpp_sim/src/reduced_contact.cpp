@@ -17,7 +17,6 @@ Workspace::~Workspace() = default;
 int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                                  const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses,
                                  Workspace& ws, StepInfo& info) const {
-  const double h = cfg.dt;
   const int ns = static_cast<int>(surface_nodes_.size());
   // Candidate rows: every surface node on or near the ground, or heading there this step.
   if (!ws.ground_rows_ready) {  // near_ground has not formed them for this q and v
@@ -32,8 +31,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   active.clear();
   gap.clear();
   for (int c = 0; c < ns; ++c) {
-    const double z = surface_rest_[3 * c + 2] + z_all[c] - cfg.ground_height;
-    if (z + 2.0 * h * std::min(vn_all[c], 0.0) < cfg.contact_margin) {
+    const double z = ground_gap(cfg, c, z_all[c]);
+    if (contact_candidate(cfg, z, vn_all[c])) {
       active.push_back(c);
       gap.push_back(z);
     }

@@ -404,8 +404,7 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
   return info;
 }
 
-// True when a surface node is within the contact margin of the ground, or would reach it
-// within two steps at its current velocity: the candidate test of the contact solve.
+// True when a surface node is a contact candidate (contact_candidate) at q and v.
 bool ReducedModel::near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v,
                                Workspace& ws) const {
   // (Only the fast step tests this: N q and N v by the column-major kernel, 0.07 M instructions
@@ -420,9 +419,7 @@ bool ReducedModel::near_ground(const ReducedConfig& cfg, const VecX& q, const Ve
                            z.data(), vn.data());
   ws.ground_rows_ready = true;  // for solve_contacts, at the same q and v
   for (Eigen::Index c = 0; c < z.size(); ++c)
-    if (surface_rest_[3 * c + 2] + z[c] - cfg.ground_height + 2.0 * cfg.dt * std::min(vn[c], 0.0) <
-        cfg.contact_margin)
-      return true;
+    if (contact_candidate(cfg, ground_gap(cfg, c, z[c]), vn[c])) return true;
   return false;
 }
 

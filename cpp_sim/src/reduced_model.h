@@ -14,6 +14,7 @@
 #pragma once
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <memory>
@@ -251,6 +252,15 @@ class ReducedModel {
                    const Eigen::LLT<MatX>& a_llt, Workspace& ws, StepInfo& info) const;
 
   bool near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v, Workspace& ws) const;
+  // Surface node c's height above the ground, from z_c = (N q)_c (N: normal_rows_).
+  double ground_gap(const ReducedConfig& cfg, Eigen::Index c, double z_c) const {
+    return surface_rest_[3 * c + 2] + z_c - cfg.ground_height;
+  }
+  // The contact candidate test, near_ground's and solve_contacts': a node within the contact
+  // margin of the ground, or that would reach it within two steps at its normal velocity v_n.
+  static bool contact_candidate(const ReducedConfig& cfg, double gap, double v_n) {
+    return gap + 2.0 * cfg.dt * std::min(v_n, 0.0) < cfg.contact_margin;
+  }
   // Drag at (q, qdot): the force f, the factor W of its Jacobian J_d = -W W^T (columns
   // 0..cols-1 of w), and J_d itself when jac is not null.
   void drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f, MatX* jac,
