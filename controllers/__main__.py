@@ -24,7 +24,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--planner", choices=sorted(PLANNERS), default="mppi")
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--control-basis", type=Path, help="B_c (M x C) as a .npy file")
+    p.add_argument(
+        "--control-basis",
+        type=Path,
+        help="B_c (M x C) as a .npy file; a full-rank one is orthonormalised",
+    )
     p.add_argument("--video", type=Path, help="write the episode to this video file")
     p.add_argument("--replan-every", type=int, help="env steps between replans")
     p.add_argument("--horizon", type=int, help="override the default horizon (env steps)")
@@ -53,10 +57,11 @@ def main(argv: list[str] | None = None) -> int:
             b_c = np.load(args.control_basis)
         except (OSError, ValueError) as exc:
             parser.error(f"--control-basis {args.control_basis}: {exc}")
-        if b_c.ndim != 2:
+        if b_c.ndim != 2 or b_c.shape[0] < b_c.shape[1]:
             parser.error(f"--control-basis {args.control_basis} has shape {b_c.shape}; "
-                         "expected (M, C)")  # fmt: skip
-        kwargs.update(control_basis=b_c, control_dim=b_c.shape[1])
+                         "expected (M, C), M >= C: one column per control direction")  # fmt: skip
+        # as `rbbo baselines`: any full-rank B_c, orthonormalised (its span is what counts)
+        kwargs.update(control_basis=b_c, orthonormalize=True)
     if args.video is not None:
         kwargs["render_mode"] = "rgb_array"
     changes = {k: v for k, v in (("horizon", args.horizon), ("samples", args.samples),

@@ -23,7 +23,8 @@ class EpisodeResult:
     (R per step, m), ``orientation`` (rad), ``lateral`` (m), ``effort`` (|f_c / a|^2),
     ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and ``distance`` (T + 1,) along d
     since reset (m), ``states`` (ReducedState copies). Per replan: ``replan_steps`` (the step
-    it ran at) and ``replan_wall_s``. ``stop_reason`` says why the episode ended.
+    it ran at) and ``replan_wall_s``. ``stop_reason`` says why the episode ended: "time" (its
+    seconds ran out), "diverged" or "truncated by the time limit" (the env's TimeLimit).
     """
 
     planner: str
@@ -82,7 +83,7 @@ class EpisodeResult:
             f"{d:+.3f} m ({d / self.body_length:+.2f} body lengths), R {self.R:+.3f} m, "
             f"mean orientation {self.orientation.mean():.3f} rad, lateral "
             f"{self.lateral.sum():.3f} m, effort {self.effort.mean():.2f}, {self.replans} "
-            f"replans at {wall:.2f} s wall each ({self.stop_reason})"
+            f"replans at {wall:.2f} s wall each (stopped: {self.stop_reason or '-'})"
         )
 
 

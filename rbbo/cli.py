@@ -63,6 +63,11 @@ def parse_duration(text: str) -> float:
     return seconds
 
 
+def _duration_text(seconds: float) -> str:
+    """Seconds as people read them: '45 s', '12.5 min' (a budget as --budget was given)."""
+    return f"{seconds:.3g} s" if seconds < 120 else f"{seconds / 60:.3g} min"
+
+
 def _number_arg(kind: type, allowed, what: str):
     """An argparse type: ``kind`` (int or float) parsed from the text and checked by
     ``allowed``; either failure says what was expected and what was given."""
@@ -293,6 +298,11 @@ def _make_executor(objective, execution: dict):
     address is then a usage error that leaves no run directory behind)."""
     from .executors import make_executor
 
+    if execution["executor"] == "serial" and execution["workers"] != 1:
+        raise UsageError(f"--executor serial runs one evaluation at a time, in this "
+                         f"process; --workers {execution['workers']} needs --executor "
+                         "process (or ray)")  # fmt: skip
+
     with _bad_input():
         return make_executor(execution["executor"], objective, execution["workers"],
                              execution["timeout_s"], execution.get("address"))  # fmt: skip
@@ -426,23 +436,30 @@ def cmd_resume(args) -> int:
     if args.executor:
         execution["executor"] = args.executor
         execution["address"] = args.address if args.executor == "ray" else None
+        if args.executor == "serial" and not args.workers:
+            execution["workers"] = 1  # (the stored count was another executor's)
     elif args.address:
         if execution["executor"] != "ray":
             raise UsageError("--address is for --executor ray")
         execution["address"] = args.address
     # A new limit replaces both stored ones: a run that stopped at its budget, resumed with
-    # --iterations, would otherwise stop again at once.
+    # --iterations, would otherwise stop again at once. It is written to config.json, so a
+    # later plain `rbbo resume` (the hint an interrupted run prints) goes on to it.
     iterations, budget = args.iterations, args.budget
     if iterations is None and budget is None:
         iterations, budget = opt.config.max_evaluations, opt.config.budget_s
+    elif (iterations, budget) != (opt.config.max_evaluations, opt.config.budget_s):
+        if opt.can_submit(iterations, budget):  # (a limit already reached is not recorded)
+            with _bad_input():
+                opt.set_limits(iterations, budget)
     if not opt.can_submit(iterations, budget):
         done = len(opt.evaluations)
         limits = ([f"{iterations} evaluations"] if iterations is not None else []) + (
-            [f"a budget of {budget / 60:g} min"] if budget is not None else []
+            [f"a budget of {_duration_text(budget)}"] if budget is not None else []
         )
         print(f"{opt.store.path} has reached its limit ({' and '.join(limits)}; it has {done} "
-              f"evaluations, {opt.elapsed_s / 60:.1f} min): nothing more to search; give a larger "
-              "--budget or --iterations to go on", file=sys.stderr)  # fmt: skip
+              f"evaluations, {_duration_text(opt.elapsed_s)}): nothing more to search; give a "
+              "larger --budget or --iterations to go on", file=sys.stderr)  # fmt: skip
     started = time.monotonic()
     executor = _make_executor(objective, execution)
     code = _execute(opt, executor, iterations, budget, not args.no_progress,

@@ -132,6 +132,30 @@ class SimulationSpaceMismatch(ValueError):
     """The env builds another simulation space B_r than the one a run's B_c were found in."""
 
 
+def _check_env_keywords(env_id: str, kwargs: dict[str, Any]) -> None:
+    """Refuse a keyword the env's constructor does not take, naming those it does (Gymnasium's
+    own error quotes every keyword's value, the basis array too)."""
+    import inspect
+
+    import gymnasium as gym
+
+    entry = gym.spec(env_id).entry_point
+    try:
+        creator = gym.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
+        params = inspect.signature(creator).parameters
+    except (ImportError, AttributeError, TypeError, ValueError):  # let gym.make say it
+        return
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    unknown = sorted(set(kwargs) - set(params))
+    if unknown:
+        known = ", ".join(
+            k for k, p in params.items() if p.kind is not inspect.Parameter.VAR_POSITIONAL
+        )
+        raise ValueError(f"{env_id} takes no keyword {', '.join(map(repr, unknown))}; its "
+                         f"keywords: {known}")  # fmt: skip
+
+
 @dataclass
 class EnvObjective:
     """R(B_c, T, seed): the MPC controller's task reward on a softrom env, per second.
@@ -234,6 +258,7 @@ class EnvObjective:
         import softrom_gym  # noqa: F401  (registers the envs)
 
         kwargs = {**self.env_kwargs, **extra}
+        _check_env_keywords(self.env_id, kwargs)
         return gym.make(
             self.env_id,
             sim_dim=self.sim_dim,

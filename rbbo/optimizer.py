@@ -35,7 +35,7 @@ import math
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, wait
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from typing import Any
 
 import numpy as np
@@ -287,6 +287,22 @@ class RBBO:
         return None
 
     # -- driving a whole run ------------------------------------------------------------
+    def set_limits(self, max_evaluations: int | None, budget_s: float | None) -> None:
+        """Replace the run's stopping limits (both: a limit not given becomes none), in
+        config.json too when the run has a store, so that a later :meth:`run` without limits,
+        e.g. a plain ``rbbo resume``, goes on to them.
+
+        Raises ValueError for an invalid limit, as :class:`RBBOConfig` does, before anything
+        is written.
+        """
+        if max_evaluations is None and budget_s is None:
+            raise ValueError("give max_evaluations or budget_s")
+        config = replace(self.config, max_evaluations=max_evaluations, budget_s=budget_s)
+        if self.store is not None:
+            self.store.update_config({"rbbo": {"max_evaluations": max_evaluations,
+                                               "budget_s": budget_s}})  # fmt: skip
+        self.config = config
+
     def can_submit(self, max_evaluations: int | None, budget_s: float | None) -> bool:
         """Whether a search evaluation may start under these limits (None: no limit)."""
         started = len(self.evaluations) + sum(

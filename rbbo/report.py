@@ -39,7 +39,8 @@ def _sd(values) -> float | None:
 
 
 def _mean_sd(mean, sd) -> str:
-    return _fmt(mean, ".4g") + ("" if mean is None or sd is None else f"±{sd:.2g}")
+    # '#': two significant digits kept as such (0.010, not 0.01)
+    return _fmt(mean, ".4g") + ("" if mean is None or sd is None else f"±{sd:#.2g}")
 
 
 def report_row(opt: RBBO) -> dict[str, Any]:
@@ -65,7 +66,7 @@ def report_row(opt: RBBO) -> dict[str, Any]:
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:
-    """A plain-text table, one line per run."""
+    """A plain-text table, one line per run, and a line saying what its ± is."""
     header = ["problem", "N", "M", "C", "R_init", "R*", "improvement", "evaluations",
               "wall time"]  # fmt: skip
     lines = [header]
@@ -80,6 +81,8 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     widths = [max(len(row[i]) for row in lines) for i in range(len(header))]
     text = ["  ".join(cell.rjust(w) for cell, w in zip(row, widths, strict=True)) for row in lines]
     text.insert(1, "  ".join("-" * w for w in widths))
+    if any(r.get("R_init_sd") is not None or r.get("R_star_sd") is not None for r in rows):
+        text.append("(R_init, R*: mean ± sample standard deviation over the confirmation seeds)")
     return "\n".join(text)
 
 

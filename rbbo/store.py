@@ -2,7 +2,8 @@
 
 ::
 
-    DIR/config.json       settings (written once, atomically)
+    DIR/config.json       settings (written atomically; rewritten only by
+                          :meth:`RunStore.update_config`, e.g. ``rbbo resume`` with a new limit)
     DIR/history.jsonl     one JSON object per finished evaluation, append-only; each line is
                           flushed and fsynced before the optimiser moves on, so a kill -9
                           loses at most the evaluations still in flight
@@ -310,6 +311,27 @@ class RunStore:
             f.truncate(cut)
             f.flush()
             os.fsync(f.fileno())
+
+    def update_config(self, changes: dict[str, Any]) -> None:
+        """Merge ``changes`` into config.json, key by key (a dict value merges into the dict
+        it replaces), and rewrite the file atomically: a kill leaves the old file or the new.
+
+        Only a store that holds the directory's lock (one that writes) may do this.
+        """
+        if self._lock_key is None:
+            raise RunDirectoryError(f"{self.path} was opened read-only; its config cannot change")
+        config = json.loads(json.dumps(self.config))  # a deep copy: the old one if this fails
+        for key, value in changes.items():
+            if isinstance(value, dict) and isinstance(config.get(key), dict):
+                config[key].update(value)
+            else:
+                config[key] = value
+        try:
+            data = json.dumps(config, indent=2, sort_keys=True, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"config is not JSON-serialisable: {exc}") from exc
+        _atomic_write(self.path / CONFIG, (data + "\n").encode())
+        self.config = config
 
     def append(self, evaluation: Evaluation) -> None:
         """Append one evaluation durably (written, flushed and fsynced before returning)."""

@@ -182,7 +182,12 @@ def test_bad_input_errors():
     with pytest.raises(ValueError, match=r"control_basis is not orthonormal: max \|B_c\^T B_c"):
         gym.make("softrom_gym/BeamWalk-v0", control_basis=bad)
     with pytest.raises(ValueError, match=r"control_basis has shape \(20, 2\), expected"):
-        gym.make("softrom_gym/BeamWalk-v0", control_basis=np.eye(20)[:, :2])
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=np.eye(20)[:, :2], control_dim=3)
+    # without control_dim (sim_dim), C (M) is the basis's: its columns (rows)
+    two = gym.make("softrom_gym/BeamWalk-v0", control_basis=np.eye(16)[:, :2]).unwrapped
+    assert (two.action_space.shape, two.control_basis.shape) == ((2,), (16, 2))
+    with pytest.raises(ValueError, match=r"shape \(3, 20\): B_c is M x C with M >= C"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=np.eye(20)[:3])
     ok = gym.make("softrom_gym/BeamWalk-v0", control_basis=bad, orthonormalize=True)
     b_c = ok.unwrapped.control_basis
     np.testing.assert_allclose(b_c.T @ b_c, np.eye(3), atol=1e-12)

@@ -120,10 +120,13 @@ def test_env_kwargs_reach_the_env_and_the_run_directory(tmp_path, capsys, monkey
     }
     capsys.readouterr()
     err = _error(capsys, [*argv, "--env-kwarg", "robot=my.stl", "--out", str(tmp_path / "b")])
-    assert "unexpected keyword argument 'robot'" in err
+    assert "rbbo_test/StandIn-v0 takes no keyword 'robot'; its keywords: " in err
+    assert "\n" not in err.strip()  # one line, not Gymnasium's quote of every value
     assert "expected KEY=VALUE" in _error(capsys, [*argv, "--env-kwarg", "robot"])
     assert "--env-kwarg is for an env" in _error(capsys, ["optimize", "synthetic",
                                                           "--env-kwarg", "a=1"])  # fmt: skip
+    err = _error(capsys, ["optimize", "synthetic", "--executor", "serial", "--workers", "2"])
+    assert "--executor serial runs one evaluation at a time" in err
 
 
 def test_rollout_video_without_imageio_is_a_usage_error(tmp_path, capsys, monkeypatch):
@@ -202,12 +205,21 @@ def test_resume_with_a_new_limit_replaces_the_stored_ones(tmp_path, capsys):
     done = len([h for h in _history(run) if not h["kind"].startswith("confirm")])
     # the stored 1-s budget is spent; with only the old limits there is nothing to search
     assert main(["resume", str(run), "--no-progress", "--executor", "serial"]) == 0
-    assert "has reached its limit (a budget of 0.0166667 min; it has" in capsys.readouterr().err
+    assert "has reached its limit (a budget of 1 s; it has" in capsys.readouterr().err
     # a new --iterations replaces the budget instead of stopping at it
     assert main(["resume", str(run), "--iterations", str(done + 3), "--no-progress",
                  "--executor", "serial"]) == 0  # fmt: skip
     capsys.readouterr()
     assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == done + 3
+    # the new limit is the run's now: a plain resume (what an interrupted run's hint says)
+    # stops at it, not at the old budget, and a limit already reached is not recorded
+    settings = json.loads((run / "config.json").read_text())["rbbo"]
+    assert (settings["max_evaluations"], settings["budget_s"]) == (done + 3, None)
+    assert main(["resume", str(run), "--no-progress", "--executor", "serial"]) == 0
+    assert f"has reached its limit ({done + 3} evaluations; it has" in capsys.readouterr().err
+    assert main(["resume", str(run), "--iterations", "2", "--no-progress"]) == 0
+    assert "has reached its limit (2 evaluations;" in capsys.readouterr().err
+    assert json.loads((run / "config.json").read_text())["rbbo"] == settings
 
 
 def test_output_paths_that_cannot_be_written_are_usage_errors(tmp_path, capsys):

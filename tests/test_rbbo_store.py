@@ -139,3 +139,20 @@ def test_a_second_process_cannot_write_a_run_directory(tmp_path):
     assert "in use" in probe("write")  # still held by the second store
     again.close()
     assert probe("write") == "opened\n"
+
+
+def test_update_config_merges_rewrites_and_needs_the_lock(tmp_path):
+    store = RunStore.create(tmp_path / "run", {"rbbo": {"seed": 3, "max_evaluations": 8}, "x": 1})
+    store.update_config({"rbbo": {"max_evaluations": 12, "budget_s": None}, "y": [2]})
+    expected = {"rbbo": {"seed": 3, "max_evaluations": 12, "budget_s": None}, "x": 1, "y": [2]}
+    assert store.config == expected
+    assert json.loads((tmp_path / "run" / "config.json").read_text()) == expected
+    with pytest.raises(ValueError, match="not JSON-serialisable"):
+        store.update_config({"z": float("nan")})
+    assert store.config == expected  # a failed update changes nothing, in memory or on disk
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [".rbbo.lock", "config.json",
+                                                                    "history.jsonl"]  # fmt: skip
+    store.close()
+    reader = RunStore.open(tmp_path / "run", repair=False)
+    with pytest.raises(RunDirectoryError, match="read-only"):
+        reader.update_config({"x": 2})

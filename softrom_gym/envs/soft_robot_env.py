@@ -33,6 +33,20 @@ def _direction(direction: float | np.ndarray) -> np.ndarray:
     return np.array([d[0], d[1], 0.0]) / np.linalg.norm(d)
 
 
+def _dimensions(
+    b_c: np.ndarray | None, sim_dim: int | None, control_dim: int | None
+) -> tuple[int, int]:
+    """(M, C): as given, else the shape of B_c when one is given, else (20, 3)."""
+    shape = np.shape(b_c) if b_c is not None else ()
+    if len(shape) != 2:  # no basis, or one _control_basis will refuse with its shape
+        shape = (20, 3)
+    elif shape[0] < shape[1] and (sim_dim is None or control_dim is None):
+        raise ValueError(f"control_basis has shape {shape}: B_c is M x C with M >= C, one "
+                         "column per control direction (is it transposed?)")  # fmt: skip
+    return (shape[0] if sim_dim is None else sim_dim,
+            shape[1] if control_dim is None else control_dim)  # fmt: skip
+
+
 def _control_basis(
     b_c: np.ndarray | None, sim_dim: int, control_dim: int, orthonormalize: bool
 ) -> np.ndarray:
@@ -42,7 +56,7 @@ def _control_basis(
     if b.shape != (sim_dim, control_dim):
         raise ValueError(
             f"control_basis has shape {b.shape}, expected (sim_dim, control_dim) = "
-            f"({sim_dim}, {control_dim})"
+            f"({sim_dim}, {control_dim}): an M x C matrix, one column per control direction"
         )
     if not np.all(np.isfinite(b)):
         bad = tuple(int(i) for i in np.argwhere(~np.isfinite(b))[0])
@@ -126,10 +140,12 @@ class SoftRobotEnv(gym.Env):
     ## Arguments
     ``robot`` (name in :data:`softrom_gym.robots.ROBOTS`, a mesh path, or a Robot), ``task``
     ("walk" or "swim"), ``direction`` (angle in radians or 2-vector), ``control_dim`` C
-    (default 3), ``sim_dim`` M (default 20), ``control_basis`` B_c (M x C, orthonormal to 1e-8;
-    default: the first C deformation modes), ``orthonormalize`` (accept any full-rank B_c),
+    (default 3, or the columns of ``control_basis``), ``sim_dim`` M (default 20, or the rows
+    of ``control_basis``), ``control_basis`` B_c (M x C, orthonormal to 1e-8; default: the
+    first C deformation modes), ``orthonormalize`` (accept any full-rank B_c),
     ``frame_skip`` (simulation steps per action, default 5: 40 Hz control at dt = 1/200 s),
-    ``dt``, ``action_scale``, ``friction`` (mu), ``contact`` ("staggered" or "penalty"),
+    ``dt``, ``action_scale``, ``friction`` (mu), ``contact`` ("staggered", "penalty" or
+    "none"),
     ``fluid_density`` (swim), ``material`` (dict of youngs_modulus / poisson_ratio /
     density), ``resolution`` (mesh resolution), ``reset_noise_scale``, ``render_mode``.
 
@@ -153,8 +169,8 @@ class SoftRobotEnv(gym.Env):
         robot: str | os.PathLike | Robot = "quadruped",
         task: str = "walk",
         direction: float | np.ndarray = 0.0,
-        control_dim: int = 3,
-        sim_dim: int = 20,
+        control_dim: int | None = None,
+        sim_dim: int | None = None,
         control_basis: np.ndarray | None = None,
         orthonormalize: bool = False,
         frame_skip: int = 5,
@@ -175,6 +191,7 @@ class SoftRobotEnv(gym.Env):
                 f"render_mode {render_mode!r} is not supported; valid: "
                 f"{self.metadata['render_modes']}"
             )
+        sim_dim, control_dim = _dimensions(control_basis, sim_dim, control_dim)
         for name, value in (("control_dim", control_dim), ("sim_dim", sim_dim),
                             ("frame_skip", frame_skip)):  # fmt: skip
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
