@@ -24,6 +24,13 @@ def _positive_int(name: str, value, minimum: int = 1) -> None:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
+def _real(name: str, value) -> float:
+    """A real number (numpy's too) as a float, or ValueError naming the setting."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    return float(value)
+
+
 @dataclass
 class RBBOConfig:
     """Settings of one RBBO run (stored in config.json).
@@ -75,7 +82,14 @@ class RBBOConfig:
     boca_candidates: int = 4
 
     def __post_init__(self) -> None:
-        _check_dims(self.sim_dim, self.control_dim)
+        self.sim_dim, self.control_dim = _check_dims(self.sim_dim, self.control_dim)
+        if self.control_dim == self.sim_dim:
+            raise ValueError(f"control_dim = {self.control_dim} must be below sim_dim = "
+                             f"{self.sim_dim}: Gr(M, M) is one point (every B_c spans the "
+                             "whole simulation space), so there is nothing to search")  # fmt: skip
+        self.t_min, self.t_max = _real("t_min", self.t_min), _real("t_max", self.t_max)
+        if self.budget_s is not None:
+            self.budget_s = _real("budget_s", self.budget_s)
         if self.fidelity not in FIDELITIES:
             raise ValueError(f"unknown fidelity {self.fidelity!r}; valid: {list(FIDELITIES)}")
         if self.optimizer not in OPTIMIZERS:
@@ -97,6 +111,13 @@ class RBBOConfig:
             _positive_int("max_evaluations", self.max_evaluations)
         if self.budget_s is not None and not self.budget_s > 0:
             raise ValueError(f"budget_s must be > 0 seconds, got {self.budget_s!r}")
+        # numpy's integers pass the checks above; config.json stores Python's
+        for name in ("n_init", "seeds", "seed", "n_confirm", "gp_restarts", "acq_random",
+                     "acq_starts", "acq_max_iterations", "boca_candidates",
+                     "max_evaluations"):  # fmt: skip
+            value = getattr(self, name)
+            if value is not None:
+                setattr(self, name, int(value))
 
     @property
     def crn_seeds(self) -> tuple[int, ...]:

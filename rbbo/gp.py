@@ -28,7 +28,7 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, WhiteKernel
 from threadpoolctl import threadpool_limits
 
-from .grassmann import _check_dims, flatten, projectors
+from .grassmann import _check_dims, flatten, projectors, validate_basis
 from .kernels import FidelityKernel, GrassmannKernel
 
 __all__ = ["GPHyperparameters", "GrassmannGP", "single_threaded_blas"]
@@ -136,10 +136,13 @@ class GrassmannGP:
 
     def _check_data(self, bases, y, z):
         b = np.asarray(bases, dtype=float)
-        if b.ndim != 3 or b.shape[1:] != (self.sim_dim, self.control_dim):
+        if b.ndim != 3 or b.shape[1:] != (self.sim_dim, self.control_dim) or b.shape[0] < 1:
             raise ValueError(
-                f"bases must have shape (n, {self.sim_dim}, {self.control_dim}), got {b.shape}"
+                f"bases must have shape (n, {self.sim_dim}, {self.control_dim}), n >= 1, got "
+                f"{b.shape}"
             )
+        for i, basis in enumerate(b):  # the kernel reads spans through B B^T: orthonormal B
+            validate_basis(basis, name=f"bases[{i}]")
         y = np.asarray(y, dtype=float).ravel()
         if y.shape[0] != b.shape[0] or not np.all(np.isfinite(y)):
             raise ValueError(f"y must hold {b.shape[0]} finite values, got {y!r}")
@@ -254,13 +257,22 @@ class GrassmannGP:
         k = hp.signal_variance * np.exp(-(self.control_dim - overlap) / hp.length_scale**2)
         return k * self._fidelity_factor(self.z_, z)
 
-    def predict_standardized(self, bases: np.ndarray, z: float | np.ndarray = 1.0):
-        """Latent posterior mean and standard deviation on the standardised scale."""
+    def _query(self, bases: np.ndarray) -> np.ndarray:
+        """Query bases as (m, M, C), or an error naming what is wrong (or that it is unfitted)."""
         if self.hyperparameters is None:
             raise RuntimeError("fit the GP before predicting")
         b = np.asarray(bases, dtype=float)
         if b.ndim == 2:
             b = b[None]
+        if b.ndim != 3 or b.shape[1:] != (self.sim_dim, self.control_dim):
+            m, c = self.sim_dim, self.control_dim
+            raise ValueError(f"bases must have shape (n, {m}, {c}) or ({m}, {c}), got "
+                             f"{np.shape(bases)}")  # fmt: skip
+        return b
+
+    def predict_standardized(self, bases: np.ndarray, z: float | np.ndarray = 1.0):
+        """Latent posterior mean and standard deviation on the standardised scale."""
+        b = self._query(bases)
         zq = np.broadcast_to(np.asarray(z, dtype=float), (b.shape[0],))
         k = self._cross(b, zq)
         mu = self.alpha_ @ k
@@ -287,8 +299,8 @@ class GrassmannGP:
         gradient : (M, C) ndarray, d value / d B_c in the ambient R^(M x C)
         mu, sigma : floats (standardised)
         """
+        b = self._query(basis)[0]
         hp = self.hyperparameters
-        b = np.asarray(basis, dtype=float)
         q = (b @ b.T).ravel()
         overlap = self.proj_ @ q
         k = hp.signal_variance * np.exp(-(self.control_dim - overlap) / hp.length_scale**2)

@@ -144,9 +144,9 @@ def random_points(
     """
     m, c = _check_dims(sim_dim, control_dim)
     rng = np.random.default_rng(rng)
+    if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0):
+        raise ValueError(f"n must be an integer >= 0, got {n!r}")
     k = 1 if n is None else int(n)
-    if k < 0:
-        raise ValueError(f"n must be >= 0, got {n}")
     g = rng.standard_normal((k, m, c))
     q, r = np.linalg.qr(g)
     signs = np.sign(np.diagonal(r, axis1=1, axis2=2))

@@ -78,8 +78,8 @@ class SyntheticObjective:
     bias: float = 0.3
     t_max: float = 10.0
     delay: float = 0.0
-    _u: np.ndarray = field(init=False, repr=False)
-    _v: np.ndarray = field(init=False, repr=False)
+    _u: np.ndarray = field(init=False, repr=False, compare=False)  # (derived from the seed)
+    _v: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         _check_dims(self.sim_dim, self.control_dim)
@@ -173,8 +173,8 @@ class EnvObjective:
     t_settle = 2 s (issue 6's convention) and normalising per second makes fidelities T
     comparable. T must exceed t_settle.
 
-    The env is built once per worker process and per B_c (the env has no public way yet to
-    swap B_c on an existing env; when it gains ``set_control_basis`` this uses it).
+    The env is built once per worker process; each evaluation swaps its B_c in with the env's
+    ``set_control_basis`` (an env without one is built again for each B_c).
 
     Parameters
     ----------

@@ -2,10 +2,14 @@
 
 ::
 
-    opt = RBBO.create("runs/demo", RBBOConfig(sim_dim=20, control_dim=3, max_evaluations=40))
-    result = opt.run(objective, workers=2)          # objective(B_c, T, seed) -> float
-    # or drive it yourself:
-    p = opt.ask(); opt.tell(p.index, objective(p.basis, p.T, p.seeds[0]))
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+
+    if __name__ == "__main__":  # workers are spawned processes, which import this script
+        objective = SyntheticObjective(20, 3)  # objective(B_c, T, seed) -> float, picklable
+        opt = RBBO.create("runs/demo", RBBOConfig(sim_dim=20, control_dim=3, max_evaluations=40))
+        result = opt.run(objective, workers=2)
+        # or drive it yourself:
+        p = opt.ask(); opt.tell(p.index, objective(p.basis, p.T, p.seeds[0]))
 
 - Initial design: the identity basis (the first C modes of B_r) at T_max, then ``n_init``
   Haar-random points of Gr(M, C) (with BOCA, alternately at T_min and T_max).
@@ -42,7 +46,7 @@ import numpy as np
 
 from .acquisition import UCBAcquisition, maximize_on_grassmann, ucb_beta
 from .boca import BOCAFidelity
-from .config import CONFIRM_KINDS, FIDELITIES, Proposal, RBBOConfig, RBBOResult
+from .config import CONFIRM_KINDS, FIDELITIES, Proposal, RBBOConfig, RBBOResult, _positive_int
 from .executors import Executor, ProcessExecutor, SerialExecutor
 from .gp import GrassmannGP
 from .grassmann import dimension, identity_basis, random_points
@@ -263,7 +267,9 @@ class RBBO:
             raise ValueError(f"no pending proposal with index {index}")
         if status == "ok" and (R is None or not math.isfinite(R)):
             status, error = "failed", error or f"non-finite R {R!r}"
-        proposal = self.pending.pop(index)
+        proposal = self.pending[index]
+        # built (and so validated) before the proposal leaves `pending`: a bad status or R
+        # raises with the proposal still there to be told again
         evaluation = Evaluation(
             index=index, basis=proposal.basis, T=proposal.T, R=R if status == "ok" else None,
             status=status, seeds=list(proposal.seeds), wall_s=float(wall_s),
@@ -271,6 +277,7 @@ class RBBO:
             R_seeds=[float(r) for r in R_seeds],
         )  # fmt: skip
         self._record(evaluation, persist=True)
+        del self.pending[index]
         return evaluation
 
     def _next_design_position(self) -> int | None:
@@ -351,10 +358,18 @@ class RBBO:
         budget_s = cfg.budget_s if budget_s is None else budget_s
         if max_evaluations is None and budget_s is None:
             raise ValueError("give max_evaluations or budget_s (here or in the config)")
+        # (math.inf stands for "no limit of this kind", as the command line passes it)
+        if max_evaluations is not None and max_evaluations != math.inf:
+            _positive_int("max_evaluations", max_evaluations)
+        if budget_s is not None and not (isinstance(budget_s, (int, float)) and budget_s > 0):
+            raise ValueError(f"budget_s must be > 0 seconds, got {budget_s!r}")
         own = executor is None
         if own:
             if objective is None:
                 raise ValueError("give an objective or an executor")
+            if not callable(objective):
+                raise TypeError(f"objective must be callable as objective(B_c, T, seed), got "
+                                f"{type(objective).__name__}")  # fmt: skip
             executor = (
                 SerialExecutor(objective)
                 if workers == 1 and timeout_s is None

@@ -230,6 +230,13 @@ class RunStore:
         except Exception:  # pragma: no cover - interpreter shutdown; the OS drops the lock
             pass
 
+    def _require_writer(self, what: str) -> None:
+        """Refuse a write through a reader: it holds no lock, and the run may still be going
+        in another process, which would then record the same evaluation indices."""
+        if self._lock_key is None:
+            raise RunDirectoryError(f"{self.path} was opened read-only; {what} (resume it to "
+                                    "write: RBBO.resume without read_only)")  # fmt: skip
+
     @property
     def history_path(self) -> Path:
         return self.path / HISTORY
@@ -318,8 +325,7 @@ class RunStore:
 
         Only a store that holds the directory's lock (one that writes) may do this.
         """
-        if self._lock_key is None:
-            raise RunDirectoryError(f"{self.path} was opened read-only; its config cannot change")
+        self._require_writer("its config cannot change")
         config = json.loads(json.dumps(self.config))  # a deep copy: the old one if this fails
         for key, value in changes.items():
             if isinstance(value, dict) and isinstance(config.get(key), dict):
@@ -335,6 +341,7 @@ class RunStore:
 
     def append(self, evaluation: Evaluation) -> None:
         """Append one evaluation durably (written, flushed and fsynced before returning)."""
+        self._require_writer("nothing can be recorded in it")
         line = evaluation.to_json() + "\n"
         with open(self.history_path, "a", encoding="utf-8") as f:
             f.write(line)
@@ -367,6 +374,7 @@ class RunStore:
 
     def save_best(self, basis: np.ndarray) -> None:
         """Replace best_basis.npy atomically."""
+        self._require_writer("its best basis cannot change")
         buf = io.BytesIO()
         np.save(buf, np.asarray(basis, dtype=float))
         _atomic_write(self.path / BEST, buf.getvalue())
@@ -381,6 +389,7 @@ class RunStore:
             raise RunDirectoryError(f"{path} is corrupted: {exc}") from exc
 
     def write_summary(self, summary: dict[str, Any]) -> None:
+        self._require_writer("its summary cannot change")
         data = json.dumps(summary, indent=2, sort_keys=True, allow_nan=False)
         _atomic_write(self.path / SUMMARY, (data + "\n").encode())
 

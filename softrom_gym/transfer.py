@@ -63,7 +63,8 @@ def map_control_basis(control_basis: np.ndarray, robot: Any, source_dim: int,
     Raises
     ------
     ValueError
-        For a B_c of the wrong shape or with non-finite entries, and, naming the residual,
+        For a B_c of the wrong shape, with non-finite entries or not orthonormal (to 1e-8),
+        for a negative or NaN ``atol``, and, naming the residual,
         when the target space cannot represent B_c (e.g. a smaller M).
     """
     robot = _robot(robot)
@@ -76,6 +77,12 @@ def map_control_basis(control_basis: np.ndarray, robot: Any, source_dim: int,
                          f"({source_dim}, C) with 1 <= C <= {source_dim}")  # fmt: skip
     if not np.isfinite(basis).all():
         raise ValueError("control_basis contains non-finite values")
+    if isinstance(atol, bool) or not (isinstance(atol, (int, float, np.floating)) and atol >= 0):
+        raise ValueError(f"atol must be a number >= 0, got {atol!r}")
+    err = float(np.abs(basis.T @ basis - np.eye(basis.shape[1])).max())
+    if err > 1e-8:  # the env's own tolerance for B_c
+        raise ValueError(f"control_basis is not orthonormal: max |B_c^T B_c - I| = {err:.3g} "
+                         "(tolerance 1e-8); orthonormalise it first (np.linalg.qr)")  # fmt: skip
     if basis.shape[1] > target_dim:
         raise ValueError(f"control_basis has C = {basis.shape[1]} columns, more than "
                          f"target_dim = {target_dim}")  # fmt: skip

@@ -174,6 +174,10 @@ def test_bad_input_errors():
         env.step(np.zeros(2))
     with pytest.raises(ValueError, match="action contains non-finite values"):
         env.step(np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(TypeError, match="state must be a ReducedState .* got NoneType"):
+        env.unwrapped.rollout(None, np.zeros((2, 3, 3)))
+    with pytest.raises(ValueError, match=r"controls has shape \(2, 3\), expected \(B, H, 3\)"):
+        env.unwrapped.rollout(env.unwrapped.get_state(), np.zeros((2, 3)))
     with pytest.raises(ValueError, match=r"unknown robot 'octopus'; valid robots: \['beam'"):
         gym.make("softrom_gym/SoftRobot-v0", robot="octopus")
     with pytest.raises(ValueError, match=r"unknown task 'fly'; valid tasks: \['walk', 'swim'\]"):
@@ -195,6 +199,8 @@ def test_bad_input_errors():
         gym.make("softrom_gym/BeamWalk-v0", control_basis=np.ones((20, 3)), orthonormalize=True)
     with pytest.raises(ValueError, match="reset_noise_scale must be finite and >= 0, got -1.0"):
         gym.make("softrom_gym/BeamWalk-v0", reset_noise_scale=-1.0)
+    with pytest.raises(ValueError, match="M = 100000 deformation modes requested, but the robot"):
+        gym.make("softrom_gym/BeamWalk-v0", sim_dim=100_000)  # named, not a 75 GB identity
     robot = env.unwrapped.robot
     with pytest.raises(ValueError, match="resolution = 5 applies to a robot name or a mesh path"):
         gym.make("softrom_gym/SoftRobot-v0", robot=robot, resolution=5)
@@ -243,6 +249,13 @@ def test_vector_env_unseeded_reset_continues_each_stream():
     with pytest.raises(ValueError, match="the vector env does not render"):
         gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, render_mode="rgb_array",
                      vectorization_mode="vector_entry_point")  # fmt: skip
+    with pytest.raises(ValueError, match="max_episode_steps must be a positive integer or None"):
+        gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, max_episode_steps=0,
+                     vectorization_mode="vector_entry_point")  # fmt: skip
+    numpy_count = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=np.int64(2),
+                               vectorization_mode="vector_entry_point")  # fmt: skip
+    assert numpy_count.num_envs == 2 and type(numpy_count.num_envs) is int
+    numpy_count.close()
 
 
 def test_vector_env_autoresets_on_the_next_step():

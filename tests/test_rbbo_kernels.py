@@ -146,3 +146,13 @@ def test_gp_rejects_bad_data(rng):
         GrassmannGP(M, C).fit(bases[:, :5], np.zeros(4))
     with pytest.raises(ValueError, match="pass z"):
         GrassmannGP(M, C, fidelity=True).fit(bases, np.zeros(4))
+    with pytest.raises(ValueError, match=r"n >= 1, got \(0, 7, 2\)"):
+        GrassmannGP(M, C).fit(bases[:0], np.zeros(0))
+    with pytest.raises(ValueError, match=r"bases\[0\] .*orthonormal"):
+        GrassmannGP(M, C).fit(3.0 * bases, np.zeros(4))
+    gp = GrassmannGP(M, C)
+    with pytest.raises(RuntimeError, match="fit the GP before predicting"):
+        gp.ucb_and_gradient(bases[0], 1.0)
+    gp.fit(bases, rng.normal(size=4))
+    with pytest.raises(ValueError, match=r"bases must have shape \(n, 7, 2\) or \(7, 2\)"):
+        gp.predict(bases[:, :5])

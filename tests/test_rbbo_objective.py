@@ -138,6 +138,8 @@ def test_synthetic_objective_is_deterministic_and_rotation_invariant():
     diffs = [objective(u, 10.0, s) - objective(b, 10.0, s) for s in range(20)]
     assert np.std(diffs) < 0.1
     assert objective(u, 4.0, 0) < objective(u, 10.0, 0)  # low fidelity is biased low
+    assert objective == SyntheticObjective(6, 2, noise=0.1)  # (its derived arrays aside)
+    assert objective != SyntheticObjective(6, 2, noise=0.2)
     # also for an axis-aligned subspace (R_init's), whose B B^T rounds tiny entries to -0.0
     rng = np.random.default_rng(0)
     for _ in range(20):

@@ -52,6 +52,12 @@ def test_ask_starts_with_the_identity_and_tell_records():
     second = opt.ask()
     failed = opt.tell(second.index, float("nan"))
     assert failed.status == "failed" and "non-finite" in failed.error
+    # a bad status is refused with the proposal still pending, to be told again
+    third = opt.ask()
+    with pytest.raises(ValueError, match="status must be one of"):
+        opt.tell(third.index, 1.0, status="weird")
+    assert third.index in opt.pending
+    assert opt.tell(third.index, 1.0).status == "ok"
 
 
 def test_a_serial_run_is_reproducible_and_answer_order_decides_the_next_proposal():
@@ -268,11 +274,48 @@ def test_resume_rejects_bad_settings(tmp_path):
         ({"seeds": 0}, "seeds must be an integer >= 1, got 0"),
         ({"budget_s": -1.0}, "budget_s must be > 0 seconds"),
         ({"optimizer": "adam"}, "unknown optimizer 'adam'"),
+        ({"control_dim": 6}, r"control_dim = 6 must be below sim_dim = 6: Gr\(M, M\) is one"),
+        ({"t_max": "10"}, "t_max must be a number, got '10'"),
+        ({"budget_s": "10"}, "budget_s must be a number, got '10'"),
     ],
 )
 def test_config_validation(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        RBBOConfig(6, 2, **kwargs)
+        RBBOConfig(**{"sim_dim": 6, "control_dim": 2, **kwargs})
+
+
+def test_config_takes_numpy_numbers_and_stores_python_ones(tmp_path):
+    config = RBBOConfig(np.int64(6), np.int32(2), max_evaluations=np.int64(5), t_max=np.float32(8))
+    assert (type(config.sim_dim), type(config.max_evaluations), type(config.t_max)) == (
+        int, int, float)  # fmt: skip
+    RBBO.create(tmp_path / "run", config)  # config.json is JSON: no numpy scalars in it
+    stored = json.loads((tmp_path / "run" / "config.json").read_text())["rbbo"]
+    assert (stored["sim_dim"], stored["max_evaluations"], stored["t_max"]) == (6, 5, 8.0)
+
+
+def test_run_validates_its_limits_and_objective():
+    opt = RBBO(RBBOConfig(4, 2, **FAST))
+    for limits, match in (({"max_evaluations": -5}, "max_evaluations must be an integer >= 1"),
+                          ({"max_evaluations": 2.5}, "max_evaluations must be an integer >= 1"),
+                          ({"budget_s": -1.0}, "budget_s must be > 0 seconds")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            opt.run(SyntheticObjective(4, 2), **limits)
+    with pytest.raises(TypeError, match="objective must be callable .* got int"):
+        opt.run(5, max_evaluations=3)
+    assert opt.history == []
+
+
+def test_a_reader_cannot_write_into_a_run(tmp_path):
+    # a run still going elsewhere holds the lock; a read-only view of it must not append
+    # evaluations (their indices would collide with the writer's)
+    writer = RBBO.create(tmp_path / "run", RBBOConfig(4, 2, **FAST))
+    writer.tell(writer.ask().index, 0.5)
+    reader = RBBO.resume(tmp_path / "run", read_only=True)
+    proposal = reader.ask()
+    with pytest.raises(RunDirectoryError, match="opened read-only; nothing can be recorded"):
+        reader.tell(proposal.index, 0.9)
+    assert proposal.index in reader.pending
+    assert len((tmp_path / "run" / "history.jsonl").read_text().splitlines()) == 1
 
 
 def test_run_needs_a_stopping_rule():

@@ -91,6 +91,11 @@ def test_a_control_basis_maps_to_the_same_actuation_in_a_larger_space(robot, sub
         map_control_basis(b_c, robot, 40, 60)
     with pytest.raises(TypeError, match="expected a Robot or a softrom_gym env, got str"):
         map_control_basis(b_c, "beam", 20, 40)
+    with pytest.raises(ValueError, match="control_basis is not orthonormal"):
+        map_control_basis(2.0 * b_c, robot, 20, 40)
+    for atol in (float("nan"), -1.0):
+        with pytest.raises(ValueError, match="atol must be a number >= 0"):
+            map_control_basis(outside, robot, 40, 20, atol=atol)
 
 
 def test_subspace_is_cached_on_disk(robot, subspace, monkeypatch):

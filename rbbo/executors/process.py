@@ -208,7 +208,11 @@ class ProcessExecutor(Executor):
             return
         # the objective cannot even be loaded in a worker: no point retrying forever
         with self._lock:
-            self._broken = f"worker process could not start (exit code {code})"
+            self._broken = (
+                f"worker process could not start (exit code {code}; workers are spawned, so a "
+                "script that starts a run must do so under `if __name__ == '__main__':`, and "
+                "its objective must pickle)"
+            )
             queued, self._queue = list(self._queue), deque()
         for task, future in queued:
             if future.set_running_or_notify_cancel():

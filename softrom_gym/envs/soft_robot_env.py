@@ -51,7 +51,7 @@ def _control_basis(
     b_c: np.ndarray | None, sim_dim: int, control_dim: int, orthonormalize: bool
 ) -> np.ndarray:
     if b_c is None:
-        return np.eye(sim_dim)[:, :control_dim]
+        return np.eye(sim_dim, control_dim)  # (not eye(M)[:, :C]: M may be too large, named later)
     b = np.asarray(b_c, dtype=float)
     if b.shape != (sim_dim, control_dim):
         raise ValueError(
@@ -454,6 +454,9 @@ class SoftRobotEnv(gym.Env):
         * ``observed`` (B, H, P): ``observe @ q_r``, only when ``observe`` is given.
         * ``q``, ``qdot`` (B, M + 6), ``impulses``: the final states.
         """
+        if not isinstance(state, (cpp_sim.ReducedState, list, tuple)):
+            raise TypeError(f"state must be a ReducedState (env.get_state()) or a list of B "
+                            f"of them, got {type(state).__name__}")  # fmt: skip
         u = np.asarray(controls, dtype=np.float64)
         if u.ndim != 3 or u.shape[2] != self.action_space.shape[0]:
             raise ValueError(
