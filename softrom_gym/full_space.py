@@ -96,17 +96,30 @@ class FullSpaceModel:
 
     def __post_init__(self) -> None:
         n = self.robot.num_nodes
+
+        def real(name: str) -> float:
+            value = getattr(self, name)
+            ok = not isinstance(value, bool) and isinstance(value, (int, float, np.number))
+            if not (ok and np.isfinite(value)):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
+            return float(value)
+
         for name in ("dt", "contact_tolerance", "newton_tolerance"):
-            if not getattr(self, name) > 0:
+            if not real(name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
         for name in ("friction", "contact_margin", "damping_alpha", "damping_beta"):
-            if not getattr(self, name) >= 0:
+            if not real(name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
-        if not 0.0 <= self.stabilization <= 1.0:
+        real("ground_height")
+        if not 0.0 <= real("stabilization") <= 1.0:
             raise ValueError(f"stabilization must be in [0, 1], got {self.stabilization!r}")
         for name in ("max_newton_iterations", "max_stagger_iterations"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        g = np.asarray(self.gravity, dtype=np.float64)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"gravity must be 3 finite numbers (m/s^2), got {self.gravity!r}")
         if self.actuation is not None:
             a = np.asarray(self.actuation, dtype=np.float64)
             if a.ndim != 2 or a.shape[0] != 3 * n or not np.all(np.isfinite(a)):
@@ -133,6 +146,9 @@ class FullSpaceModel:
         if float(model.fluid_density) > 0.0:
             raise ValueError("the full-space model has no drag: the model swims "
                              f"(fluid_density = {model.fluid_density!r})")  # fmt: skip
+        if model.num_nodes != robot.num_nodes:
+            raise ValueError(f"the model has {model.num_nodes} nodes and the robot "
+                             f"{robot.num_nodes}: it was built for another robot")  # fmt: skip
         basis = np.asarray(basis, dtype=np.float64)
         bc = np.asarray(model.control_basis, dtype=np.float64)
         if basis.shape != (3 * robot.num_nodes, bc.shape[0] + 6):
@@ -174,7 +190,10 @@ class FullSpaceModel:
         x_n = np.asarray(state.x, dtype=np.float64).ravel()
         v_n = np.asarray(state.v, dtype=np.float64).ravel()
         f_ext = m3 * self._gravity
-        if controls is not None and self.actuation is not None:
+        if controls is not None and self.actuation is None:
+            raise ValueError("this model has no actuation, so it takes no controls (give "
+                             "actuation, or FullSpaceModel.matching a reduced model)")  # fmt: skip
+        if controls is not None:
             fc = np.asarray(controls, dtype=np.float64)
             if fc.shape != (self.actuation.shape[1],) or not np.all(np.isfinite(fc)):
                 raise ValueError(f"controls must be finite with shape "
@@ -308,8 +327,9 @@ class FullSpaceModel:
             from tqdm import tqdm
 
             steps = tqdm(steps, desc="full space", unit="step", leave=False)
+        unactuated = self.actuation is None and u.shape[1] == 0  # (H, 0): no controls
         for t in steps:
-            state, info = self.step(state, u[t])
+            state, info = self.step(state, None if unactuated else u[t])
             com[t] = self.com(state.x)
             flags[t] = info["converged"], info["contact_converged"]
         return {"com": com, "converged": flags[:, 0], "contact_converged": flags[:, 1],

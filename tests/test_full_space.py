@@ -94,3 +94,20 @@ def test_bad_input_is_named(bar):
                                fluid_density=1000.0, gravity=[0, 0, 0])  # fmt: skip
     with pytest.raises(ValueError, match="only staggered-projection contact"):
         FullSpaceModel.matching(swim, bar, sub.basis)
+    for bad, match in (({"ground_height": float("nan")}, "ground_height must be a finite"),
+                       ({"dt": float("inf")}, "dt must be a finite number"),
+                       ({"gravity": (0.0, -9.81)}, "gravity must be 3 finite numbers"),
+                       ({"max_newton_iterations": 2.5}, "max_newton_iterations must be an "
+                                                        "integer >= 1")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            FullSpaceModel(bar, **bad)
+    with pytest.raises(ValueError, match="this model has no actuation, so it takes no controls"):
+        FullSpaceModel(bar).step(FullSpaceModel(bar).rest_state(), np.ones(2))
+    walk = build_reduced_model(
+        bar, forces="exact", subspace=sub, control_basis=np.eye(sub.M)[:, :2]
+    )
+    other = Robot(
+        "longer", *voxels_to_tets(np.ones((4, 1, 1), dtype=bool), 0.1), youngs_modulus=2e4
+    )
+    with pytest.raises(ValueError, match="the model has 16 nodes and the robot 20"):
+        FullSpaceModel.matching(walk, other, np.zeros((60, sub.M + 6)))

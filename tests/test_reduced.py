@@ -248,6 +248,15 @@ def test_diverging_rollout_is_flagged_and_isolated(walker):
     assert info["diverged"] and np.abs(state.impulses).max() > 0
     for name in ("q", "qdot", "impulses"):
         np.testing.assert_array_equal(getattr(after, name), getattr(state, name))
+    # A normal problem the contact solve cannot solve (a ground 1 000 km above the body) is
+    # a diverged step too, not free fall with the constraints dropped.
+    walker.ground_height = 1e6
+    try:
+        after, info = walker.step(state, np.zeros(3))
+    finally:
+        walker.ground_height = 0.0
+    assert info["diverged"] and not info["contact_converged"]
+    np.testing.assert_array_equal(after.q, state.q)
 
 
 def test_bad_input_raises_clear_errors(walker):
@@ -274,6 +283,20 @@ def test_bad_input_raises_clear_errors(walker):
         walker.step(state, np.array([0.0, np.inf, 0.0]))
     with pytest.raises(ValueError, match="contact must be one of"):
         walker.contact = "soft"
+    for threads in (2.5, "2", True):
+        with pytest.raises(TypeError, match="threads must be an int or None, got"):
+            walker.rollout(state, np.zeros((2, 1, 3)), threads=threads)
+    with pytest.raises(ValueError, match="threads must be >= 1, got 0"):
+        walker.rollout(state, np.zeros((2, 1, 3)), threads=0)
+    assert walker.rollout(state, np.zeros((2, 1, 3)), threads=np.int64(2**40))["q"].shape[0] == 2
+    with pytest.raises(TypeError, match="profile must be True or False, got 'no'"):
+        walker.profile = "no"
+    # |d| of a finite d can overflow or underflow; the unit direction must not
+    for d, unit in (([1e200, 0, 0], [1, 0, 0]), ([1e154, 1e154, 0], [0.5**0.5, 0.5**0.5, 0]),
+                    ([1e-170, 0, 0], [1, 0, 0])):  # fmt: skip
+        walker.direction = d
+        np.testing.assert_allclose(walker.direction, unit, rtol=1e-15)
+    walker.direction = [1, 0, 0]
     with pytest.raises(TypeError, match="unknown setting"):
         build_reduced_model(beam(), frction=0.5)
     with pytest.raises(ValueError, match="M = 5000 deformation modes requested"):

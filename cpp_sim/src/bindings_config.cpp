@@ -164,13 +164,24 @@ const std::vector<Setting>& settings() {
       {"direction", [](const ReducedConfig& c) { return vec3_out(c.direction); },
        [](ReducedConfig& c, py::handle x) {
          const Vec3 d = vec3(x, "direction");
-         if (!(d.norm() > 0)) throw py::value_error("direction must be a non-zero vector");
-         c.direction = d / d.norm();
+         // Scaled by its largest entry first: |d| of a finite d can overflow (1e200) or
+         // underflow (1e-170), which would make d / |d| zero or refuse a valid direction.
+         const double largest = d.cwiseAbs().maxCoeff();
+         if (!(largest > 0)) throw py::value_error("direction must be a non-zero vector");
+         const Vec3 unit = d / largest;
+         c.direction = unit / unit.norm();
        },
        "unit task direction d; per-step reward d . v_com dt"},
       SOFTROM_POSITIVE(max_speed, "RMS node speed (m/s) above which a step counts as diverged"),
       {"profile", [](const ReducedConfig& c) -> py::object { return py::bool_(c.profile); },
-       [](ReducedConfig& c, py::handle x) { c.profile = x.cast<bool>(); },
+       [](ReducedConfig& c, py::handle x) {
+         // True or False (numpy's too), not any object with a truth value
+         if (!py::isinstance<py::bool_>(x) && py::str(py::type::of(x).attr("__name__"))
+                                                  .cast<std::string>() != "bool")
+           throw py::type_error("profile must be True or False, got " +
+                                std::string(py::str(py::repr(x))));
+         c.profile = x.cast<bool>();
+       },
        "time the parts of each step: step() then reports time_dynamics, time_drag, "
        "time_normal, time_friction (s), and stagger_trace, the staggered projection's course "
        "(benchmarks/trace_staggers.py)"},

@@ -5,6 +5,7 @@
 #include <pybind11/stl.h>
 
 #include <algorithm>
+#include <limits>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -333,8 +334,14 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           [](const ReducedModel& r, py::handle state, py::handle controls, py::object threads,
              py::handle observe) {
             py::array_t<double> u = controls_in(r, controls, "controls", 3);
+            constexpr py::ssize_t kMaxCount = std::numeric_limits<int>::max();
+            if (u.shape(0) < 1 || u.shape(1) < 1 || u.shape(0) > kMaxCount ||
+                u.shape(1) > kMaxCount)
+              throw py::value_error("controls must have 1 <= B, H <= " +
+                                    std::to_string(kMaxCount) + ", got B = " +
+                                    std::to_string(u.shape(0)) + ", H = " +
+                                    std::to_string(u.shape(1)));
             const int b = static_cast<int>(u.shape(0)), h = static_cast<int>(u.shape(1));
-            if (b < 1 || h < 1) throw py::value_error("controls must have B >= 1 and H >= 1");
             std::vector<ReducedState> starts;
             if (py::isinstance<ReducedState>(state)) {
               starts.push_back(state.cast<ReducedState>());
@@ -350,7 +357,17 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
                                       std::to_string(b) + ")");
             }
             for (const ReducedState& s : starts) check_state(r, s);
-            int nt = threads.is_none() ? available_cores() : threads.cast<int>();
+            int nt = available_cores();
+            if (!threads.is_none()) {
+              // An integer (numpy's too: anything with __index__), not a bool or a float.
+              const std::string given = py::str(py::repr(threads));
+              if (py::isinstance<py::bool_>(threads) || !PyIndex_Check(threads.ptr()))
+                throw py::type_error("threads must be an int or None, got " + given);
+              const py::int_ want(py::reinterpret_steal<py::object>(PyNumber_Index(threads.ptr())));
+              if (want < py::int_(1)) throw py::value_error("threads must be >= 1, got " + given);
+              // (more threads than rollouts would idle; this also keeps the count an int)
+              nt = want > py::int_(b) ? b : want.cast<int>();
+            }
             if (nt < 1) throw py::value_error("threads must be >= 1, got " + std::to_string(nt));
             const py::ssize_t dim = r.dim(), ni = 3 * r.num_surface_nodes();
             py::array_t<double> rewards({b, h}), q({py::ssize_t{b}, dim}), qd({py::ssize_t{b}, dim}),

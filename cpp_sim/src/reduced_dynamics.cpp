@@ -443,8 +443,9 @@ bool ReducedModel::finish_step(const StepInputs& in, ReducedState& s, VecX& v, c
   VecX& q_next = ws.q_next;
   q_next = s.q + h * v;
   // Divergence: non-finite state or RMS node speed beyond any physical meaning.
-  if (!v.allFinite() || !q_next.allFinite() || (staggered && !impulses.allFinite()) ||
-      v.norm() / sqrt_m > cfg.max_speed) {
+  // (info.diverged may come from the contact solve: a normal problem it could not solve.)
+  if (info.diverged || !v.allFinite() || !q_next.allFinite() ||
+      (staggered && !impulses.allFinite()) || v.norm() / sqrt_m > cfg.max_speed) {
     info.diverged = true;
     return false;  // the state keeps its last good value
   }

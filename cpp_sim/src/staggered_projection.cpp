@@ -300,9 +300,14 @@ void StaggeredProjection::normal_solve(const ScratchVec& v_prime) {
     v = v_prime + x_ldp_;
     lam_n_ = lam_ldp_;
   } else {
-    v = v_prime;  // unreachable for a ground plane (moving up is always feasible)
+    // In exact arithmetic unreachable for a ground plane (moving up is always feasible); in
+    // floating point reached when a gap is absurd (a ground 1e6 m above the body). The
+    // constraints are then not enforced at all, so the step is reported as diverged (the
+    // state keeps its last good value) rather than accepted as free flight.
+    v = v_prime;
     lam_n_.setZero();
     nnls_ok = false;
+    info.diverged = true;
   }
   // The LDP's answer must be feasible: every candidate ends on or above its bound.
   if (nnls_ok) {
