@@ -291,6 +291,10 @@ def test_bad_input_raises_clear_errors(walker):
     assert walker.rollout(state, np.zeros((2, 1, 3)), threads=np.int64(2**40))["q"].shape[0] == 2
     with pytest.raises(TypeError, match="profile must be True or False, got 'no'"):
         walker.profile = "no"
+    with pytest.raises(ValueError, match=r"q has shape \(1, 26\), expected a 1-D array"):
+        cpp_sim.ReducedState(state.q[None], state.qdot, state.impulses)
+    with pytest.raises(ValueError, match="pickled state is \\(q, qdot, impulses\\), got 2 items"):
+        cpp_sim.ReducedState.__new__(cpp_sim.ReducedState).__setstate__((state.q, state.qdot))
     # |d| of a finite d can overflow or underflow; the unit direction must not
     for d, unit in (([1e200, 0, 0], [1, 0, 0]), ([1e154, 1e154, 0], [0.5**0.5, 0.5**0.5, 0]),
                     ([1e-170, 0, 0], [1, 0, 0])):  # fmt: skip

@@ -36,7 +36,11 @@ VecX vector_in(py::handle obj, const char* name, Eigen::Index n) {
   py::array a = v::as_array(obj, name);
   if (a.ndim() != 1 || (n >= 0 && a.shape(0) != n)) {
     std::ostringstream msg;
-    msg << name << " has shape " << v::shape_str(a) << ", expected (" << n << ",)";
+    msg << name << " has shape " << v::shape_str(a) << ", expected ";
+    if (n >= 0)
+      msg << "(" << n << ",)";
+    else
+      msg << "a 1-D array";
     throw py::value_error(msg.str());
   }
   return v::real_matrix(a.reshape({a.shape(0), py::ssize_t{1}}), name, n, 1);
@@ -233,6 +237,9 @@ node) that warm-start the next contact solve. Copies in, copies out; picklable.)
             return py::make_tuple(vec_out(s.q), vec_out(s.qdot), vec_out(s.impulses));
           },
           [](py::tuple t) {
+            if (t.size() != 3)
+              throw py::value_error("a ReducedState's pickled state is (q, qdot, impulses), got " +
+                                    std::to_string(t.size()) + " items");
             ReducedState s;
             s.q = vector_in(t[0], "q", -1);
             s.qdot = vector_in(t[1], "qdot", s.q.size());
