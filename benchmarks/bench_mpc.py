@@ -88,7 +88,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             if args.seconds > limit + 1e-9:
                 p.error(f"--seconds {args.seconds:g} exceeds {env_id}'s {limit:g}-s episode")
     if not args.json:
-        print(f"{'env id':<30} {'ctrl':<5} {'replan s':>9} {'RTF':>7} {'m/s':>8} {'BL':>7}")
+        print(f"{'env id':<30} {'ctrl':<5} {'replan s':>9} {'RTF':>7} {'m/s':>8} {'BL':>7} "
+              f"{'sd BL':>7}")  # fmt: skip
     rows = []
     for env_id in ids:
         for planner in args.planners:
@@ -99,7 +100,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             else:
                 print(f"{env_id:<30} {planner:<5} {row['replan_wall_s']:>9.3f} "
                       f"{row['realtime_factor']:>7.3f} {row['distance_per_s']:>8.4f} "
-                      f"{row['distance_bl']:>7.3f}", flush=True)  # fmt: skip
+                      f"{row['distance_bl']:>7.3f} {row['distance_bl_std']:>7.3f}",
+                      flush=True)  # fmt: skip
     write_csv(rows, args.out / "bench_mpc.csv")
     return rows
 
