@@ -59,7 +59,7 @@ class FEMModel:
         Mass-proportional Rayleigh damping, 1/s (default 0: it would also damp free flight).
         """
     @damping_alpha.setter
-    def damping_alpha(self, arg1: typing.SupportsFloat | typing.SupportsIndex) -> None:
+    def damping_alpha(self, arg1: typing.Any) -> None:
         ...
     @property
     def damping_beta(self) -> float:
@@ -67,7 +67,7 @@ class FEMModel:
         Stiffness-proportional Rayleigh damping, s (default 0.005).
         """
     @damping_beta.setter
-    def damping_beta(self, arg1: typing.SupportsFloat | typing.SupportsIndex) -> None:
+    def damping_beta(self, arg1: typing.Any) -> None:
         ...
     @property
     def density(self) -> float:
@@ -94,7 +94,7 @@ class FEMModel:
     def max_newton_iterations(self) -> int:
         ...
     @max_newton_iterations.setter
-    def max_newton_iterations(self, arg1: typing.SupportsInt | typing.SupportsIndex) -> None:
+    def max_newton_iterations(self, arg1: typing.Any) -> None:
         ...
     @property
     def newton_tolerance(self) -> float:
@@ -102,7 +102,7 @@ class FEMModel:
         Newton stops when max |dx| / dt falls below this, m/s.
         """
     @newton_tolerance.setter
-    def newton_tolerance(self, arg1: typing.SupportsFloat | typing.SupportsIndex) -> None:
+    def newton_tolerance(self, arg1: typing.Any) -> None:
         ...
     @property
     def num_nodes(self) -> int:
@@ -122,7 +122,7 @@ class FEMModel:
         How step() solves its Newton systems. 'supernodal_llt' (default), 'simplicial_llt' and 'simplicial_ldlt' share the fast step (closed-form element projection, in-place assembly on a pre-permuted pattern, symbolic analysis once, no factorisation once a bound proves convergence) and differ in the sparse Cholesky; 'reference' is the original step, kept to measure against. All converge to the same implicit-Euler solution under newton_tolerance.
         """
     @solver.setter
-    def solver(self, arg1: str) -> None:
+    def solver(self, arg1: typing.Any) -> None:
         ...
     @property
     def volume(self) -> float:

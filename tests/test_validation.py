@@ -121,6 +121,18 @@ def test_bad_settings(tet):
         fem.gravity = [[1.0], [1.0, 2.0]]  # ragged: numpy cannot make an array of it
     fem.gravity = [0.0, 0.0, -1.62]
     assert fem.gravity == [0.0, 0.0, -1.62]
+    # each setter names itself, as the reduced model's settings do
+    for name, value, error, match in (
+        ("max_newton_iterations", 2.5, TypeError, "max_newton_iterations must be an integer"),
+        ("max_newton_iterations", 2**40, ValueError, "max_newton_iterations must be at most"),
+        ("damping_alpha", "1", TypeError, "damping_alpha must be a real number, got '1'"),
+        ("newton_tolerance", True, TypeError, "newton_tolerance must be a real number, got True"),
+        ("solver", None, TypeError, "solver must be a string, got None"),
+    ):
+        with pytest.raises(error, match=match):
+            setattr(fem, name, value)
+    fem.max_newton_iterations = np.int64(7)
+    assert fem.max_newton_iterations == 7
 
 
 def test_threads_stepping_one_model_take_turns():

@@ -149,39 +149,41 @@ density : float
           "Gravitational acceleration (3,), m/s^2.")
       .def_property(
           "damping_alpha", [](const FEMModel& f) { return f.damping_alpha; },
-          [](FEMModel& f, double a) {
-            v::non_negative(a, "damping_alpha");
+          [](FEMModel& f, py::handle x) {
+            const double a = v::non_negative(v::real(x, "damping_alpha"), "damping_alpha");
             std::lock_guard<std::mutex> lock(f.mutex());
             f.damping_alpha = a;
           },
           "Mass-proportional Rayleigh damping, 1/s (default 0: it would also damp free flight).")
       .def_property(
           "damping_beta", [](const FEMModel& f) { return f.damping_beta; },
-          [](FEMModel& f, double b) {
-            v::non_negative(b, "damping_beta");
+          [](FEMModel& f, py::handle x) {
+            const double b = v::non_negative(v::real(x, "damping_beta"), "damping_beta");
             std::lock_guard<std::mutex> lock(f.mutex());
             f.damping_beta = b;
           },
           "Stiffness-proportional Rayleigh damping, s (default 0.005).")
       .def_property(
           "newton_tolerance", [](const FEMModel& f) { return f.newton_tolerance; },
-          [](FEMModel& f, double t) {
-            v::positive(t, "newton_tolerance");
+          [](FEMModel& f, py::handle x) {
+            const double t = v::positive(v::real(x, "newton_tolerance"), "newton_tolerance");
             std::lock_guard<std::mutex> lock(f.mutex());
             f.newton_tolerance = t;
           },
           "Newton stops when max |dx| / dt falls below this, m/s.")
       .def_property(
           "max_newton_iterations", [](const FEMModel& f) { return f.max_newton_iterations; },
-          [](FEMModel& f, int n) {
-            if (n < 1) throw py::value_error("max_newton_iterations must be >= 1, got " + std::to_string(n));
+          [](FEMModel& f, py::handle x) {
+            const int n = v::integer_at_least(x, "max_newton_iterations", 1);
             std::lock_guard<std::mutex> lock(f.mutex());
             f.max_newton_iterations = n;
           })
       .def_property(
           "solver", [](const FEMModel& f) { return solver_name(f.solver()); },
-          [](FEMModel& f, const std::string& name) {
-            const FEMSolver kind = solver_from_name(name);
+          [](FEMModel& f, py::handle x) {
+            if (!py::isinstance<py::str>(x))
+              throw py::type_error("solver must be a string, got " + std::string(py::repr(x)));
+            const FEMSolver kind = solver_from_name(x.cast<std::string>());
             std::lock_guard<std::mutex> lock(f.mutex());
             f.set_solver(kind);
           },

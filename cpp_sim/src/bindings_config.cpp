@@ -30,33 +30,6 @@ struct Setting {
   const char* doc;
 };
 
-double real(py::handle x, const char* name) {
-  try {
-    return x.cast<double>();
-  } catch (const py::cast_error&) {
-    throw py::type_error(std::string(name) + " must be a real number, got " +
-                         std::string(py::repr(x)));
-  }
-}
-
-int integer_at_least(py::handle x, const char* name, int low) {
-  // Any integer, numpy's included (__index__), never a bool.
-  if (py::isinstance<py::bool_>(x) || !PyIndex_Check(x.ptr()))
-    throw py::type_error(std::string(name) + " must be an integer, got " +
-                         std::string(py::repr(x)));
-  const py::object index = py::reinterpret_steal<py::object>(PyNumber_Index(x.ptr()));
-  if (!index) throw py::error_already_set();
-  int overflow = 0;
-  const long long wide = PyLong_AsLongLongAndOverflow(index.ptr(), &overflow);
-  if (overflow > 0 || wide > std::numeric_limits<int>::max())
-    throw py::value_error(std::string(name) + " must be at most " +
-                          std::to_string(std::numeric_limits<int>::max()) + ", got " +
-                          std::string(py::repr(x)));
-  if (overflow < 0 || wide < low)
-    throw py::value_error(std::string(name) + " must be >= " + std::to_string(low) + ", got " +
-                          std::string(py::repr(x)));
-  return static_cast<int>(wide);
-}
 
 Vec3 vec3(py::handle x, const char* name) {
   py::array a = v::as_array(x, name);
@@ -80,21 +53,21 @@ const char* contact_name(ContactModel c) {
 #define SOFTROM_POSITIVE(field, doc)                                                      \
   Setting {                                                                               \
     #field, [](const ReducedConfig& c) -> py::object { return py::float_(c.field); },     \
-        [](ReducedConfig& c, py::handle x) { c.field = v::positive(real(x, #field), #field); }, \
+        [](ReducedConfig& c, py::handle x) { c.field = v::positive(v::real(x, #field), #field); }, \
         doc                                                                               \
   }
 #define SOFTROM_NON_NEGATIVE(field, doc)                                                  \
   Setting {                                                                               \
     #field, [](const ReducedConfig& c) -> py::object { return py::float_(c.field); },     \
         [](ReducedConfig& c, py::handle x) {                                              \
-          c.field = v::non_negative(real(x, #field), #field);                             \
+          c.field = v::non_negative(v::real(x, #field), #field);                             \
         },                                                                                \
         doc                                                                               \
   }
 #define SOFTROM_COUNT(field, doc)                                                         \
   Setting {                                                                               \
     #field, [](const ReducedConfig& c) -> py::object { return py::int_(c.field); },       \
-        [](ReducedConfig& c, py::handle x) { c.field = integer_at_least(x, #field, 1); }, \
+        [](ReducedConfig& c, py::handle x) { c.field = v::integer_at_least(x, #field, 1); }, \
         doc                                                                               \
   }
 
@@ -128,7 +101,7 @@ const std::vector<Setting>& settings() {
       SOFTROM_NON_NEGATIVE(friction, "Coulomb coefficient mu"),
       {"ground_height", [](const ReducedConfig& c) -> py::object { return py::float_(c.ground_height); },
        [](ReducedConfig& c, py::handle x) {
-         const double z = real(x, "ground_height");
+         const double z = v::real(x, "ground_height");
          if (!std::isfinite(z)) throw py::value_error("ground_height must be finite");
          c.ground_height = z;
        },
@@ -152,7 +125,7 @@ const std::vector<Setting>& settings() {
       SOFTROM_COUNT(max_stagger_iterations, "cap on staggered-projection iterations per step"),
       {"stabilization", [](const ReducedConfig& c) -> py::object { return py::float_(c.stabilization); },
        [](ReducedConfig& c, py::handle x) {
-         const double b = real(x, "stabilization");
+         const double b = v::real(x, "stabilization");
          if (!(b > 0.0 && b <= 1.0)) {
            std::ostringstream msg;
            msg << "stabilization must lie in (0, 1], got " << b;

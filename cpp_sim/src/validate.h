@@ -8,6 +8,7 @@
 
 #include <Eigen/Dense>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -90,6 +91,40 @@ inline std::vector<Tet> tet_array(py::handle obj, const char* name) {
       tets[e][k] = static_cast<int32_t>(v);
     }
   return tets;
+}
+
+// A Python real number (numpy's too) as a double, never a bool, or TypeError naming the setting.
+inline double real(py::handle x, const char* name) {
+  if (py::isinstance<py::bool_>(x))
+    throw py::type_error(std::string(name) + " must be a real number, got " +
+                         std::string(py::repr(x)));
+  try {
+    return x.cast<double>();
+  } catch (const py::cast_error&) {
+    throw py::type_error(std::string(name) + " must be a real number, got " +
+                         std::string(py::repr(x)));
+  }
+}
+
+// A Python integer (numpy's too: __index__), never a bool, within [low, INT_MAX], or an error
+// naming the setting.
+inline int integer_at_least(py::handle x, const char* name, int low) {
+  // Any integer, numpy's included (__index__), never a bool.
+  if (py::isinstance<py::bool_>(x) || !PyIndex_Check(x.ptr()))
+    throw py::type_error(std::string(name) + " must be an integer, got " +
+                         std::string(py::repr(x)));
+  const py::object index = py::reinterpret_steal<py::object>(PyNumber_Index(x.ptr()));
+  if (!index) throw py::error_already_set();
+  int overflow = 0;
+  const long long wide = PyLong_AsLongLongAndOverflow(index.ptr(), &overflow);
+  if (overflow > 0 || wide > std::numeric_limits<int>::max())
+    throw py::value_error(std::string(name) + " must be at most " +
+                          std::to_string(std::numeric_limits<int>::max()) + ", got " +
+                          std::string(py::repr(x)));
+  if (overflow < 0 || wide < low)
+    throw py::value_error(std::string(name) + " must be >= " + std::to_string(low) + ", got " +
+                          std::string(py::repr(x)));
+  return static_cast<int>(wide);
 }
 
 inline double positive(double v, const char* name) {
