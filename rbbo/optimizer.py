@@ -46,7 +46,15 @@ import numpy as np
 
 from .acquisition import UCBAcquisition, maximize_on_grassmann, ucb_beta
 from .boca import BOCAFidelity
-from .config import CONFIRM_KINDS, FIDELITIES, Proposal, RBBOConfig, RBBOResult, _positive_int
+from .config import (
+    CONFIRM_KINDS,
+    FIDELITIES,
+    Proposal,
+    RBBOConfig,
+    RBBOResult,
+    _positive_int,
+    _real,
+)
 from .executors import Executor, ProcessExecutor, SerialExecutor
 from .gp import GrassmannGP
 from .grassmann import dimension, identity_basis, random_points
@@ -361,7 +369,7 @@ class RBBO:
         # (math.inf stands for "no limit of this kind", as the command line passes it)
         if max_evaluations is not None and max_evaluations != math.inf:
             _positive_int("max_evaluations", max_evaluations)
-        if budget_s is not None and not (isinstance(budget_s, (int, float)) and budget_s > 0):
+        if budget_s is not None and not _real("budget_s", budget_s) > 0:
             raise ValueError(f"budget_s must be > 0 seconds, got {budget_s!r}")
         own = executor is None
         if own:

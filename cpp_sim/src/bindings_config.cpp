@@ -149,10 +149,10 @@ const std::vector<Setting>& settings() {
       {"profile", [](const ReducedConfig& c) -> py::object { return py::bool_(c.profile); },
        [](ReducedConfig& c, py::handle x) {
          // True or False (numpy's too), not any object with a truth value
-         if (!py::isinstance<py::bool_>(x) && py::str(py::type::of(x).attr("__name__"))
-                                                  .cast<std::string>() != "bool")
+         if (!py::isinstance<py::bool_>(x) &&
+             !py::isinstance(x, py::module_::import("numpy").attr("bool_")))
            throw py::type_error("profile must be True or False, got " +
-                                std::string(py::str(py::repr(x))));
+                                std::string(py::repr(x)));
          c.profile = x.cast<bool>();
        },
        "time the parts of each step: step() then reports time_dynamics, time_drag, "

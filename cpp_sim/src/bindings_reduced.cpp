@@ -375,7 +375,6 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
               // (more threads than rollouts would idle; this also keeps the count an int)
               nt = want > py::int_(b) ? b : want.cast<int>();
             }
-            if (nt < 1) throw py::value_error("threads must be >= 1, got " + std::to_string(nt));
             const py::ssize_t dim = r.dim(), ni = 3 * r.num_surface_nodes();
             py::array_t<double> rewards({b, h}), q({py::ssize_t{b}, dim}), qd({py::ssize_t{b}, dim}),
                 imp({py::ssize_t{b}, ni}), com({py::ssize_t{b}, py::ssize_t{h}, py::ssize_t{3}});

@@ -95,21 +95,19 @@ inline std::vector<Tet> tet_array(py::handle obj, const char* name) {
 
 // A Python real number (numpy's too) as a double, never a bool, or TypeError naming the setting.
 inline double real(py::handle x, const char* name) {
-  if (py::isinstance<py::bool_>(x))
-    throw py::type_error(std::string(name) + " must be a real number, got " +
-                         std::string(py::repr(x)));
-  try {
-    return x.cast<double>();
-  } catch (const py::cast_error&) {
-    throw py::type_error(std::string(name) + " must be a real number, got " +
-                         std::string(py::repr(x)));
+  if (!py::isinstance<py::bool_>(x)) {
+    try {
+      return x.cast<double>();
+    } catch (const py::cast_error&) {
+    }
   }
+  throw py::type_error(std::string(name) + " must be a real number, got " +
+                       std::string(py::repr(x)));
 }
 
 // A Python integer (numpy's too: __index__), never a bool, within [low, INT_MAX], or an error
 // naming the setting.
 inline int integer_at_least(py::handle x, const char* name, int low) {
-  // Any integer, numpy's included (__index__), never a bool.
   if (py::isinstance<py::bool_>(x) || !PyIndex_Check(x.ptr()))
     throw py::type_error(std::string(name) + " must be an integer, got " +
                          std::string(py::repr(x)));
