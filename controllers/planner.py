@@ -70,7 +70,8 @@ class PlannerSettings:
     seed_horizon : int or None
         Steps over which seeds are scored (None: the horizon).
     threads : int or None
-        C++ rollout threads (None: all cores). Results do not depend on it.
+        C++ rollout threads (None: the CPUs this process may run on, its affinity).
+        Results do not depend on it.
     """
 
     horizon: int = 40

@@ -109,7 +109,11 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     opt = sub.add_parser("optimize", help="optimise B_c for an env (or a synthetic objective)")
-    opt.add_argument("env_id", metavar="ENV_ID")
+    opt.add_argument("env_id", metavar="ENV_ID",
+                     help="a registered Gymnasium id (CrossWalk-v0 is short for "
+                     "softrom_gym/CrossWalk-v0), or synthetic[:key=value,...] (keys seed, "
+                     "noise, bias, delay): a Grassmann objective with a known optimum, no "
+                     "simulator")  # fmt: skip
     opt.add_argument("--control-dim", type=_positive_int, default=3, help="C (default 3)")
     opt.add_argument("--sim-dim", type=_positive_int, default=20, help="M (default 20)")
     opt.add_argument("--controller", choices=["mppi", "gn"], default="mppi",
@@ -132,7 +136,8 @@ def _parser() -> argparse.ArgumentParser:
                      "else as a string (e.g. --env-kwarg robot=my_robot.stl "
                      "--env-kwarg task=swim for softrom_gym/SoftRobot-v0)")  # fmt: skip
     opt.add_argument("--init", type=_nonnegative_int, default=5,
-                     help="random initial points before the GP proposes (default 5)")  # fmt: skip
+                     help="random initial points after the identity basis, before the GP proposes "
+                     "(default 5)")  # fmt: skip
     opt.add_argument("--workers", type=_positive_int, default=1,
                      help="evaluations run at once (default 1)")  # fmt: skip
     opt.add_argument("--deterministic", action="store_true",
@@ -140,17 +145,20 @@ def _parser() -> argparse.ArgumentParser:
                      "--workers and --iterations repeats bitwise (a worker may wait for "
                      "an older evaluation; default: a free worker gets a new point at "
                      "once)")  # fmt: skip
-    opt.add_argument("--executor", choices=["process", "ray", "serial"], default="process")
+    opt.add_argument("--executor", choices=["process", "ray", "serial"], default="process",
+                     help="where evaluations run (default process)")  # fmt: skip
     opt.add_argument("--address", help="Ray cluster address (with --executor ray)")
     opt.add_argument("--timeout", type=parse_duration, default=600.0,
                      help="per-evaluation limit (default 10m)")  # fmt: skip
-    opt.add_argument("--seed", type=int, default=0)
+    opt.add_argument("--seed", type=int, default=0,
+                     help="seeds the initial design, the acquisition's random starts and the "
+                     "MPC seeds seed, seed + 1, ... (default 0)")  # fmt: skip
     opt.add_argument("--seeds", type=_positive_int, default=1,
                      help="common-random-number seeds per evaluation (default 1)")  # fmt: skip
     opt.add_argument("--confirm-seeds", type=_nonnegative_int, default=3,
                      help="fresh seeds for R_init and R* (default 3)")  # fmt: skip
     opt.add_argument("--optimizer", choices=["lrbfgs", "cg"], default="lrbfgs",
-                     help="acquisition maximiser")  # fmt: skip
+                     help="acquisition maximiser on the Grassmannian (default lrbfgs)")  # fmt: skip
     opt.add_argument("--out", type=Path, help="run directory (default runs/<env>-<time>)")
     opt.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -158,19 +166,19 @@ def _parser() -> argparse.ArgumentParser:
     res.add_argument("run_dir", type=Path, metavar="DIR")
     res.add_argument("--budget", type=parse_duration, help="new total wall-time budget")
     res.add_argument("--iterations", type=_positive_int, help="new total number of evaluations")
-    res.add_argument("--workers", type=_positive_int)
+    res.add_argument("--workers", type=_positive_int, help="default: the run's")
     res.add_argument(
         "--executor",
         choices=["process", "ray", "serial"],
         help="run this session's evaluations elsewhere (default: the run's)",
     )
     res.add_argument("--address", help="Ray cluster address (with --executor ray)")
-    res.add_argument("--no-progress", action="store_true")
+    res.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     con = sub.add_parser("confirm", help="measure R_init and R* of a finished run again "
                          "(after an upgrade, or on another machine)")  # fmt: skip
     con.add_argument("run_dir", type=Path, metavar="DIR")
-    con.add_argument("--workers", type=_positive_int)
+    con.add_argument("--workers", type=_positive_int, help="default: the run's")
 
     rep = sub.add_parser("report", help="print the table and write convergence.png")
     rep.add_argument("run_dirs", type=Path, nargs="+", metavar="DIR")
@@ -180,15 +188,17 @@ def _parser() -> argparse.ArgumentParser:
     rol.add_argument("run_dir", type=Path, metavar="DIR")
     rol.add_argument("--video", type=Path, help="write an mp4 of the rollout")
     rol.add_argument("--seconds", type=_positive_float, help="episode length (default T_max)")
-    rol.add_argument("--seed", type=int, default=12345)
+    rol.add_argument("--seed", type=int, default=12345,
+                     help="the MPC seed (default 12345)")  # fmt: skip
 
     bas = sub.add_parser("baselines", help="PPO and SAC (Stable-Baselines3) beside the MPC")
-    bas.add_argument("env_id", metavar="ENV_ID")
+    bas.add_argument("env_id", metavar="ENV_ID", help="a registered Gymnasium id")
     bas.add_argument("--algo", default="ppo,sac", help="comma list of ppo, sac (default both)")
     bas.add_argument("--steps", type=rl_steps_arg, default=20_000,
                      help="env steps to train each, N or ppo=N,sac=N (default 20000)")  # fmt: skip
     bas.add_argument("--control-basis", default="identity",
-                     help="comma list of identity, best (of --run) or PATH.npy")  # fmt: skip
+                     help="comma list of identity, best (of --run) or PATH.npy (default "
+                     "identity)")  # fmt: skip
     bas.add_argument("--run", type=Path, metavar="DIR", help="RBBO run directory (for best)")
     bas.add_argument("--out", type=Path, help="output directory (default runs/baselines-<env>)")
     bas.add_argument("--eval-seeds", type=_positive_int, default=5,
@@ -204,7 +214,7 @@ def _parser() -> argparse.ArgumentParser:
     bas.add_argument("--checkpoint-every", type=_positive_int,
                      help="env steps between checkpoints (default a fifth of --steps)")  # fmt: skip
     bas.add_argument("--no-mpc", action="store_true", help="RL only")
-    bas.add_argument("--no-progress", action="store_true")
+    bas.add_argument("--no-progress", action="store_true", help="no progress bars")
 
     from .reproduce.cli import add_parser as add_reproduce
 
@@ -258,9 +268,12 @@ def _check_controllers() -> None:
     missing = [n for n in ("run_episode", "MPPI", "GaussNewtonShooting")
                if not hasattr(controllers, n)]  # fmt: skip
     if missing:
+        # "controllers" is a common name: a user's own module of that name can shadow ours.
+        where = getattr(controllers, "__file__", None) or "a module without a file"
         raise UsageError(
-            f"controllers has no {', '.join(missing)} yet (MPC is issue 6); use ENV_ID "
-            "'synthetic' to try rbbo without the simulator"
+            f"controllers has no {', '.join(missing)}: the module imported as controllers "
+            f"({where}) is not softrom's (another package or file of that name first on "
+            "sys.path?); use ENV_ID 'synthetic' to try rbbo without the simulator"
         )
 
 
@@ -398,9 +411,10 @@ def cmd_optimize(args) -> int:
         executor.shutdown(wait=False)
         raise
     # notes once the input is known good (a usage error stays one line)
-    if iterations is not None and iterations <= args.init:
-        print(f"note: --iterations {iterations} <= --init {args.init}: every evaluation is a "
-              "random initial point, and the GP proposes none", file=sys.stderr)  # fmt: skip
+    if iterations is not None and iterations <= args.init + 1:
+        print(f"note: --iterations {iterations} <= 1 + --init {args.init}: the initial design "
+              f"(the identity basis, then {args.init} random points) takes every evaluation, "
+              "and the GP proposes none", file=sys.stderr)  # fmt: skip
     if spec["kind"] == "env":
         import controllers
 

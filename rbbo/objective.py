@@ -170,8 +170,8 @@ class EnvObjective:
     Why from a settle time: a robot leaning into a held pose gains about 0.2 body lengths in
     its first second (measured on the walkers), which would dominate short trajectories and
     rank bases by how far they lean rather than how well they walk; measuring from
-    t_settle = 2 s (issue 6's convention) and normalising per second makes fidelities T
-    comparable. T must exceed t_settle.
+    t_settle = 2 s (as ``python -m controllers`` reports distance) and normalising per
+    second makes fidelities T comparable. T must exceed t_settle.
 
     The env is built once per worker process; each evaluation swaps its B_c in with the env's
     ``set_control_basis`` (an env without one is built again for each B_c).

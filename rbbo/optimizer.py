@@ -351,6 +351,12 @@ class RBBO:
             :class:`ProcessExecutor` otherwise. An executor passed in is not shut down.
         workers, timeout_s
             For the default executor.
+        max_evaluations : int, optional
+            Stop proposing after this many evaluations in all (those of earlier sessions
+            included; confirmations not counted). Default: the config's.
+        budget_s : float, optional
+            Stop proposing once this much wall time (seconds, earlier sessions included) is
+            spent. Default: the config's.
         confirm : bool
             Measure R_init and R* on fresh seeds at the end.
         callback : callable, optional

@@ -182,7 +182,8 @@ def test_env_without_controllers_names_the_missing_piece(capsys, monkeypatch):
 
     monkeypatch.setitem(sys.modules, "controllers", types.ModuleType("controllers"))
     err = _error(capsys, ["optimize", "CrossWalk-v0"])
-    assert "controllers has no run_episode, MPPI, GaussNewtonShooting yet" in err
+    assert "controllers has no run_episode, MPPI, GaussNewtonShooting: the module" in err
+    assert "is not softrom's" in err
 
 
 def test_run_directory_errors(tmp_path, capsys):
@@ -324,3 +325,17 @@ def test_a_second_signal_does_not_break_off_the_shutdown(signum):
     if signum == signal.SIGTERM:
         assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+@pytest.mark.parametrize("iterations, noted", [(4, True), (5, False)])
+def test_a_budget_the_initial_design_fills_is_noted(tmp_path, capsys, iterations, noted):
+    # TINY's --init 3 with the identity basis first: 4 evaluations leave the GP none.
+    code = main(["optimize", "synthetic", *TINY, "--iterations", str(iterations),
+                 "--executor", "serial", "--out", str(tmp_path / "run")])  # fmt: skip
+    assert code == 0
+    kinds = [h["kind"] for h in _history(tmp_path / "run") if not h["kind"].startswith("confirm")]
+    assert (set(kinds) == {"initial"}) == noted
+    err = capsys.readouterr().err
+    assert ("the GP proposes none" in err) == noted
+    if noted:
+        assert "--iterations 4 <= 1 + --init 3" in err

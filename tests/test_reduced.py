@@ -1,6 +1,11 @@
 """Reduced dynamics (cpp_sim.ReducedModel): accuracy, contact, friction, drag, actuation,
 batched rollouts and bad input."""
 
+import signal
+import subprocess
+import sys
+import time
+
 import numpy as np
 import pytest
 import trimesh
@@ -259,6 +264,48 @@ def test_diverging_rollout_is_flagged_and_isolated(walker):
     np.testing.assert_array_equal(after.q, state.q)
 
 
+def test_rollout_with_no_observables_returns_an_empty_observed(walker):
+    out = walker.rollout(
+        walker.rest_state(), np.zeros((2, 3, 3)), observe=np.zeros((0, walker.dim))
+    )
+    assert out["observed"].shape == (2, 3, 0)
+    assert "observed" not in walker.rollout(walker.rest_state(), np.zeros((2, 3, 3)))
+
+
+_LONG_ROLLOUT = """
+import sys
+import numpy as np
+from softrom_gym.robots import beam
+from softrom_gym.rom import build_reduced_model
+model = build_reduced_model(beam(), control_basis=np.eye(20)[:, :3])
+threads = int(sys.argv[1])
+controls = np.zeros((threads, 2_000_000, 3))
+print("ready", flush=True)
+model.rollout(model.rest_state(), controls, threads=threads)  # line 10
+print("finished", flush=True)
+"""
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_ctrl_c_stops_a_long_rollout(threads):
+    # Two million steps a rollout (minutes); SIGINT must end it with KeyboardInterrupt,
+    # though the step loop runs in C++ without the GIL (on the pool's threads with 2).
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _LONG_ROLLOUT, str(threads)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout.readline() == "ready\n"
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert "finished" not in out
+    assert proc.returncode != 0 and "KeyboardInterrupt" in err
+    assert 'File "<string>", line 10' in err  # raised in the rollout, not before it
+
+
 def test_bad_input_raises_clear_errors(walker):
     state = walker.rest_state()
     with pytest.raises(ValueError, match=r"control_basis has shape \(19, 3\), expected \(20,"):
@@ -320,6 +367,12 @@ def test_bad_input_raises_clear_errors(walker):
     args[8] = np.concatenate([robot.surface_nodes, robot.surface_nodes[:1]])
     node = int(robot.surface_nodes[0])
     with pytest.raises(ValueError, match=f"surface_nodes lists node {node} more than once"):
+        cpp_sim.ReducedModel(*args)
+    args[8] = robot.surface_nodes[None]
+    with pytest.raises(ValueError, match=r"surface_nodes has shape \(1, \d+\), expected a 1-D"):
+        cpp_sim.ReducedModel(*args)
+    args[8], args[6] = robot.surface_nodes, np.arange(4).reshape(2, 2)
+    with pytest.raises(ValueError, match=r"cubature_elements has shape \(2, 2\), expected a 1-D"):
         cpp_sim.ReducedModel(*args)
 
 

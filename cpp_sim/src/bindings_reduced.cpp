@@ -5,6 +5,7 @@
 #include <pybind11/stl.h>
 
 #include <algorithm>
+#include <functional>
 #include <limits>
 #include <sstream>
 #include <string>
@@ -61,6 +62,9 @@ MatX matrix_in(py::handle obj, const char* name, py::ssize_t rows, py::ssize_t c
 
 std::vector<int> index_vector(py::handle obj, const char* name, int bound) {
   py::array a = v::as_array(obj, name);
+  if (a.ndim() != 1)
+    throw py::value_error(std::string(name) + " has shape " + v::shape_str(a) +
+                          ", expected a 1-D array of indices");
   const char kind = a.dtype().kind();
   if (kind != 'i' && kind != 'u')
     throw py::type_error(std::string(name) + " must be an integer array, got dtype " +
@@ -87,9 +91,6 @@ int available_cores() {
 #endif
   return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
 }
-
-
-
 
 void check_state(const ReducedModel& m, const ReducedState& s) {
   if (s.q.size() != m.dim() || s.qdot.size() != m.dim() ||
@@ -398,10 +399,22 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
             out.com = com.mutable_data();
             out.observe = no ? &obs_m : nullptr;
             out.observed = no ? observed.mutable_data() : nullptr;
+            // Ctrl-C: Python only runs signal handlers on the main thread, so only a rollout
+            // called from it asks (PyErr_CheckSignals sets the KeyboardInterrupt raised below).
+            bool interrupted = false;
+            const std::function<bool()> check_signals = [&interrupted] {
+              py::gil_scoped_acquire gil;
+              interrupted = PyErr_CheckSignals() != 0;
+              return interrupted;
+            };
+            const py::module_ threading = py::module_::import("threading");
+            if (threading.attr("current_thread")().is(threading.attr("main_thread")()))
+              out.interrupt = &check_signals;
             {
               py::gil_scoped_release release;
               r.rollout(in, starts, u.data(), b, h, nt, out);
             }
+            if (interrupted) throw py::error_already_set();
             for (int i = 0; i < b; ++i) {
               div.mutable_data()[i] = flags[i] != 0;
               conv.mutable_data()[i] = conv_flags[i] != 0;
@@ -414,7 +427,7 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
             d["diverged"] = div;
             d["converged"] = conv;
             d["com"] = com;
-            if (no) d["observed"] = observed;
+            if (!observe.is_none()) d["observed"] = observed;
             return d;
           },
           py::arg("state"), py::arg("controls"), py::arg("threads") = py::none(),
@@ -422,10 +435,13 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           R"doc(B rollouts of H steps from one state (or a sequence of B states), controls (B, H, C).
 
 Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 6) and impulses
-(B, 3 n_surface) of the final states, diverged (B,) and com (B, H, 3); with `observe`
+(B, 3 n_surface) of the final states, diverged (B,), converged (B,: every step's Newton and
+contact solve reached its tolerance) and com (B, H, 3); with `observe`
 (P x (M + 6)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
 `threads` C++ threads with the GIL released; results do not depend on the thread count. A
-diverged rollout keeps its last good state and earns zero reward from then on.)doc")
+diverged rollout keeps its last good state and earns zero reward from then on. Called from
+the main thread, Ctrl-C stops it within about 0.1 s (after the step in progress) and raises
+KeyboardInterrupt.)doc")
       .def(
           "positions",
           [](const ReducedModel& r, py::handle q) {

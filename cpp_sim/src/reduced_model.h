@@ -17,6 +17,7 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -228,6 +229,9 @@ class ReducedModel {
     double* com = nullptr;             // B x H x 3 (optional)
     const MatX* observe = nullptr;     // P x dim (optional)
     double* observed = nullptr;        // B x H x P
+    // Asked on the calling thread about every ThreadPool::kPollInterval; once it returns true
+    // every rollout stops at its next step and the outputs are incomplete (Ctrl-C).
+    const std::function<bool()>* interrupt = nullptr;
   };
   void rollout(const StepInputs& in, const std::vector<ReducedState>& starts,
                const double* controls, int batch, int horizon, int threads,

@@ -1,5 +1,9 @@
 // Batched rollouts on the persistent thread pool.
 #include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <functional>
+#include <thread>
 
 #include "reduced_model.h"
 #include "thread_pool.h"
@@ -13,6 +17,15 @@ void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>
   const Eigen::Index m = basis_cols_;
   const Vec3 d = in.config.direction;
   const double h = in.config.dt;
+  // An interrupt is asked for on the calling thread only (the one that holds the Python
+  // thread state), between its steps and while it waits for the other workers.
+  std::atomic<bool> stop{false};
+  const std::thread::id caller = std::this_thread::get_id();
+  auto last_poll = std::chrono::steady_clock::now();
+  const std::function<void()> poll = [&] {
+    last_poll = std::chrono::steady_clock::now();
+    if (!stop.load(std::memory_order_relaxed) && (*out.interrupt)()) stop.store(true);
+  };
   // Each rollout is computed start to finish by one worker, with that thread's own scratch,
   // so results do not depend on the thread count or the schedule.
   auto run = [&](int b) {
@@ -20,6 +33,12 @@ void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>
     ReducedState s = starts[starts.size() == 1 ? 0 : b];
     bool bad = false, converged = true;
     for (int t = 0; t < horizon; ++t) {
+      if (out.interrupt) {
+        if (std::this_thread::get_id() == caller &&
+            std::chrono::steady_clock::now() - last_poll >= ThreadPool::kPollInterval)
+          poll();
+        if (stop.load(std::memory_order_relaxed)) return;
+      }
       const size_t bt = static_cast<size_t>(b) * horizon + t;
       double reward = 0.0;
       if (!bad) {
@@ -52,7 +71,7 @@ void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>
     for (int b = 0; b < batch; ++b) run(b);
     return;
   }
-  ThreadPool::instance().run(threads, batch, run);
+  ThreadPool::instance().run(threads, batch, run, out.interrupt ? &poll : nullptr);
 }
 
 }  // namespace softrom

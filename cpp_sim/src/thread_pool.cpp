@@ -65,7 +65,8 @@ void ThreadPool::work(const std::function<void(int)>& fn) {
   }
 }
 
-void ThreadPool::run(int threads, int n, const std::function<void(int)>& fn) {
+void ThreadPool::run(int threads, int n, const std::function<void(int)>& fn,
+                     const std::function<void()>* poll) {
   std::lock_guard<std::mutex> call(call_mutex_);
   const int helpers = std::max(0, std::min(threads, n) - 1);
   int started = helpers;
@@ -89,7 +90,18 @@ void ThreadPool::run(int threads, int n, const std::function<void(int)>& fn) {
   work(fn);
   {
     std::unique_lock<std::mutex> lock(mutex_);
-    done_.wait(lock, [&] { return running_ == 0; });
+    const auto finished = [&] { return running_ == 0; };
+    if (poll == nullptr) {
+      done_.wait(lock, finished);
+    } else {
+      while (!done_.wait_for(lock, kPollInterval, finished)) {
+        // Not under the pool's lock: the poll may wait for the GIL, and workers finishing
+        // meanwhile need the lock to say so.
+        lock.unlock();
+        (*poll)();
+        lock.lock();
+      }
+    }
     job_ = nullptr;
   }
   if (error_) std::rethrow_exception(error_);

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <exception>
 #include <functional>
@@ -23,7 +24,12 @@ class ThreadPool {
   // Runs fn(task) for every task in [0, n) on up to `threads` threads (the caller included)
   // and returns when all are done. The first exception a task throws is rethrown here after
   // the others have stopped taking tasks. Calls from several threads are serialised.
-  void run(int threads, int n, const std::function<void(int)>& fn);
+  // `poll`, when given, is called on the calling thread about every kPollInterval while it
+  // waits for the other workers to finish (it may tell the tasks to stop: Ctrl-C).
+  void run(int threads, int n, const std::function<void(int)>& fn,
+           const std::function<void()>* poll = nullptr);
+
+  static constexpr std::chrono::milliseconds kPollInterval{100};
 
   ~ThreadPool();
 

@@ -90,47 +90,70 @@ def _rl_steps(text: str) -> int | dict[str, int]:
 def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.ArgumentParser:
     """Add the ``reproduce`` subcommand to ``sub`` (rbbo.cli's subparsers)."""
     p = sub.add_parser("reproduce", help="the paper's results (Table I, BO vs BOCA, "
-                       "directions, studies of C) into one directory with a REPORT.md")  # fmt: skip
+                       "directions, studies of C, transfer to a larger M, perturbations, RL "
+                       "baselines) into one directory with a REPORT.md")  # fmt: skip
     defaults = ReproducePlan()
     p.add_argument("--benchmarks", type=_names(BENCHMARKS), default=list(BENCHMARKS),
                    help="comma list (default: all five)")  # fmt: skip
     p.add_argument("--budget-per-benchmark", type=parse_duration, default=defaults.budget_s,
                    help="wall time of each benchmark's RBBO run (default 45m)")  # fmt: skip
     p.add_argument("--iterations", type=positive_int, help="cap on evaluations per run")
-    p.add_argument("--workers", type=positive_int, default=defaults.workers)
+    p.add_argument("--workers", type=positive_int, default=defaults.workers,
+                   help=f"evaluations run at once (default {defaults.workers})")  # fmt: skip
     p.add_argument("--deterministic", action="store_true",
                    help="tell each optimisation run's results in proposal order, so that with "
                    "--iterations the runs repeat bitwise on one install (a worker may wait "
                    "for an older evaluation)")  # fmt: skip
-    p.add_argument("--executor", choices=["process", "serial", "ray"], default="process")
-    p.add_argument("--controller", choices=["mppi", "gn"], default=defaults.controller)
-    p.add_argument("--sim-dim", type=positive_int, default=defaults.sim_dim)
-    p.add_argument("--control-dim", type=positive_int, default=defaults.control_dim)
-    p.add_argument("--t-min", type=positive_float, default=defaults.t_min)
-    p.add_argument("--t-max", type=positive_float, default=defaults.t_max)
-    p.add_argument("--settle-time", type=float, default=defaults.settle_time)
-    p.add_argument("--init", type=int, default=defaults.n_init, help="random initial points")
+    p.add_argument("--executor", choices=["process", "serial", "ray"], default="process",
+                   help="where evaluations run (default process)")  # fmt: skip
+    p.add_argument("--controller", choices=["mppi", "gn"], default=defaults.controller,
+                   help=f"the MPC planner (default {defaults.controller})")  # fmt: skip
+    p.add_argument("--sim-dim", type=positive_int, default=defaults.sim_dim,
+                   help=f"M (default {defaults.sim_dim})")  # fmt: skip
+    p.add_argument("--control-dim", type=positive_int, default=defaults.control_dim,
+                   help=f"C (default {defaults.control_dim})")  # fmt: skip
+    p.add_argument("--t-min", type=positive_float, default=defaults.t_min,
+                   help=f"shortest T of the BOCA runs, s (default {defaults.t_min:g})")  # fmt: skip
+    p.add_argument("--t-max", type=positive_float, default=defaults.t_max,
+                   help=f"full episode length T_max, s (default {defaults.t_max:g})")  # fmt: skip
+    p.add_argument("--settle-time", type=float, default=defaults.settle_time,
+                   help=f"R is measured from this time on, s (default "
+                   f"{defaults.settle_time:g})")  # fmt: skip
+    p.add_argument("--init", type=int, default=defaults.n_init,
+                   help="random initial points after the identity basis (default "
+                   f"{defaults.n_init})")  # fmt: skip
     p.add_argument("--confirm-seeds", type=int, default=defaults.confirm_seeds,
                    help="fresh seeds for R_init and R* (default 5)")  # fmt: skip
-    p.add_argument("--seed", type=int, default=defaults.seed)
+    p.add_argument("--seed", type=int, default=defaults.seed,
+                   help=f"seeds every run (default {defaults.seed})")  # fmt: skip
     p.add_argument("--stages", type=_names(_STAGES), default=list(_STAGES),
                    help=f"comma list of {','.join(_STAGES)} (default: all)")  # fmt: skip
     p.add_argument("--transfer-sim-dim", type=positive_int, default=defaults.transfer_sim_dim,
                    help="M of the richer model the transfer stage measures Table I's bases in "
                    f"(default {defaults.transfer_sim_dim})")  # fmt: skip
-    p.add_argument("--direction-env", type=_names(BENCHMARKS), default=[defaults.direction_env])
-    p.add_argument("--directions", type=positive_int, default=defaults.directions)
+    p.add_argument("--direction-env", type=_names(BENCHMARKS), default=[defaults.direction_env],
+                   help=f"benchmark of the directions stage (default "
+                   f"{defaults.direction_env})")  # fmt: skip
+    p.add_argument("--directions", type=positive_int, default=defaults.directions,
+                   help="directions d of the polar study, evenly spaced from +x (default "
+                   f"{defaults.directions})")  # fmt: skip
     p.add_argument("--direction-budget", type=parse_duration, default=defaults.direction_budget_s,
                    help="wall time of each direction's run (default 15m)")  # fmt: skip
     p.add_argument("--perturbations", type=_float_list, default=defaults.perturbations_deg,
                    help="offsets in degrees, each run at + and - (default 5,10,20,30)")  # fmt: skip
     p.add_argument("--cost-cs", type=_int_list, default=defaults.cost_cs, help="default 1-20")
     p.add_argument("--reward-cs", type=_int_list, default=defaults.reward_cs, help="default 1-10")
-    p.add_argument("--study-seeds", type=positive_int, default=defaults.study_seeds)
-    p.add_argument("--study-seconds", type=positive_float, default=defaults.study_seconds)
+    p.add_argument("--study-seeds", type=positive_int, default=defaults.study_seeds,
+                   help="seeds per C of the reward-vs-C study (default "
+                   f"{defaults.study_seeds})")  # fmt: skip
+    p.add_argument("--study-seconds", type=positive_float, default=defaults.study_seconds,
+                   help=f"episode length of the reward-vs-C study, s (default "
+                   f"{defaults.study_seconds:g})")  # fmt: skip
     p.add_argument("--rl-benchmarks", type=_names(BENCHMARKS), default=defaults.rl_benchmarks,
                    help="benchmarks of the RL baselines (default CrossSwim-v0)")  # fmt: skip
-    p.add_argument("--rl-algos", type=_names(("ppo", "sac")), default=defaults.rl_algos)
+    p.add_argument("--rl-algos", type=_names(("ppo", "sac")), default=defaults.rl_algos,
+                   help="comma list of ppo, sac (default "
+                   f"{','.join(defaults.rl_algos)})")  # fmt: skip
     p.add_argument("--rl-steps", type=_rl_steps, default=defaults.rl_steps,
                    help="env steps per RL method and basis: N, or per method ppo=N,sac=N "
                    "(default 20000)")  # fmt: skip
@@ -138,7 +161,8 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    help="MPC setting overrides, e.g. horizon=8,knots=2,samples=4")  # fmt: skip
     p.add_argument("--timeout", type=parse_duration, default=defaults.timeout_s,
                    help="per-evaluation limit (default 30m)")  # fmt: skip
-    p.add_argument("--out", type=Path, default=Path("runs/reproduce"))
+    p.add_argument("--out", type=Path, default=Path("runs/reproduce"),
+                   help="the reproduction's directory (default runs/reproduce)")  # fmt: skip
     p.add_argument("--report-only", action="store_true",
                    help="rewrite tables, figures and REPORT.md from the runs in --out")  # fmt: skip
     p.add_argument("--report", type=Path, metavar="PATH",
@@ -148,7 +172,7 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    help="print what each part of the reproduction in --out has done and the "
                    "budget left (every stage of the stored plan; --stages and budgets given "
                    "here override it), and exit")  # fmt: skip
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
 

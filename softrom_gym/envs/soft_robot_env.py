@@ -126,7 +126,8 @@ class SoftRobotEnv(gym.Env):
     ``R = sum over sub-steps of d · v_com · dt`` (metres; the paper's R). ``info`` holds the
     terms of the regulariser Λ separately: ``orientation`` (|rotation vector|, rad),
     ``lateral`` (motion orthogonal to d in the ground plane this step, m) and ``effort``
-    (|f_c / a|^2), plus ``distance`` (along d since reset, m), ``com`` and ``diverged``.
+    (|f_c / a|^2), plus ``distance`` (along d since reset, m), ``com``, ``diverged`` and
+    ``contact`` (the model's contact setting: "staggered", "penalty" or "none").
 
     ## Starting State
     The robot at rest (on the ground for walking), with deformation velocities drawn
@@ -432,7 +433,8 @@ class SoftRobotEnv(gym.Env):
             f_c per env step (each held for ``frame_skip`` simulation steps), clipped to the
             action bound, then rounded to float32.
         threads : int, optional
-            C++ worker threads (default: all cores). Results do not depend on it.
+            C++ worker threads (default: the CPUs this process may run on, its affinity).
+            Results do not depend on it.
         observe : (P, M + 6) array, optional
             Linear observables of q_r to return after every env step (``observed``).
 

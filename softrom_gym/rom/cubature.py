@@ -123,6 +123,10 @@ def train_cubature(
 
     Parameters
     ----------
+    robot : Robot
+        The robot whose elastic forces the rule approximates.
+    subspace : Subspace
+        Its B_r (:func:`~softrom_gym.rom.build_subspace`): the rule fits B_r^T f(X + B_r q).
     num_poses : int
         Training poses (see :func:`sample_poses`).
     tolerance : float
@@ -133,6 +137,8 @@ def train_cubature(
         Seed of the pose sampler; the rule is deterministic for a given seed.
     cache : bool or path
         As in :func:`~softrom_gym.rom.build_subspace`.
+    verbose : bool
+        Print what is being computed and how long it took.
     """
     if num_poses < 1:
         raise ValueError(f"num_poses must be >= 1, got {num_poses}")

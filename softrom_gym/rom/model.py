@@ -46,6 +46,11 @@ def build_reduced_model(
         B_c; the actuation is f_r = B_c f_c on the deformation coordinates.
     subspace, cubature : optional
         Prebuilt B_r and cubature rule (otherwise built, and cached on disk).
+    cache : bool or path
+        Where B_r and the cubature rule are cached: as in
+        :func:`~softrom_gym.rom.build_subspace`.
+    verbose : bool
+        Print what is being computed and how long it took.
     **settings
         Any :class:`cpp_sim.ReducedModel` setting: ``dt`` (default 1/200 s), ``gravity``,
         ``contact`` ("staggered", "penalty", "none"), ``friction`` (mu, default 0.8),
