@@ -200,6 +200,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="comma list of identity, best (of --run) or PATH.npy (default "
                      "identity)")  # fmt: skip
     bas.add_argument("--run", type=Path, metavar="DIR", help="RBBO run directory (for best)")
+    bas.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                     type=_env_kwarg,
+                     help="a gym.make keyword for the env, repeatable, as optimize's "
+                     "(with --run: the run's keywords are used; these must agree)")  # fmt: skip
     bas.add_argument("--out", type=Path, help="output directory (default runs/baselines-<env>)")
     bas.add_argument("--eval-seeds", type=_positive_int, default=5,
                      help="evaluation episodes (default 5)")  # fmt: skip
@@ -612,6 +616,7 @@ def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> 
 
 def cmd_baselines(args) -> int:
     from . import rl
+    from .objective import _check_env_keywords
 
     env_id = _resolve_env(args.env_id, synthetic=False)
     algos = [a.strip().lower() for a in args.algo.split(",")]
@@ -626,6 +631,18 @@ def cmd_baselines(args) -> int:
         rl.require_sb3()
         rl.steps_per_algo(args.steps, tuple(dict.fromkeys(algos)))
         bases, env_kwargs = rl.resolve_bases(args.control_basis.split(","), env_id, args.run)
+        given = dict(args.env_kwarg)
+        if given:
+            _check_env_keywords(env_id, given, rl.SET_BY_BASELINES)
+        for key, value in given.items():
+            if args.run is not None and env_kwargs.get(key, value) != value:
+                raise UsageError(f"--env-kwarg {key}={json.dumps(value)} differs from run "
+                                 f"{args.run}'s {key}={json.dumps(env_kwargs[key])}, the env "
+                                 "its B_c was found in")  # fmt: skip
+            if args.run is not None and key not in env_kwargs:
+                raise UsageError(f"--env-kwarg {key} was not given to run {args.run}, whose "
+                                 "B_c was found in its env as it was")  # fmt: skip
+        env_kwargs = {**env_kwargs, **given}
     out = args.out or Path("runs") / f"baselines-{env_id.split('/')[-1]}"
     try:
         rows = rl.run_baselines(

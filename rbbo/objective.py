@@ -132,12 +132,27 @@ class SimulationSpaceMismatch(ValueError):
     """The env builds another simulation space B_r than the one a run's B_c were found in."""
 
 
-def _check_env_keywords(env_id: str, kwargs: dict[str, Any]) -> None:
+# What rbbo passes to gym.make itself: an env keyword argument may not set these.
+SET_BY_RBBO = {
+    "sim_dim": "M: --sim-dim, RBBOConfig.sim_dim",
+    "control_dim": "C: --control-dim, RBBOConfig.control_dim",
+    "control_basis": "B_c: the basis being evaluated",
+}
+
+
+def _check_env_keywords(env_id: str, kwargs: dict[str, Any], set_here=SET_BY_RBBO) -> None:
     """Refuse a keyword the env's constructor does not take, naming those it does (Gymnasium's
-    own error quotes every keyword's value, the basis array too)."""
+    own error quotes every keyword's value, the basis array too), and one that rbbo sets
+    itself (``set_here``: keyword -> what it is)."""
     import inspect
 
     import gymnasium as gym
+
+    clash = [k for k in set_here if k in kwargs]
+    if clash:
+        raise ValueError(f"env keyword {clash[0]!r} is set by rbbo itself "
+                         f"({set_here[clash[0]]}); {', '.join(set_here)} cannot be given as "
+                         "env keywords")  # fmt: skip
 
     entry = gym.spec(env_id).entry_point
     try:

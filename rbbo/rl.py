@@ -160,7 +160,8 @@ def evaluate_policy(model, env, seeds, seconds: float, settle_time: float) -> li
     """Distance (m) from ``settle_time`` to ``seconds`` of the deterministic policy, per seed.
 
     ``model`` has SB3's ``predict``; ``env`` is the [-1, 1]-rescaled env it acts in. An episode
-    that diverges keeps its distance so far (the robot stops where it was).
+    that diverges keeps its distance so far (the robot stops where it was): one that ends
+    before ``settle_time`` scores 0, as R of an MPC episode does (no reward after the end).
     """
     dt = float(env.get_wrapper_attr("dt"))
     steps, settle = max(1, round(seconds / dt)), round(settle_time / dt)
@@ -174,6 +175,8 @@ def evaluate_policy(model, env, seeds, seconds: float, settle_time: float) -> li
             start = info["distance"] if t == settle else start
             if terminated or truncated:
                 break
+        if math.isnan(start):  # ended before the settle time: no distance after it
+            start = info["distance"]
         out.append(float(info["distance"] - start))
     return out
 
@@ -186,6 +189,15 @@ def _torch_threads(n: int) -> int:
     old = torch.get_num_threads()
     torch.set_num_threads(n)
     return old
+
+
+# What _make_env passes to gym.make itself (rbbo baselines' --env-kwarg may not set these).
+SET_BY_BASELINES = {
+    "sim_dim": "M: the basis's rows",
+    "control_dim": "C: the basis's columns",
+    "control_basis": "B_c: --control-basis",
+    "orthonormalize": "True: a .npy basis is orthonormalised",
+}
 
 
 def _make_env(env_id: str, basis: np.ndarray, env_kwargs: dict, rescale: bool, **extra):

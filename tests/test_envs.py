@@ -204,6 +204,27 @@ def test_bad_input_errors():
     robot = env.unwrapped.robot
     with pytest.raises(ValueError, match="resolution = 5 applies to a robot name or a mesh path"):
         gym.make("softrom_gym/SoftRobot-v0", robot=robot, resolution=5)
+    # a wrong type is named, not read as a number or truth value
+    for kwargs, message in (
+        ({"action_scale": "1"}, "action_scale must be a real number, got '1'"),
+        ({"action_scale": None}, "action_scale must be a real number, got None"),
+        ({"reset_noise_scale": True}, "reset_noise_scale must be a real number, got True"),
+        ({"orthonormalize": "yes"}, "orthonormalize must be True or False, got 'yes'"),
+        ({"material": 5}, "material must be a dict of youngs_modulus, poisson_ratio and density"),
+    ):
+        with pytest.raises(TypeError, match=message):
+            gym.make("softrom_gym/BeamWalk-v0", **kwargs)
+    with pytest.raises(ValueError, match="direction must be an angle in radians or a non-zero"):
+        gym.make("softrom_gym/BeamWalk-v0", direction="north")
+    # the other task's settings do nothing, but a bad value is named all the same
+    with pytest.raises(ValueError, match="friction must be a finite number >= 0, got -1"):
+        gym.make("softrom_gym/CrossSwim-v0", friction=-1.0)
+    with pytest.raises(ValueError, match="contact must be one of 'staggered', 'penalty', 'none'"):
+        gym.make("softrom_gym/CrossSwim-v0", contact="bogus")
+    with pytest.raises(ValueError, match="fluid_density must be a finite number >= 0, got -1"):
+        gym.make("softrom_gym/BeamWalk-v0", fluid_density=-1.0)
+    # env steps of a second or more still give a video writer a frame rate it can take
+    assert gym.make("softrom_gym/BeamWalk-v0", dt=0.5).unwrapped.metadata["render_fps"] == 1
 
 
 def test_vector_env_equals_single_envs():

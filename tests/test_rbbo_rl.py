@@ -134,6 +134,8 @@ def test_parallel_jobs_give_the_sequential_results(tmp_path, capsys):
         (["--steps", "ppo=0,sac=5"], "--steps"),
         (["--algo", "ppo", "--steps", "sac=500"], "ppo"),
         (["--workers", "0"], "--workers"),
+        (["--env-kwarg", "sim_dim=10"], "env keyword 'sim_dim' is set by rbbo itself"),
+        (["--env-kwarg", "colour=3"], "takes no keyword 'colour'"),
     ],
 )
 def test_bad_arguments(args, message, capsys, tmp_path):
@@ -181,6 +183,24 @@ def test_resolve_bases(tmp_path):
         rl.resolve_bases([str(tmp_path / "flat.npy")], ENV)
 
 
+def test_env_kwargs_reach_the_env_and_agree_with_the_run(tmp_path, capsys, monkeypatch):
+    seen = {}
+    monkeypatch.setattr(rl, "run_baselines", lambda *a, **k: seen.update(k) or [])
+    args = ["baselines", ENV, "--no-mpc", "--out", str(tmp_path / "b"), "--env-kwarg"]
+    assert main([*args, "frame_skip=4"]) == 0
+    assert seen["env_kwargs"] == {"frame_skip": 4}
+    run = tmp_path / "run"
+    RunStore.create(run, {"rbbo": {"sim_dim": 8, "control_dim": 2},
+                          "objective": {"kind": "env", "env_id": ENV,
+                                        "env_kwargs": {"frame_skip": 4}}})  # fmt: skip
+    assert main([*args, "frame_skip=4", "--run", str(run)]) == 0  # the run's own: agrees
+    capsys.readouterr()
+    assert main([*args, "frame_skip=3", "--run", str(run)]) == 2
+    assert "--env-kwarg frame_skip=3 differs from run" in capsys.readouterr().err
+    assert main([*args, "dt=0.01", "--run", str(run)]) == 2
+    assert "--env-kwarg dt was not given to run" in capsys.readouterr().err
+
+
 def test_baselines_do_not_offer_the_synthetic_objective(capsys, tmp_path):
     assert main(["baselines", "synthetic", "--out", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err
@@ -216,3 +236,19 @@ def test_an_interrupt_stops_parallel_jobs_instead_of_waiting_for_them():
     finally:
         timer.cancel()
     assert time.monotonic() - start < 60.0  # the jobs alone take 120 s
+
+
+class _FullThrottle:
+    """A policy that always pushes every control to the top of its range."""
+
+    def predict(self, obs, deterministic=True):
+        return np.ones(3, dtype=np.float32), None
+
+
+def test_an_episode_that_diverges_before_the_settle_time_scores_zero():
+    # An action scale of 1000 body weights blows the beam up within the first 0.5 s.
+    env = rl._make_env("softrom_gym/BeamWalk-v0", np.eye(20)[:, :3], {"action_scale": 1000}, True)
+    early = rl.evaluate_policy(_FullThrottle(), env, [0, 1], seconds=2.0, settle_time=0.5)
+    assert early == [0.0, 0.0]
+    from_start = rl.evaluate_policy(_FullThrottle(), env, [0], seconds=2.0, settle_time=0.0)
+    assert np.isfinite(from_start[0]) and from_start[0] != 0.0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -20,8 +21,22 @@ TASKS = ("walk", "swim")
 G = 9.81
 
 
+def _real(name: str, value: object) -> float:
+    """``value`` as a float; a bool, a string or None is named, not read as a number."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(
+        value, (int, float, np.integer, np.floating)
+    ):
+        raise TypeError(f"{name} must be a real number, got {value!r}")
+    return float(value)
+
+
 def _direction(direction: float | np.ndarray) -> np.ndarray:
-    d = np.asarray(direction, dtype=float)
+    try:
+        d = np.asarray(direction, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"direction must be an angle in radians or a non-zero 2-vector, got {direction!r}"
+        ) from None
     if d.ndim == 0:
         if not np.isfinite(d):
             raise ValueError(f"direction angle must be finite, got {direction!r}")
@@ -104,7 +119,9 @@ class SoftRobotEnv(gym.Env):
     modal force equivalent of the robot's weight: a prototype found no net motion below about
     0.75 body weight and hopping artefacts of linear modes above about 2. Actions beyond the
     bound are clipped. RL libraries that prefer [-1, 1] can wrap the env in
-    ``gymnasium.wrappers.RescaleAction(env, -1.0, 1.0)``.
+    ``gymnasium.wrappers.RescaleAction(env, -one, one)`` with
+    ``one = np.ones(C, dtype=np.float32)`` (float32 bounds, as the box's: Python floats make
+    the wrapper warn that it casts them).
 
     ## Observation Space
     ``Box(-inf, inf, (10 + 2 M,), float32)``:
@@ -131,7 +148,8 @@ class SoftRobotEnv(gym.Env):
 
     ## Starting State
     The robot at rest (on the ground for walking), with deformation velocities drawn
-    uniformly in ±``reset_noise_scale`` · sqrt(m) · 0.01 m/s from ``np_random``.
+    uniformly in ±``reset_noise_scale`` · sqrt(m) · 0.01 m/s from ``np_random``. ``reset``
+    takes no ``options`` (any given are ignored): to start elsewhere, ``set_state``.
 
     ## Episode End
     Terminated when the simulation diverges (``info["diverged"] = True``; reset() makes the
@@ -199,10 +217,19 @@ class SoftRobotEnv(gym.Env):
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if control_dim > sim_dim:
             raise ValueError(f"control_dim = {control_dim} exceeds sim_dim = {sim_dim}")
+        action_scale = _real("action_scale", action_scale)
+        reset_noise_scale = _real("reset_noise_scale", reset_noise_scale)
         if not (np.isfinite(action_scale) and action_scale > 0):
             raise ValueError(f"action_scale must be > 0, got {action_scale}")
         if not (np.isfinite(reset_noise_scale) and reset_noise_scale >= 0):
             raise ValueError(f"reset_noise_scale must be finite and >= 0, got {reset_noise_scale}")
+        if not isinstance(orthonormalize, (bool, np.bool_)):
+            raise TypeError(f"orthonormalize must be True or False, got {orthonormalize!r}")
+        if material is not None and not isinstance(material, Mapping):
+            raise TypeError(
+                "material must be a dict of youngs_modulus, poisson_ratio and density, got "
+                f"{material!r}"
+            )
         self.render_mode = render_mode
         self.task = task
         self.frame_skip = int(frame_skip)
@@ -210,12 +237,21 @@ class SoftRobotEnv(gym.Env):
         self.direction = _direction(direction)
         self.control_basis = _control_basis(control_basis, sim_dim, control_dim, orthonormalize)
 
-        self.subspace = build_subspace(self.robot, sim_dim)
         settings: dict[str, Any] = {"dt": dt, "direction": self.direction}
+        swim = {"fluid_density": fluid_density}
+        walk = {"contact": contact, "friction": friction}
         if task == "swim":
-            settings.update(contact="none", gravity=[0.0, 0.0, 0.0], fluid_density=fluid_density)
+            settings.update(contact="none", gravity=[0.0, 0.0, 0.0], **swim)
         else:
-            settings.update(contact=contact, friction=friction)
+            settings.update(walk)
+        # Checked before B_r and the cubature are built (minutes for a new robot), the other
+        # task's settings too: they do nothing here (a swimmer has no ground, a walker no
+        # fluid), but a bad value is named rather than silently accepted.
+        check = cpp_sim.ReducedConfig()
+        for name, value in {**settings, **walk, **swim}.items():
+            setattr(check, name, value)
+
+        self.subspace = build_subspace(self.robot, sim_dim)
         self.model = build_reduced_model(
             self.robot, sim_dim, subspace=self.subspace, control_basis=self.control_basis,
             **settings,
@@ -237,7 +273,9 @@ class SoftRobotEnv(gym.Env):
         self.reset_noise_scale = float(reset_noise_scale)
         self._state = self.model.rest_state()
         self._com0 = self.model.com(self._state.q)
-        self.metadata = {**self.metadata, "render_fps": round(1.0 / (dt * self.frame_skip))}
+        # At least 1: a video writer cannot take 0 frames per second (env steps of 1 s or more).
+        fps = max(1, round(1.0 / (self.model.dt * self.frame_skip)))
+        self.metadata = {**self.metadata, "render_fps": fps}
         self._renderer = None
 
     def render(self) -> np.ndarray | None:
