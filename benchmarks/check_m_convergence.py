@@ -97,7 +97,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
                    help="force models (exact, every tetrahedron, is slow at large M)")  # fmt: skip
     p.add_argument("--full-space", action="store_true",
                    help="also run the three best gaits in the full space (FullSpaceModel, "
-                        "walkers only; about a minute per simulated 10 s on the beam)")  # fmt: skip
+                        "walkers only; slow: the beam's three took 21 min on 2 shared "
+                        "cores)")  # fmt: skip
     args = p.parse_args(argv)
     gaits = gait_grid(3, tuple(args.frequencies), tuple(args.amplitudes))
     rows = []
