@@ -41,6 +41,12 @@ class UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # A negative duration ("--budget -5m") is read as a value, so that the option's own
+        # check names it, not taken for an unknown option ("expected one argument").
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([hms][\d.hms]*)?$")
+
     def error(self, message: str):  # one line, not argparse's usage block
         raise UsageError(message)
 
@@ -48,6 +54,8 @@ class _Parser(argparse.ArgumentParser):
 def parse_duration(text: str) -> float:
     """'30m', '2h', '1h30m', '45s' or a plain number of seconds -> seconds."""
     text = str(text).strip().lower()
+    if text.startswith("-"):
+        raise argparse.ArgumentTypeError(f"duration must be positive, got {text!r}")
     try:
         seconds = float(text)
     except ValueError:

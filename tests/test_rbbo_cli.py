@@ -157,6 +157,8 @@ def _error(capsys, argv):
         ([], "the following arguments are required: command"),
         (["optimize", "synthetic", "--budget", "5q"], "invalid duration '5q'"),
         (["optimize", "synthetic", "--budget", "0m"], "duration must be positive"),
+        (["optimize", "synthetic", "--budget", "-5m"], "duration must be positive, got '-5m'"),
+        (["reproduce", "--timeout", "-1h30m"], "duration must be positive, got '-1h30m'"),
         (["optimize", "synthetic", "--control-dim", "25"], "--control-dim 25 exceeds --sim-dim 20"),
         (["optimize", "synthetic", "--workers", "0"], "expected a positive integer, got '0'"),
         (["optimize", "synthetic", "--fidelity", "mf"], "invalid choice: 'mf'"),
