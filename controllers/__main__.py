@@ -2,7 +2,8 @@
 
 Runs one closed-loop episode with the benchmark's defaults (:mod:`controllers.defaults`)
 and prints a one-line summary: distance between t = 2 s and the end (m and body lengths),
-the task reward R, Λ's terms, and the wall time per replan.
+the task reward R, the mean tilt |theta|, the sideways path length, the mean effort, and the
+wall time per replan.
 """
 
 from __future__ import annotations
@@ -19,11 +20,16 @@ from .defaults import DEFAULTS, PLANNERS, default_planner
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m controllers", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(
+        prog="python -m controllers", description=__doc__.split("\n")[0].replace("``", "")
+    )
     p.add_argument("env_id", help=f"a benchmark id: {', '.join(sorted(DEFAULTS))}")
-    p.add_argument("--planner", choices=sorted(PLANNERS), default="mppi")
-    p.add_argument("--seconds", type=float, default=10.0)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--planner", choices=sorted(PLANNERS), default="mppi",
+                   help="the MPC planner (default mppi)")  # fmt: skip
+    p.add_argument("--seconds", type=float, default=10.0,
+                   help="simulated time of the episode, s (default 10)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0,
+                   help="seeds the env's reset and the planner (default 0)")  # fmt: skip
     p.add_argument(
         "--control-basis",
         type=Path,
@@ -44,6 +50,15 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not (math.isfinite(args.seconds) and args.seconds > 0):
         parser.error(f"--seconds must be a positive number, got {args.seconds}")
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")
+    if args.video is not None:
+        from .episode import _check_video_path
+
+        try:
+            _check_video_path(args.video)
+        except ValueError as exc:
+            parser.error(str(exc))
     import gymnasium as gym
 
     import softrom_gym  # noqa: F401  (registers the envs)

@@ -108,6 +108,16 @@ def evaluate(
     """
     com = out["com"]
     b, h, _ = com.shape
+    controls = np.asarray(controls)
+    if controls.ndim != 3 or controls.shape[:2] != (b, h):
+        raise ValueError(f"controls has shape {controls.shape}, expected ({b}, {h}, C): one "
+                         "control per step of the rollout")  # fmt: skip
+    if np.abs(controls).max(initial=0.0) > 1.0 + 1e-12:
+        raise ValueError("controls must be in units of the action bound, within [-1, 1]; got "
+                         f"|u| up to {np.abs(controls).max():.3g}")  # fmt: skip
+    if window is not None and (isinstance(window, bool) or not isinstance(window, (int, np.integer))
+                               or window < 1):  # fmt: skip
+        raise ValueError(f"window must be an integer >= 1 or None, got {window!r}")
     rel = com - np.asarray(start_com)[None, None, :]
     along = rel @ direction
     if window is None or window >= h:
@@ -122,7 +132,7 @@ def evaluate(
         [
             np.sqrt(weights.orientation * dt) * out["theta"].reshape(b, -1),
             np.sqrt(weights.lateral * dt) * (rel @ side),
-            np.sqrt(weights.effort * dt) * np.asarray(controls).reshape(b, -1),
+            np.sqrt(weights.effort * dt) * controls.reshape(b, -1),
         ],
         axis=1,
     )

@@ -122,8 +122,23 @@ def default_settings(env_id: str, planner: str) -> tuple[PlannerSettings, int]:
 
 def default_planner(env_id: str, planner: str, **changes: Any) -> tuple[Planner, int]:
     """A planner with the benchmark's defaults (``changes`` override settings) and its replan
-    interval."""
+    interval.
+
+    Times (horizon, period, window, the replan interval) are env steps of the benchmarks'
+    40 Hz control period: an env made with another ``frame_skip`` or ``dt`` needs them scaled.
+    Rollouts run on 2 threads (the benchmarks' machines have 2 cores, and ``rbbo`` runs one
+    planner per worker process): ``threads=None`` uses every CPU of this process's affinity.
+    """
     settings, replan_every = default_settings(env_id, planner)
+    if (
+        "horizon" in changes
+        and "window" not in changes
+        and settings.window is not None
+        and changes["horizon"] < settings.window
+    ):
+        raise ValueError(f"horizon = {changes['horizon']!r} is shorter than this benchmark's "
+                         f"window ({settings.window} env steps, over which R is counted): give "
+                         "window too (None: the whole horizon)")  # fmt: skip
     if changes:
         settings = settings.replace(**changes)
     return PLANNERS[planner][0](settings), replan_every

@@ -101,7 +101,9 @@ def run_episode(
     Parameters
     ----------
     env : gymnasium.Env
-        A softrom env (wrapped or not); ``render_mode="rgb_array"`` for a video.
+        A softrom env, wrapped or not, but in no action wrapper other than ``ClipAction``
+        (the planners' actions are f_c in the robot's units, which ``RescaleAction`` would
+        scale again); ``render_mode="rgb_array"`` for a video.
     planner : Planner
     seconds : float
         Simulated time; the episode stops early if the simulation diverges or the env's
@@ -128,7 +130,9 @@ def run_episode(
     if video is not None and getattr(env, "render_mode", None) != "rgb_array":
         raise ValueError("video needs an env made with render_mode='rgb_array'")
     if video is not None:
-        _imageio()  # before the episode, not after it
+        _check_video_path(video)  # before the episode, not after it
+        _imageio()
+    _check_physical_actions(env)
     api = EnvAPI(env)
     steps = max(1, round(seconds / api.dt))
     env.reset(seed=seed)
@@ -188,6 +192,36 @@ def run_episode(
         stop_reason=stop,
         seed_gait=getattr(planner, "seed_", {}).get("gait"),
     )
+
+
+def _check_physical_actions(env: Any) -> None:
+    """The planners return f_c in the robot's own units; an action wrapper (RescaleAction to
+    [-1, 1], or one of the user's) would transform them again. ClipAction only clips to the
+    robot's box, as the env itself does, so it may stay."""
+    import gymnasium as gym
+
+    layer = env
+    while isinstance(layer, gym.Wrapper):
+        if isinstance(layer, gym.ActionWrapper) and not isinstance(layer, gym.wrappers.ClipAction):
+            raise ValueError(
+                f"the env is wrapped in {type(layer).__name__}, an action wrapper: it would "
+                "transform the planner's actions, which are already f_c in the robot's units "
+                f"(its box {env.unwrapped.action_space}); run the episode on the env without it"
+            )
+        layer = layer.env
+
+
+_VIDEO_SUFFIXES = {".mp4", ".m4v", ".mov", ".mkv", ".avi", ".webm", ".gif"}
+
+
+def _check_video_path(video: str | os.PathLike) -> None:
+    path = Path(video)
+    if path.suffix.lower() not in _VIDEO_SUFFIXES:
+        raise ValueError(f"video {os.fspath(video)!r}: the file name must end in one of "
+                         f"{', '.join(sorted(_VIDEO_SUFFIXES))}")  # fmt: skip
+    if not path.parent.is_dir():
+        raise ValueError(f"video {os.fspath(video)!r}: the folder {os.fspath(path.parent)!r} "
+                         "does not exist")  # fmt: skip
 
 
 def _progress(total: int, enabled: bool, name: str):

@@ -42,6 +42,21 @@ def _check_positive(name: str, value: Any, allow_zero: bool = False) -> None:
         raise ValueError(f"{name} must be a finite number {bound}, got {value!r}")
 
 
+def _real_tuple(settings: Any, name: str) -> np.ndarray:
+    """Settings field ``name``, a sequence of numbers, stored as a tuple (the settings stay
+    hashable, as a frozen dataclass's should) and returned as an array; anything else named."""
+    value = getattr(settings, name)
+    try:
+        numbers = tuple(float(v) for v in value if not isinstance(v, (bool, str)))
+        ok = len(numbers) == len(value)
+    except TypeError:
+        ok = False
+    if not ok:
+        raise ValueError(f"{name} must be a sequence of numbers, got {value!r}")
+    object.__setattr__(settings, name, numbers)
+    return np.asarray(numbers)
+
+
 @dataclass(frozen=True)
 class PlannerSettings:
     """Settings shared by the planners (times in env steps of the control period dt).
@@ -68,7 +83,8 @@ class PlannerSettings:
     seed_amplitudes : tuple of float
         Fractions of the bound tried by the gait seed.
     seed_horizon : int or None
-        Steps over which seeds are scored (None: the horizon).
+        Steps from the reset state over which seeds are scored (None: the horizon); R counts
+        the last ``window`` of them, as in a replan.
     threads : int or None
         C++ rollout threads (None: the CPUs this process may run on, its affinity).
         Results do not depend on it.
@@ -102,10 +118,12 @@ class PlannerSettings:
                 raise ValueError(f"window = {self.window} exceeds the horizon ({self.horizon})")
         if not isinstance(self.weights, CostWeights):
             raise TypeError(f"weights must be a CostWeights, got {type(self.weights).__name__}")
+        if not isinstance(self.gait_seed, (bool, np.bool_)):
+            raise TypeError(f"gait_seed must be True or False, got {self.gait_seed!r}")
         if self.gait_seed and self.period is None:
             raise ValueError("gait_seed needs a periodic plan: set period (env steps per cycle)")
-        amps = np.asarray(self.seed_amplitudes, dtype=float)
-        if amps.ndim != 1 or amps.size == 0 or not np.all(np.isfinite(amps) & (amps > 0)):
+        amps = _real_tuple(self, "seed_amplitudes")
+        if amps.size == 0 or not np.all(np.isfinite(amps) & (amps > 0)):
             raise ValueError(
                 f"seed_amplitudes must be positive numbers, got {self.seed_amplitudes}"
             )
@@ -140,7 +158,7 @@ class EnvAPI:
             except AttributeError:
                 raise TypeError(
                     f"env has no {name!r}: planners need a softrom_gym env (get_state, "
-                    "set_state, rollout, action_bound)"
+                    "rollout, action_bound, dt, direction, center_of_mass)"
                 ) from None
         self.get_state = get("get_state")
         self.rollout = get("rollout")
@@ -159,7 +177,9 @@ class Planner(ABC):
     After :meth:`plan`, ``last_`` holds the replan's record: ``objective_start`` (J of the
     warm-started plan), ``objective_best`` (Gauss-Newton: J of the plan it adopts; MPPI: J
     of its best sample, since the weighted mean it adopts is not rolled out, which would cost
-    another rollout), ``rollouts`` and ``wall_s``.
+    another rollout), ``rollouts`` and ``wall_s``; MPPI adds ``effective_samples`` (1 / sum
+    of the squared weights), Gauss-Newton ``objectives`` (J before and after each iteration),
+    ``accepted`` ("step", "explore" or "none" per iteration) and ``damping`` (mu after them).
     """
 
     name = "planner"

@@ -24,6 +24,7 @@ from controllers import (
     run_episode,
 )
 from controllers.__main__ import main as cli_main
+from controllers.cost import evaluate
 
 
 def small_env(task="walk", **kwargs):
@@ -194,6 +195,32 @@ def test_a_video_without_imageio_fails_before_the_episode(tmp_path, monkeypatch)
     assert planner.plan_ is None  # refused before the episode started
 
 
+def test_a_bad_video_path_fails_before_the_episode(tmp_path):
+    env = small_env("walk", render_mode="rgb_array")
+    planner = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
+    with pytest.raises(ValueError, match="the folder .*nodir' does not exist"):
+        run_episode(env, planner, 0.1, seed=0, progress=False, video=tmp_path / "nodir/a.mp4")
+    with pytest.raises(ValueError, match="the file name must end in one of .avi"):
+        run_episode(env, planner, 0.1, seed=0, progress=False, video=tmp_path / "a.xyz")
+    assert planner.plan_ is None
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["BeamWalk-v0", "--video", str(tmp_path / "nodir/a.mp4")])
+    assert exc.value.code == 2
+
+
+def test_an_action_wrapper_that_rescales_is_refused():
+    # The planners act in the robot's units; RescaleAction would scale their actions again
+    # (every action ended up clipped to the bound, with no error).
+    env = small_env("walk")
+    one = np.ones(env.action_space.shape, dtype=np.float32)
+    wrapped = gym.wrappers.RescaleAction(env, -one, one)
+    planner = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
+    with pytest.raises(ValueError, match="wrapped in RescaleAction, an action wrapper"):
+        run_episode(wrapped, planner, 0.1, seed=0, progress=False)
+    clipped = gym.wrappers.ClipAction(env)  # the same box: allowed
+    assert run_episode(clipped, planner, 0.05, seed=0, progress=False).stop_reason == "time"
+
+
 def test_stop_reason_tells_a_finished_episode_from_a_time_limit():
     env = small_env("walk", max_episode_steps=4)
     p = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
@@ -220,6 +247,11 @@ def test_damping_after_a_rejected_step_is_ten_times_the_largest_tried(walker, mo
     gn.plan(walker)
     assert gn.last_["accepted"] == ["none"]
     assert gn.damping_ == pytest.approx(0.5 * 100.0 * 10.0)
+    # A long run of rejections (a minute of quadruped walking) must not overflow mu to inf
+    # and the knots to NaN: mu stops at a cap, far past where the step is nil.
+    gn.damping_ = 1e149
+    gn.plan(walker)
+    assert gn.damping_ == 1e150 and np.all(np.isfinite(gn.plan_.knots))
 
 
 def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
@@ -251,6 +283,8 @@ def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
         (MPPISettings, {"noise": -0.1}, "noise must be a finite number >= 0, got -0.1"),
         (GaussNewtonSettings, {"fd_step": 0.0}, "fd_step must be a finite number > 0, got 0.0"),
         (GaussNewtonSettings, {"line_search": ()}, r"line_search must be positive numbers"),
+        (GaussNewtonSettings, {"line_search": [1, "x"]}, r"line_search must be a sequence of"),
+        (PlannerSettings, {"seed_amplitudes": "ab"}, "seed_amplitudes must be a sequence of"),
     ],
 )
 def test_invalid_settings_raise_value_errors_naming_the_value(cls, kwargs, message):
@@ -285,6 +319,34 @@ def test_invalid_weights_and_inputs_raise_clear_errors(walker):
         default_planner("CrossWalk-v0", "ilqr")
     with pytest.raises(TypeError, match="planners need a softrom_gym env"):
         MPPI().reset(gym.make("CartPole-v1"))
+    with pytest.raises(TypeError, match="gait_seed must be True or False, got 'no'"):
+        PlannerSettings(gait_seed="no", period=10)
+    # lists are stored as tuples: the frozen settings stay hashable
+    settings = GaussNewtonSettings(line_search=[1, 10], seed_amplitudes=np.array([0.5]))
+    assert settings.line_search == (1.0, 10.0) and settings.seed_amplitudes == (0.5,)
+    assert hash(settings) == hash(GaussNewtonSettings(line_search=(1, 10), seed_amplitudes=[0.5]))
+    # a shorter horizon than the benchmark's scoring window says so (window was not given)
+    with pytest.raises(ValueError, match=r"horizon = 10 is shorter than this benchmark's window"):
+        default_planner("CrossSwim-v0", "mppi", horizon=10)
+    assert (
+        default_planner("CrossSwim-v0", "mppi", horizon=10, window=None)[0].settings.window is None
+    )
+
+
+def test_evaluate_checks_what_it_is_given(walker):
+    planner = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
+    planner.reset(walker, seed=0)
+    state = walker.get_wrapper_attr("get_state")()
+    bound = walker.get_wrapper_attr("action_bound")
+    out = walker.get_wrapper_attr("rollout")(state, np.zeros((2, 4, 3)))
+    args = (state.q[:3], np.array([1.0, 0.0, 0.0]), 0.025, CostWeights())
+    assert evaluate(out, np.zeros((2, 4, 3)), *args).objective.shape == (2,)
+    with pytest.raises(ValueError, match=r"controls has shape \(2, 3, 3\), expected \(2, 4, C\)"):
+        evaluate(out, np.zeros((2, 3, 3)), *args)
+    with pytest.raises(ValueError, match="units of the action bound, within"):
+        evaluate(out, np.full((2, 4, 3), bound), *args)
+    with pytest.raises(ValueError, match="window must be an integer >= 1 or None, got -3"):
+        evaluate(out, np.zeros((2, 4, 3)), *args, window=-3)
 
 
 def test_defaults_are_valid_for_every_benchmark():
