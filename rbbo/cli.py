@@ -240,8 +240,21 @@ def _bad_input():
     """Errors raised while validating the user's input are usage errors (exit status 2)."""
     try:
         yield
-    except (ValueError, TypeError, ImportError) as exc:
+    except (ValueError, TypeError, ImportError, FileNotFoundError) as exc:
         raise UsageError(str(exc)) from exc
+
+
+def _env_kwargs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """--env-kwarg pairs as a dict; a value naming an existing file (a robot's mesh) is
+    stored as an absolute path, so the run resumes from any working directory."""
+    import os
+
+    out = {}
+    for key, value in pairs:
+        if isinstance(value, str) and os.path.isfile(os.path.expanduser(value)):
+            value = os.path.abspath(os.path.expanduser(value))
+        out[key] = value
+    return out
 
 
 def _env_kwarg(text: str) -> tuple[str, Any]:
@@ -390,7 +403,7 @@ def cmd_optimize(args) -> int:
         _check_controllers()
         spec.update(controller=args.controller, settle_time=args.settle_time)
         if args.env_kwarg:
-            spec["env_kwargs"] = dict(args.env_kwarg)
+            spec["env_kwargs"] = _env_kwargs(args.env_kwarg)
         problem["env_id"] = spec["env_id"]
     elif args.env_kwarg:
         raise UsageError("--env-kwarg is for an env, not the synthetic objective")
@@ -639,7 +652,7 @@ def cmd_baselines(args) -> int:
         rl.require_sb3()
         rl.steps_per_algo(args.steps, tuple(dict.fromkeys(algos)))
         bases, env_kwargs = rl.resolve_bases(args.control_basis.split(","), env_id, args.run)
-        given = dict(args.env_kwarg)
+        given = _env_kwargs(args.env_kwarg)
         if given:
             _check_env_keywords(env_id, given, rl.SET_BY_BASELINES)
         for key, value in given.items():

@@ -260,11 +260,14 @@ class EnvObjective:
         scale = float(np.abs(rec).max()) or 1.0
         bad = np.flatnonzero(np.abs(cur - rec) > 1e-6 * scale)
         if bad.size:
+            which = (f"all {rec.size} of its coordinates differ from" if bad.size == rec.size
+                     else f"coordinates {bad.tolist()} differ from")  # fmt: skip
             raise SimulationSpaceMismatch(
-                f"{self.env_id} at M = {self.sim_dim} builds a simulation space B_r whose "
-                f"coordinates {bad.tolist()} differ from those this run's B_c were found in "
-                "(another softrom version or mesh): its bases would mean other actuations. "
-                "Carry them over (benchmarks/migrate_run_bases.py) or start a new run."
+                f"{self.env_id} at M = {self.sim_dim} builds a simulation space B_r where "
+                f"{which} those this run's B_c were found in (the robot's mesh or material "
+                "changed since, or another softrom version built it): its bases would mean "
+                "other actuations. Carry them over (benchmarks/migrate_run_bases.py) or start "
+                "a new run."
             )
 
     def make_env(self, basis: np.ndarray, **extra):

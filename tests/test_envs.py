@@ -345,3 +345,39 @@ def test_record_video_wrapper_writes_a_video(tmp_path):
     env.close()
     videos = list((tmp_path / "videos").glob("*.mp4"))
     assert len(videos) == 1 and videos[0].stat().st_size > 1000
+
+
+def test_a_mesh_of_your_own_by_path_trimesh_or_scale(tmp_path):
+    import trimesh
+
+    box = trimesh.creation.box((200.0, 100.0, 50.0))  # millimetres
+    path = tmp_path / "box_mm.stl"
+    box.export(path)
+    env = gym.make("softrom_gym/SoftRobot-v0", robot=str(path), scale=0.001, resolution=4)
+    assert env.unwrapped.body_length == pytest.approx(0.2)
+    same = gym.make("softrom_gym/SoftRobot-v0", robot=box, scale=0.001, resolution=4)
+    np.testing.assert_array_equal(same.unwrapped.robot.nodes, env.unwrapped.robot.nodes)
+    with pytest.raises(ValueError, match="scale = 0.001 applies to a mesh"):
+        gym.make("softrom_gym/SoftRobot-v0", robot="beam", scale=0.001)
+    (tmp_path / "noext").write_bytes(path.read_bytes())
+    with pytest.raises(ValueError, match="is a file without an extension"):
+        gym.make("softrom_gym/SoftRobot-v0", robot=str(tmp_path / "noext"))
+    with pytest.raises(ValueError, match="is a directory, not a mesh file"):
+        gym.make("softrom_gym/SoftRobot-v0", robot=str(tmp_path))
+
+
+def test_reset_noise_is_a_fraction_of_a_small_robot_s_length():
+    import trimesh
+
+    def noise(size):
+        env = gym.make("softrom_gym/SoftRobot-v0", robot=trimesh.creation.box((size,) * 3),
+                       task="swim", resolution=3, sim_dim=6).unwrapped  # fmt: skip
+        env.reset(seed=0)
+        return env.get_state().qdot[6:] / np.sqrt(env.robot.mass), env.body_length
+
+    # The same draws, scaled: 0.01 m/s from 10 cm up, 10 % of a body length per second below
+    # (0.01 m/s on a 1 mm robot had drifted it 1.44 body lengths a second).
+    big, small = noise(0.2), noise(0.02)
+    np.testing.assert_allclose(noise(0.5)[0], big[0], rtol=1e-12)
+    np.testing.assert_allclose(small[0], big[0] * small[1] / 0.1, rtol=1e-12)
+    assert 0.005 < np.abs(big[0]).max() <= 0.01

@@ -21,6 +21,14 @@ TASKS = ("walk", "swim")
 G = 9.81
 
 
+def _is_trimesh(value: object) -> bool:
+    # trimesh is imported on use (a second at start-up): a Trimesh exists only if it was.
+    import sys
+
+    module = sys.modules.get("trimesh")
+    return module is not None and isinstance(value, module.Trimesh)
+
+
 def _real(name: str, value: object) -> float:
     """``value`` as a float; a bool, a string or None is named, not read as a number."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(
@@ -148,7 +156,8 @@ class SoftRobotEnv(gym.Env):
 
     ## Starting State
     The robot at rest (on the ground for walking), with deformation velocities drawn
-    uniformly in ±``reset_noise_scale`` · sqrt(m) · 0.01 m/s from ``np_random``. ``reset``
+    uniformly in ±``reset_noise_scale`` · sqrt(m) · 0.01 m/s from ``np_random`` (for a robot
+    shorter than 10 cm, 0.01 m/s becomes 10 % of its body length per second). ``reset``
     takes no ``options`` (any given are ignored): to start elsewhere, ``set_state``.
 
     ## Episode End
@@ -157,7 +166,8 @@ class SoftRobotEnv(gym.Env):
     = 10 s for the registered ids).
 
     ## Arguments
-    ``robot`` (name in :data:`softrom_gym.robots.ROBOTS`, a mesh path, or a Robot), ``task``
+    ``robot`` (name in :data:`softrom_gym.robots.ROBOTS`, a mesh path in metres, a
+    trimesh.Trimesh, or a Robot), ``task``
     ("walk" or "swim"), ``direction`` (angle in radians or 2-vector), ``control_dim`` C
     (default 3, or the columns of ``control_basis``), ``sim_dim`` M (default 20, or the rows
     of ``control_basis``), ``control_basis`` B_c (M x C, orthonormal to 1e-8; default: the
@@ -166,7 +176,8 @@ class SoftRobotEnv(gym.Env):
     ``dt``, ``action_scale``, ``friction`` (mu), ``contact`` ("staggered", "penalty" or
     "none"),
     ``fluid_density`` (swim), ``material`` (dict of youngs_modulus / poisson_ratio /
-    density), ``resolution`` (mesh resolution), ``reset_noise_scale``, ``render_mode``.
+    density), ``resolution`` (mesh resolution), ``scale`` (multiplies a mesh's coordinates:
+    0.001 for one in millimetres), ``reset_noise_scale``, ``render_mode``.
 
     ## For model-predictive control
     ``get_state()`` / ``set_state(state)`` copy the full simulation state, and
@@ -200,6 +211,7 @@ class SoftRobotEnv(gym.Env):
         fluid_density: float = 1000.0,
         material: dict[str, float] | None = None,
         resolution: int | None = None,
+        scale: float | None = None,
         reset_noise_scale: float = 1.0,
         render_mode: str | None = None,
     ) -> None:
@@ -233,7 +245,7 @@ class SoftRobotEnv(gym.Env):
         self.render_mode = render_mode
         self.task = task
         self.frame_skip = int(frame_skip)
-        self.robot = self._make_robot(robot, material or {}, resolution)
+        self.robot = self._make_robot(robot, material or {}, resolution, scale)
         self.direction = _direction(direction)
         self.control_basis = _control_basis(control_basis, sim_dim, control_dim, orthonormalize)
 
@@ -298,13 +310,24 @@ class SoftRobotEnv(gym.Env):
         )  # fmt: skip
 
     @staticmethod
-    def _make_robot(robot, material: dict[str, float], resolution: int | None) -> Robot:
+    def _make_robot(
+        robot, material: dict[str, float], resolution: int | None, scale: float | None
+    ) -> Robot:
         unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
         if unknown:
             raise ValueError(f"unknown material parameter(s) {sorted(unknown)}")
         kwargs: dict[str, Any] = dict(material)
         if resolution is not None:
             kwargs["resolution"] = resolution
+        is_mesh = _is_trimesh(robot) or (
+            isinstance(robot, (str, os.PathLike))
+            and not (isinstance(robot, str) and robot in ROBOTS)
+        )
+        if scale is not None:
+            if not is_mesh:
+                raise ValueError(f"scale = {scale!r} applies to a mesh (a file path or a "
+                                 "trimesh.Trimesh), not to a named or meshed robot")  # fmt: skip
+            kwargs["scale"] = scale
         if isinstance(robot, Robot):
             if resolution is not None:
                 raise ValueError(
@@ -318,11 +341,19 @@ class SoftRobotEnv(gym.Env):
             return robot
         if isinstance(robot, str) and robot in ROBOTS:
             return ROBOTS[robot](**kwargs)
-        if isinstance(robot, (str, os.PathLike)) and os.path.splitext(str(robot))[1]:
+        if _is_trimesh(robot):
             return from_mesh(robot, **kwargs)
+        if isinstance(robot, (str, os.PathLike)):
+            path = os.path.expanduser(os.fspath(robot))
+            if os.path.splitext(path)[1] or os.path.isdir(path):
+                return from_mesh(path, **kwargs)  # (which names a missing file or a folder)
+            if os.path.exists(path):
+                raise ValueError(f"robot {os.fspath(robot)!r} is a file without an "
+                                 "extension: name it .stl, .obj, .ply, ... so its format "
+                                 "is known")  # fmt: skip
         raise ValueError(
             f"unknown robot {robot!r}; valid robots: {sorted(ROBOTS)}, a mesh file path "
-            "(STL/OBJ/PLY), or a softrom_gym.robots.Robot"
+            "(STL/OBJ/PLY), a trimesh.Trimesh, or a softrom_gym.robots.Robot"
         )
 
     # ---------------------------------------------------------------- observations
@@ -356,7 +387,10 @@ class SoftRobotEnv(gym.Env):
         super().reset(seed=seed)
         rest = self.model.rest_state()
         qdot = rest.qdot
-        noise = self.reset_noise_scale * 0.01 * self._sqrt_m
+        # 0.01 m/s, or 10 % of a body length per second for robots under 10 cm (every
+        # benchmark is longer): on a 1 mm robot 0.01 m/s alone drifts 1.4 body lengths a second.
+        speed = 0.01 * min(1.0, self.body_length / 0.1)
+        noise = self.reset_noise_scale * speed * self._sqrt_m
         qdot[6:] = self.np_random.uniform(-noise, noise, size=qdot.size - 6)
         self._state = cpp_sim.ReducedState(rest.q, qdot, rest.impulses)
         self._com0 = self.model.com(self._state.q)
@@ -498,10 +532,9 @@ class SoftRobotEnv(gym.Env):
             raise TypeError(f"state must be a ReducedState (env.get_state()) or a list of B "
                             f"of them, got {type(state).__name__}")  # fmt: skip
         u = np.asarray(controls, dtype=np.float64)
-        if u.ndim != 3 or u.shape[2] != self.action_space.shape[0]:
-            raise ValueError(
-                f"controls has shape {u.shape}, expected (B, H, {self.action_space.shape[0]})"
-            )
+        if u.ndim != 3 or u.shape[2] != self.action_space.shape[0] or 0 in u.shape[:2]:
+            raise ValueError(f"controls has shape {u.shape}, expected (B, H, "
+                             f"{self.action_space.shape[0]}) with B, H >= 1")  # fmt: skip
         if not np.all(np.isfinite(u)):
             raise ValueError("controls contains non-finite values")
         # The same rounding as a float32 action through step(): a plan replays bit for bit.

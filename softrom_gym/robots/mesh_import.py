@@ -23,9 +23,11 @@ def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, s
     if isinstance(mesh, trimesh.Trimesh):
         return mesh, "mesh"
     if isinstance(mesh, (str, os.PathLike)):
-        path = os.fspath(mesh)
+        path = os.path.expanduser(os.fspath(mesh))
         if not os.path.exists(path):
             raise FileNotFoundError(f"mesh file {path!r} does not exist")
+        if os.path.isdir(path):
+            raise ValueError(f"{path!r} is a directory, not a mesh file")
         try:
             loaded = trimesh.load(path, force="mesh")
         except NotImplementedError:  # trimesh's word for a format it has no loader for
@@ -37,6 +39,24 @@ def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, s
             raise ValueError(f"{path!r} holds no triangle mesh")
         return loaded, os.path.splitext(os.path.basename(path))[0]
     raise TypeError(f"mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
+
+
+def _solid_bodies(surface: trimesh.Trimesh) -> int:
+    """The number of closed shells enclosing material (a shell facing inwards, a cavity, is
+    not one); refuses shells that overlap, whose inside the voxeliser cannot tell."""
+    shells = surface.split(only_watertight=False)
+    solids = [s for s in shells if s.volume > 0]
+    boxes = np.array([s.bounds for s in solids])
+    for i in range(len(solids)):
+        for j in range(i + 1, len(solids)):
+            if np.all(boxes[i, 0] < boxes[j, 1]) and np.all(boxes[j, 0] < boxes[i, 1]):
+                raise ValueError(
+                    f"the mesh has {len(solids)} closed shells, and two of them overlap (their "
+                    "bounding boxes intersect): inside-outside is undefined where they do, so "
+                    "union them into one watertight surface first (e.g. in Blender, or "
+                    "trimesh.boolean.union with the manifold3d engine)"
+                )
+    return max(1, len(solids))
 
 
 def from_mesh(
@@ -70,7 +90,11 @@ def from_mesh(
     Raises
     ------
     ValueError
-        If the mesh is not watertight, or the resolution is too coarse to fill any voxel.
+        If the mesh is not watertight, has closed shells that overlap (not unioned), or the
+        resolution is too coarse to fill any voxel.
+
+    Warns when the robot is shorter than 5 mm or longer than 5 m (a model in millimetres read
+    as metres), and when separate bodies are dropped or joined.
     """
     import trimesh
 
@@ -79,8 +103,18 @@ def from_mesh(
         raise TypeError(f"resolution must be an integer, got {resolution!r}")
     if resolution < 2:
         raise ValueError(f"resolution must be >= 2 voxels along the longest side, got {resolution}")
+    if isinstance(scale, (bool, np.bool_)) or not isinstance(
+        scale, (int, float, np.integer, np.floating)
+    ):
+        raise TypeError(f"scale must be a real number, got {scale!r}")
     if not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"scale must be > 0, got {scale}")
+    degenerate = ~surface.nondegenerate_faces()
+    if degenerate.any():
+        # Zero-area triangles carry no geometry but leave the edge count odd (not watertight).
+        surface = surface.copy()
+        surface.update_faces(~degenerate)
+        surface.remove_unreferenced_vertices()
     if not surface.is_watertight:
         open_edges = len(trimesh.grouping.group_rows(surface.edges_sorted, require_count=1))
         raise ValueError(
@@ -90,6 +124,14 @@ def from_mesh(
     unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
     if unknown:
         raise TypeError(f"unknown material parameter(s) {sorted(unknown)}")
+    bodies = _solid_bodies(surface)
+    length = float(np.ptp(surface.bounds, axis=0).max()) * scale
+    if not 0.005 <= length <= 5.0:
+        warnings.warn(
+            f"the robot is {length:.3g} m long: units are metres after scale (a model in "
+            "millimetres needs scale=0.001)",
+            stacklevel=2,
+        )
 
     lo, hi = surface.bounds
     pitch = float((hi - lo).max()) / int(resolution)
@@ -106,9 +148,19 @@ def from_mesh(
     kept = largest_component(occ)
     dropped = int(occ.sum() - kept.sum())
     if dropped:
+        why = (f"the mesh has {bodies} separate bodies" if bodies > 1
+               else "raise resolution to keep thin parts")  # fmt: skip
         warnings.warn(
             f"from_mesh kept the largest connected piece and dropped {dropped} of "
-            f"{int(occ.sum())} voxels; raise resolution to keep thin parts",
+            f"{int(occ.sum())} voxels: {why}",
+            stacklevel=2,
+        )
+    elif bodies > 1:
+        warnings.warn(
+            f"the mesh has {bodies} separate bodies but its voxels form one piece: bodies "
+            f"closer together than a voxel ({pitch * scale:.3g} m) were joined, or one too "
+            "thin to fill a voxel was left out; raise resolution to keep them apart (the "
+            "largest is then kept)",
             stacklevel=2,
         )
     nodes, tets = voxels_to_tets(kept, pitch * scale, origin * scale)

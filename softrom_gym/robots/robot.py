@@ -57,6 +57,19 @@ class Robot:
         tets.flags.writeable = False
         object.__setattr__(self, "nodes", nodes)
         object.__setattr__(self, "tets", tets)
+        for name in ("youngs_modulus", "poisson_ratio", "density"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(
+                value, (int, float, np.integer, np.floating)
+            ):
+                raise TypeError(f"{name} must be a real number, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        for name in ("youngs_modulus", "density"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        if not -1.0 < self.poisson_ratio < 0.5:
+            raise ValueError(f"poisson_ratio must lie in (-1, 0.5), got {self.poisson_ratio!r}")
 
     @property
     def num_nodes(self) -> int:
