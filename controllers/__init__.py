@@ -10,7 +10,14 @@ Planners use only the env's public MPC API (``get_state``, ``rollout``, ``action
 """
 
 from .cost import CostWeights, Evaluation, evaluate
-from .defaults import DEFAULTS, default_planner, default_settings, has_defaults, planner_for
+from .defaults import (
+    DEFAULTS,
+    GENERIC,
+    default_planner,
+    default_settings,
+    has_defaults,
+    planner_for,
+)
 from .episode import EpisodeResult, run_episode
 from .gaits import SinusoidGait, gait_grid, phase_orders
 from .gauss_newton import GaussNewtonSettings, GaussNewtonShooting
@@ -20,6 +27,7 @@ from .spline import SplinePlan
 
 __all__ = [
     "DEFAULTS",
+    "GENERIC",
     "MPPI",
     "CostWeights",
     "EpisodeResult",

@@ -9,21 +9,39 @@ wall time per replan.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .defaults import DEFAULTS, PLANNERS, default_planner
+from .defaults import DEFAULTS, PLANNERS, planner_for
+
+
+def _env_kwarg(text: str) -> tuple[str, Any]:
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, KEY a keyword name; got {text!r}")
+    try:
+        return key, json.loads(value)
+    except ValueError:
+        return key, value
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m controllers", description=__doc__.split("\n")[0].replace("``", "")
     )
-    p.add_argument("env_id", help=f"a benchmark id: {', '.join(sorted(DEFAULTS))}")
+    p.add_argument("env_id", help=f"a benchmark ({', '.join(sorted(DEFAULTS))}: tuned "
+                   "defaults) or another softrom env, e.g. SoftRobot-v0 with --env-kwarg "
+                   "robot=my_robot.stl (the shared defaults around a 2 Hz gait)")  # fmt: skip
+    p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                   type=_env_kwarg,
+                   help="a gym.make keyword, repeatable; VALUE is read as JSON, else as a "
+                   "string (e.g. --env-kwarg robot=my_robot.stl, task=swim)")  # fmt: skip
     p.add_argument("--planner", choices=sorted(PLANNERS), default="mppi",
                    help="the MPC planner (default mppi)")  # fmt: skip
     p.add_argument("--seconds", type=float, default=10.0,
@@ -66,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     from .episode import run_episode
 
     env_id = args.env_id if "/" in args.env_id else f"softrom_gym/{args.env_id}"
-    kwargs = {}
+    kwargs: dict[str, Any] = dict(args.env_kwarg)
     if args.control_basis is not None:
         try:
             b_c = np.load(args.control_basis)
@@ -87,9 +105,9 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("--samples applies to --planner mppi only")
         if "horizon" in changes:
             changes["window"] = None
-        planner, replan_every = default_planner(env_id, args.planner, **changes)
+        planner, replan_every = planner_for(env_id, args.planner, **changes)
         env = gym.make(env_id, **kwargs)
-    except (ValueError, TypeError, gym.error.Error) as exc:
+    except (ValueError, TypeError, FileNotFoundError, gym.error.Error) as exc:
         parser.error(str(exc))
     if args.replan_every is not None:
         if args.replan_every < 1:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, is_dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -130,6 +130,10 @@ class SyntheticObjective:
 
 class SimulationSpaceMismatch(ValueError):
     """The env builds another simulation space B_r than the one a run's B_c were found in."""
+
+
+class PlannerMismatch(ValueError):
+    """The controllers build another planner than the one a run's evaluations used."""
 
 
 # What rbbo passes to gym.make itself: an env keyword argument may not set these.
@@ -300,8 +304,8 @@ class EnvObjective:
         """The MPC planner and its replan interval (env steps).
 
         ``controllers.planner_for(env_id, controller, **planner_kwargs)``: the benchmark's
-        tuned settings where the controllers have them for this env, else the planner's
-        library settings, replanning every step.
+        tuned settings where the controllers have them for this env, else the shared
+        defaults around a 2 Hz gait (``controllers.GENERIC``), replanning every cycle.
         """
         import controllers
 
@@ -357,8 +361,43 @@ class EnvObjective:
             "settle_time": self.settle_time,
             "env_kwargs": self.env_kwargs,
             "planner_kwargs": self.planner_kwargs,
+            "planner": self.planner_record(),
             **({} if signature is None else {"simulation_space": signature}),
         }
+
+    def planner_record(self) -> dict[str, Any]:
+        """The planner's resolved settings and replan interval, as JSON: what a run records,
+        so that a change of the controllers' defaults cannot change a resumed run's objective
+        unseen. (Threads are left out: results do not depend on them.)"""
+        import json
+
+        planner, every = self.planner()
+        settings = getattr(planner, "settings", None)
+        if is_dataclass(settings) and not isinstance(settings, type):
+            settings = {k: v for k, v in asdict(settings).items() if k != "threads"}
+        else:  # a planner of the user's own without dataclass settings: its name only
+            settings = None
+        name = getattr(planner, "name", type(planner).__name__)
+        return json.loads(json.dumps({"name": name, "replan_every": every,
+                                      "settings": settings}, default=repr))  # fmt: skip
+
+    def expect_planner(self, recorded: dict[str, Any] | None) -> None:
+        """Raise :class:`PlannerMismatch` unless the planner is the one a run recorded (None
+        skips the check, for runs made before it was recorded)."""
+        if recorded is None:
+            return
+        current = self.planner_record()
+        if current != recorded:
+            old, new = recorded.get("settings") or {}, current["settings"] or {}
+            changed = sorted(k for k in {*old, *new} if old.get(k) != new.get(k))
+            if recorded.get("replan_every") != current["replan_every"]:
+                changed.append("replan_every")
+            raise PlannerMismatch(
+                f"{self.env_id}'s {self.controller} planner is not the one this run's "
+                f"evaluations used (changed: {', '.join(changed) or 'the planner'}; this "
+                "softrom's controllers defaults differ from the run's): its R would be another "
+                "objective. Start a new run, or resume with the softrom version that made it."
+            )
 
 
 def settled_reward_rate(result, step_seconds: float, settle_time: float, seconds: float) -> float:
@@ -418,7 +457,9 @@ def make_objective(spec: dict[str, Any], sim_dim: int, control_dim: int, **kwarg
         return SyntheticObjective(sim_dim, control_dim, **{**kwargs, **spec})
     if kind == "env":
         recorded = spec.pop("simulation_space", None)
+        planner = spec.pop("planner", None)
         objective = EnvObjective(sim_dim=sim_dim, control_dim=control_dim, **{**kwargs, **spec})
         objective.expect_simulation_space(recorded)
+        objective.expect_planner(planner)
         return objective
     raise ValueError(f"unknown objective kind {kind!r}; valid: ['synthetic', 'env']")

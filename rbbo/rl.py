@@ -405,7 +405,7 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
     k = int(env.get_wrapper_attr("frame_skip"))
     dist, physics, wall = [], [], []
     for s in seeds:
-        # not a benchmark: MPPI's library settings, as rbbo's EnvObjective
+        # not a benchmark: the shared 2 Hz defaults (controllers.GENERIC), as EnvObjective
         changes = {} if threads is None else {"threads": threads}
         planner, every = controllers.planner_for(env_id, "mppi", **changes)
         env.physics_steps, t0 = 0, time.perf_counter()

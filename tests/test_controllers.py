@@ -375,14 +375,26 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
         assert f"--seconds must be a positive number, got {float(bad[1])}" in err
 
 
+def test_cli_runs_a_robot_of_your_own(capsys):
+    args = ["SoftRobot-v0", "--env-kwarg", "robot=beam", "--env-kwarg", "sim_dim=6",
+            "--seconds", "0.05", "--horizon", "4", "--no-progress"]  # fmt: skip
+    assert cli_main(args) == 0
+    assert capsys.readouterr().out.startswith("SoftRobot-v0 mppi: 0.05 s")
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["SoftRobot-v0", "--env-kwarg", "robot=missing.stl"])
+    assert exc.value.code == 2
+    assert "mesh file 'missing.stl' does not exist" in capsys.readouterr().err
+
+
 def test_planner_for_uses_tuned_defaults_only_where_they_exist():
     tuned, every = planner_for("softrom_gym/CrossWalk-v0", "mppi", threads=1)
     settings, tuned_every = default_settings("softrom_gym/CrossWalk-v0", "mppi")
     assert every == tuned_every and tuned.settings == settings.replace(threads=1)
-    # a robot of one's own: library settings with the changes, replanning every step
+    # a robot of one's own: the shared defaults around a 2 Hz gait, replanning every cycle
     own, every = planner_for("softrom_gym/SoftRobot-v0", "gn", threads=1)
-    assert isinstance(own, GaussNewtonShooting) and every == 1
-    assert own.settings == GaussNewtonSettings(threads=1)
+    assert isinstance(own, GaussNewtonShooting) and every == 20
+    assert own.settings.period == 20 and own.settings.gait_seed and own.settings.threads == 1
+    assert own.settings.explore == default_settings("CrossWalk-v0", "gn")[0].explore
     assert has_defaults("CrossSwim-v0") and not has_defaults("SoftRobot-v0")
     with pytest.raises(ValueError, match="unknown planner 'ilqr'"):
         planner_for("softrom_gym/SoftRobot-v0", "ilqr")

@@ -102,6 +102,7 @@ def test_optimize_an_env_with_mpc(tmp_path, capsys, monkeypatch):
     assert config["objective"] == {
         "kind": "env", "env_id": "rbbo_test/StandIn-v0", "sim_dim": 6, "control_dim": 2,
         "controller": "mppi", "settle_time": 2.0, "env_kwargs": {}, "planner_kwargs": {},
+        "planner": {"name": "MPPI", "replan_every": 1, "settings": None},  # the stand-in's
     }  # fmt: skip
     # R is 0.1 B_c[0, 0] per 0.025 s step after settling: 4 B_c[0, 0] per second
     for record in _history(run):

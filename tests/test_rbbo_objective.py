@@ -193,3 +193,20 @@ def test_a_run_is_never_replayed_in_another_simulation_space():
     with pytest.raises(SimulationSpaceMismatch, match="no simulation space like"):
         objective.expect_simulation_space(recorded[:-1])
     objective.expect_simulation_space(None)  # a run from before the fingerprint: no check
+
+
+def test_a_run_is_never_resumed_with_another_planner():
+    """A run records its planner's resolved settings: when the controllers' defaults change
+    (as a robot of your own's did, from the library settings to controllers.GENERIC), the
+    run's objective would change with them, so it is refused by name."""
+    from rbbo.objective import EnvObjective, PlannerMismatch, make_objective
+
+    spec = EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, env_kwargs={"robot": "beam"}).spec()
+    assert spec["planner"]["name"] == "mppi" and spec["planner"]["replan_every"] == 20
+    assert "threads" not in spec["planner"]["settings"]  # results do not depend on it
+    make_objective(spec, 6, 2)  # the same planner: accepted
+    old = {**spec["planner"], "replan_every": 1,
+           "settings": {**spec["planner"]["settings"], "period": None}}  # fmt: skip
+    with pytest.raises(PlannerMismatch, match=r"changed: period, replan_every"):
+        make_objective({**spec, "planner": old}, 6, 2)
+    make_objective({k: v for k, v in spec.items() if k != "planner"}, 6, 2)  # an older run

@@ -101,10 +101,13 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
                                         f"{getattr(config, name)!r}")  # fmt: skip
         stored_spec = dict(opt.objective_spec)
         recorded = stored_spec.pop("simulation_space", None)
-        spec = {k: v for k, v in objective.spec().items() if k != "simulation_space"}
+        planner = stored_spec.pop("planner", None)
+        recorded_apart = ("simulation_space", "planner")  # checked on their own below
+        spec = {k: v for k, v in objective.spec().items() if k not in recorded_apart}
         if stored_spec != spec:
             raise RunDirectoryError(f"{path} optimises another objective: {opt.objective_spec}")
         objective.expect_simulation_space(recorded)
+        objective.expect_planner(planner)
     else:
         problem = {"env_id": objective.env_id, "N": objective.node_count()}
         execution = {"executor": plan.executor, "workers": plan.workers,
