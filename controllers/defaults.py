@@ -131,18 +131,23 @@ def default_planner(env_id: str, planner: str, **changes: Any) -> tuple[Planner,
     planner per worker process): ``threads=None`` uses every CPU of this process's affinity.
     """
     settings, replan_every = default_settings(env_id, planner)
+    return PLANNERS[planner][0](_changed(settings, changes)), replan_every
+
+
+def _changed(settings: PlannerSettings, changes: dict[str, Any]) -> PlannerSettings:
+    """``settings`` with ``changes``; a horizon shorter than the default window (which the
+    user did not set) is named as such, not as "window exceeds the horizon"."""
+    horizon = changes.get("horizon")
     if (
-        "horizon" in changes
-        and "window" not in changes
+        "window" not in changes
+        and isinstance(horizon, int)
         and settings.window is not None
-        and changes["horizon"] < settings.window
+        and horizon < settings.window
     ):
-        raise ValueError(f"horizon = {changes['horizon']!r} is shorter than this benchmark's "
-                         f"window ({settings.window} env steps, over which R is counted): give "
+        raise ValueError(f"horizon = {horizon!r} is shorter than the default window "
+                         f"({settings.window} env steps, over which R is counted): give "
                          "window too (None: the whole horizon)")  # fmt: skip
-    if changes:
-        settings = settings.replace(**changes)
-    return PLANNERS[planner][0](settings), replan_every
+    return settings.replace(**changes) if changes else settings
 
 
 def has_defaults(env_id: str) -> bool:
@@ -177,4 +182,4 @@ def planner_for(env_id: str, planner: str, **changes: Any) -> tuple[Planner, int
     replan_every = row.pop("replan_every")
     cls, settings_cls = PLANNERS[planner]
     settings = settings_cls(**{**_COMMON, **row}, **_PLANNER[planner], weights=_WEIGHTS)
-    return cls(settings.replace(**changes)), replan_every
+    return cls(_changed(settings, changes)), replan_every

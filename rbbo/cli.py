@@ -245,14 +245,15 @@ def _bad_input():
 
 
 def _env_kwargs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    """--env-kwarg pairs as a dict; a value naming an existing file (a robot's mesh) is
-    stored as an absolute path, so the run resumes from any working directory."""
+    """--env-kwarg pairs as a dict; ``robot=`` naming an existing mesh file is stored as an
+    absolute path, so the run resumes from any working directory."""
     import os
 
     out = {}
     for key, value in pairs:
-        if isinstance(value, str) and os.path.isfile(os.path.expanduser(value)):
-            value = os.path.abspath(os.path.expanduser(value))
+        path = os.path.expanduser(value) if key == "robot" and isinstance(value, str) else ""
+        if os.path.splitext(path)[1] and os.path.isfile(path):  # a mesh file, not a name
+            value = os.path.abspath(path)
         out[key] = value
     return out
 

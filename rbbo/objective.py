@@ -382,9 +382,20 @@ class EnvObjective:
                                       "settings": settings}, default=repr))  # fmt: skip
 
     def expect_planner(self, recorded: dict[str, Any] | None) -> None:
-        """Raise :class:`PlannerMismatch` unless the planner is the one a run recorded (None
-        skips the check, for runs made before it was recorded)."""
+        """Raise :class:`PlannerMismatch` unless the planner is the one a run recorded. A run
+        from before the record (None) passes on a benchmark, whose tuned defaults are those it
+        ran with; elsewhere the defaults changed with the record (controllers.GENERIC)."""
         if recorded is None:
+            import controllers
+
+            if not controllers.has_defaults(self.env_id):
+                raise PlannerMismatch(
+                    f"this run on {self.env_id} predates the planner record, and a robot "
+                    "without tuned defaults has been planned with other settings since "
+                    "(controllers.GENERIC, not the library settings replanning every step): "
+                    "its R would be another objective. Start a new run, or resume with the "
+                    "softrom version that made it."
+                )
             return
         current = self.planner_record()
         if current != recorded:

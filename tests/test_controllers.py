@@ -326,7 +326,7 @@ def test_invalid_weights_and_inputs_raise_clear_errors(walker):
     assert settings.line_search == (1.0, 10.0) and settings.seed_amplitudes == (0.5,)
     assert hash(settings) == hash(GaussNewtonSettings(line_search=(1, 10), seed_amplitudes=[0.5]))
     # a shorter horizon than the benchmark's scoring window says so (window was not given)
-    with pytest.raises(ValueError, match=r"horizon = 10 is shorter than this benchmark's window"):
+    with pytest.raises(ValueError, match=r"horizon = 10 is shorter than the default window"):
         default_planner("CrossSwim-v0", "mppi", horizon=10)
     assert (
         default_planner("CrossSwim-v0", "mppi", horizon=10, window=None)[0].settings.window is None

@@ -209,4 +209,8 @@ def test_a_run_is_never_resumed_with_another_planner():
            "settings": {**spec["planner"]["settings"], "period": None}}  # fmt: skip
     with pytest.raises(PlannerMismatch, match=r"changed: period, replan_every"):
         make_objective({**spec, "planner": old}, 6, 2)
-    make_objective({k: v for k, v in spec.items() if k != "planner"}, 6, 2)  # an older run
+    older = {k: v for k, v in spec.items() if k != "planner"}  # a run from before the record
+    with pytest.raises(PlannerMismatch, match="predates the planner record"):
+        make_objective(older, 6, 2)  # a robot of your own: its defaults changed since
+    beam = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2).spec()
+    make_objective({k: v for k, v in beam.items() if k != "planner"}, 6, 2)  # a benchmark: same

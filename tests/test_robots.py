@@ -126,8 +126,13 @@ def test_from_mesh_refuses_overlapping_shells():
     # where they overlap (the ray test came out differently from call to call: 0.12-0.26 kg
     # for a 0.875 kg cross).
     bars = [trimesh.creation.box((0.2, 0.05, 0.05)), trimesh.creation.box((0.05, 0.2, 0.05))]
-    with pytest.raises(ValueError, match="two of them overlap"):
+    with pytest.raises(ValueError, match="some overlap .a voxel centre lies inside two of them"):
         from_mesh(trimesh.util.concatenate(bars), 10)
+    # separate shells whose bounding boxes meet (diagonally placed) do not overlap
+    spheres = [trimesh.creation.icosphere(3, 0.1), trimesh.creation.icosphere(3, 0.08)]
+    spheres[1].apply_translation((0.15, 0.15, 0.0))
+    with pytest.warns(UserWarning, match="the mesh has 2 separate bodies"):
+        from_mesh(trimesh.util.concatenate(spheres), 20)
     # a cavity (an inner shell facing inwards) is not an overlap: a hollow box
     inner = trimesh.creation.box((0.1, 0.1, 0.1))
     inner.invert()

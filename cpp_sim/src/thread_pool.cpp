@@ -98,7 +98,15 @@ void ThreadPool::run(int threads, int n, const std::function<void(int)>& fn,
         // Not under the pool's lock: the poll may wait for the GIL, and workers finishing
         // meanwhile need the lock to say so.
         lock.unlock();
-        (*poll)();
+        try {
+          (*poll)();
+        } catch (...) {
+          // As a task's exception: the others stop at their next task and it is rethrown
+          // below, once none of them still runs fn (which lives in the caller's frame).
+          std::lock_guard<std::mutex> error_lock(mutex_);
+          if (!error_) error_ = std::current_exception();
+          next_.store(n_);
+        }
         lock.lock();
       }
     }

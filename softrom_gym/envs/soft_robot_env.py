@@ -31,6 +31,8 @@ def _is_trimesh(value: object) -> bool:
 
 def _real(name: str, value: object) -> float:
     """``value`` as a float; a bool, a string or None is named, not read as a number."""
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
     if isinstance(value, (bool, np.bool_)) or not isinstance(
         value, (int, float, np.integer, np.floating)
     ):

@@ -41,22 +41,35 @@ def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, s
     raise TypeError(f"mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
 
 
-def _solid_bodies(surface: trimesh.Trimesh) -> int:
+def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
     """The number of closed shells enclosing material (a shell facing inwards, a cavity, is
-    not one); refuses shells that overlap, whose inside the voxeliser cannot tell."""
+    not one). Refuses shells that overlap: where they do, the surface's ray test is undefined
+    (it gave another robot on each call). Overlap is tested where it matters, at the voxel
+    centres: the shells' winding number (+1 inside an outward shell, -1 inside a cavity)
+    exceeds 1 only inside two solids at once, not in a solid nested in a cavity."""
     shells = surface.split(only_watertight=False)
-    solids = [s for s in shells if s.volume > 0]
-    boxes = np.array([s.bounds for s in solids])
-    for i in range(len(solids)):
-        for j in range(i + 1, len(solids)):
-            if np.all(boxes[i, 0] < boxes[j, 1]) and np.all(boxes[j, 0] < boxes[i, 1]):
-                raise ValueError(
-                    f"the mesh has {len(solids)} closed shells, and two of them overlap (their "
-                    "bounding boxes intersect): inside-outside is undefined where they do, so "
-                    "union them into one watertight surface first (e.g. in Blender, or "
-                    "trimesh.boolean.union with the manifold3d engine)"
-                )
-    return max(1, len(solids))
+    solids = sum(s.volume > 0 for s in shells)
+    if len(shells) < 2:
+        return max(1, solids)
+    boxes = np.array([s.bounds for s in shells])  # (S, 2, 3)
+    meets = np.all(
+        (boxes[:, None, 0] < boxes[None, :, 1]) & (boxes[None, :, 0] < boxes[:, None, 1]), axis=-1
+    )
+    np.fill_diagonal(meets, False)
+    winding = np.zeros(len(centres), dtype=int)
+    for k in np.flatnonzero(meets.any(axis=1)):  # shells alone in their box cannot overlap
+        lo, hi = boxes[k]
+        near = np.flatnonzero(np.all((centres >= lo) & (centres <= hi), axis=1))
+        if near.size:
+            inside = shells[k].contains(centres[near])
+            winding[near[inside]] += 1 if shells[k].volume > 0 else -1
+    if winding.max(initial=0) > 1:
+        raise ValueError(
+            f"the mesh has {solids} closed shells, and some overlap (a voxel centre lies inside "
+            "two of them): inside-outside is undefined there, so union them into one watertight "
+            "surface first (e.g. in Blender, or trimesh.boolean.union with the manifold3d engine)"
+        )
+    return max(1, solids)
 
 
 def from_mesh(
@@ -110,11 +123,14 @@ def from_mesh(
     if not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"scale must be > 0, got {scale}")
     degenerate = ~surface.nondegenerate_faces()
-    if degenerate.any():
-        # Zero-area triangles carry no geometry but leave the edge count odd (not watertight).
-        surface = surface.copy()
-        surface.update_faces(~degenerate)
-        surface.remove_unreferenced_vertices()
+    if not surface.is_watertight and degenerate.any():
+        # Zero-area triangles carry no geometry but can leave an edge count odd; without them
+        # the surface may close. (One that is closed only with a sliver keeps it.)
+        cleaned = surface.copy()
+        cleaned.update_faces(~degenerate)
+        cleaned.remove_unreferenced_vertices()
+        if cleaned.is_watertight:
+            surface = cleaned
     if not surface.is_watertight:
         open_edges = len(trimesh.grouping.group_rows(surface.edges_sorted, require_count=1))
         raise ValueError(
@@ -124,7 +140,6 @@ def from_mesh(
     unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
     if unknown:
         raise TypeError(f"unknown material parameter(s) {sorted(unknown)}")
-    bodies = _solid_bodies(surface)
     length = float(np.ptp(surface.bounds, axis=0).max()) * scale
     if not 0.005 <= length <= 5.0:
         warnings.warn(
@@ -140,6 +155,7 @@ def from_mesh(
     origin = 0.5 * (lo + hi) - 0.5 * pitch * counts
     axes = [origin[a] + pitch * (np.arange(counts[a]) + 0.5) for a in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    bodies = _solid_bodies(surface, centres)
     occ = surface.contains(centres).reshape(counts)
     if not occ.any():
         raise ValueError(

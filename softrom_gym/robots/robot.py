@@ -59,6 +59,8 @@ class Robot:
         object.__setattr__(self, "tets", tets)
         for name in ("youngs_modulus", "poisson_ratio", "density"):
             value = getattr(self, name)
+            if isinstance(value, np.ndarray) and value.ndim == 0:  # np.float64(x)[()] and kin
+                value = value[()]
             if isinstance(value, (bool, np.bool_)) or not isinstance(
                 value, (int, float, np.integer, np.floating)
             ):
