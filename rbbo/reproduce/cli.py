@@ -158,7 +158,7 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    help="env steps per RL method and basis: N, or per method ppo=N,sac=N "
                    "(default 20000)")  # fmt: skip
     p.add_argument("--mpc", type=_settings, default={},
-                   help="MPC setting overrides, e.g. horizon=8,knots=2,samples=4")  # fmt: skip
+                   help="MPC setting overrides, e.g. horizon=8,window=8,samples=4")  # fmt: skip
     p.add_argument("--timeout", type=parse_duration, default=defaults.timeout_s,
                    help="per-evaluation limit (default 30m)")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("runs/reproduce"),
