@@ -9,7 +9,6 @@ wall time per replan.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -18,17 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from softrom_gym.registration import parse_env_kwarg
+
 from .defaults import DEFAULTS, PLANNERS, planner_for
-
-
-def _env_kwarg(text: str) -> tuple[str, Any]:
-    key, sep, value = text.partition("=")
-    if not sep or not key.isidentifier():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, KEY a keyword name; got {text!r}")
-    try:
-        return key, json.loads(value)
-    except ValueError:
-        return key, value
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -39,7 +30,7 @@ def _parser() -> argparse.ArgumentParser:
                    "defaults) or another softrom env, e.g. SoftRobot-v0 with --env-kwarg "
                    "robot=my_robot.stl (the shared defaults around a 2 Hz gait)")  # fmt: skip
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
-                   type=_env_kwarg,
+                   type=parse_env_kwarg,
                    help="a gym.make keyword, repeatable; VALUE is read as JSON, else as a "
                    "string (e.g. --env-kwarg robot=my_robot.stl, task=swim)")  # fmt: skip
     p.add_argument("--planner", choices=sorted(PLANNERS), default="mppi",

@@ -259,15 +259,11 @@ def _env_kwargs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
 
 
 def _env_kwarg(text: str) -> tuple[str, Any]:
-    """KEY=VALUE of --env-kwarg; VALUE is JSON where it parses (numbers, lists, true), else
-    the string itself (a mesh path, a robot name)."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.isidentifier():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, KEY a keyword name; got {text!r}")
-    try:
-        return key, json.loads(value)
-    except ValueError:
-        return key, value
+    """--env-kwarg KEY=VALUE (softrom_gym.registration.parse_env_kwarg), imported only when
+    the option is given: the envs take a second to import, and ``rbbo --help`` need not."""
+    from softrom_gym.registration import parse_env_kwarg
+
+    return parse_env_kwarg(text)
 
 
 def _resolve_env(env_id: str, synthetic: bool = True) -> str:

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import argparse
+import json
+from typing import Any
+
 import gymnasium as gym
 
 ENTRY_POINT = "softrom_gym.envs.soft_robot_env:SoftRobotEnv"
@@ -28,3 +32,16 @@ def register_envs() -> None:
         gym.register("softrom_gym/SoftRobot-v0", entry_point=ENTRY_POINT,
                      vector_entry_point=VECTOR_ENTRY_POINT,
                      max_episode_steps=MAX_EPISODE_STEPS)  # fmt: skip
+
+
+def parse_env_kwarg(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` of a command line's ``--env-kwarg`` (``rbbo``, ``python -m controllers``)
+    as a ``gym.make`` keyword: VALUE is JSON where it parses (numbers, lists, true, null), else
+    the string itself (a mesh path, a robot name). An argparse ``type``."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, KEY a keyword name; got {text!r}")
+    try:
+        return key, json.loads(value)
+    except ValueError:
+        return key, value

@@ -12,6 +12,7 @@ from gymnasium import spaces
 
 import cpp_sim
 
+from .._validate import real
 from ..robots import ROBOTS, Robot, from_mesh
 from ..rom import build_reduced_model, build_subspace
 
@@ -27,17 +28,6 @@ def _is_trimesh(value: object) -> bool:
 
     module = sys.modules.get("trimesh")
     return module is not None and isinstance(value, module.Trimesh)
-
-
-def _real(name: str, value: object) -> float:
-    """``value`` as a float; a bool, a string or None is named, not read as a number."""
-    if isinstance(value, np.ndarray) and value.ndim == 0:
-        value = value[()]
-    if isinstance(value, (bool, np.bool_)) or not isinstance(
-        value, (int, float, np.integer, np.floating)
-    ):
-        raise TypeError(f"{name} must be a real number, got {value!r}")
-    return float(value)
 
 
 def _direction(direction: float | np.ndarray) -> np.ndarray:
@@ -231,8 +221,8 @@ class SoftRobotEnv(gym.Env):
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if control_dim > sim_dim:
             raise ValueError(f"control_dim = {control_dim} exceeds sim_dim = {sim_dim}")
-        action_scale = _real("action_scale", action_scale)
-        reset_noise_scale = _real("reset_noise_scale", reset_noise_scale)
+        action_scale = real("action_scale", action_scale)
+        reset_noise_scale = real("reset_noise_scale", reset_noise_scale)
         if not (np.isfinite(action_scale) and action_scale > 0):
             raise ValueError(f"action_scale must be > 0, got {action_scale}")
         if not (np.isfinite(reset_noise_scale) and reset_noise_scale >= 0):

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._validate import real
 from .robot import Robot
 from .voxel import largest_component, voxels_to_tets
 
@@ -116,10 +117,7 @@ def from_mesh(
         raise TypeError(f"resolution must be an integer, got {resolution!r}")
     if resolution < 2:
         raise ValueError(f"resolution must be >= 2 voxels along the longest side, got {resolution}")
-    if isinstance(scale, (bool, np.bool_)) or not isinstance(
-        scale, (int, float, np.integer, np.floating)
-    ):
-        raise TypeError(f"scale must be a real number, got {scale!r}")
+    scale = real("scale", scale)
     if not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"scale must be > 0, got {scale}")
     degenerate = ~surface.nondegenerate_faces()

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._validate import real
 from .voxel import boundary_faces
 
 if TYPE_CHECKING:
@@ -58,14 +59,7 @@ class Robot:
         object.__setattr__(self, "nodes", nodes)
         object.__setattr__(self, "tets", tets)
         for name in ("youngs_modulus", "poisson_ratio", "density"):
-            value = getattr(self, name)
-            if isinstance(value, np.ndarray) and value.ndim == 0:  # np.float64(x)[()] and kin
-                value = value[()]
-            if isinstance(value, (bool, np.bool_)) or not isinstance(
-                value, (int, float, np.integer, np.floating)
-            ):
-                raise TypeError(f"{name} must be a real number, got {value!r}")
-            object.__setattr__(self, name, float(value))
+            object.__setattr__(self, name, real(name, getattr(self, name)))
         for name in ("youngs_modulus", "density"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
