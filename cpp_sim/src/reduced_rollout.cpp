@@ -32,10 +32,10 @@ void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>
     thread_local Workspace ws;
     ReducedState s = starts[starts.size() == 1 ? 0 : b];
     bool bad = false, converged = true;
+    const bool polls = out.interrupt && std::this_thread::get_id() == caller;
     for (int t = 0; t < horizon; ++t) {
       if (out.interrupt) {
-        if (std::this_thread::get_id() == caller &&
-            std::chrono::steady_clock::now() - last_poll >= ThreadPool::kPollInterval)
+        if (polls && std::chrono::steady_clock::now() - last_poll >= ThreadPool::kPollInterval)
           poll();
         if (stop.load(std::memory_order_relaxed)) return;
       }
