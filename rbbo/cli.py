@@ -158,7 +158,7 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--address", help="Ray cluster address (with --executor ray)")
     opt.add_argument("--timeout", type=parse_duration, default=600.0,
                      help="per-evaluation limit (default 10m)")  # fmt: skip
-    opt.add_argument("--seed", type=int, default=0,
+    opt.add_argument("--seed", type=_nonnegative_int, default=0,
                      help="seeds the initial design, the acquisition's random starts and the "
                      "MPC seeds seed, seed + 1, ... (default 0)")  # fmt: skip
     opt.add_argument("--seeds", type=_positive_int, default=1,
@@ -196,7 +196,7 @@ def _parser() -> argparse.ArgumentParser:
     rol.add_argument("run_dir", type=Path, metavar="DIR")
     rol.add_argument("--video", type=Path, help="write an mp4 of the rollout")
     rol.add_argument("--seconds", type=_positive_float, help="episode length (default T_max)")
-    rol.add_argument("--seed", type=int, default=12345,
+    rol.add_argument("--seed", type=_nonnegative_int, default=12345,
                      help="the MPC seed (default 12345)")  # fmt: skip
 
     bas = sub.add_parser("baselines", help="PPO and SAC (Stable-Baselines3) beside the MPC")
@@ -219,7 +219,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="evaluation episode length, s (default 10)")  # fmt: skip
     bas.add_argument("--settle-time", type=_nonnegative_float, default=2.0,
                      help="distance is measured from this time on, s (default 2)")  # fmt: skip
-    bas.add_argument("--seed", type=int, default=0, help="training seed")
+    bas.add_argument("--seed", type=_nonnegative_int, default=0,
+                     help="training seed (default 0)")  # fmt: skip
     bas.add_argument("--workers", type=_positive_int, default=1,
                      help="jobs (one per method and basis) at once, one process each "
                      "(default 1)")  # fmt: skip

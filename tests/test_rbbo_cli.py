@@ -173,6 +173,9 @@ def _error(capsys, argv):
             ["optimize", "synthetic", "--confirm-seeds", "-2"],
             "--confirm-seeds: expected an integer",
         ),
+        (["optimize", "synthetic", "--seed", "-3"], "--seed: expected an integer >= 0, got '-3'"),
+        (["baselines", "CrossSwim-v0", "--seed", "-1"], "--seed: expected an integer >= 0"),
+        (["rollout", "run", "--seed", "-1"], "--seed: expected an integer >= 0"),
         (["report"], "the following arguments are required: DIR"),
     ],
 )

@@ -266,6 +266,7 @@ def test_other_settings_on_an_existing_directory_are_refused(reproduction, capsy
         (["--confirm-seeds", "1"], "confirm_seeds"),
         (["--mpc", "horizon=0"], "horizon"),
         (["--t-min", "1", "--settle-time", "2"], "settle_time"),
+        (["--settle-time", "-1"], "need 0 <= settle_time"),
     ],
 )
 def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys):

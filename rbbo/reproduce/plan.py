@@ -172,8 +172,8 @@ class ReproducePlan:
         if self.iterations is not None and (not isinstance(self.iterations, int)
                                             or self.iterations < 1):  # fmt: skip
             raise ValueError(f"iterations must be an integer >= 1, got {self.iterations!r}")
-        if not self.settle_time < self.t_min < self.t_max:
-            raise ValueError(f"need settle_time < t_min < t_max, got {self.settle_time}, "
+        if not 0 <= self.settle_time < self.t_min < self.t_max:
+            raise ValueError(f"need 0 <= settle_time < t_min < t_max, got {self.settle_time}, "
                              f"{self.t_min}, {self.t_max}")  # fmt: skip
         if "transfer" in self.stages and (
             isinstance(self.transfer_sim_dim, bool) or not isinstance(self.transfer_sim_dim, int)
