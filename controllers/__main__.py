@@ -96,8 +96,10 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("--samples applies to --planner mppi only")
         if "horizon" in changes:
             changes["window"] = None
-        planner, replan_every = planner_for(env_id, args.planner, **changes)
         env = gym.make(env_id, **kwargs)
+        # the defaults' times are the same seconds at the env's control period
+        planner, replan_every = planner_for(env_id, args.planner, dt=env.get_wrapper_attr("dt"),
+                                            **changes)  # fmt: skip
     except (ValueError, TypeError, FileNotFoundError, gym.error.Error) as exc:
         parser.error(str(exc))
     if args.replan_every is not None:

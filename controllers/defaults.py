@@ -1,10 +1,13 @@
 """Per-benchmark planner defaults: one table, a reason for every value.
 
-Times are env steps of the 40 Hz control period (dt = 0.025 s): 20 steps = 0.5 s.
+Times are env steps of the 40 Hz control period (dt = 0.025 s): 20 steps = 0.5 s. An env made
+with another control period (``frame_skip`` or ``dt``) gets the same times in seconds: pass
+its ``dt`` to :func:`planner_for` or :func:`default_planner`.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from .cost import CostWeights
@@ -16,11 +19,16 @@ __all__ = [
     "DEFAULTS",
     "GENERIC",
     "PLANNERS",
+    "TUNED_DT",
     "default_planner",
     "default_settings",
     "has_defaults",
     "planner_for",
 ]
+
+# The control period (s) the times below are tuned for: the envs' default frame_skip = 5 at
+# dt = 1/200 s.
+TUNED_DT = 0.025
 
 PLANNERS = {"mppi": (MPPI, MPPISettings), "gn": (GaussNewtonShooting, GaussNewtonSettings)}
 
@@ -110,28 +118,77 @@ def _benchmark(env_id: str) -> str:
     return name
 
 
-def default_settings(env_id: str, planner: str) -> tuple[PlannerSettings, int]:
+def default_settings(
+    env_id: str, planner: str, *, dt: float | None = None
+) -> tuple[PlannerSettings, int]:
     """The default settings of ``planner`` ("mppi" or "gn") on a benchmark, and its
-    replan interval (env steps)."""
+    replan interval (env steps); ``dt`` as in :func:`default_planner`."""
     if planner not in PLANNERS:
         raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
-    row = dict(DEFAULTS[_benchmark(env_id)])
-    replan_every = row.pop("replan_every")
-    cls = PLANNERS[planner][1]
-    return cls(**{**_COMMON, **row}, **_PLANNER[planner], weights=_WEIGHTS), replan_every
+    return _settings(planner, DEFAULTS[_benchmark(env_id)], dt, {})
 
 
-def default_planner(env_id: str, planner: str, **changes: Any) -> tuple[Planner, int]:
+def _settings(
+    planner: str, row: dict[str, Any], dt: float | None, changes: dict[str, Any]
+) -> tuple[PlannerSettings, int]:
+    """The settings of ``planner`` from a table row, its times in env steps of ``dt``, and its
+    replan interval; ``changes`` (env steps of ``dt``) applied."""
+    times = _rescaled({**_COMMON, **row}, dt, changes)
+    replan_every = times.pop("replan_every")
+    settings = PLANNERS[planner][1](**times, **_PLANNER[planner], weights=_WEIGHTS)
+    return _changed(settings, changes), replan_every
+
+
+def _rescaled(row: dict[str, Any], dt: float | None, changes: dict[str, Any]) -> dict[str, Any]:
+    """``row`` with its times (env steps of :data:`TUNED_DT`) in env steps of ``dt``: the same
+    seconds, whole steps where the planner needs them."""
+    if dt is None:
+        return dict(row)
+    if (
+        isinstance(dt, bool)
+        or not isinstance(dt, (int, float))
+        or not (math.isfinite(dt) and dt > 0)
+    ):
+        raise ValueError(f"dt (the env's control period, s) must be a positive number, got {dt!r}")
+    if math.isclose(dt, TUNED_DT, rel_tol=1e-9):
+        return dict(row)
+    f = TUNED_DT / dt
+    out = dict(row, period=row["period"] * f)
+    for key in ("horizon", "seed_horizon", "replan_every"):
+        out[key] = max(1, round(row[key] * f))
+    out["window"] = min(out["horizon"], max(1, round(row["window"] * f)))
+    if "knots" not in changes and "period" not in changes and out["period"] < out["knots"]:
+        # a cycle of fewer env steps than knots: one knot per step, down to two a cycle
+        # (the Nyquist rate of the control)
+        if out["period"] < 2:
+            raise ValueError(
+                f"at a control period of {dt:g} s the default gait cycle "
+                f"({row['period'] * TUNED_DT:g} s) is {out['period']:.3g} env steps, fewer than "
+                "two: give period (and knots) yourself, or a shorter control period "
+                "(frame_skip, dt)"
+            )
+        out["knots"] = math.floor(out["period"])
+    return out
+
+
+def default_planner(
+    env_id: str, planner: str, *, dt: float | None = None, **changes: Any
+) -> tuple[Planner, int]:
     """A planner with the benchmark's defaults (``changes`` override settings) and its replan
     interval.
 
-    Times (horizon, period, window, the replan interval) are env steps of the benchmarks'
-    40 Hz control period: an env made with another ``frame_skip`` or ``dt`` needs them scaled.
-    Rollouts run on 2 threads (the benchmarks' machines have 2 cores, and ``rbbo`` runs one
-    planner per worker process): ``threads=None`` uses every CPU of this process's affinity.
+    Times (horizon, period, window, seed_horizon, the replan interval) are tuned in env steps
+    of the benchmarks' 40 Hz control period (:data:`TUNED_DT`). ``dt``, the env's control
+    period in seconds (``env.get_wrapper_attr("dt")``), keeps them the same in seconds for an
+    env made with another ``frame_skip`` or ``dt``; None takes 0.025 s. ``changes`` are in env
+    steps of the env. Rollouts run on 2 threads (the benchmarks' machines have 2 cores, and
+    ``rbbo`` runs one planner per worker process): ``threads=None`` uses every CPU of this
+    process's affinity.
     """
-    settings, replan_every = default_settings(env_id, planner)
-    return PLANNERS[planner][0](_changed(settings, changes)), replan_every
+    if planner not in PLANNERS:
+        raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
+    settings, replan_every = _settings(planner, DEFAULTS[_benchmark(env_id)], dt, changes)
+    return PLANNERS[planner][0](settings), replan_every
 
 
 def _changed(settings: PlannerSettings, changes: dict[str, Any]) -> PlannerSettings:
@@ -170,16 +227,15 @@ def has_defaults(env_id: str) -> bool:
 GENERIC: dict[str, Any] = {"period": 20, "horizon": 40, "window": 20, "replan_every": 20}
 
 
-def planner_for(env_id: str, planner: str, **changes: Any) -> tuple[Planner, int]:
+def planner_for(
+    env_id: str, planner: str, *, dt: float | None = None, **changes: Any
+) -> tuple[Planner, int]:
     """The benchmark's tuned planner (:func:`default_planner`) where ``env_id`` has defaults;
     elsewhere (a robot of your own) the shared defaults around a 2 Hz gait (:data:`GENERIC`),
-    ``changes`` applied. Returns the planner and its replan interval (env steps)."""
+    ``changes`` applied. ``dt`` is the env's control period, s, as in :func:`default_planner`.
+    Returns the planner and its replan interval (env steps)."""
     if planner not in PLANNERS:
         raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
-    if has_defaults(env_id):
-        return default_planner(env_id, planner, **changes)
-    row = dict(GENERIC)
-    replan_every = row.pop("replan_every")
-    cls, settings_cls = PLANNERS[planner]
-    settings = settings_cls(**{**_COMMON, **row}, **_PLANNER[planner], weights=_WEIGHTS)
-    return cls(_changed(settings, changes)), replan_every
+    row = DEFAULTS[_benchmark(env_id)] if has_defaults(env_id) else GENERIC
+    settings, replan_every = _settings(planner, row, dt, changes)
+    return PLANNERS[planner][0](settings), replan_every

@@ -303,13 +303,17 @@ class EnvObjective:
     def planner(self):
         """The MPC planner and its replan interval (env steps).
 
-        ``controllers.planner_for(env_id, controller, **planner_kwargs)``: the benchmark's
-        tuned settings where the controllers have them for this env, else the shared
-        defaults around a 2 Hz gait (``controllers.GENERIC``), replanning every cycle.
+        ``controllers.planner_for(env_id, controller, dt=..., **planner_kwargs)``: the
+        benchmark's tuned settings where the controllers have them for this env, else the
+        shared defaults around a 2 Hz gait (``controllers.GENERIC``), replanning every cycle;
+        their times in seconds kept at the env's control period (``frame_skip``, ``dt``).
         """
         import controllers
+        from softrom_gym.registration import control_period
 
-        return controllers.planner_for(self.env_id, self.controller, **self.planner_kwargs)
+        dt = control_period(self.env_id, **self.env_kwargs)
+        return controllers.planner_for(self.env_id, self.controller, dt=dt,
+                                       **self.planner_kwargs)  # fmt: skip
 
     def episode(self, basis: np.ndarray, T: float, seed: int, env=None, **kwargs):
         """Run one MPC episode of T seconds; returns the controllers' EpisodeResult."""

@@ -407,7 +407,8 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
     for s in seeds:
         # not a benchmark: the shared 2 Hz defaults (controllers.GENERIC), as EnvObjective
         changes = {} if threads is None else {"threads": threads}
-        planner, every = controllers.planner_for(env_id, "mppi", **changes)
+        planner, every = controllers.planner_for(env_id, "mppi", dt=env.get_wrapper_attr("dt"),
+                                                 **changes)  # fmt: skip
         env.physics_steps, t0 = 0, time.perf_counter()
         result = controllers.run_episode(env, planner, seconds, replan_every=every, seed=s,
                                          progress=progress)  # fmt: skip

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
+import math
 from typing import Any
 
 import gymnasium as gym
@@ -45,3 +47,30 @@ def parse_env_kwarg(text: str) -> tuple[str, Any]:
         return key, json.loads(value)
     except ValueError:
         return key, value
+
+
+def control_period(env_id: str, **kwargs: Any) -> float | None:
+    """The control period (s per env step, ``frame_skip * dt``) of ``gym.make(env_id,
+    **kwargs)``, read from the registration and the constructor's defaults without building
+    the env. None for an env without both keywords, or values the env would refuse (it names
+    them when it is made)."""
+    spec = gym.spec(env_id)
+    entry = spec.entry_point
+    try:
+        creator = gym.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
+        params = inspect.signature(creator).parameters
+    except (ImportError, AttributeError, TypeError, ValueError):
+        return None
+    merged = {**spec.kwargs, **kwargs}
+    values = []
+    for name in ("frame_skip", "dt"):
+        if name in merged:
+            values.append(merged[name])
+        elif name in params and params[name].default is not inspect.Parameter.empty:
+            values.append(params[name].default)
+        else:
+            return None
+    if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
+        return None
+    period = float(values[0]) * float(values[1])
+    return period if math.isfinite(period) and period > 0 else None

@@ -401,3 +401,35 @@ def test_planner_for_uses_tuned_defaults_only_where_they_exist():
     for env_id in ("softrom_gym/SoftRobot-v0", "softrom_gym/CrossWalk-v0"):
         with pytest.raises(TypeError, match=r"unknown MPPISettings setting 'bogus'; valid: \["):
             planner_for(env_id, "mppi", bogus=3)
+
+
+def test_defaults_keep_their_seconds_at_another_control_period():
+    # Tuned in env steps of 0.025 s; at frame_skip = 10 (0.05 s) the same seconds are half
+    # the steps, and the benchmark's own period passes through unchanged.
+    base, base_every = planner_for("softrom_gym/TripodWalk-v0", "gn")
+    assert planner_for("softrom_gym/TripodWalk-v0", "gn", dt=0.025)[0].settings == base.settings
+    slow, every = planner_for("softrom_gym/TripodWalk-v0", "gn", dt=0.05)
+    s, b = slow.settings, base.settings
+    assert s.period * 0.05 == pytest.approx(b.period * 0.025)
+    assert (s.horizon, s.window, s.seed_horizon, every) == (20, 14, 60, 14)
+    assert (b.horizon, b.window, b.seed_horizon, base_every) == (40, 27, 120, 27)
+    assert s.knots == b.knots == 6 and s.fd_step == b.fd_step  # not times
+    # a cycle of fewer steps than knots: one knot a step; changes are in the env's steps
+    quad = planner_for("softrom_gym/QuadrupedWalk-v0", "mppi", dt=0.05)[0].settings
+    assert (quad.period, quad.knots) == (5.0, 5)
+    own = planner_for("softrom_gym/SoftRobot-v0", "mppi", dt=0.0125, horizon=100)[0].settings
+    assert (own.period, own.horizon, own.window) == (40.0, 100, 40)
+    with pytest.raises(ValueError, match=r"default gait cycle \(0.25 s\) is 1.25 env steps"):
+        planner_for("softrom_gym/QuadrupedWalk-v0", "mppi", dt=0.2)
+    with pytest.raises(ValueError, match="must be a positive number, got -1"):
+        default_planner("softrom_gym/QuadrupedWalk-v0", "mppi", dt=-1)
+
+
+def test_control_period_is_read_without_building_the_env():
+    from softrom_gym.registration import control_period
+
+    assert control_period("softrom_gym/CrossSwim-v0") == pytest.approx(0.025)
+    assert control_period("softrom_gym/CrossSwim-v0", frame_skip=10) == pytest.approx(0.05)
+    assert control_period("softrom_gym/SoftRobot-v0", dt=0.002) == pytest.approx(0.01)
+    assert control_period("softrom_gym/CrossSwim-v0", dt="x") is None  # the env names it
+    assert control_period("CartPole-v1") is None

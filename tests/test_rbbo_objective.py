@@ -102,7 +102,8 @@ def test_env_objective_uses_the_controllers_tuned_defaults(controllers, monkeypa
     objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, controller="gn",
                              planner_kwargs={"samples": 8})  # fmt: skip
     objective(np.eye(20)[:, :3], 4.0, seed=1)
-    assert asked == [("rbbo_test/StandIn-v0", "gn", {"samples": 8})]
+    # dt None: the stand-in env has no frame_skip (its control period is not known)
+    assert asked == [("rbbo_test/StandIn-v0", "gn", {"dt": None, "samples": 8})]
     assert controllers == [(4.0, 1, 10)]
 
 
@@ -214,3 +215,14 @@ def test_a_run_is_never_resumed_with_another_planner():
         make_objective(older, 6, 2)  # a robot of your own: its defaults changed since
     beam = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2).spec()
     make_objective({k: v for k, v in beam.items() if k != "planner"}, 6, 2)  # a benchmark: same
+
+
+def test_the_planner_keeps_its_seconds_at_the_envs_control_period():
+    from rbbo.objective import EnvObjective
+
+    slow = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2, env_kwargs={"frame_skip": 10})
+    planner, every = slow.planner()
+    assert planner.settings.period == 5.0 and every == 15  # 0.25 s cycles, 0.75 s replans
+    assert slow.spec()["planner"]["settings"]["horizon"] == 20  # 1 s, recorded
+    planner, every = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2).planner()
+    assert planner.settings.period == 10 and every == 30
