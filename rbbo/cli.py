@@ -566,7 +566,14 @@ def cmd_rollout(args) -> int:
     from .optimizer import RBBO
 
     opt = RBBO.resume(args.run_dir, read_only=True)
-    basis = opt.store.best_basis()
+    result = opt.result()  # the confirmed recommendation, or the current one mid-run
+    if result.best_basis is None:
+        raise UsageError(f"{args.run_dir} has no successful evaluation at T_max yet: no "
+                         "recommendation to replay")  # fmt: skip
+    basis = result.best_basis
+    if not opt.finished:
+        print(f"the run has not finished: replaying its current recommendation, evaluation "
+              f"{result.best_index}", file=sys.stderr)  # fmt: skip
     objective = _objective_of(opt)
     seconds = args.seconds or opt.config.t_max
     if isinstance(objective, EnvObjective) and not seconds > objective.settle_time:

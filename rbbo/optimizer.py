@@ -99,7 +99,6 @@ class RBBO:
         )
         self._gp: GrassmannGP | None = None
         self._gp_count = -1
-        self._best_observed = -math.inf
         self._initial = self._initial_design()
 
     # -- construction -------------------------------------------------------------------
@@ -170,14 +169,8 @@ class RBBO:
             return
         if self._boca is not None:
             self._boca.record(evaluation.T)
-        if (
-            evaluation.status == "ok"
-            and math.isclose(evaluation.T, self.config.t_max)
-            and evaluation.R > self._best_observed
-        ):
-            self._best_observed = evaluation.R
-            if persist and self.store is not None:
-                self.store.save_best(evaluation.basis)
+        # best_basis.npy is not the best sample so far (one noisy R): it is written with the
+        # recommendation when the run stops (_record_result)
 
     # -- the model ----------------------------------------------------------------------
     def _z(self, t) -> np.ndarray | None:
@@ -461,6 +454,12 @@ class RBBO:
             if e.kind not in CONFIRM_KINDS:
                 return None
         return None
+
+    @property
+    def finished(self) -> bool:
+        """Whether the run ended with its confirmation and searched no further since: its
+        recommendation is then fixed (:meth:`result`), and best_basis.npy holds it."""
+        return self._final_confirmation() is not None
 
     def _final_recommendation(self) -> Evaluation | None:
         """The searched evaluation that a final confirmation measured, else :meth:`recommend`."""

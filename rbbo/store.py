@@ -7,8 +7,9 @@
     DIR/history.jsonl     one JSON object per finished evaluation, append-only; each line is
                           flushed and fsynced before the optimiser moves on, so a kill -9
                           loses at most the evaluations still in flight
-    DIR/best_basis.npy    the current best B_c (replaced atomically)
-    DIR/summary.json      R_init, R* and the rest of the report (written at the end)
+    DIR/best_basis.npy    the recommended B_c, R*'s basis (replaced atomically when a session
+                          of the run ends: a run interrupted before its first end has none)
+    DIR/summary.json      R_init, R* and the rest of the report (written with it)
 
 A kill during a write can leave a partial last line; :meth:`RunStore.open` detects it, warns
 (:class:`TruncatedHistoryWarning`), keeps the bytes in ``history.jsonl.truncated`` and cuts
@@ -373,16 +374,18 @@ class RunStore:
         return out
 
     def save_best(self, basis: np.ndarray) -> None:
-        """Replace best_basis.npy atomically."""
+        """Replace best_basis.npy (the recommendation) atomically."""
         self._require_writer("its best basis cannot change")
         buf = io.BytesIO()
         np.save(buf, np.asarray(basis, dtype=float))
         _atomic_write(self.path / BEST, buf.getvalue())
 
     def best_basis(self) -> np.ndarray:
+        """The recommendation written when a session of the run last ended."""
         path = self.path / BEST
         if not path.is_file():
-            raise RunDirectoryError(f"{self.path} has no {BEST} yet")
+            raise RunDirectoryError(f"{self.path} has no {BEST} yet: no session of the run has "
+                                    "ended (resume it with rbbo resume)")  # fmt: skip
         try:
             return np.load(path, allow_pickle=False)
         except (ValueError, OSError) as exc:

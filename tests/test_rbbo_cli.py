@@ -345,3 +345,19 @@ def test_a_budget_the_initial_design_fills_is_noted(tmp_path, capsys, iterations
     assert ("the GP proposes none" in err) == noted
     if noted:
         assert "--iterations 4 <= 1 + --init 3" in err
+
+
+def test_rollout_of_an_unfinished_run_replays_its_current_recommendation(tmp_path, capsys):
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=6, n_confirm=2, acq_random=64,
+                        acq_starts=2, gp_restarts=0)  # fmt: skip
+    opt = RBBO.create(tmp_path / "run", config, objective_spec=objective.spec())
+    opt.run(objective, confirm=False)  # stopped before its confirmation, as if interrupted
+    opt.store.close()
+    (tmp_path / "run" / "best_basis.npy").unlink()
+    assert main(["rollout", str(tmp_path / "run"), "--seed", "3"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.startswith("R = ")
+    assert "the run has not finished: replaying its current recommendation" in captured.err

@@ -356,3 +356,31 @@ def test_a_finished_run_keeps_its_confirmed_answer_when_reloaded(tmp_path, monke
     lines = (tmp_path / "run" / "history.jsonl").read_text().count("\n")
     opt.run(objective)
     assert (tmp_path / "run" / "history.jsonl").read_text().count("\n") == lines
+
+
+def test_best_basis_file_holds_the_recommendation_written_when_the_run_stops(tmp_path):
+    # Noise larger than the signal: the highest single R is rarely the GP's recommendation.
+    # best_basis.npy is never that sample; it appears when the run ends, holding R*'s basis.
+    objective = SyntheticObjective(6, 2, noise=0.5)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=10, n_confirm=2, **FAST)
+    opt = RBBO.create(tmp_path / "run", config, objective_spec=objective.spec())
+
+    def stop_after_six(evaluation):
+        if len(opt.evaluations) == 6:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        opt.run(objective, callback=stop_after_six)
+    assert not (tmp_path / "run" / "best_basis.npy").exists()
+    opt.store.close()
+    again = RBBO.resume(tmp_path / "run")
+    assert not again.finished and again.result().best_basis is not None  # mid-run: current
+    result = again.run(objective)
+    assert again.finished
+    np.testing.assert_array_equal(np.load(tmp_path / "run" / "best_basis.npy"), result.best_basis)
+    best_sample = max(
+        (e for e in again.evaluations if e.T == config.t_max), key=lambda e: e.R
+    )  # fmt: skip
+    recommended = again.recommend()
+    assert recommended is not None and result.best_index == recommended.index
+    assert best_sample.index != recommended.index  # the case the file must not follow
