@@ -62,6 +62,8 @@ def report_row(opt: RBBO) -> dict[str, Any]:
         "failed": result.failed,
         "wall_s": result.wall_s,
         "fidelity": opt.config.fidelity,
+        "best_index": result.best_index,
+        "best_kind": next((e.kind for e in opt.evaluations if e.index == result.best_index), None),
     }
 
 
@@ -83,6 +85,13 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     text.insert(1, "  ".join("-" * w for w in widths))
     if any(r.get("R_init_sd") is not None or r.get("R_star_sd") is not None for r in rows):
         text.append("(R_init, R*: mean ± sample standard deviation over the confirmation seeds)")
+    for r in rows:
+        if r.get("best_kind") == "initial":
+            # the GP rated none of its own proposals above the design: the improvement, if
+            # any, is the random design's, not the search's
+            text.append(f"(R* of {r['problem'] or r['run'] or 'the run'}: evaluation "
+                        f"{r['best_index']}, a point of the initial design, not one the GP "
+                        "proposed: a longer run may find better)")  # fmt: skip
     return "\n".join(text)
 
 

@@ -79,6 +79,29 @@ def test_kappa_adapts_to_the_share_of_full_fidelity_choices():
     np.testing.assert_allclose(kappas, expected)
 
 
+def test_the_floor_keeps_a_quarter_of_the_choices_at_full_length(problem):
+    # tau stays above gamma far from the data (the rule alone picks T_min), but once fewer
+    # than target_fraction[0] of the recent choices were at T_max, T_max it is
+    u, v, rng = problem
+    bases = gr.random_points(M, C, 4, rng)
+    z = np.array([0.0, 0.0, 1.0, 1.0])
+    gp = GrassmannGP(M, C, fidelity=True, random_state=0).fit(
+        bases, two_fidelity(bases, z, u, v), z
+    )
+    candidate = gr.random_points(M, C, rng=rng)
+    boca = BOCAFidelity(T_MIN, T_MAX, n_candidates=2, kappa=0.5)
+    for t in (T_MAX, T_MIN, T_MIN):  # fewer than floor_after = 4 recorded: no floor yet
+        boca.record(t)
+    assert boca.choose(gp, candidate).T == T_MIN
+    boca.record(T_MIN)  # 1 of 4 at T_max: at the target's lower end, not below it
+    assert boca.choose(gp, candidate).T == T_MIN
+    boca.record(T_MIN)  # 1 of 5
+    choice = boca.choose(gp, candidate)
+    assert choice.T == T_MAX and choice.floor and choice.tau[0] > choice.gamma[0]
+    with pytest.raises(ValueError, match="floor_after must be an integer >= 1, got 0"):
+        BOCAFidelity(T_MIN, T_MAX, floor_after=0)
+
+
 def test_bad_fidelity_ranges():
     with pytest.raises(ValueError, match="T_max = 3.0 must exceed T_min = 4.0"):
         BOCAFidelity(4.0, 3.0)

@@ -17,7 +17,7 @@ from rbbo import RBBO, RBBOConfig, SyntheticObjective
 from rbbo.baselines import random_search
 from rbbo.executors import Executor
 from rbbo.executors.base import evaluate_task
-from rbbo.grassmann import identity_basis, projection_distance, validate_basis
+from rbbo.grassmann import identity_basis, projection_distance, random_points, validate_basis
 from rbbo.store import RunDirectoryError
 
 # small, fast settings: tiny GPs, few acquisition starts
@@ -384,3 +384,37 @@ def test_best_basis_file_holds_the_recommendation_written_when_the_run_stops(tmp
     recommended = again.recommend()
     assert recommended is not None and result.best_index == recommended.index
     assert best_sample.index != recommended.index  # the case the file must not follow
+
+
+def test_boca_recommends_from_every_fidelity_and_the_report_names_a_design_pick():
+    # Seen only at T_min, the neighbourhood of the optimum still has the highest posterior
+    # mean at T_max: it is recommended (and confirmed at T_max), not the best of the
+    # low-reward bases that happen to have run at T_max.
+    from rbbo.acquisition import perturb
+    from rbbo.report import format_table
+    from rbbo.store import Evaluation
+
+    m, c = 6, 2
+    objective = SyntheticObjective(m, c, bias=0.3)
+    config = RBBOConfig(m, c, fidelity="boca", t_min=4.0, t_max=10.0, n_init=2,
+                        max_evaluations=20, n_confirm=0, **FAST)  # fmt: skip
+    opt = RBBO(config)
+    rng = np.random.default_rng(12345)  # not the objective's own seed: its optimum
+    best = objective.optimum
+    points = [(identity_basis(m, c), 10.0, "initial")]
+    points += [(b, 10.0, "initial") for b in random_points(m, c, 3, rng)]
+    points += [(perturb(best, s, rng), 4.0, "acquisition") for s in (0.0, 0.1, 0.2, 0.3)]
+    points += [(b, 4.0, "acquisition") for b in random_points(m, c, 4, rng)]
+    for i, (basis, t, kind) in enumerate(points):
+        opt._record(Evaluation(index=i, basis=basis, T=t, R=objective.value(basis, t),
+                               status="ok", seeds=[0], kind=kind), persist=False)  # fmt: skip
+    chosen = opt.recommend()
+    assert chosen.T == 4.0 and objective.value(chosen.basis) > 0.9
+    at_t_max = max(objective.value(b) for b, t, _ in points if t == 10.0)
+    assert at_t_max < 0.9  # the old rule's pool had nothing as good
+    row = {"problem": "p", "run": "", "N": None, "M": m, "C": c, "R_init": None,
+           "R_star": None, "improvement_pct": None, "evaluations": 12, "failed": 0,
+           "wall_s": 1.0, "best_index": 2, "best_kind": "initial"}  # fmt: skip
+    assert "(R* of p: evaluation 2, a point of the initial design, not one the GP" in (
+        format_table([row])
+    )
