@@ -236,7 +236,8 @@ def command(args, usage_error: type[Exception]) -> int:
             try:
                 require_sb3()
             except ImportError as exc:
-                raise ValueError(f"{exc} (or leave out the stage: --stages without rl)") from None
+                others = ",".join(s for s in plan.stages if s != "rl")
+                raise ValueError(f"{exc} (or leave the stage out: --stages {others})") from None
         if plan.planner_kwargs:  # checked now, not as a failed evaluation in a worker
             from controllers import default_planner
 
