@@ -381,6 +381,9 @@ class RBBO:
         if budget_s is not None and not _real("budget_s", budget_s) > 0:
             raise ValueError(f"budget_s must be > 0 seconds, got {budget_s!r}")
         own = executor is None
+        if self.store is not None:
+            self._record_session("search", max_evaluations=max_evaluations, budget_s=budget_s,
+                                 workers=executor.workers if executor else workers)  # fmt: skip
         if own:
             if objective is None:
                 raise ValueError("give an objective or an executor")
@@ -433,6 +436,13 @@ class RBBO:
             if own:
                 executor.shutdown(wait=ok)
         return self._record_result()
+
+    def _record_session(self, command: str, **settings: Any) -> None:
+        """Append this session's code and machine to DIR/sessions.jsonl."""
+        from .provenance import session_record
+
+        limits = {k: (None if v == math.inf else v) for k, v in settings.items()}
+        self.store.append_session({**session_record(command), **limits})
 
     def _record_result(self) -> RBBOResult:
         """The result so far, also written to summary.json and best_basis.npy."""
@@ -496,6 +506,8 @@ class RBBO:
             raise ValueError("the run has no evaluation to confirm yet")
         if self.config.n_confirm == 0:
             raise ValueError("the run was made with no confirmation seeds (n_confirm = 0)")
+        if self.store is not None:
+            self._record_session("confirm", workers=executor.workers)
         self._confirm(executor, callback, again=True)
         return self._record_result()
 

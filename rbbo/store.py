@@ -10,6 +10,9 @@
     DIR/best_basis.npy    the recommended B_c, R*'s basis (replaced atomically when a session
                           of the run ends: a run interrupted before its first end has none)
     DIR/summary.json      R_init, R* and the rest of the report (written with it)
+    DIR/sessions.jsonl    one JSON object per session of the run (search or confirmation):
+                          when it started, the code (version, git commit) and the machine
+                          (CPU, kernel set, numpy/scipy) it ran on, append-only
 
 A kill during a write can leave a partial last line; :meth:`RunStore.open` detects it, warns
 (:class:`TruncatedHistoryWarning`), keeps the bytes in ``history.jsonl.truncated`` and cuts
@@ -51,6 +54,7 @@ CONFIG = "config.json"
 HISTORY = "history.jsonl"
 BEST = "best_basis.npy"
 SUMMARY = "summary.json"
+SESSIONS = "sessions.jsonl"
 STATUSES = ("ok", "failed")
 LOCK = ".rbbo.lock"
 
@@ -348,6 +352,29 @@ class RunStore:
             f.write(line)
             f.flush()
             os.fsync(f.fileno())
+
+    def append_session(self, record: dict[str, Any]) -> None:
+        """Append one session's record (:func:`rbbo.provenance.session_record`) durably."""
+        self._require_writer("nothing can be recorded in it")
+        line = json.dumps(record, sort_keys=True, allow_nan=False) + "\n"
+        with open(self.path / SESSIONS, "a", encoding="utf-8") as f:
+            f.write(line)
+            f.flush()
+            os.fsync(f.fileno())
+
+    def sessions(self) -> list[dict[str, Any]]:
+        """The sessions' records, oldest first (a run made before them has none); a partial
+        last line (a kill while writing) is left out."""
+        path = self.path / SESSIONS
+        if not path.is_file():
+            return []
+        out = []
+        for line in path.read_text(encoding="utf-8", errors="replace").split("\n")[:-1]:
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+        return out
 
     def history(self) -> list[Evaluation]:
         """All recorded evaluations, in the order they finished."""

@@ -172,6 +172,11 @@ def test_run_directory_records_everything(tmp_path):
     np.testing.assert_array_equal(np.load(tmp_path / "run" / "best_basis.npy"), result.best_basis)
     config_json = json.loads((tmp_path / "run" / "config.json").read_text())
     assert config_json["objective"]["kind"] == "synthetic"
+    # each session names its code and machine (the numbers of a run depend on both)
+    (session,) = opt.store.sessions()
+    assert session["command"] == "search" and session["max_evaluations"] == 8
+    assert session["source"].startswith("softrom ") and " CPUs, " in session["machine"]
+    assert session["machine"].endswith(" kernels") and session["numpy"] == np.__version__
 
 
 KILL_SCRIPT = textwrap.dedent(

@@ -452,7 +452,7 @@ def test_a_compiled_core_older_than_its_sources_is_named(tmp_path, monkeypatch):
     import os
 
     import cpp_sim._core as core
-    from rbbo.reproduce.runner import _stale_build
+    from rbbo.provenance import _stale_build
 
     (tmp_path / "cpp_sim" / "src").mkdir(parents=True)
     source = tmp_path / "cpp_sim" / "src" / "step.cpp"

@@ -22,8 +22,6 @@ import csv
 import json
 import math
 import os
-import platform
-import subprocess
 import sys
 import threading
 import time
@@ -38,6 +36,7 @@ from ..config import RBBOConfig
 from ..executors import EvaluationTask, make_executor
 from ..objective import EnvObjective
 from ..optimizer import RBBO
+from ..provenance import machine_description, source_version
 from ..store import RunDirectoryError, _atomic_write
 from .plan import ReproducePlan
 from .tables import basis_digest, read_rows
@@ -308,12 +307,6 @@ def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
     return folders
 
 
-def machine_description() -> str:
-    """The machine a session runs on, as the report prints it."""
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return f"{platform.processor() or platform.machine()}, {cpus} CPUs, {platform.system()}"
-
-
 def _perturbation_base(out: Path, plan: ReproducePlan) -> Path:
     """The run whose B_c the perturbation study walks off its direction: the one its rows
     already used, else the direction-0 run of the directions stage, else Table I's run of
@@ -329,48 +322,6 @@ def _perturbation_base(out: Path, plan: ReproducePlan) -> Path:
         f"the perturbation study needs a finished {plan.direction_env} run "
         "(stage 'directions' or 'table')"
     )
-
-
-_CODE_PATHS = ("cpp_sim", "softrom_gym", "controllers", "rbbo", "pyproject.toml", "CMakeLists.txt")
-
-
-def source_version() -> str:
-    """What code ran: the package version, and the git commit of the source tree when it is
-    a checkout (``+dirty`` when its tracked code differs from it), so a report names its code."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        text = f"softrom {version('softrom')}"
-    except PackageNotFoundError:
-        text = "softrom (not installed)"
-    root = Path(__file__).resolve().parents[2]
-    try:
-        run = {"cwd": root, "capture_output": True, "text": True, "timeout": 10, "check": True}
-        commit = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], **run).stdout.strip()
-        # Only the code counts: a record committed inside the checkout (its log, its
-        # histories) differs from HEAD while it is being written, which is not other code.
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--",
-                                *_CODE_PATHS], **run).stdout.strip()  # fmt: skip
-    except (OSError, subprocess.SubprocessError):
-        return text
-    if not commit:
-        return text
-    return f"{text}, git {commit}{'+dirty' if dirty else ''}{_stale_build(root)}"
-
-
-def _stale_build(root: Path) -> str:
-    """``", compiled core older than its sources"`` when an editable install's extension
-    module predates a C++ source of the checkout (the commit would then misname the physics
-    that ran), else ``""``."""
-    try:
-        import cpp_sim._core as core
-
-        built = Path(core.__file__).stat().st_mtime
-        sources = [*(root / "cpp_sim" / "src").glob("*.[ch]*"), root / "CMakeLists.txt"]
-        newest = max(p.stat().st_mtime for p in sources if p.is_file())
-    except (ImportError, OSError, ValueError):
-        return ""
-    return ", compiled core older than its sources" if newest > built else ""
 
 
 def _load_plan(out: Path, plan: ReproducePlan) -> dict[str, Any]:
