@@ -26,8 +26,12 @@
   that finishes before an older evaluation waits for it, so proposal k sees the results of
   proposals 0 .. k - W and fantasies for the W - 1 after them (W workers) whatever the
   timing, and a run with a given W and evaluation count repeats bitwise.
-- Recommendation: among the bases evaluated at T_max, the one with the highest GP posterior
-  mean (noise-aware, not the luckiest sample). At the end of :meth:`RBBO.run` it and the
+- Recommendation: among the evaluated bases (at any T), the one with the highest GP
+  posterior mean at T_max. Where the GP has fitted a noise level this discounts a lucky
+  sample; where the marginal likelihood cannot tell noise from short-range signal (few,
+  far-apart points in a 51-dimensional space) it fits the noise floor and the mean
+  interpolates the samples, so the recommendation is then near the best sample. Either way
+  the confirmation decides R*: at the end of :meth:`RBBO.run` the recommendation and the
   identity are evaluated on ``n_confirm`` fresh seeds at T_max: R* and R_init.
 - With a run directory every finished evaluation is fsynced to history.jsonl before the next
   proposal; :meth:`RBBO.resume` rebuilds the optimiser from it.
