@@ -28,6 +28,10 @@ def source_version() -> str:
     except PackageNotFoundError:
         text = "softrom (not installed)"
     root = Path(__file__).resolve().parents[1]
+    if not ((root / ".git").exists() and (root / "pyproject.toml").is_file()):
+        # an installed copy (site-packages), perhaps inside another project's checkout,
+        # whose commit is not this code's
+        return text
     try:
         run = {"cwd": root, "capture_output": True, "text": True, "timeout": 10, "check": True}
         commit = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], **run).stdout.strip()

@@ -5,6 +5,7 @@ resume without new work, and its usage errors."""
 import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -560,3 +561,25 @@ def test_a_run_in_another_simulation_space_is_refused(reproduction, tmp_path, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("rbbo: error: ") and "coordinates [7] differ" in err[-1]
     assert _history(copy / "runs" / "CrossSwim-v0-boca") == before
+
+
+def test_an_installed_copy_inside_another_checkout_names_no_commit(tmp_path):
+    # site-packages inside a user's own git repository: that repository's commit is not the
+    # code that ran, so the record names the package version only
+    import importlib.util
+    import shutil
+    import subprocess
+
+    import rbbo.provenance
+
+    subprocess.run(["git", "init", "-q", str(tmp_path)], check=True)
+    package = tmp_path / "site-packages" / "rbbo"
+    package.mkdir(parents=True)
+    shutil.copy(rbbo.provenance.__file__, package / "provenance.py")
+    spec = importlib.util.spec_from_file_location("provenance_copy", package / "provenance.py")
+    copy = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(copy)
+    assert copy.source_version().startswith("softrom ")
+    assert "git" not in copy.source_version()
+    if (Path(rbbo.provenance.__file__).parents[1] / ".git").exists():
+        assert "git " in rbbo.provenance.source_version()  # a checkout names its commit
