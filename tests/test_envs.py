@@ -381,3 +381,17 @@ def test_reset_noise_is_a_fraction_of_a_small_robot_s_length():
     np.testing.assert_allclose(noise(0.5)[0], big[0], rtol=1e-12)
     np.testing.assert_allclose(small[0], big[0] * small[1] / 0.1, rtol=1e-12)
     assert 0.005 < np.abs(big[0]).max() <= 0.01
+
+
+def test_a_first_build_says_what_it_computes_and_a_cached_one_is_silent(
+    tmp_path, monkeypatch, capsys
+):
+    # a new robot or M takes seconds to minutes to build: the env says so on stderr, once
+    monkeypatch.setenv("SOFTROM_CACHE_DIR", str(tmp_path))
+    gym.make("softrom_gym/BeamWalk-v0", sim_dim=7).close()
+    first = capsys.readouterr()
+    assert "softrom_gym: building B_r for beam (N = 460 nodes, M = 7)" in first.err
+    assert "softrom_gym: trained the cubature rule for beam" in first.err
+    assert first.out == ""
+    gym.make("softrom_gym/BeamWalk-v0", sim_dim=7).close()
+    assert capsys.readouterr().err == ""

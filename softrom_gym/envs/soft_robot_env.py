@@ -255,10 +255,11 @@ class SoftRobotEnv(gym.Env):
         for name, value in {**settings, **walk, **swim}.items():
             setattr(check, name, value)
 
-        self.subspace = build_subspace(self.robot, sim_dim)
+        # verbose: a new robot or M takes seconds to minutes to build, once; say so on stderr
+        self.subspace = build_subspace(self.robot, sim_dim, verbose=True)
         self.model = build_reduced_model(
             self.robot, sim_dim, subspace=self.subspace, control_basis=self.control_basis,
-            **settings,
+            verbose=True, **settings,
         )  # fmt: skip
         mass = self.robot.fem_model().mass
         self._sqrt_m = float(np.sqrt(mass.sum()))

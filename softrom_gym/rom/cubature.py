@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import time
 from dataclasses import dataclass
 
@@ -104,7 +105,8 @@ def _greedy_nnls(
         residual = b - a[:, selected] @ weights
         err = float(np.linalg.norm(residual) / bnorm)
         if verbose and len(selected) % 20 < batch:
-            print(f"  cubature: {len(selected)} elements, training error {err:.4f}")
+            print(f"softrom_gym:   {len(selected)} elements, training error {err:.4f} "
+                  f"(target {tolerance:g})", file=sys.stderr, flush=True)  # fmt: skip
     return np.array(selected, dtype=np.int64), weights, err
 
 
@@ -138,7 +140,8 @@ def train_cubature(
     cache : bool or path
         As in :func:`~softrom_gym.rom.build_subspace`.
     verbose : bool
-        Print what is being computed and how long it took.
+        Say on stderr what is being computed and how long it took (nothing when the rule
+        comes from the cache).
     """
     if num_poses < 1:
         raise ValueError(f"num_poses must be >= 1, got {num_poses}")
@@ -155,6 +158,10 @@ def train_cubature(
     entry = load_entry(path)
     if entry is not None and {"elements", "weights", "training_error"} <= entry.keys():
         return Cubature(entry["elements"], entry["weights"], float(entry["training_error"]))
+    if verbose:
+        print(f"softrom_gym: training the cubature rule for {robot.name} ({num_poses} poses, "
+              f"at most {max_elements} of {robot.num_tets} elements); it is cached after this "
+              "first time", file=sys.stderr, flush=True)  # fmt: skip
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     poses = sample_poses(robot, subspace, num_poses, rng)
@@ -169,8 +176,11 @@ def train_cubature(
     rule = Cubature(elements, weights, err)
     if verbose:
         print(
-            f"trained cubature for {robot.name}: {len(rule)} of {robot.num_tets} elements, "
-            f"training error {err:.4f}, {time.perf_counter() - t0:.2f} s"
+            f"softrom_gym: trained the cubature rule for {robot.name}: {len(rule)} of "
+            f"{robot.num_tets} elements, training error {err:.4f}, "
+            f"{time.perf_counter() - t0:.2f} s",
+            file=sys.stderr,
+            flush=True,
         )
     save_entry(path, elements=elements, weights=weights, training_error=err)
     return rule

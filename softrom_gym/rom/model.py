@@ -50,7 +50,8 @@ def build_reduced_model(
         Where B_r and the cubature rule are cached: as in
         :func:`~softrom_gym.rom.build_subspace`.
     verbose : bool
-        Print what is being computed and how long it took.
+        Say on stderr what is being computed and how long it took (nothing for what comes
+        from the cache).
     **settings
         Any :class:`cpp_sim.ReducedModel` setting: ``dt`` (default 1/200 s), ``gravity``,
         ``contact`` ("staggered", "penalty", "none"), ``friction`` (mu, default 0.8),

@@ -29,6 +29,7 @@ around or flip over: that needs a floating frame, which this model does not impl
 from __future__ import annotations
 
 import os
+import sys
 import time
 from dataclasses import dataclass
 
@@ -196,7 +197,8 @@ def build_subspace(
     cache : bool or path
         ``True`` caches under :func:`cache_dir`, a path caches there, ``False`` never caches.
     verbose : bool
-        Print what is being computed and how long it took.
+        Say on stderr what is being computed and how long it took (nothing when B_r comes
+        from the cache).
     """
     n = robot.num_nodes
     if isinstance(M, bool) or not isinstance(M, (int, np.integer)):
@@ -218,6 +220,9 @@ def build_subspace(
     if entry is not None and {"basis", "frequencies", "num_modes"} <= entry.keys():
         return Subspace(entry["basis"], entry["frequencies"], int(entry["num_modes"]))
 
+    if verbose:
+        print(f"softrom_gym: building B_r for {robot.name} (N = {n} nodes, M = {M}); it is "
+              "cached after this first time", file=sys.stderr, flush=True)  # fmt: skip
     t0 = time.perf_counter()
     fem = robot.fem_model()
     mass3 = np.repeat(fem.mass, 3)
@@ -280,8 +285,10 @@ def build_subspace(
     sub = Subspace(basis, freq, num_modes)
     if verbose:
         print(
-            f"built B_r for {robot.name}: N = {n}, M = {M} ({num_modes} modes + "
-            f"{num_derivatives} derivatives) in {time.perf_counter() - t0:.2f} s"
+            f"softrom_gym: built B_r for {robot.name}: N = {n}, M = {M} ({num_modes} modes + "
+            f"{num_derivatives} derivatives) in {time.perf_counter() - t0:.2f} s",
+            file=sys.stderr,
+            flush=True,
         )
     save_entry(path, basis=basis, frequencies=freq, num_modes=num_modes)
     return sub
