@@ -60,7 +60,7 @@ from .config import (
     _real,
 )
 from .executors import Executor, ProcessExecutor, SerialExecutor
-from .gp import GrassmannGP
+from .gp import GPHyperparameters, GrassmannGP
 from .grassmann import dimension, identity_basis, random_points
 from .store import Evaluation, RunDirectoryError, RunStore
 
@@ -140,7 +140,26 @@ class RBBO:
         if history:
             opt._next_index = max(e.index for e in history) + 1
             opt._elapsed_offset = max(e.elapsed_s for e in history)
+        opt._warm_start_from(history)
         return opt
+
+    def _warm_start_from(self, history: list[Evaluation]) -> None:
+        """Start the next GP fit from the hyperparameters of the latest recorded proposal's
+        fit, as the session that made it would have: with one worker a resumed run then
+        proposes what the uninterrupted run proposed (records made before the hyperparameters
+        were recorded start from the defaults)."""
+        fitted = [e for e in history if e.gp is not None and e.kind not in CONFIRM_KINDS]
+        if not fitted:
+            return
+        latest = max(fitted, key=lambda e: e.index)
+        try:
+            hyperparameters = GPHyperparameters(**latest.gp)
+        except TypeError:
+            return  # another version's record: the defaults, as before the record existed
+        cfg = self.config
+        self._gp = GrassmannGP(cfg.sim_dim, cfg.control_dim, fidelity=self._boca is not None,
+                               n_restarts=cfg.gp_restarts)  # fmt: skip
+        self._gp.hyperparameters = hyperparameters
 
     def _initial_design(self) -> list[tuple[np.ndarray, float, str]]:
         cfg = self.config
@@ -249,7 +268,8 @@ class RBBO:
             else:
                 start = time.perf_counter()
                 basis, t, value = self._propose(gp, rng)
-                info.update(acq_s=time.perf_counter() - start, acq_value=value)
+                info.update(acq_s=time.perf_counter() - start, acq_value=value,
+                            gp=asdict(gp.hyperparameters))  # fmt: skip
                 kind = "acquisition"
         proposal = Proposal(index, basis, float(t), cfg.crn_seeds, kind, info)
         self.pending[index] = proposal
@@ -289,7 +309,7 @@ class RBBO:
             index=index, basis=proposal.basis, T=proposal.T, R=R if status == "ok" else None,
             status=status, seeds=list(proposal.seeds), wall_s=float(wall_s),
             elapsed_s=self.elapsed_s, worker=str(worker), kind=proposal.kind, error=error,
-            R_seeds=[float(r) for r in R_seeds],
+            R_seeds=[float(r) for r in R_seeds], gp=proposal.info.get("gp"),
         )  # fmt: skip
         self._record(evaluation, persist=True)
         del self.pending[index]

@@ -106,6 +106,9 @@ class Evaluation:
         Why it failed.
     R_seeds : list of float
         R for each seed (their mean is R).
+    gp : dict or None
+        The GP hyperparameters fitted for the proposal (an acquisition's): a resumed run
+        starts its next fit from them, as the uninterrupted run did.
     """
 
     index: int
@@ -120,6 +123,7 @@ class Evaluation:
     kind: str = "acquisition"
     error: str | None = None
     R_seeds: list[float] = field(default_factory=list)
+    gp: dict[str, float | None] | None = None
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -135,6 +139,8 @@ class Evaluation:
         record["basis"] = self.basis.tolist()
         record["seeds"] = [int(s) for s in self.seeds]
         record["R_seeds"] = [float(r) for r in self.R_seeds]
+        if self.gp is None:
+            del record["gp"]  # records without a fit read as before
         return json.dumps(record, allow_nan=False)
 
     @classmethod

@@ -423,3 +423,36 @@ def test_boca_recommends_from_every_fidelity_and_the_report_names_a_design_pick(
     assert "(R* of p: evaluation 2, a point of the initial design, not one the GP" in (
         format_table([row])
     )
+
+
+@pytest.mark.parametrize("fidelity", ["bo", "boca"])
+def test_a_resumed_serial_run_proposes_what_the_uninterrupted_one_did(tmp_path, fidelity):
+    # Each proposal records the GP hyperparameters its fit found; a resumed run's next fit
+    # starts from them (not from the defaults), so with one worker the run is the same run,
+    # an evaluation lost in flight included. Without the record the two part ways (checked:
+    # the resumed fit from the defaults lands 1e-7 away and the acquisition amplifies it).
+    objective = SyntheticObjective(8, 2, noise=0.05)
+    config = RBBOConfig(8, 2, n_init=3, max_evaluations=14, n_confirm=0, fidelity=fidelity,
+                        t_min=4.0, **{**FAST, "gp_restarts": 1})  # fmt: skip
+    whole = RBBO.create(tmp_path / "whole", config, objective_spec=objective.spec())
+    whole.run(objective)
+    calls = []
+
+    def interrupted(basis, t, seed):
+        calls.append(t)
+        if len(calls) == 9:  # the ninth evaluation never returns: lost in flight
+            raise KeyboardInterrupt
+        return objective(basis, t, seed)
+
+    broken = RBBO.create(tmp_path / "broken", config, objective_spec=objective.spec())
+    with pytest.raises(KeyboardInterrupt):
+        broken.run(interrupted)
+    broken.store.close()
+    assert len(broken.evaluations) == 8
+    resumed = RBBO.resume(tmp_path / "broken")
+    resumed.run(objective)
+    assert [e.index for e in resumed.evaluations] == [e.index for e in whole.evaluations]
+    for a, b in zip(whole.evaluations, resumed.evaluations, strict=True):
+        np.testing.assert_array_equal(a.basis, b.basis)
+        assert (a.T, a.R) == (b.T, b.R)
+    assert resumed.evaluations[-1].gp is not None and resumed.evaluations[0].gp is None
