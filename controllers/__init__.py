@@ -13,6 +13,7 @@ from .cost import CostWeights, Evaluation, evaluate
 from .defaults import (
     DEFAULTS,
     GENERIC,
+    TUNED_DT,
     default_planner,
     default_settings,
     has_defaults,
@@ -29,6 +30,7 @@ __all__ = [
     "DEFAULTS",
     "GENERIC",
     "MPPI",
+    "TUNED_DT",
     "CostWeights",
     "EpisodeResult",
     "Evaluation",

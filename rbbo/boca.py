@@ -45,6 +45,7 @@ history through :meth:`BOCAFidelity.record`, so it continues with the same kappa
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -151,8 +152,12 @@ class BOCAFidelity:
         grid = np.linspace(self.t_min, self.t_max, self.n_candidates)
         return grid[grid / self.t_max <= self.max_cost_ratio]
 
-    def choose(self, gp: GrassmannGP, basis: np.ndarray) -> FidelityChoice:
-        """The trajectory length T at which to evaluate ``basis`` next."""
+    def choose(
+        self, gp: GrassmannGP, basis: np.ndarray, pending: Sequence[float] = ()
+    ) -> FidelityChoice:
+        """The trajectory length T at which to evaluate ``basis`` next; ``pending``: the T of
+        proposals still being evaluated (the floor counts them, so several workers do not all
+        get T_max at once)."""
         if not gp.fidelity:
             raise ValueError("BOCA needs a GP with a fidelity kernel (GrassmannGP(fidelity=True))")
         cands = self.candidates
@@ -166,17 +171,17 @@ class BOCAFidelity:
         gamma = self.kappa * xi * (cands / self.t_max) ** self.cost_exponent
         qualifying = np.flatnonzero(tau > gamma)
         t = float(cands[qualifying[0]]) if len(qualifying) else float(self.t_max)
-        floor = t != self.t_max and self.below_floor()
+        floor = t != self.t_max and self.below_floor(pending)
         return FidelityChoice(float(self.t_max) if floor else t, tuple(cands.tolist()),
                               tuple(tau.tolist()), tuple(gamma.tolist()), float(self.kappa),
                               floor)  # fmt: skip
 
-    def below_floor(self) -> bool:
-        """Whether fewer than ``target_fraction[0]`` of the recent choices were at T_max."""
-        return (
-            len(self.recent) >= self.floor_after
-            and float(np.mean(self.recent)) < self.target_fraction[0]
-        )
+    def below_floor(self, pending: Sequence[float] = ()) -> bool:
+        """Whether fewer than ``target_fraction[0]`` of the recent choices (the ``pending``
+        ones, T of proposals in flight, last) were at T_max."""
+        recent = [*self.recent, *(bool(np.isclose(t, self.t_max)) for t in pending)]
+        recent = recent[-self.window :]
+        return len(recent) >= self.floor_after and float(np.mean(recent)) < self.target_fraction[0]
 
     def record(self, t: float) -> None:
         """Note a chosen (or initial-design) T and adapt kappa towards the target fraction."""

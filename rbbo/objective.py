@@ -400,6 +400,17 @@ class EnvObjective:
                     "its R would be another objective. Start a new run, or resume with the "
                     "softrom version that made it."
                 )
+            from softrom_gym.registration import control_period
+
+            dt = control_period(self.env_id, **self.env_kwargs)
+            if dt is not None and not math.isclose(dt, controllers.TUNED_DT, rel_tol=1e-9):
+                raise PlannerMismatch(
+                    f"this run on {self.env_id} predates the planner record, and at its "
+                    f"control period ({dt:g} s, not {controllers.TUNED_DT:g} s) the planner's "
+                    "times have been scaled to keep their seconds since: its R would be "
+                    "another objective. Start a new run, or resume with the softrom version "
+                    "that made it."
+                )
             return
         current = self.planner_record()
         if current != recorded:

@@ -103,6 +103,7 @@ class RBBO:
         )
         self._gp: GrassmannGP | None = None
         self._gp_count = -1
+        self._session: tuple[str, dict[str, Any]] | None = None  # recorded at its first submit
         self._initial = self._initial_design()
 
     # -- construction -------------------------------------------------------------------
@@ -292,7 +293,11 @@ class RBBO:
         )  # fmt: skip
         u, _, vt = np.linalg.svd(result.basis, full_matrices=False)
         basis = u @ vt  # orthonormal to round-off, as the env requires
-        t = cfg.t_max if self._boca is None else self._boca.choose(believer, basis).T
+        if self._boca is None:
+            t = cfg.t_max
+        else:
+            pending = [p.T for p in self.pending.values() if p.kind not in CONFIRM_KINDS]
+            t = self._boca.choose(believer, basis, pending).T
         return basis, t, result.value
 
     def tell(self, index: int, R: float | None, *, status: str = "ok", wall_s: float = 0.0,
@@ -405,9 +410,6 @@ class RBBO:
         if budget_s is not None and not _real("budget_s", budget_s) > 0:
             raise ValueError(f"budget_s must be > 0 seconds, got {budget_s!r}")
         own = executor is None
-        if self.store is not None:
-            self._record_session("search", max_evaluations=max_evaluations, budget_s=budget_s,
-                                 workers=executor.workers if executor else workers)  # fmt: skip
         if own:
             if objective is None:
                 raise ValueError("give an objective or an executor")
@@ -421,6 +423,10 @@ class RBBO:
             )
         # A run whose every evaluation fails (a broken objective or executor) stops instead of
         # spending its budget on failures; one failure among successes is only recorded.
+        # the session is recorded with its first evaluation: a call that evaluates nothing
+        # (a finished run run again) leaves no record
+        self._session = ("search", {"max_evaluations": max_evaluations, "budget_s": budget_s,
+                                    "workers": executor.workers})  # fmt: skip
         failure_limit = max(MAX_CONSECUTIVE_FAILURES, 2 * executor.workers)
         failed_in_a_row, last_error = 0, None
         ok = False
@@ -433,7 +439,7 @@ class RBBO:
                     and self.can_submit(max_evaluations, budget_s)
                 ):
                     proposal = self.ask()
-                    in_flight[executor.submit(proposal.task())] = proposal
+                    in_flight[self._submit(executor, proposal)] = proposal
                 if not in_flight:
                     break
                 # in_flight keeps submission order, so its first entry is the oldest proposal
@@ -461,12 +467,17 @@ class RBBO:
                 executor.shutdown(wait=ok)
         return self._record_result()
 
-    def _record_session(self, command: str, **settings: Any) -> None:
-        """Append this session's code and machine to DIR/sessions.jsonl."""
-        from .provenance import session_record
+    def _submit(self, executor: Executor, proposal: Proposal):
+        """Submit ``proposal``, first appending this session's code and machine to
+        DIR/sessions.jsonl if nothing was submitted in it yet."""
+        if self._session is not None and self.store is not None:
+            from .provenance import session_record
 
-        limits = {k: (None if v == math.inf else v) for k, v in settings.items()}
-        self.store.append_session({**session_record(command), **limits})
+            command, settings = self._session
+            limits = {k: (None if v == math.inf else v) for k, v in settings.items()}
+            self.store.append_session({**session_record(command), **limits})
+        self._session = None
+        return executor.submit(proposal.task())
 
     def _record_result(self) -> RBBOResult:
         """The result so far, also written to summary.json and best_basis.npy."""
@@ -501,15 +512,34 @@ class RBBO:
 
     @property
     def finished(self) -> bool:
-        """Whether the run ended with its confirmation and searched no further since: its
-        recommendation is then fixed (:meth:`result`), and best_basis.npy holds it."""
-        return self._final_confirmation() is not None
+        """Whether the run ended (with its confirmation, if it has confirmation seeds) and
+        searched no further since: its recommendation is then fixed (:meth:`result`), and
+        best_basis.npy holds it."""
+        if self._final_confirmation() is not None:
+            return True
+        return self.config.n_confirm == 0 and self._summary_recommendation() is not None
+
+    def _summary_recommendation(self) -> Evaluation | None:
+        """The recommendation summary.json recorded when a session ended, if no evaluation was
+        recorded since (a GP refitted in another process may rank near-equal bases
+        otherwise, and best_basis.npy holds this one)."""
+        if self.store is None:
+            return None
+        try:
+            summary = self.store.summary()
+        except RunDirectoryError:
+            return None
+        if not summary or summary.get("evaluations") != len(self.evaluations):
+            return None
+        return next((e for e in self._observations() if e.index == summary.get("best_index")),
+                    None)  # fmt: skip
 
     def _final_recommendation(self) -> Evaluation | None:
-        """The searched evaluation that a final confirmation measured, else :meth:`recommend`."""
+        """The searched evaluation that a final confirmation measured, else the one the last
+        session's summary named (nothing recorded since), else :meth:`recommend`."""
         final = self._final_confirmation()
         if final is None:
-            return self.recommend()
+            return self._summary_recommendation() or self.recommend()
         # (recommended at any T since BOCA's recommendation looks at every fidelity; the
         # longest evaluation of the basis where it ran at several)
         matches = [e for e in self._observations() if np.array_equal(e.basis, final.basis)]
@@ -530,8 +560,7 @@ class RBBO:
             raise ValueError("the run has no evaluation to confirm yet")
         if self.config.n_confirm == 0:
             raise ValueError("the run was made with no confirmation seeds (n_confirm = 0)")
-        if self.store is not None:
-            self._record_session("confirm", workers=executor.workers)
+        self._session = ("confirm", {"workers": executor.workers})
         self._confirm(executor, callback, again=True)
         return self._record_result()
 
@@ -552,7 +581,7 @@ class RBBO:
             proposal = Proposal(self._next_index, basis, cfg.t_max, cfg.fresh_seeds, kind)
             self.pending[proposal.index] = proposal
             self._next_index += 1
-            futures[executor.submit(proposal.task())] = proposal
+            futures[self._submit(executor, proposal)] = proposal
         for future in futures:
             self._tell_outcome(futures[future], future.result(), callback)
 

@@ -27,6 +27,7 @@ import math
 import os
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -380,14 +381,22 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
     import gymnasium as gym
 
     import controllers
+    from softrom_gym.registration import control_period
 
     seeds, seconds, settle = evaluation
+    # not a benchmark: the shared 2 Hz defaults (controllers.GENERIC), as EnvObjective
+    changes = {} if threads is None else {"threads": threads}
+    dt = control_period(env_id, **env_kwargs)
+    planner, every = controllers.planner_for(env_id, "mppi", dt=dt, **changes)
+    settings = {k: v for k, v in asdict(planner.settings).items() if k != "threads"}
     meta = {"env_id": env_id, "env_kwargs": env_kwargs, "basis": np.asarray(basis).tolist(),
-            "seeds": list(seeds), "seconds": seconds, "settle_time": settle}  # fmt: skip
+            "seeds": list(seeds), "seconds": seconds, "settle_time": settle,
+            "planner": settings, "replan_every": every}  # fmt: skip
+    meta = json.loads(json.dumps(meta))  # as stored: tuples are lists
     cache = folder / "episodes.json"
     if cache.is_file():
         old = json.loads(cache.read_text())
-        if old["meta"] == meta:
+        if old["meta"] == meta:  # (rows from before the planner was keyed are made again)
             return old["row"]
 
     class CountRollouts(gym.Wrapper):
@@ -405,10 +414,7 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
     k = int(env.get_wrapper_attr("frame_skip"))
     dist, physics, wall = [], [], []
     for s in seeds:
-        # not a benchmark: the shared 2 Hz defaults (controllers.GENERIC), as EnvObjective
-        changes = {} if threads is None else {"threads": threads}
-        planner, every = controllers.planner_for(env_id, "mppi", dt=env.get_wrapper_attr("dt"),
-                                                 **changes)  # fmt: skip
+        planner, every = controllers.planner_for(env_id, "mppi", dt=dt, **changes)
         env.physics_steps, t0 = 0, time.perf_counter()
         result = controllers.run_episode(env, planner, seconds, replan_every=every, seed=s,
                                          progress=progress)  # fmt: skip

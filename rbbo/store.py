@@ -363,8 +363,14 @@ class RunStore:
         """Append one session's record (:func:`rbbo.provenance.session_record`) durably."""
         self._require_writer("nothing can be recorded in it")
         line = json.dumps(record, sort_keys=True, allow_nan=False) + "\n"
-        with open(self.path / SESSIONS, "a", encoding="utf-8") as f:
-            f.write(line)
+        path = self.path / SESSIONS
+        with open(path, "a+b") as f:
+            f.seek(0, os.SEEK_END)
+            if f.tell() > 0:
+                f.seek(-1, os.SEEK_END)
+                if f.read(1) != b"\n":  # a partial line left by a kill: end it first
+                    line = "\n" + line
+            f.write(line.encode())
             f.flush()
             os.fsync(f.fileno())
 

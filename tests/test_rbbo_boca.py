@@ -98,6 +98,8 @@ def test_the_floor_keeps_a_quarter_of_the_choices_at_full_length(problem):
     boca.record(T_MIN)  # 1 of 5
     choice = boca.choose(gp, candidate)
     assert choice.T == T_MAX and choice.floor and choice.tau[0] > choice.gamma[0]
+    # a T_max proposal still in flight counts: another worker is not sent to T_max as well
+    assert boca.choose(gp, candidate, pending=[T_MAX]).T == T_MIN
     with pytest.raises(ValueError, match="floor_after must be an integer >= 1, got 0"):
         BOCAFidelity(T_MIN, T_MAX, floor_after=0)
 

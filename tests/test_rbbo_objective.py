@@ -215,6 +215,10 @@ def test_a_run_is_never_resumed_with_another_planner():
         make_objective(older, 6, 2)  # a robot of your own: its defaults changed since
     beam = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2).spec()
     make_objective({k: v for k, v in beam.items() if k != "planner"}, 6, 2)  # a benchmark: same
+    # ... unless at another control period, whose times are now scaled to keep their seconds
+    slow = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2, env_kwargs={"frame_skip": 10}).spec()
+    with pytest.raises(PlannerMismatch, match=r"control period \(0.05 s, not 0.025 s\)"):
+        make_objective({k: v for k, v in slow.items() if k != "planner"}, 6, 2)
 
 
 def test_the_planner_keeps_its_seconds_at_the_envs_control_period():

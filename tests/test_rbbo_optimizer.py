@@ -456,3 +456,49 @@ def test_a_resumed_serial_run_proposes_what_the_uninterrupted_one_did(tmp_path, 
         np.testing.assert_array_equal(a.basis, b.basis)
         assert (a.T, a.R) == (b.T, b.R)
     assert resumed.evaluations[-1].gp is not None and resumed.evaluations[0].gp is None
+
+
+def test_sessions_are_recorded_when_they_evaluate_and_survive_a_torn_line(tmp_path):
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=5, n_confirm=2, **FAST)
+    opt = RBBO.create(tmp_path / "run", config, objective_spec=objective.spec())
+    opt.run(objective)
+    opt.run(objective)  # finished and confirmed: evaluates nothing, records nothing
+    assert [s["command"] for s in opt.store.sessions()] == ["search"]
+    with open(tmp_path / "run" / "sessions.jsonl", "a") as f:
+        f.write('{"command": "sea')  # a kill while a record was being written
+    opt.run(objective, max_evaluations=6)
+    sessions = opt.store.sessions()
+    assert [s["command"] for s in sessions] == ["search", "search"]
+    assert sessions[1]["max_evaluations"] == 6
+
+
+def test_a_reloaded_run_keeps_the_recommendation_its_session_ended_with(tmp_path):
+    # without confirmation seeds there is no confirmed answer: the summary's is kept (a GP
+    # refitted in another process may rank near-equal bases otherwise)
+    for seed in range(3):
+        objective = SyntheticObjective(6, 2, noise=0.3)
+        config = RBBOConfig(6, 2, n_init=3, max_evaluations=10, n_confirm=0, seed=seed, **FAST)
+        path = tmp_path / f"run{seed}"
+        result = RBBO.create(path, config, objective_spec=objective.spec()).run(objective)
+        again = RBBO.resume(path, read_only=True)
+        assert again.finished
+        assert again.result().best_index == result.best_index
+        np.testing.assert_array_equal(again.result().best_basis, np.load(path / "best_basis.npy"))
+
+
+def test_a_confirmed_recommendation_evaluated_below_t_max_is_found_on_reload():
+    from rbbo.store import Evaluation
+
+    config = RBBOConfig(6, 2, fidelity="boca", t_min=4.0, t_max=10.0, n_init=2,
+                        max_evaluations=5, n_confirm=2, **FAST)  # fmt: skip
+    opt = RBBO(config)
+    rng = np.random.default_rng(5)
+    bases = random_points(6, 2, 4, rng)
+    for i, (basis, t) in enumerate(zip(bases, (10.0, 4.0, 10.0, 4.0), strict=True)):
+        kind = "initial" if i < 3 else "acquisition"
+        opt._record(Evaluation(index=i, basis=basis, T=t, R=0.1 * i, seeds=[0], kind=kind),
+                    persist=False)  # fmt: skip
+    opt._record(Evaluation(index=4, basis=bases[3], T=10.0, R=0.5, seeds=[7, 8],
+                           kind="confirm-best"), persist=False)  # fmt: skip
+    assert opt.finished and opt.result().best_index == 3  # the T_min evaluation it confirmed

@@ -252,3 +252,25 @@ def test_an_episode_that_diverges_before_the_settle_time_scores_zero():
     assert early == [0.0, 0.0]
     from_start = rl.evaluate_policy(_FullThrottle(), env, [0], seconds=2.0, settle_time=0.0)
     assert np.isfinite(from_start[0]) and from_start[0] != 0.0
+
+
+def test_cached_mpc_rows_are_keyed_by_the_planner(tmp_path, monkeypatch):
+    # the MPC row of a basis is kept in episodes.json; another planner (other controllers
+    # defaults, another control period) must not reuse it
+    import controllers
+    from rbbo.rl import _mpc
+
+    basis = np.eye(6)[:, :2]
+    args = ("softrom_gym/SoftRobot-v0", "identity", basis, tmp_path / "m")
+    evaluation = ([0], 0.1, 0.05)
+    kwargs = {"robot": "beam", "task": "walk"}
+    row = _mpc(*args, kwargs, evaluation, False)
+    calls = []
+    real = controllers.run_episode
+    monkeypatch.setattr(
+        controllers, "run_episode", lambda *a, **k: calls.append(1) or real(*a, **k)
+    )
+    cached = _mpc(*args, kwargs, evaluation, False)
+    assert cached == json.loads(json.dumps(row)) and not calls  # the same planner: cached
+    _mpc(*args, {**kwargs, "frame_skip": 10}, evaluation, False)
+    assert calls  # another control period, another planner: run again

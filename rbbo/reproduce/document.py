@@ -284,17 +284,21 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                  + " evaluations per benchmark." if counts else "."),
               "- R_init and R* are confirmed on fresh seeds not used in the search, so a lucky "
               "sample cannot make the improvement.",
-              "- R* is the evaluated B_c with the highest GP posterior mean of R at T_max, not "
-              "the paper's Algorithm 1 answer, the highest observed R: with MPC seeds as noise "
-              "the highest single sample is the luckiest one.",
-              f"- R is the distance along d per second from t = {plan.settle_time:g} s of the "
-              "episode, not the whole trajectory's distance: a rate compares BOCA's episodes of "
-              "different T, and the first seconds (settling on the ground, a first lunge) "
-              "are not a gait.",
-              f"- Each benchmark has one RBBO run (seed {plan.seed}), as the paper's: the ± "
-              "intervals are over MPC seeds for fixed bases, not over optimiser runs, and an "
-              "improvement over a small R_init (the walkers') moves by hundreds of points when "
-              "the same two bases are measured on other seeds or code.",
+              "- R* is the evaluated B_c with the highest GP posterior mean of R at T_max (in "
+              "runs made before 2026-12-05, among the bases evaluated at T_max; since, among "
+              "all), not the paper's Algorithm 1 answer, the highest observed R: with MPC "
+              "seeds as noise the highest single sample is the luckiest one.",
+              "- R is the distance along d per second"
+              + (f" from t = {plan.settle_time:g} s of the episode" if plan.settle_time > 0
+                 else "")
+              + ", not the whole trajectory's distance: a rate compares BOCA's episodes of "
+              "different T"
+              + (", and the first seconds (settling on the ground, a first lunge) are not a "
+                 "gait." if plan.settle_time > 0 else "."),
+              *([f"- Each benchmark has one RBBO run (seed {plan.seed}), as the paper's: the ± "
+                 "intervals are over MPC seeds for fixed bases, not over optimiser runs, and "
+                 "an improvement over a small R_init moves by hundreds of points when the same "
+                 "two bases are measured on other seeds or code."] if counts else []),
               f"- Every R is the M = {plan.sim_dim} reduced model's. Walking distances are not "
               "converged in M (the README's known limit: on CrossWalk-v0 a closed-loop episode "
               "walks less in M = 40 or 60), so R_init, R* and the improvement compare control "
@@ -414,9 +418,10 @@ def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[st
         lines += [f"| {c} | {m:+.4f} | {sd:.4f} | "
                   f"{sum(int(r['C']) == c for r in reward)} |"
                   for c, (m, _), sd in zip(cs, stats, sds, strict=True)]  # fmt: skip
-        best = cs[int(np.argmax([m for m, _ in stats]))]
-        lines += ["", f"The mean distance is highest at C = {best}; the paper's levelled off "
-                  "after C = 4, its reason for C = 3."]  # fmt: skip
+        if len(cs) >= 2:
+            best = cs[int(np.argmax([m for m, _ in stats]))]
+            lines += ["", f"The mean distance is highest at C = {best}; the paper's levelled "
+                      "off after C = 4, its reason for C = 3."]  # fmt: skip
         lines.append("")
     return lines
 
