@@ -53,7 +53,8 @@ def _directions(out: Path, plan: ReproducePlan) -> list[dict[str, Any]]:
 
 
 def _perturbation(out: Path) -> list[dict[str, Any]]:
-    rows = [{"offset_deg": float(r["offset_deg"]), "R_mean": float(r["R_mean"])}
+    rows = [{"offset_deg": float(r["offset_deg"]), "R_mean": float(r["R_mean"]),
+             "run": Path(r.get("run") or "").name}
             for r in read_rows(out / "perturbation.csv")]  # fmt: skip
     base = [r["R_mean"] for r in rows if r["offset_deg"] == 0.0]
     for r in rows:
@@ -242,11 +243,22 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
         written["figures"].append(path)
         written["perturbation"] = perturbation
         near = [r["fraction"] for r in perturbation if 0 < abs(r["offset_deg"]) <= 10]
+        runs = sorted({r["run"] for r in perturbation if r["run"]})
         lines += [
             "## Direction perturbation",
             "",
             "![perturbation](perturbation.png)",
             "",
+            *(
+                [
+                    f"The recommended B_c of {', '.join(f'`runs/{r}`' for r in runs)} (whichever "
+                    "run of the direction robot along d = 0 had finished first: the directions "
+                    "stage's or Table I's), walked at each offset from d.",
+                    "",
+                ]
+                if runs
+                else []
+            ),
             "| offset (deg) | R | fraction of R at 0 |",
             "|---|---|---|",
         ]
