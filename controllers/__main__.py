@@ -28,7 +28,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("env_id", help=f"a benchmark ({', '.join(sorted(DEFAULTS))}: tuned "
                    "defaults) or another softrom env, e.g. SoftRobot-v0 with --env-kwarg "
-                   "robot=my_robot.stl (the shared defaults around a 2 Hz gait)")  # fmt: skip
+                   "robot=my_robot.stl (shared defaults; the gait seed picks a 2, 3 or 4 Hz "
+                   "cycle)")  # fmt: skip
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                    type=parse_env_kwarg,
                    help="a gym.make keyword, repeatable; VALUE is read as JSON, else as a "

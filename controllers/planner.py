@@ -85,6 +85,10 @@ class PlannerSettings:
     seed_horizon : int or None
         Steps from the reset state over which seeds are scored (None: the horizon); R counts
         the last ``window`` of them, as in a replan.
+    seed_periods : tuple of float
+        Other gait cycles (env steps, each at least ``knots``) the gait seed tries beside
+        ``period``; the best seed's cycle becomes the plan's period for the episode. For a
+        robot whose resonance is not known (the benchmarks' are tuned: empty).
     threads : int or None
         C++ rollout threads (None: the CPUs this process may run on, its affinity).
         Results do not depend on it.
@@ -99,6 +103,7 @@ class PlannerSettings:
     gait_seed: bool = False
     seed_amplitudes: tuple[float, ...] = (0.5, 1.0)
     seed_horizon: int | None = None
+    seed_periods: tuple[float, ...] = ()
     threads: int | None = None
 
     def __post_init__(self) -> None:
@@ -129,6 +134,12 @@ class PlannerSettings:
             )
         if self.seed_horizon is not None:
             _check_int("seed_horizon", self.seed_horizon)
+        periods = _real_tuple(self, "seed_periods")
+        if periods.size and not (np.all(np.isfinite(periods)) and np.all(periods >= self.knots)):
+            raise ValueError(f"seed_periods must be numbers of env steps >= knots = {self.knots}, "
+                             f"got {self.seed_periods}")  # fmt: skip
+        if periods.size and not self.gait_seed:
+            raise ValueError("seed_periods are tried by the gait seed: set gait_seed=True")
         if self.threads is not None:
             _check_int("threads", self.threads)
 
@@ -238,7 +249,10 @@ class Planner(ABC):
         if horizon is not None and horizon != plan.horizon:
             plan = SplinePlan(horizon, plan.num_knots, plan.control_dim, plan.kind, plan.period)
             plan.offset = self.plan_.offset
-        u = np.clip(plan.controls(knots), -1.0, 1.0)
+        return self._evaluate_controls(state, np.clip(plan.controls(knots), -1.0, 1.0), horizon)
+
+    def _evaluate_controls(self, state: Any, u: np.ndarray, horizon: int | None) -> Evaluation:
+        """R - Λ of controls u (B, H, C) in units of the bound, in one batched rollout."""
         out = self.api_.rollout(state, self.api_.bound * u, threads=self.settings.threads)
         self.last_["rollouts"] = self.last_.get("rollouts", 0) + u.shape[0]
         window = self.settings.window
@@ -248,19 +262,30 @@ class Planner(ABC):
                         self.settings.weights, window)  # fmt: skip
 
     def _seed_gait(self) -> None:
-        """Replace the knots by the best sinusoid at the period's frequency."""
+        """Replace the knots by the best sinusoid at the period's frequency (or at one of
+        ``seed_periods``', whose cycle the plan then takes)."""
         s, plan = self.settings, self.plan_
-        frequency = 1.0 / (s.period * self.api_.dt)
-        gaits = gait_grid(plan.control_dim, (frequency,), tuple(s.seed_amplitudes))
-        # Knots that interpolate each sinusoid (the cubic passes through its knots).
-        times = plan.spacing * np.arange(plan.num_knots) * self.api_.dt
-        knots = np.stack([
-            np.clip(g.amplitude * np.sin(2 * np.pi * frequency * times[:, None]
-                                         + np.asarray(g.phases)), -1.0, 1.0)
-            for g in gaits
-        ])  # fmt: skip
+        horizon = s.seed_horizon or plan.horizon
+        candidates, controls = [], []
+        for period in (s.period, *s.seed_periods):
+            frequency = 1.0 / (period * self.api_.dt)
+            gaits = gait_grid(plan.control_dim, (frequency,), tuple(s.seed_amplitudes))
+            trial = SplinePlan(horizon, plan.num_knots, plan.control_dim, plan.kind, period)
+            # Knots that interpolate each sinusoid (the cubic passes through its knots).
+            times = trial.spacing * np.arange(plan.num_knots) * self.api_.dt
+            knots = np.stack([
+                np.clip(g.amplitude * np.sin(2 * np.pi * frequency * times[:, None]
+                                             + np.asarray(g.phases)), -1.0, 1.0)
+                for g in gaits
+            ])  # fmt: skip
+            candidates += [(period, g, k) for g, k in zip(gaits, knots, strict=True)]
+            controls.append(np.clip(trial.controls(knots), -1.0, 1.0))
         self.last_ = {}
-        ev = self._evaluate(self.api_.get_state(), knots, s.seed_horizon)
+        ev = self._evaluate_controls(self.api_.get_state(), np.concatenate(controls), horizon)
         best = int(np.argmax(ev.objective))
-        plan.knots = knots[best].copy()
-        self.seed_ = {"gait": gaits[best].label(), "objective": float(ev.objective[best])}
+        period, gait, knots = candidates[best]
+        if period != plan.period:
+            self.plan_ = plan = SplinePlan(plan.horizon, plan.num_knots, plan.control_dim,
+                                           plan.kind, period)  # fmt: skip
+        plan.knots = knots.copy()
+        self.seed_ = {"gait": gait.label(), "objective": float(ev.objective[best])}

@@ -443,7 +443,7 @@ def cmd_optimize(args) -> int:
 
         if not controllers.has_defaults(spec["env_id"]):
             print(f"note: {spec['env_id']} has no tuned planner settings; {args.controller} "
-                  "runs with the shared defaults around a 2 Hz gait, replanning every cycle "
+                  "runs with the shared defaults (a 2, 3 or 4 Hz gait cycle picked at reset) "
                   "(controllers.GENERIC; the benchmarks' own rows: controllers.DEFAULTS)",
                   file=sys.stderr)  # fmt: skip
     return _execute(opt, executor, iterations, budget, not args.no_progress,

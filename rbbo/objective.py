@@ -305,7 +305,7 @@ class EnvObjective:
 
         ``controllers.planner_for(env_id, controller, dt=..., **planner_kwargs)``: the
         benchmark's tuned settings where the controllers have them for this env, else the
-        shared defaults around a 2 Hz gait (``controllers.GENERIC``), replanning every cycle;
+        shared defaults (``controllers.GENERIC``: a 2, 3 or 4 Hz gait cycle picked at reset);
         their times in seconds kept at the env's control period (``frame_skip``, ``dt``).
         """
         import controllers

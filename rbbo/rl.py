@@ -384,7 +384,7 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
     from softrom_gym.registration import control_period
 
     seeds, seconds, settle = evaluation
-    # not a benchmark: the shared 2 Hz defaults (controllers.GENERIC), as EnvObjective
+    # not a benchmark: the shared defaults (controllers.GENERIC), as EnvObjective
     changes = {} if threads is None else {"threads": threads}
     dt = control_period(env_id, **env_kwargs)
     planner, every = controllers.planner_for(env_id, "mppi", dt=dt, **changes)

@@ -19,6 +19,7 @@ from controllers import (
     PlannerSettings,
     default_planner,
     default_settings,
+    gait_grid,
     has_defaults,
     planner_for,
     run_episode,
@@ -433,3 +434,33 @@ def test_control_period_is_read_without_building_the_env():
     assert control_period("softrom_gym/SoftRobot-v0", dt=0.002) == pytest.approx(0.01)
     assert control_period("softrom_gym/CrossSwim-v0", dt="x") is None  # the env names it
     assert control_period("CartPole-v1") is None
+
+
+def test_the_gait_seed_picks_the_cycle_among_seed_periods(walker):
+    # every (cycle, gait) candidate is scored in one rollout; the best one's cycle becomes
+    # the plan's period for the episode
+    settings = MPPISettings(horizon=12, knots=3, period=6, gait_seed=True, seed_horizon=12,
+                            seed_periods=(4, 3), samples=2, threads=1)  # fmt: skip
+    planner = MPPI(settings)
+    scored = []
+    real = planner._evaluate_controls
+
+    def favour_last(state, u, horizon):
+        ev = real(state, u, horizon)
+        scored.append(u.shape[0])
+        objective = np.zeros(u.shape[0])
+        objective[-1] = 1.0  # the last candidate: the 3-step cycle's last gait
+        return dataclasses.replace(ev, objective=objective)
+
+    planner._evaluate_controls = favour_last
+    planner.reset(walker, seed=0)
+    per_cycle = len(gait_grid(3, (1.0,), settings.seed_amplitudes))
+    assert scored == [3 * per_cycle]  # three cycles' candidates, one batched rollout
+    assert planner.plan_.period == 3 and planner.plan_.horizon == 12
+    with pytest.raises(ValueError, match=r"seed_periods must be numbers of env steps >= knots"):
+        MPPISettings(knots=6, period=20, gait_seed=True, seed_periods=(4,))
+    with pytest.raises(ValueError, match="set gait_seed=True"):
+        MPPISettings(knots=3, period=20, seed_periods=(10,))
+    own = planner_for("softrom_gym/SoftRobot-v0", "mppi")[0].settings
+    assert own.seed_periods == (40 / 3, 10.0)  # a robot of your own: 2, 3 and 4 Hz tried
+    assert default_settings("softrom_gym/TripodWalk-v0", "mppi")[0].seed_periods == ()
