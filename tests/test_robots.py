@@ -119,6 +119,9 @@ def test_from_mesh_bad_arguments(tmp_path):
     ):
         with pytest.raises(error, match=message):
             from_mesh(box, 4, **material)
+    # near incompressibility linear tetrahedra lock: allowed, with a warning that says so
+    with pytest.warns(UserWarning, match="poisson_ratio = 0.49: linear tetrahedra lock"):
+        from_mesh(box, 4, poisson_ratio=0.49)
 
 
 def test_from_mesh_refuses_overlapping_shells():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING
@@ -66,6 +67,16 @@ class Robot:
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if not -1.0 < self.poisson_ratio < 0.5:
             raise ValueError(f"poisson_ratio must lie in (-1, 0.5), got {self.poisson_ratio!r}")
+        if self.poisson_ratio > 0.45:
+            # linear tetrahedra lock near incompressibility (a textbook property of the
+            # element, not of this code): the robot behaves stiffer than its material
+            warnings.warn(
+                f"poisson_ratio = {self.poisson_ratio:g}: linear tetrahedra lock as it "
+                "approaches 0.5, so this robot bends and deforms stiffer than its material "
+                "would (more so on a coarse mesh); use nu <= 0.45 or a finer mesh "
+                "(resolution=)",
+                stacklevel=3,
+            )
 
     @property
     def num_nodes(self) -> int:
