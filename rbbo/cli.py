@@ -414,7 +414,7 @@ def cmd_optimize(args) -> int:
             seed=args.seed, n_confirm=args.confirm_seeds, max_evaluations=iterations,
             budget_s=budget, optimizer=args.optimizer,
         )  # fmt: skip
-        objective = make_objective(spec, args.sim_dim, args.control_dim)
+        objective = make_objective(spec, args.sim_dim, args.control_dim, new=True)
     if spec["kind"] == "env":
         with _bad_input():  # the env is made here: a bad --env-kwarg fails now, named
             problem["N"] = objective.node_count()

@@ -473,8 +473,14 @@ def parse_objective_spec(env_id: str) -> dict[str, Any]:
     return {"kind": "env", "env_id": env_id}
 
 
-def make_objective(spec: dict[str, Any], sim_dim: int, control_dim: int, **kwargs):
-    """Build the objective a spec describes (``kwargs`` fill the spec's missing fields)."""
+def make_objective(spec: dict[str, Any], sim_dim: int, control_dim: int, *, new: bool = False,
+                   **kwargs):  # fmt: skip
+    """Build the objective a spec describes (``kwargs`` fill the spec's missing fields).
+
+    A stored spec (a run's config.json) is checked against the simulator and planner as they
+    are now (:class:`SimulationSpaceMismatch`, :class:`PlannerMismatch`); ``new=True``, for a
+    spec a new run is about to record, skips the planner check: it records the planner.
+    """
     spec = dict(spec)
     kind = spec.pop("kind", None)
     spec.pop("sim_dim", None)
@@ -486,6 +492,7 @@ def make_objective(spec: dict[str, Any], sim_dim: int, control_dim: int, **kwarg
         planner = spec.pop("planner", None)
         objective = EnvObjective(sim_dim=sim_dim, control_dim=control_dim, **{**kwargs, **spec})
         objective.expect_simulation_space(recorded)
-        objective.expect_planner(planner)
+        if not new:
+            objective.expect_planner(planner)
         return objective
     raise ValueError(f"unknown objective kind {kind!r}; valid: ['synthetic', 'env']")

@@ -361,3 +361,18 @@ def test_rollout_of_an_unfinished_run_replays_its_current_recommendation(tmp_pat
     captured = capsys.readouterr()
     assert captured.out.startswith("R = ")
     assert "the run has not finished: replaying its current recommendation" in captured.err
+
+
+def test_a_new_run_on_a_robot_of_your_own_records_its_planner_and_resumes(tmp_path, capsys):
+    # (a regression of 2026-12-05's predecessor: the check that refuses a stored run from
+    # before the planner record also refused every new run on a robot without tuned defaults)
+    run = tmp_path / "own"
+    args = ["optimize", "softrom_gym/SoftRobot-v0", "--env-kwarg", "robot=beam",
+            "--sim-dim", "6", "--control-dim", "2", "--init", "1", "--iterations", "2",
+            "--t-max", "1", "--settle-time", "0.5", "--confirm-seeds", "2", "--no-progress",
+            "--out", str(run)]  # fmt: skip
+    assert main(args) == 0
+    config = json.loads((run / "config.json").read_text())
+    assert config["objective"]["planner"]["settings"]["seed_periods"] == [40 / 3, 10.0]
+    assert main(["resume", str(run), "--iterations", "3", "--no-progress"]) == 0
+    capsys.readouterr()
