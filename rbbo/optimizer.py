@@ -517,12 +517,15 @@ class RBBO:
         best_basis.npy holds it."""
         if self._final_confirmation() is not None:
             return True
-        return self.config.n_confirm == 0 and self._summary_recommendation() is not None
+        # a session that searched on and kept its confirmed recommendation (nothing new to
+        # confirm) ended with a summary of it
+        summary = self._current_summary()
+        return summary is not None and (
+            self.config.n_confirm == 0 or summary.get("R_star") is not None
+        )
 
-    def _summary_recommendation(self) -> Evaluation | None:
-        """The recommendation summary.json recorded when a session ended, if no evaluation was
-        recorded since (a GP refitted in another process may rank near-equal bases
-        otherwise, and best_basis.npy holds this one)."""
+    def _current_summary(self) -> dict[str, Any] | None:
+        """summary.json if no evaluation was recorded since a session wrote it."""
         if self.store is None:
             return None
         try:
@@ -530,6 +533,15 @@ class RBBO:
         except RunDirectoryError:
             return None
         if not summary or summary.get("evaluations") != len(self.evaluations):
+            return None
+        return summary
+
+    def _summary_recommendation(self) -> Evaluation | None:
+        """The recommendation summary.json recorded when a session ended, if no evaluation was
+        recorded since (a GP refitted in another process may rank near-equal bases
+        otherwise, and best_basis.npy holds this one)."""
+        summary = self._current_summary()
+        if summary is None:
             return None
         return next((e for e in self._observations() if e.index == summary.get("best_index")),
                     None)  # fmt: skip

@@ -376,3 +376,7 @@ def test_a_new_run_on_a_robot_of_your_own_records_its_planner_and_resumes(tmp_pa
     assert config["objective"]["planner"]["settings"]["seed_periods"] == [40 / 3, 10.0]
     assert main(["resume", str(run), "--iterations", "3", "--no-progress"]) == 0
     capsys.readouterr()
+    # resumed, searched on, and ended with its summary: finished, whether or not the
+    # recommendation changed (an unchanged one is not confirmed again)
+    assert main(["rollout", str(run), "--seconds", "1"]) == 0
+    assert "has not finished" not in capsys.readouterr().err
