@@ -758,6 +758,11 @@ def main(argv: list[str] | None = None) -> int:
     except EvaluationsFailing as exc:  # rbbo optimize, resume, or a stage of reproduce
         print(f"rbbo: error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        # outside a command's own handler (building the objective, plotting after the run):
+        # whatever was recorded is kept, as on any interrupt
+        print("\ninterrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

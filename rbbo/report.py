@@ -86,7 +86,7 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     if any(r.get("R_init_sd") is not None or r.get("R_star_sd") is not None for r in rows):
         text.append("(R_init, R*: mean ± sample standard deviation over the confirmation seeds)")
     for r in rows:
-        if r.get("best_kind") == "initial":
+        if r.get("best_kind") == "initial" and r.get("R_star") is not None:
             # the GP rated none of its own proposals above the design: the improvement, if
             # any, is the random design's, not the search's
             text.append(f"(R* of {r['problem'] or r['run'] or 'the run'}: evaluation "

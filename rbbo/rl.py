@@ -105,6 +105,9 @@ def resolve_bases(
             dims = (int(settings["sim_dim"]), int(settings["control_dim"]))
         except (KeyError, TypeError, ValueError):
             raise RunDirectoryError(f"{run_dir}/config.json has no sim_dim/control_dim") from None
+        if objective.get("kind") != "env":
+            raise ValueError(f"run {run_dir} optimised a {objective.get('kind') or 'non-env'} "
+                             "objective, not an env: its bases belong to no robot")  # fmt: skip
         if objective.get("kind") == "env":
             if objective.get("env_id") != env_id:
                 raise ValueError(f"run {run_dir} optimised {objective.get('env_id')}, not {env_id}")

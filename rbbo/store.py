@@ -166,9 +166,17 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+# read once, at import (single-threaded): os.umask can only be read by setting it
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+
 def _atomic_write(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
     try:
+        # mkstemp's file is private (0600); a run's record is as readable as the history
+        # file beside it, which open() creates under the umask
+        os.fchmod(fd, 0o666 & ~_UMASK)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

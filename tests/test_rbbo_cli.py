@@ -229,6 +229,26 @@ def test_resume_with_a_new_limit_replaces_the_stored_ones(tmp_path, capsys):
     assert json.loads((run / "config.json").read_text())["rbbo"] == settings
 
 
+def test_an_interrupt_outside_the_search_is_a_clean_130_and_records_are_readable(
+    tmp_path, capsys, monkeypatch
+):
+    # Ctrl-C while the report is being drawn (after the search and its records): no
+    # traceback, status 130; the run's files are readable as the history beside them is
+    import rbbo.report
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rbbo.report, "plot_convergence", interrupted)
+    run = tmp_path / "run"
+    argv = ["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+            "--out", str(run)]  # fmt: skip
+    assert main(argv) == 130
+    assert capsys.readouterr().err.endswith("interrupted\n")
+    modes = {p.name: p.stat().st_mode & 0o777 for p in run.iterdir() if p.is_file()}
+    assert modes["config.json"] == modes["summary.json"] == modes["history.jsonl"]
+
+
 def test_output_paths_that_cannot_be_written_are_usage_errors(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")

@@ -417,12 +417,14 @@ def test_boca_recommends_from_every_fidelity_and_the_report_names_a_design_pick(
     assert chosen.T == 4.0 and objective.value(chosen.basis) > 0.9
     at_t_max = max(objective.value(b) for b, t, _ in points if t == 10.0)
     assert at_t_max < 0.9  # the old rule's pool had nothing as good
-    row = {"problem": "p", "run": "", "N": None, "M": m, "C": c, "R_init": None,
-           "R_star": None, "improvement_pct": None, "evaluations": 12, "failed": 0,
+    row = {"problem": "p", "run": "", "N": None, "M": m, "C": c, "R_init": 0.1,
+           "R_star": 0.2, "improvement_pct": 100.0, "evaluations": 12, "failed": 0,
            "wall_s": 1.0, "best_index": 2, "best_kind": "initial"}  # fmt: skip
     assert "(R* of p: evaluation 2, a point of the initial design, not one the GP" in (
         format_table([row])
     )
+    # a run not confirmed yet shows R* as "-": no note about what it is not
+    assert "(R* of" not in format_table([{**row, "R_star": None, "improvement_pct": None}])
 
 
 @pytest.mark.parametrize("fidelity", ["bo", "boca"])

@@ -177,6 +177,12 @@ def test_resolve_bases(tmp_path):
     with pytest.raises(ValueError, match="no best_basis"):
         (run / "best_basis.npy").unlink()
         rl.resolve_bases(["best"], ENV, run)
+    # a synthetic run's basis belongs to no robot: refused, not trained on SoftRobot-v0's
+    synthetic = tmp_path / "synthetic"
+    RunStore.create(synthetic, {"rbbo": {"sim_dim": 8, "control_dim": 2},
+                                "objective": {"kind": "synthetic"}}).save_best(best)  # fmt: skip
+    with pytest.raises(ValueError, match="optimised a synthetic objective, not an env"):
+        rl.resolve_bases(["best"], ENV, synthetic)
     # a basis the env would refuse is refused before any work, naming the file
     np.save(tmp_path / "flat.npy", np.ones((8, 2)))
     with pytest.raises(ValueError, match=r"control basis .*flat.npy is rank-deficient"):
