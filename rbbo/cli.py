@@ -513,6 +513,13 @@ def cmd_confirm(args) -> int:
     from .report import format_table, report_row
 
     opt = RBBO.resume(args.run_dir)
+    if not opt.finished and opt.config.n_confirm > 0:
+        # its R* would be a mid-search recommendation's, and the run would then read as
+        # finished; the resume measures R_init and R* when the search ends
+        n = len(opt.evaluations)
+        raise UsageError(f"{args.run_dir} has not finished its search ({n} evaluations "
+                         f"recorded): rbbo resume {args.run_dir} finishes it and measures "
+                         "R_init and R*; confirm measures a finished run again")  # fmt: skip
     before = opt.result()
     objective = _objective_of(opt)
     execution = dict(opt.store.config.get("execution") or {"executor": "process",

@@ -381,6 +381,9 @@ def test_rollout_of_an_unfinished_run_replays_its_current_recommendation(tmp_pat
     captured = capsys.readouterr()
     assert captured.out.startswith("R = ")
     assert "the run has not finished: replaying its current recommendation" in captured.err
+    # confirm is for a finished run: this one is pointed to resume, which confirms at its end
+    err = _error(capsys, ["confirm", str(tmp_path / "run")])
+    assert "has not finished its search (6 evaluations recorded): rbbo resume" in err
 
 
 def test_a_new_run_on_a_robot_of_your_own_records_its_planner_and_resumes(tmp_path, capsys):
