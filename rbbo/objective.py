@@ -372,18 +372,8 @@ class EnvObjective:
     def planner_record(self) -> dict[str, Any]:
         """The planner's resolved settings and replan interval, as JSON: what a run records,
         so that a change of the controllers' defaults cannot change a resumed run's objective
-        unseen. (Threads are left out: results do not depend on them.)"""
-        import json
-
-        planner, every = self.planner()
-        settings = getattr(planner, "settings", None)
-        if is_dataclass(settings) and not isinstance(settings, type):
-            settings = {k: v for k, v in asdict(settings).items() if k != "threads"}
-        else:  # a planner of the user's own without dataclass settings: its name only
-            settings = None
-        name = getattr(planner, "name", type(planner).__name__)
-        return json.loads(json.dumps({"name": name, "replan_every": every,
-                                      "settings": settings}, default=repr))  # fmt: skip
+        unseen (:func:`planner_record`)."""
+        return planner_record(*self.planner())
 
     def expect_planner(self, recorded: dict[str, Any] | None) -> None:
         """Raise :class:`PlannerMismatch` unless the planner is the one a run recorded. A run
@@ -424,6 +414,22 @@ class EnvObjective:
                 "softrom's controllers defaults differ from the run's): its R would be another "
                 "objective. Start a new run, or resume with the softrom version that made it."
             )
+
+
+def planner_record(planner: Any, replan_every: int) -> dict[str, Any]:
+    """A planner's name, resolved settings and replan interval as JSON (what a run, or a
+    cached MPC result, records of the planner that made it; threads are left out: results do
+    not depend on them)."""
+    import json
+
+    settings = getattr(planner, "settings", None)
+    if is_dataclass(settings) and not isinstance(settings, type):
+        settings = {k: v for k, v in asdict(settings).items() if k != "threads"}
+    else:  # a planner of the user's own without dataclass settings: its name only
+        settings = None
+    name = getattr(planner, "name", type(planner).__name__)
+    return json.loads(json.dumps({"name": name, "replan_every": replan_every,
+                                  "settings": settings}, default=repr))  # fmt: skip
 
 
 def settled_reward_rate(result, step_seconds: float, settle_time: float, seconds: float) -> float:

@@ -27,7 +27,6 @@ import math
 import os
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -386,15 +385,16 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
     import controllers
     from softrom_gym.registration import control_period
 
+    from .objective import planner_record
+
     seeds, seconds, settle = evaluation
     # not a benchmark: the shared defaults (controllers.GENERIC), as EnvObjective
     changes = {} if threads is None else {"threads": threads}
     dt = control_period(env_id, **env_kwargs)
     planner, every = controllers.planner_for(env_id, "mppi", dt=dt, **changes)
-    settings = {k: v for k, v in asdict(planner.settings).items() if k != "threads"}
     meta = {"env_id": env_id, "env_kwargs": env_kwargs, "basis": np.asarray(basis).tolist(),
             "seeds": list(seeds), "seconds": seconds, "settle_time": settle,
-            "planner": settings, "replan_every": every}  # fmt: skip
+            "planner": planner_record(planner, every)}  # fmt: skip
     meta = json.loads(json.dumps(meta))  # as stored: tuples are lists
     cache = folder / "episodes.json"
     if cache.is_file():

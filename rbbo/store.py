@@ -166,6 +166,20 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+def _append_line(path: Path, line: str, end_partial: bool = False) -> None:
+    """Append ``line`` and a newline durably (written, flushed and fsynced); with
+    ``end_partial``, after a newline if the file ends inside a line."""
+    with open(path, "a+b") as f:
+        data = line.encode() + b"\n"
+        if end_partial and f.seek(0, os.SEEK_END) > 0:
+            f.seek(-1, os.SEEK_END)
+            if f.read(1) != b"\n":
+                data = b"\n" + data
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
 # read once, at import (single-threaded): os.umask can only be read by setting it
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
@@ -361,26 +375,15 @@ class RunStore:
     def append(self, evaluation: Evaluation) -> None:
         """Append one evaluation durably (written, flushed and fsynced before returning)."""
         self._require_writer("nothing can be recorded in it")
-        line = evaluation.to_json() + "\n"
-        with open(self.history_path, "a", encoding="utf-8") as f:
-            f.write(line)
-            f.flush()
-            os.fsync(f.fileno())
+        # (a partial last line was cut back by open(): the history ends with a newline)
+        _append_line(self.history_path, evaluation.to_json())
 
     def append_session(self, record: dict[str, Any]) -> None:
         """Append one session's record (:func:`rbbo.provenance.session_record`) durably."""
         self._require_writer("nothing can be recorded in it")
-        line = json.dumps(record, sort_keys=True, allow_nan=False) + "\n"
-        path = self.path / SESSIONS
-        with open(path, "a+b") as f:
-            f.seek(0, os.SEEK_END)
-            if f.tell() > 0:
-                f.seek(-1, os.SEEK_END)
-                if f.read(1) != b"\n":  # a partial line left by a kill: end it first
-                    line = "\n" + line
-            f.write(line.encode())
-            f.flush()
-            os.fsync(f.fileno())
+        # nothing repairs this file: a partial line left by a kill is ended first
+        _append_line(self.path / SESSIONS, json.dumps(record, sort_keys=True, allow_nan=False),
+                     end_partial=True)  # fmt: skip
 
     def sessions(self) -> list[dict[str, Any]]:
         """The sessions' records, oldest first (a run made before them has none); a partial
