@@ -194,6 +194,10 @@ class ReducedModel:
         """
     def elastic_stiffness(self, q_e: typing.Any, project: bool = False) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
         ...
+    def min_volume_ratio(self, q: typing.Any) -> float:
+        """
+        min det F over every tetrahedron at reduced coordinates q: the smallest deformed-to-rest volume ratio J. J <= 0: an element is inverted (a material too soft for the loads).
+        """
     def positions(self, q: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """
         Node positions (N, 3) of reduced coordinates q.

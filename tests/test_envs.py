@@ -37,8 +37,11 @@ def test_spaces_and_info(env):
     assert env.observation_space.contains(obs)
     assert env.action_space.shape == (3,) and env.action_space.dtype == np.float32
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
-    for key in ("distance", "orientation", "lateral", "effort", "com", "diverged", "contact"):
+    keys = ("distance", "orientation", "lateral", "effort", "com", "diverged", "contact")
+    for key in (*keys, "min_volume_ratio"):
         assert key in info
+    # the default material carries a random action with every element far from inverting
+    assert 0.5 < info["min_volume_ratio"] < 1.5
     assert info["distance"] == pytest.approx(reward)
     assert not terminated and not truncated
     assert env.spec.max_episode_steps == 400
@@ -395,3 +398,26 @@ def test_a_first_build_says_what_it_computes_and_a_cached_one_is_silent(
     assert first.out == ""
     gym.make("softrom_gym/BeamWalk-v0", sim_dim=7).close()
     assert capsys.readouterr().err == ""
+
+
+def test_a_material_too_soft_for_the_actions_warns_once_that_elements_invert(recwarn):
+    # E = 1 kPa, 50x softer than the default: full-bound bang-bang actuation inverts elements
+    env = gym.make("softrom_gym/SoftRobot-v0", robot="cross", material={"youngs_modulus": 1e3})
+    env.reset(seed=0)
+    base = env.unwrapped
+    ratios = []
+    for k in range(60):
+        action = np.sign(np.sin(np.pi * k / 10 + np.arange(3))) * base.action_bound
+        *_, info = env.step(action.astype(np.float32))
+        ratios.append(info["min_volume_ratio"])
+        # the reported J is the least of every tetrahedron's det F
+        x = base.model.positions(base.get_state().q)
+        p, p0 = x[base.robot.tets], base.robot.nodes[base.robot.tets]
+        j = np.linalg.det(p[:, 1:] - p[:, :1]) / np.linalg.det(p0[:, 1:] - p0[:, :1])
+        assert ratios[-1] == pytest.approx(j.min(), abs=1e-9)
+    assert min(ratios) < 0.0
+    said = [w for w in recwarn if "tetrahedron is inverted" in str(w.message)]
+    assert len(said) == 1  # once, not at every step
+    message = str(said[0].message)
+    assert "youngs_modulus = 1000 Pa" in message and "lower action_scale" in message
+    env.close()

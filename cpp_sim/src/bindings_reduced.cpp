@@ -449,6 +449,15 @@ KeyboardInterrupt.)doc")
           },
           py::arg("q"), "Node positions (N, 3) of reduced coordinates q.")
       .def(
+          "min_volume_ratio",
+          [](const ReducedModel& r, py::handle q) {
+            return r.min_volume_ratio(vector_in(q, "q", r.dim()));
+          },
+          py::arg("q"),
+          "min det F over every tetrahedron at reduced coordinates q: the smallest "
+          "deformed-to-rest volume ratio J. J <= 0: an element is inverted (a material too soft "
+          "for the loads).")
+      .def(
           "com", [](const ReducedModel& r, py::handle q) { return vec_out(r.com(vector_in(q, "q", r.dim()))); },
           py::arg("q"), "Centre of mass (3,) of reduced coordinates q.")
       .def(

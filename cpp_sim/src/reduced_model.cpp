@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace softrom {
@@ -18,7 +19,10 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
       material_(material),
       surface_nodes_(surface_nodes),
       basis_(basis),
+      tets_(mesh.tets),
       rest_(mesh.rest) {
+  inv_rest_det_.reserve(mesh.volume.size());
+  for (const double v : mesh.volume) inv_rest_det_.push_back(1.0 / (6.0 * v));
   const int md = elastic_dim();
   total_mass_ = mass.sum();
   rest_com_.setZero();
@@ -103,6 +107,19 @@ ReducedState ReducedModel::rest_state() const {
 }
 
 VecX ReducedModel::positions(const VecX& q) const { return rest_ + basis_ * q; }
+
+double ReducedModel::min_volume_ratio(const VecX& q) const {
+  const VecX x = positions(q);
+  double j_min = std::numeric_limits<double>::infinity();
+  for (std::size_t e = 0; e < tets_.size(); ++e) {
+    const Tet& t = tets_[e];
+    const Vec3 x0 = x.segment<3>(3 * t[0]);
+    const Vec3 a = x.segment<3>(3 * t[1]) - x0, b = x.segment<3>(3 * t[2]) - x0,
+               c = x.segment<3>(3 * t[3]) - x0;
+    j_min = std::min(j_min, a.dot(b.cross(c)) * inv_rest_det_[e]);
+  }
+  return j_min;
+}
 
 Vec3 ReducedModel::com_velocity(const VecX& qdot) const {
   return qdot.head<3>() / std::sqrt(total_mass_);

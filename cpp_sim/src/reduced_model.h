@@ -211,6 +211,10 @@ class ReducedModel {
   double elastic_energy_fast(const VecX& qe) const;  // the fast kernels' (kernels::snh_force)
   VecX elastic_forces(const VecX& qe) const;
   MatX elastic_stiffness(const VecX& qe, bool project) const;
+  // min det F over every tetrahedron of the mesh at configuration q (M + 6): the smallest
+  // deformed-to-rest volume ratio J. J <= 0: an element is inverted. (The cubature's elements
+  // alone would miss some: a few inverted tetrahedra of a soft tripod lie outside it.)
+  double min_volume_ratio(const VecX& q) const;
 
   // Full positions (N x 3 flattened) of a reduced configuration.
   VecX positions(const VecX& q) const;
@@ -312,6 +316,8 @@ class ReducedModel {
   std::vector<std::ptrdiff_t> face_corners_;  // 3 per face: its nodes' offsets 3 c in x_s
   VecX node_mass_surface_; // lumped mass of each surface node
   MatX basis_;             // full B_r, for positions()
+  std::vector<Tet> tets_;  // every tetrahedron, and 1 / (6 V) of each, for min_volume_ratio
+  std::vector<double> inv_rest_det_;
   VecX rest_;
   MatX control_basis_;     // M x C
   MatX k_rest_;            // K_r at rest (cubature), for Rayleigh damping and A_0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
@@ -143,8 +144,10 @@ class SoftRobotEnv(gym.Env):
     ``R = sum over sub-steps of d · v_com · dt`` (metres; the paper's R). ``info`` holds the
     terms of the regulariser Λ separately: ``orientation`` (|rotation vector|, rad),
     ``lateral`` (motion orthogonal to d in the ground plane this step, m) and ``effort``
-    (|f_c / a|^2), plus ``distance`` (along d since reset, m), ``com``, ``diverged`` and
-    ``contact`` (the model's contact setting: "staggered", "penalty" or "none").
+    (|f_c / a|^2), plus ``distance`` (along d since reset, m), ``com``, ``diverged``,
+    ``min_volume_ratio`` (the smallest det F over the mesh's tetrahedra; at or below 0 one is
+    inverted, which a material too soft for the action bound allows, and the env warns once)
+    and ``contact`` (the model's contact setting: "staggered", "penalty" or "none").
 
     ## Starting State
     The robot at rest (on the ground for walking), with deformation velocities drawn
@@ -185,6 +188,9 @@ class SoftRobotEnv(gym.Env):
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 40}
+    # Set by the first inverted element this env reports (the warning is said once); a class
+    # default, so an env pickled before it existed unpickles with it.
+    _inversion_warned: bool = False
 
     def __init__(
         self,
@@ -395,6 +401,19 @@ class SoftRobotEnv(gym.Env):
         com = self.model.com(state.q)
         if orientation is None:
             orientation = float(np.linalg.norm(self._orientation @ state.q))
+        volume_ratio = float(self.model.min_volume_ratio(state.q))
+        if volume_ratio <= 0.0 and not self._inversion_warned:
+            # Stable Neo-Hookean is defined for inverted elements and restores them, so the step
+            # goes on, but while det F <= 0 the motion is not a physical one: say so once.
+            self._inversion_warned = True
+            warnings.warn(
+                f"{self.robot.name}: a tetrahedron is inverted (det F = "
+                f"{volume_ratio:.3g}): the material (youngs_modulus = "
+                f"{self.robot.youngs_modulus:g} Pa) is too soft for actions up to "
+                f"{self.action_bound:.3g}, and the motion is not physical while "
+                'info["min_volume_ratio"] <= 0; raise youngs_modulus or lower action_scale',
+                stacklevel=3,
+            )
         return {
             "distance": float(self.direction @ (com - self._com0)),
             "orientation": orientation,
@@ -402,6 +421,7 @@ class SoftRobotEnv(gym.Env):
             "effort": effort,
             "com": com,
             "diverged": diverged,
+            "min_volume_ratio": volume_ratio,
             "contact": self.model.contact,
         }
 
