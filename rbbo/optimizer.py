@@ -19,13 +19,17 @@
   at the target fidelity on the Grassmannian, and picks T by BOCA (``fidelity="boca"``) or
   uses T_max (``"bo"``).
 - Every evaluation uses the same seeds (common random numbers), so bases are compared under
-  the same MPC noise. A proposal is handed out as soon as a worker is free, so with several
-  workers the data a proposal sees depends on which evaluation finished first and two runs
-  differ; with one worker (or ask/tell in a fixed order) a run repeats bitwise. With
-  ``run(..., deterministic=True)`` results are told in the order they were proposed: a worker
-  that finishes before an older evaluation waits for it, so proposal k sees the results of
-  proposals 0 .. k - W and fantasies for the W - 1 after them (W workers) whatever the
-  timing, and a run with a given W and evaluation count repeats bitwise.
+  the same MPC noise. A repeat would return the same R, so a proposal within
+  ``DUPLICATE_DISTANCE`` of a basis evaluated or in flight at the same T is replaced by the
+  next-best local optimum of the acquisition, or failing those by a random point (its
+  history records ``duplicates_skipped``). A proposal is handed out as soon as a worker is
+  free, so with several workers the data a proposal sees depends on which evaluation
+  finished first and two runs differ; with one worker (or ask/tell in a fixed order) a run
+  repeats bitwise. With ``run(..., deterministic=True)`` results are told in the order they
+  were proposed: a worker that finishes before an older evaluation waits for it, so proposal
+  k sees the results of proposals 0 .. k - W and fantasies for the W - 1 after them (W
+  workers) whatever the timing, and a run with a given W and evaluation count repeats
+  bitwise.
 - Recommendation: among the evaluated bases (at any T), the one with the highest GP
   posterior mean at T_max. Where the GP has fitted a noise level this discounts a lucky
   sample; where the marginal likelihood cannot tell noise from short-range signal (few,
@@ -61,13 +65,25 @@ from .config import (
 )
 from .executors import Executor, ProcessExecutor, SerialExecutor
 from .gp import GPHyperparameters, GrassmannGP
-from .grassmann import dimension, identity_basis, random_points
+from .grassmann import dimension, identity_basis, projection_sq_distances, random_points
 from .store import Evaluation, RunDirectoryError, RunStore
 
 __all__ = ["FIDELITIES", "RBBO", "EvaluationsFailing", "Proposal", "RBBOConfig", "RBBOResult"]
 
 CONFIG_VERSION = 1
 MAX_CONSECUTIVE_FAILURES = 10
+# Two bases closer than this (projection distance ||P_1 - P_2||_F) at the same T are one
+# evaluation: under common random numbers the MPC sees actuation directions within a
+# thousandth of each other, and R differs by far less than its noise across seeds.
+DUPLICATE_DISTANCE = 1e-3
+
+
+def _is_duplicate(basis: np.ndarray, t: float, taken: list[tuple[np.ndarray, float]]) -> bool:
+    same_t = [b for b, t_b in taken if abs(t_b - t) <= 1e-9 * max(1.0, abs(t))]
+    if not same_t:
+        return False
+    d2 = projection_sq_distances(basis[None], np.stack(same_t))
+    return bool(d2.min() < DUPLICATE_DISTANCE**2)
 
 
 class EvaluationsFailing(RuntimeError):
@@ -268,10 +284,14 @@ class RBBO:
                 t = cfg.t_max if self._boca is None else cfg.t_min
             else:
                 start = time.perf_counter()
-                basis, t, value = self._propose(gp, rng)
+                basis, t, value, skipped = self._propose(gp, rng)
                 info.update(acq_s=time.perf_counter() - start, acq_value=value,
                             gp=asdict(gp.hyperparameters))  # fmt: skip
                 kind = "acquisition"
+                if skipped:
+                    info["duplicates_skipped"] = skipped
+                    if value is None:  # every local optimum had been evaluated
+                        kind = "random"
         proposal = Proposal(index, basis, float(t), cfg.crn_seeds, kind, info)
         self.pending[index] = proposal
         self._next_index += 1
@@ -291,14 +311,31 @@ class RBBO:
             optimizer=cfg.optimizer, n_random=cfg.acq_random, n_starts=cfg.acq_starts,
             max_iterations=cfg.acq_max_iterations,
         )  # fmt: skip
-        u, _, vt = np.linalg.svd(result.basis, full_matrices=False)
-        basis = u @ vt  # orthonormal to round-off, as the env requires
-        if self._boca is None:
-            t = cfg.t_max
-        else:
-            pending = [p.T for p in self.pending.values() if p.kind not in CONFIRM_KINDS]
-            t = self._boca.choose(believer, basis, pending).T
-        return basis, t, result.value
+        # Under common random numbers an evaluation repeated at the same T returns the same R:
+        # it costs a worker, teaches the GP nothing and drags its noise fit to the floor. So a
+        # maximiser that lands on a basis evaluated (or in flight) at that T gives way to the
+        # next-best local optimum, and failing those to a random point (as GPyOpt's
+        # de-duplication does).
+        in_flight = [p for p in self.pending.values() if p.kind not in CONFIRM_KINDS]
+        taken = [(e.basis, e.T) for e in self.evaluations] + [(p.basis, p.T) for p in in_flight]
+        optima = sorted(
+            ((-float(r.cost), r.point) for r in result.results
+             if not np.array_equal(r.point, result.basis)),
+            key=lambda v: -v[0],
+        )  # fmt: skip
+        choices = [(result.value, result.basis), *optima, (None, None)]
+        for skipped, (value, point) in enumerate(choices):
+            if point is None:
+                point = random_points(cfg.sim_dim, cfg.control_dim, rng=rng)
+            u, _, vt = np.linalg.svd(point, full_matrices=False)
+            basis = u @ vt  # orthonormal to round-off, as the env requires
+            if self._boca is None:
+                t = cfg.t_max
+            else:
+                t = self._boca.choose(believer, basis, [p.T for p in in_flight]).T
+            if value is None or not _is_duplicate(basis, t, taken):
+                return basis, t, value, skipped
+        raise AssertionError("unreachable: the last choice is always taken")
 
     def tell(self, index: int, R: float | None, *, status: str = "ok", wall_s: float = 0.0,
              worker: str = "", R_seeds=(), error: str | None = None) -> Evaluation:  # fmt: skip

@@ -504,3 +504,46 @@ def test_a_confirmed_recommendation_evaluated_below_t_max_is_found_on_reload():
     opt._record(Evaluation(index=4, basis=bases[3], T=10.0, R=0.5, seeds=[7, 8],
                            kind="confirm-best"), persist=False)  # fmt: skip
     assert opt.finished and opt.result().best_index == 3  # the T_min evaluation it confirmed
+
+
+def test_a_proposal_on_an_evaluated_basis_gives_way_to_the_next_optimum_then_a_random_one(
+    monkeypatch,
+):
+    # Under common random numbers a repeat returns the same R: it must not be proposed.
+    import rbbo.optimizer as optimizer_module
+    from rbbo.acquisition import AcquisitionResult
+
+    m, c = 6, 2
+    objective = SyntheticObjective(m, c, optimum_seed=3)
+    opt = RBBO(RBBOConfig(m, c, n_init=3, seed=1, n_confirm=0, **FAST))
+    for _ in range(4):  # the identity and three random points
+        p = opt.ask()
+        opt.tell(p.index, objective(p.basis, p.T, p.seeds[0]))
+    seen = opt.evaluations[1].basis
+    # the same subspace, another basis of it (a rotation within the plane, a sign)
+    repeat = seen @ np.array([[0.0, -1.0], [1.0, 0.0]])
+    fresh = random_points(m, c, rng=77)
+    optima = [
+        type("Result", (), {"point": repeat, "cost": -2.0}),
+        type("Result", (), {"point": fresh, "cost": -1.0}),
+    ]
+
+    def lands_on_a_repeat(*args, **kwargs):
+        return AcquisitionResult(repeat, 2.0, "lrbfgs", results=list(optima))
+
+    monkeypatch.setattr(optimizer_module, "maximize_on_grassmann", lands_on_a_repeat)
+    p = opt.ask()
+    assert p.kind == "acquisition" and p.info["duplicates_skipped"] == 1
+    assert p.info["acq_value"] == 1.0  # the next-best optimum's
+    assert projection_distance(p.basis, fresh) < 1e-12
+    # with that one in flight, both optima are taken: a random point, said so
+    q = opt.ask()
+    assert q.kind == "random" and q.info["duplicates_skipped"] == 2
+    assert q.info["acq_value"] is None
+    for taken in (*[e.basis for e in opt.evaluations], p.basis):
+        assert projection_distance(q.basis, taken) > 1e-3
+    # an ordinary proposal records nothing of the kind
+    opt.tell(p.index, 0.0)
+    opt.tell(q.index, 0.0)
+    monkeypatch.undo()
+    assert "duplicates_skipped" not in opt.ask().info
