@@ -184,6 +184,30 @@ def test_status_says_what_each_part_has_done(reproduction, capsys, tmp_path):
     assert "no reproduce.json" in capsys.readouterr().err
 
 
+def test_status_shows_the_stages_of_the_stored_plan_and_its_sessions(tmp_path, capsys):
+    # a reproduction of Table I alone: no transfer, directions or RL to do, nor budget for them
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], stages=["table"])
+    document = {"plan": plan.to_dict(), "sessions": [{"command": "rbbo reproduce --stages table"}]}
+    (tmp_path / "reproduce.json").write_text(json.dumps(document))
+    assert main(["reproduce", "--out", str(tmp_path), "--status"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == [
+        "table        CrossSwim-v0         not started",
+        "optimisation budget left: 0.75 h on 2 workers, plus the confirmations",
+    ]
+    # the stored plan is the last session's: the stages earlier ones ran (recorded with the
+    # session, or named by the command of one recorded before they were) are shown too
+    document["sessions"][:0] = [
+        {"command": "rbbo reproduce --stages=perturbation --out x"},
+        {"command": "rbbo reproduce --out x", "stages": ["bo"]},
+    ]
+    (tmp_path / "reproduce.json").write_text(json.dumps(document))
+    assert main(["reproduce", "--out", str(tmp_path), "--status"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines[:-1]] == ["table", "bo", "perturbation"]
+    assert lines[-1].endswith("plus the confirmations and the perturbation study")
+
+
 def test_rerun_resumes_without_new_evaluations(reproduction):
     runs = reproduction / "runs"
     before = {p.name: len(_history(p)) for p in runs.iterdir()}
@@ -516,6 +540,26 @@ def test_a_running_session_records_its_wall_time_as_it_goes(tmp_path, monkeypatc
     heartbeats = written[1:4]  # the first write opens the session, the last is `finally`
     assert len(heartbeats) == 3 and heartbeats == sorted(heartbeats)
     assert heartbeats[-1] >= 0.06
+
+
+def test_the_launch_line_names_only_the_stages_that_run(tmp_path, monkeypatch):
+    from rbbo.reproduce import runner
+
+    monkeypatch.setattr(runner, "optimise", lambda path, *args, **kwargs: path)
+    monkeypatch.setattr(runner, "_objective", lambda plan, bench, *args: None)
+    monkeypatch.setattr(runner, "studies", lambda out, plan, log: out / "studies")
+    lines = []
+    for stages in (["bo", "table"], ["studies"]):  # as --stages bo,table and --stages studies
+        plan = ReproducePlan(benchmarks=["CrossSwim-v0"], stages=stages, budget_s=1800.0)
+        runner.reproduce(tmp_path / stages[0], plan, progress=False, log=lines.append)
+    launch = [line.split(": ", 1)[1] for line in lines if line.startswith("reproduce into ")]
+    assert launch == [
+        "stages table, bo; optimisation budgets add up to 1.0 h on 2 workers, plus the "
+        "confirmations (rerun the same command to resume)",
+        "stages studies (rerun the same command to resume)",
+    ]
+    sessions = json.loads((tmp_path / "bo" / "reproduce.json").read_text())["sessions"]
+    assert sessions[-1]["stages"] == ["table", "bo"]  # what --status reads back
 
 
 def test_an_interrupt_does_not_wait_for_the_evaluations_in_flight():

@@ -170,8 +170,8 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    "(e.g. docs/REPORT.md)")  # fmt: skip
     p.add_argument("--status", action="store_true",
                    help="print what each part of the reproduction in --out has done and the "
-                   "budget left (every stage of the stored plan; --stages and budgets given "
-                   "here override it), and exit")  # fmt: skip
+                   "budget left (the stages of the stored plan and of its earlier sessions; "
+                   "--stages and budgets given here override it), and exit")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
@@ -198,20 +198,22 @@ def _status(args, usage_error: type[Exception]) -> int:
     import json
     from dataclasses import replace
 
-    from .status import status_lines
+    from .status import recorded_stages, status_lines
 
     path = args.out / "reproduce.json"
     if not path.exists():
         raise usage_error(f"{args.out} has no reproduce.json: no reproduction there yet")
-    stored = ReproducePlan.from_dict(json.loads(path.read_text())["plan"])
+    document = json.loads(path.read_text())
+    stored = ReproducePlan.from_dict(document["plan"])
     given = {a.split("=")[0] for a in args.argv if a.startswith("--")}
     changes = {field: getattr(args, name) for flag, name, field in (
         ("--stages", "stages", "stages"), ("--budget-per-benchmark", "budget_per_benchmark",
          "budget_s"), ("--direction-budget", "direction_budget", "direction_budget_s"),
         ("--rl-benchmarks", "rl_benchmarks", "rl_benchmarks"), ("--rl-steps", "rl_steps",
          "rl_steps"), ("--rl-algos", "rl_algos", "rl_algos")) if flag in given}  # fmt: skip
-    # The stored stages are the last session's; a status is of the whole reproduction.
-    changes.setdefault("stages", list(_STAGES))
+    # The stored stages are the last session's; a status is of the whole reproduction, the
+    # stages its earlier sessions ran too (not every stage: those it never ran are no part).
+    changes.setdefault("stages", recorded_stages(document))
     try:
         plan = replace(stored, **changes)
     except (ValueError, TypeError) as exc:

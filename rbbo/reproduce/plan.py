@@ -30,6 +30,9 @@ PAPER_DIRECTIONS = {"min_improvement_pct": 46.45, "max_improvement_pct": 853.50,
                     "fraction_within_10deg": 0.80}  # fmt: skip
 
 _STAGES = ("table", "bo", "transfer", "directions", "perturbation", "studies", "rl")
+# What each stage runs besides the optimisation budgets, as the launch line and --status say.
+_BESIDES_BUDGETS = {"transfer": "the transfer", "perturbation": "the perturbation study",
+                    "studies": "the studies of C", "rl": "the RL baselines"}  # fmt: skip
 
 
 def _short(env_id: str) -> str:
@@ -220,6 +223,18 @@ class ReproducePlan:
         """Names of the experiment-defining settings in which ``other`` differs."""
         mine, theirs = self.to_dict(), other.to_dict()
         return [k for k in mine if k not in self.RESUMABLE and mine[k] != theirs[k]]
+
+    def ordered_stages(self) -> list[str]:
+        """The stages, each once, in the order they run."""
+        return [s for s in _STAGES if s in self.stages]
+
+    def besides_budgets(self) -> str:
+        """The work of the planned stages that no optimisation budget bounds, as a phrase
+        ("the confirmations, the transfer and the RL baselines"), or "" when there is none."""
+        stages = set(self.stages)
+        parts = ["the confirmations"] if stages & {"table", "bo", "directions"} else []
+        parts += [text for stage, text in _BESIDES_BUDGETS.items() if stage in stages]
+        return ", ".join(parts[:-1]) + " and " + parts[-1] if len(parts) > 1 else "".join(parts)
 
     def env_id(self, benchmark: str) -> str:
         return f"softrom_gym/{_short(benchmark)}"

@@ -360,7 +360,8 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     session = {"command": command or " ".join(sys.argv), "started": time.time(), "wall_s": 0.0,
                "source": source_version(), "machine": machine_description(),
                "budget_s": plan.budget_s, "direction_budget_s": plan.direction_budget_s,
-               "workers": plan.workers, "deterministic": plan.deterministic}  # fmt: skip
+               "workers": plan.workers, "deterministic": plan.deterministic,
+               "stages": plan.ordered_stages()}  # fmt: skip
     document["sessions"].append(session)
     log(f"session {len(document['sessions'])}: {session['command']} ({session['source']})")
     started = time.perf_counter()
@@ -400,9 +401,13 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     per_bench = sum(s in stages for s in ("table", "bo"))
     budget = len(plan.benchmarks) * per_bench * plan.budget_s
     budget += plan.directions * plan.direction_budget_s if "directions" in stages else 0.0
-    log(f"reproduce into {out}: stages {', '.join(plan.stages)}; optimisation budgets add up "
-        f"to {budget / 3600:.1f} h on {plan.workers} workers, plus the confirmations, the "
-        "transfer, perturbation and studies (rerun the same command to resume)")  # fmt: skip
+    # only what this session runs (a session of some stages is one of several)
+    budgets = ""
+    if per_bench or "directions" in stages:
+        budgets = (f"; optimisation budgets add up to {budget / 3600:.1f} h on {plan.workers} "
+                   f"workers, plus {plan.besides_budgets()}")  # fmt: skip
+    log(f"reproduce into {out}: stages {', '.join(plan.ordered_stages())}{budgets} (rerun the "
+        "same command to resume)")  # fmt: skip
     try:
         for bench in plan.benchmarks:
             objective = _objective(plan, bench)

@@ -5,14 +5,44 @@ the next one knows what is left."""
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .plan import ReproducePlan
+from .plan import _STAGES, ReproducePlan
 from .tables import basis_digest, read_rows
 
-__all__ = ["stage_progress", "status_lines"]
+__all__ = ["recorded_stages", "stage_progress", "status_lines"]
+
+
+def _session_stages(session: dict[str, Any]) -> list[str]:
+    """The stages one session of reproduce.json ran: as recorded with it, else (a session
+    recorded before they were) read from its ``rbbo reproduce`` command, every stage
+    without ``--stages``."""
+    if "stages" in session:
+        return list(session["stages"])
+    try:
+        words = shlex.split(str(session.get("command") or ""))  # (None would read stdin)
+    except ValueError:
+        return []
+    if words[:2] != ["rbbo", "reproduce"]:  # a library call's sys.argv: not its plan
+        return []
+    stages = list(_STAGES)
+    for word, value in zip(words, [*words[1:], ""], strict=True):
+        if word == "--stages" or word.startswith("--stages="):
+            stages = (value if word == "--stages" else word.partition("=")[2]).split(",")
+    return [s.strip() for s in stages]
+
+
+def recorded_stages(document: dict[str, Any]) -> list[str]:
+    """The stages of a reproduction (reproduce.json's ``document``): its stored plan's and
+    those of its earlier sessions, each of which may have run other stages."""
+    named = set(document["plan"].get("stages", []))
+    for session in document.get("sessions", []):
+        named.update(_session_stages(session))
+    return [s for s in _STAGES if s in named]
 
 
 def _run_state(path: Path, budget_s: float, iterations: int | None) -> tuple[str, float, bool]:
@@ -147,6 +177,7 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
     if "rl" in stages:
         for bench in _rl_benchmarks(out, plan):
             lines.append(f"{'rl':<12} {bench:<20} {_rl_state(out / 'rl' / bench, plan)}")
-    lines.append(f"optimisation budget left: {left / 3600:.2f} h on {plan.workers} workers, "
-                 "plus confirmations, transfer, perturbation, studies and RL")  # fmt: skip
+    besides = plan.besides_budgets()
+    lines.append(f"optimisation budget left: {left / 3600:.2f} h on {plan.workers} workers"
+                 + (f", plus {besides}" if besides else ""))  # fmt: skip
     return lines
