@@ -60,6 +60,14 @@ def test_writes_every_table_and_figure(reproduction):
     assert list(_bo_table_matches_histories(text, out)) == ["CrossSwim-v0"]
 
 
+def test_the_log_prints_r_to_four_significant_digits(reproduction):
+    # (the run's summary.json keeps every digit; the log is read by people)
+    log = (reproduction / "reproduce.log").read_text()
+    done = next(x for x in log.splitlines() if "[CrossSwim-v0-boca] done: " in x)
+    summary = json.loads((reproduction / "runs" / "CrossSwim-v0-boca" / "summary.json").read_text())
+    assert f"R_init {summary['R_init']:.4g}, R* {summary['R_star']:.4g} (" in done
+
+
 def _bo_table_matches_histories(text: str, folder, skip_stale: bool = False) -> dict:
     """Parse the report's BO-vs-BOCA table and recompute each cell from the runs' histories;
     returns the rows checked, by benchmark. ``skip_stale``: a row whose run has recorded more

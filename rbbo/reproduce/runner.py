@@ -143,9 +143,15 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
         executor.shutdown(wait=finished)
         if bar is not None:
             bar.close()
-    log(f"[{path.name}] done: {result.evaluations} evaluations, R_init {result.R_init}, "
-        f"R* {result.R_star} ({result.wall_s / 60:.1f} min)")  # fmt: skip
+    log(f"[{path.name}] done: {result.evaluations} evaluations, R_init {_r(result.R_init)}, "
+        f"R* {_r(result.R_star)} ({result.wall_s / 60:.1f} min)")  # fmt: skip
     return path
+
+
+def _r(value: float | None) -> str:
+    """R as the log prints it: four significant digits, as the status and the other stages
+    log it (the record keeps every digit), "-" when not measured (a failed confirmation)."""
+    return "-" if value is None else f"{value:.4g}"
 
 
 def _append_row(path: Path, row: dict[str, Any]) -> None:
