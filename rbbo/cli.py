@@ -195,7 +195,10 @@ def _parser() -> argparse.ArgumentParser:
     rol = sub.add_parser("rollout", help="replay the best B_c with MPC")
     rol.add_argument("run_dir", type=Path, metavar="DIR")
     rol.add_argument("--video", type=Path, help="write an mp4 of the rollout")
-    rol.add_argument("--seconds", type=_positive_float, help="episode length (default T_max)")
+    rol.add_argument("--seconds", type=_positive_float,
+                     help="episode (and video) length, s (default the run's T_max); R is "
+                     "measured from the run's settle time on, so an episode no longer than "
+                     "it is only for --video, which then prints no R")  # fmt: skip
     rol.add_argument("--seed", type=_nonnegative_int, default=12345,
                      help="the MPC seed (default 12345)")  # fmt: skip
 
@@ -583,9 +586,14 @@ def cmd_rollout(args) -> int:
               f"{result.best_index}", file=sys.stderr)  # fmt: skip
     objective = _objective_of(opt)
     seconds = args.seconds or opt.config.t_max
+    # A video of the first seconds is worth having (how the robot settles); R, measured from
+    # the settle time on, is what a replay without --video is for.
     if isinstance(objective, EnvObjective) and not seconds > objective.settle_time:
-        raise UsageError(f"--seconds {seconds:g} must exceed the run's settle time "
-                         f"{objective.settle_time:g} s (R is measured from it on)")  # fmt: skip
+        if not args.video:
+            raise UsageError(f"--seconds {seconds:g} must exceed the run's settle time "
+                             f"{objective.settle_time:g} s, from which R is measured: give "
+                             f"more (the run's T_max is {opt.config.t_max:g} s), or add "
+                             "--video FILE to watch the episode without R")  # fmt: skip
     if not isinstance(objective, EnvObjective):
         if args.video:
             raise UsageError("--video needs an env run; a synthetic objective has no robot")
@@ -642,6 +650,10 @@ def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> 
             if not clips:
                 raise UsageError("no video was written (does the env render rgb_array frames?)")
             shutil.move(str(clips[0]), video)
+    if not seconds > objective.settle_time:
+        print(f"video: {video} ({seconds:g} s; no R, which is measured from the run's settle "
+              f"time {objective.settle_time:g} s on)")  # fmt: skip
+        return 0
     dt = getattr(result, "dt", None) or objective.step_seconds(env)
     r = settled_reward_rate(result, dt, objective.settle_time, seconds)
     print(f"R = {r:.6g} per second; video: {video}")

@@ -144,6 +144,29 @@ def test_rollout_video_without_imageio_is_a_usage_error(tmp_path, capsys, monkey
     assert not (tmp_path / "a.mp4").exists()
 
 
+def test_rollout_video_of_the_settling_seconds_prints_no_r(tmp_path, capsys, monkeypatch):
+    import rbbo.cli
+
+    monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
+    monkeypatch.setattr(rbbo.cli, "_require_imageio", lambda: None)  # the stand-in writes none
+    run = tmp_path / "env-run"
+    assert main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
+                 "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",
+                 "--executor", "serial", "--no-progress", "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    # the settle time is 2 s: a 1-s episode has no R, but its video is what was asked for
+    video = tmp_path / "first.mp4"
+    assert main(["rollout", str(run), "--video", str(video), "--seconds", "1"]) == 0
+    note = "(1 s; no R, which is measured from the run's settle time 2 s on)"
+    assert capsys.readouterr().out == f"video: {video} {note}\n"
+    assert main(["rollout", str(run), "--video", str(video), "--seconds", "3"]) == 0
+    assert capsys.readouterr().out.startswith("R = ")
+    # without --video the replay is for R: refused, saying what to give instead
+    err = _error(capsys, ["rollout", str(run), "--seconds", "2"])
+    assert "--seconds 2 must exceed the run's settle time 2 s, from which R is measured" in err
+    assert "give more (the run's T_max is 4 s), or add --video FILE" in err
+
+
 def _error(capsys, argv):
     code = main(argv)
     err = capsys.readouterr().err

@@ -4,6 +4,7 @@ import pickle
 import sys
 import types
 from dataclasses import dataclass
+from typing import ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -24,6 +25,8 @@ STEP = 0.025  # seconds per env step (dt = 1/200 s, frame_skip = 5), as the soft
 class StandInEnv(gym.Env):
     """Takes the softrom env's B_c arguments; each step rewards 1.0 for the first 2 s (the
     lean into a held pose) and then 0.1 * (first entry of B_c) per step."""
+
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"]}  # rollout --video's (none drawn)
 
     def __init__(self, sim_dim=20, control_dim=3, control_basis=None, render_mode=None):
         self.control_basis = np.asarray(control_basis)
