@@ -211,6 +211,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="comma list of identity, best (of --run) or PATH.npy (default "
                      "identity)")  # fmt: skip
     bas.add_argument("--run", type=Path, metavar="DIR", help="RBBO run directory (for best)")
+    bas.add_argument("--sim-dim", type=_positive_int,
+                     help="M of the identity basis and the env (default: the --run's, else a "
+                     "PATH.npy basis's rows, else 20)")  # fmt: skip
     bas.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                      type=_env_kwarg,
                      help="a gym.make keyword for the env, repeatable, as optimize's "
@@ -676,7 +679,8 @@ def cmd_baselines(args) -> int:
     with _bad_input():
         rl.require_sb3()
         rl.steps_per_algo(args.steps, tuple(dict.fromkeys(algos)))
-        bases, env_kwargs = rl.resolve_bases(args.control_basis.split(","), env_id, args.run)
+        bases, env_kwargs = rl.resolve_bases(args.control_basis.split(","), env_id, args.run,
+                                             args.sim_dim)  # fmt: skip
         given = _env_kwargs(args.env_kwarg)
         if given:
             _check_env_keywords(env_id, given, rl.SET_BY_BASELINES)

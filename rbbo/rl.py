@@ -84,19 +84,21 @@ def require_sb3():
 
 
 def resolve_bases(
-    specs: list[str], env_id: str, run_dir: str | Path | None = None
+    specs: list[str], env_id: str, run_dir: str | Path | None = None, sim_dim: int | None = None
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Control bases by name: ``identity`` (first C columns of eye(M)), ``best`` (the
     best_basis.npy of RBBO run ``run_dir``) or a path to an (M, C) ``.npy``.
 
     M and C of ``identity`` are the run's when ``run_dir`` is given, else the first ``.npy``'s,
-    else the env's defaults (20, 3). Returns the bases and the run's ``env_kwargs`` ({} without
-    a run). Raises ValueError (RunDirectoryError for a bad run directory) naming the problem.
+    else ``sim_dim`` (``--sim-dim``; default 20) and 3. A ``sim_dim`` given beside a run or a
+    ``.npy`` of another M is refused: their bases belong to that M. Returns the bases and the
+    run's ``env_kwargs`` ({} without a run). Raises ValueError (RunDirectoryError for a bad run
+    directory) naming the problem.
     """
     from .store import RunDirectoryError, RunStore
 
     specs = [s.strip() for s in specs]
-    dims, env_kwargs, store = (20, 3), {}, None
+    dims, env_kwargs, store = (20 if sim_dim is None else sim_dim, 3), {}, None
     if run_dir is not None:
         store = RunStore.open(run_dir, repair=False)
         settings, objective = store.config.get("rbbo") or {}, store.config.get("objective") or {}
@@ -104,6 +106,10 @@ def resolve_bases(
             dims = (int(settings["sim_dim"]), int(settings["control_dim"]))
         except (KeyError, TypeError, ValueError):
             raise RunDirectoryError(f"{run_dir}/config.json has no sim_dim/control_dim") from None
+        if sim_dim is not None and sim_dim != dims[0]:
+            raise ValueError(f"--sim-dim {sim_dim} differs from run {run_dir}'s sim_dim "
+                             f"{dims[0]}, the M its B_c was found in (leave --sim-dim out: "
+                             "the run's is used)")  # fmt: skip
         if objective.get("kind") != "env":
             raise ValueError(f"run {run_dir} optimised a {objective.get('kind') or 'non-env'} "
                              "objective, not an env: its bases belong to no robot")  # fmt: skip
@@ -125,6 +131,9 @@ def resolve_bases(
                 raise ValueError(f"cannot read control basis {spec}: {exc}") from None
             if b.ndim != 2 or b.shape[0] < b.shape[1]:
                 raise ValueError(f"control basis {spec} has shape {b.shape}, expected (M, C)")
+            if sim_dim is not None and b.shape[0] != sim_dim:
+                raise ValueError(f"control basis {spec} has M = {b.shape[0]} rows, not "
+                                 f"--sim-dim {sim_dim}")  # fmt: skip
             if not np.all(np.isfinite(b)):
                 raise ValueError(f"control basis {spec} contains non-finite values")
             sv = np.linalg.svd(b, compute_uv=False)
@@ -140,6 +149,9 @@ def resolve_bases(
         elif spec != "identity":
             raise ValueError(f"unknown control basis {spec!r}; use identity, best or PATH.npy")
     if "identity" in specs:
+        if dims[0] < dims[1]:  # (only a --sim-dim below the default C can be)
+            raise ValueError(f"--sim-dim {dims[0]} is below C = {dims[1]}, the identity "
+                             "basis's columns")  # fmt: skip
         bases = {"identity": np.eye(dims[0])[:, : dims[1]], **bases}
     return bases, env_kwargs
 
@@ -196,7 +208,7 @@ def _torch_threads(n: int) -> int:
 
 # What _make_env passes to gym.make itself (rbbo baselines' --env-kwarg may not set these).
 SET_BY_BASELINES = {
-    "sim_dim": "M: the basis's rows",
+    "sim_dim": "M: the basis's rows, --sim-dim",
     "control_dim": "C: the basis's columns",
     "control_basis": "B_c: --control-basis",
     "orthonormalize": "True: a .npy basis is orthonormalised",

@@ -207,6 +207,31 @@ def test_env_kwargs_reach_the_env_and_agree_with_the_run(tmp_path, capsys, monke
     assert "--env-kwarg dt was not given to run" in capsys.readouterr().err
 
 
+def test_sim_dim_sets_m_and_a_run_keeps_its_own(tmp_path, capsys, monkeypatch):
+    seen = {}
+    monkeypatch.setattr(
+        rl, "run_baselines", lambda env_id, bases, *a, **k: seen.update(bases) or []
+    )
+    args = ["baselines", ENV, "--no-mpc", "--out", str(tmp_path / "b")]
+    assert main([*args, "--sim-dim", "12"]) == 0
+    np.testing.assert_array_equal(seen["identity"], np.eye(12)[:, :3])
+    run = tmp_path / "run"
+    RunStore.create(run, {"rbbo": {"sim_dim": 8, "control_dim": 2},
+                          "objective": {"kind": "env", "env_id": ENV}})  # fmt: skip
+    assert main([*args, "--run", str(run)]) == 0  # the run's M and C
+    np.testing.assert_array_equal(seen["identity"], np.eye(8)[:, :2])
+    assert main([*args, "--run", str(run), "--sim-dim", "8"]) == 0  # the same: agrees
+    capsys.readouterr()
+    assert main([*args, "--run", str(run), "--sim-dim", "12"]) == 2
+    err = capsys.readouterr().err
+    assert f"--sim-dim 12 differs from run {run}'s sim_dim 8, the M its B_c was found in" in err
+    np.save(tmp_path / "mine.npy", np.eye(8)[:, :2])
+    assert main([*args, "--control-basis", str(tmp_path / "mine.npy"), "--sim-dim", "12"]) == 2
+    assert "mine.npy has M = 8 rows, not --sim-dim 12" in capsys.readouterr().err
+    assert main([*args, "--sim-dim", "2"]) == 2
+    assert "--sim-dim 2 is below C = 3" in capsys.readouterr().err
+
+
 def test_baselines_do_not_offer_the_synthetic_objective(capsys, tmp_path):
     assert main(["baselines", "synthetic", "--out", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err
