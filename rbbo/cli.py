@@ -76,6 +76,15 @@ def _duration_text(seconds: float) -> str:
     return f"{seconds:.3g} s" if seconds < 120 else f"{seconds / 60:.3g} min"
 
 
+def _limits_text(iterations: int | None, budget: float | None) -> str:
+    """A run's stopping limits as a resume prints them: '30 evaluations and a budget of
+    12.5 min' (either may be absent: None)."""
+    limits = ([f"{iterations} evaluations"] if iterations is not None else []) + (
+        [f"a budget of {_duration_text(budget)}"] if budget is not None else []
+    )
+    return " and ".join(limits) or "none"
+
+
 def _number_arg(kind: type, allowed, what: str):
     """An argparse type: ``kind`` (int or float) parsed from the text and checked by
     ``allowed``; either failure says what was expected and what was given."""
@@ -488,22 +497,23 @@ def cmd_resume(args) -> int:
         execution["address"] = args.address
     # A new limit replaces both stored ones: a run that stopped at its budget, resumed with
     # --iterations, would otherwise stop again at once. It is written to config.json, so a
-    # later plain `rbbo resume` (the hint an interrupted run prints) goes on to it.
+    # later plain `rbbo resume` (the hint an interrupted run prints) goes on to it, or, for a
+    # lowered limit that is already reached, stays stopped at it.
     iterations, budget = args.iterations, args.budget
     if iterations is None and budget is None:
         iterations, budget = opt.config.max_evaluations, opt.config.budget_s
     elif (iterations, budget) != (opt.config.max_evaluations, opt.config.budget_s):
-        if opt.can_submit(iterations, budget):  # (a limit already reached is not recorded)
-            with _bad_input():
-                opt.set_limits(iterations, budget)
+        old = _limits_text(opt.config.max_evaluations, opt.config.budget_s)
+        with _bad_input():
+            opt.set_limits(iterations, budget)
+        print(f"{opt.store.path}: its limit is now {_limits_text(iterations, budget)} (was "
+              f"{old}), stored in config.json for later resumes", file=sys.stderr)  # fmt: skip
     if not opt.can_submit(iterations, budget):
         done = len(opt.evaluations)
-        limits = ([f"{iterations} evaluations"] if iterations is not None else []) + (
-            [f"a budget of {_duration_text(budget)}"] if budget is not None else []
-        )
-        print(f"{opt.store.path} has reached its limit ({' and '.join(limits)}; it has {done} "
-              f"evaluations, {_duration_text(opt.elapsed_s)}): nothing more to search; give a "
-              "larger --budget or --iterations to go on", file=sys.stderr)  # fmt: skip
+        print(f"{opt.store.path} has reached its limit ({_limits_text(iterations, budget)}; it "
+              f"has {done} evaluations, {_duration_text(opt.elapsed_s)}): nothing more to "
+              "search; give a larger --budget or --iterations to go on",
+              file=sys.stderr)  # fmt: skip
     started = time.monotonic()
     executor = _make_executor(objective, execution)
     code = _execute(opt, executor, iterations, budget, not args.no_progress,

@@ -242,14 +242,34 @@ def test_resume_with_a_new_limit_replaces_the_stored_ones(tmp_path, capsys):
     capsys.readouterr()
     assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == done + 3
     # the new limit is the run's now: a plain resume (what an interrupted run's hint says)
-    # stops at it, not at the old budget, and a limit already reached is not recorded
+    # stops at it, not at the old budget
     settings = json.loads((run / "config.json").read_text())["rbbo"]
     assert (settings["max_evaluations"], settings["budget_s"]) == (done + 3, None)
     assert main(["resume", str(run), "--no-progress", "--executor", "serial"]) == 0
     assert f"has reached its limit ({done + 3} evaluations; it has" in capsys.readouterr().err
-    assert main(["resume", str(run), "--iterations", "2", "--no-progress"]) == 0
-    assert "has reached its limit (2 evaluations;" in capsys.readouterr().err
-    assert json.loads((run / "config.json").read_text())["rbbo"] == settings
+
+
+def test_a_lowered_limit_given_to_resume_is_the_runs_from_then_on(tmp_path, capsys):
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=10, n_confirm=2, acq_random=64,
+                        acq_starts=2, gp_restarts=0)  # fmt: skip
+    opt = RBBO.create(tmp_path / "run", config, objective_spec=objective.spec())
+    opt.run(objective, max_evaluations=5, confirm=False)  # as if stopped after 5 of 10
+    opt.store.close()
+    argv = ["resume", str(tmp_path / "run"), "--no-progress", "--executor", "serial"]
+    # enough searched: the run stops at 5 (confirming R_init and R*), and says the limit moved
+    assert main([*argv, "--iterations", "5"]) == 0
+    err = capsys.readouterr().err
+    assert "its limit is now 5 evaluations (was 10 evaluations), stored in config.json" in err
+    assert "has reached its limit (5 evaluations; it has 5 evaluations" in err
+    settings = json.loads((tmp_path / "run" / "config.json").read_text())["rbbo"]
+    assert (settings["max_evaluations"], settings["budget_s"]) == (5, None)
+    # a later plain resume keeps to it, instead of searching on to the old 10
+    assert main(argv) == 0
+    assert "has reached its limit (5 evaluations;" in capsys.readouterr().err
+    assert len([h for h in _history(tmp_path / "run") if not h["kind"].startswith("confirm")]) == 5
 
 
 def test_an_interrupt_outside_the_search_is_a_clean_130_and_records_are_readable(
