@@ -43,8 +43,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
+import warnings
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import asdict, replace
@@ -120,6 +122,7 @@ class RBBO:
         self._gp: GrassmannGP | None = None
         self._gp_count = -1
         self._session: tuple[str, dict[str, Any]] | None = None  # recorded at its first submit
+        self._session_started: str | None = None  # its start's stamp, once recorded
         self._initial = self._initial_design()
 
     # -- construction -------------------------------------------------------------------
@@ -467,42 +470,43 @@ class RBBO:
         failure_limit = max(MAX_CONSECUTIVE_FAILURES, 2 * executor.workers)
         failed_in_a_row, last_error = 0, None
         ok = False
-        try:
-            in_flight = {}
-            while True:
-                while (
-                    len(in_flight) < executor.workers
-                    and failed_in_a_row < failure_limit
-                    and self.can_submit(max_evaluations, budget_s)
-                ):
-                    proposal = self.ask()
-                    in_flight[self._submit(executor, proposal)] = proposal
-                if not in_flight:
-                    break
-                # in_flight keeps submission order, so its first entry is the oldest proposal
-                waiting = [next(iter(in_flight))] if deterministic else list(in_flight)
-                done, _ = wait(waiting, timeout=1.0, return_when=FIRST_COMPLETED)
-                for future in done:
-                    proposal = in_flight.pop(future)
-                    evaluation = self._tell_outcome(proposal, future.result(), callback)
-                    failed = evaluation.status == "failed"
-                    failed_in_a_row = failed_in_a_row + 1 if failed else 0
-                    last_error = evaluation.error
-            if failed_in_a_row >= failure_limit:
-                self._record_result()
-                raise EvaluationsFailing(
-                    f"the last {failed_in_a_row} evaluations all failed, the last with: "
-                    f"{last_error}; the run stopped (its record is kept"
-                    + (f"; resume it with: rbbo resume {self.store.path}" if self.store else "")
-                    + ")"
-                )
-            if confirm:
-                self._confirm(executor, callback)
-            ok = True
-        finally:
-            if own:
-                executor.shutdown(wait=ok)
-        return self._record_result()
+        with self._session_ending():
+            try:
+                in_flight = {}
+                while True:
+                    while (
+                        len(in_flight) < executor.workers
+                        and failed_in_a_row < failure_limit
+                        and self.can_submit(max_evaluations, budget_s)
+                    ):
+                        proposal = self.ask()
+                        in_flight[self._submit(executor, proposal)] = proposal
+                    if not in_flight:
+                        break
+                    # in_flight keeps submission order: its first entry is the oldest proposal
+                    waiting = [next(iter(in_flight))] if deterministic else list(in_flight)
+                    done, _ = wait(waiting, timeout=1.0, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        proposal = in_flight.pop(future)
+                        evaluation = self._tell_outcome(proposal, future.result(), callback)
+                        failed = evaluation.status == "failed"
+                        failed_in_a_row = failed_in_a_row + 1 if failed else 0
+                        last_error = evaluation.error
+                if failed_in_a_row >= failure_limit:
+                    self._record_result()
+                    raise EvaluationsFailing(
+                        f"the last {failed_in_a_row} evaluations all failed, the last with: "
+                        f"{last_error}; the run stopped (its record is kept"
+                        + (f"; resume it with: rbbo resume {self.store.path}" if self.store else "")
+                        + ")"
+                    )
+                if confirm:
+                    self._confirm(executor, callback)
+                ok = True
+            finally:
+                if own:
+                    executor.shutdown(wait=ok)
+            return self._record_result()
 
     def _submit(self, executor: Executor, proposal: Proposal):
         """Submit ``proposal``, first appending this session's code and machine to
@@ -512,9 +516,40 @@ class RBBO:
 
             command, settings = self._session
             limits = {k: (None if v == math.inf else v) for k, v in settings.items()}
-            self.store.append_session({**session_record(command), **limits})
+            record = {**session_record(command), **limits}
+            self.store.append_session(record)
+            self._session_started = record["started"]
         self._session = None
         return executor.submit(proposal.task())
+
+    @contextlib.contextmanager
+    def _session_ending(self):
+        """Append the end of the session whose start :meth:`_submit` recorded (a call that
+        evaluated nothing recorded neither) to DIR/sessions.jsonl when the block is left:
+        when, and how (finished, interrupted by Ctrl-C or SIGTERM, or an error, named)."""
+        status, error = "error", None
+        try:
+            yield
+            status = "finished"
+        except KeyboardInterrupt:
+            status = "interrupted"
+            raise
+        except BaseException as exc:
+            error = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]  # one line of it
+            raise
+        finally:
+            started, self._session_started = self._session_started, None
+            if started is not None and self.store is not None:
+                from .provenance import session_end_record
+
+                try:
+                    self.store.append_session(session_end_record(started, status, error))
+                except OSError as exc:
+                    # (a full disk): the session's evaluations are recorded; what is raised
+                    # already, or the result, matters more than its end's line
+                    warnings.warn(f"{self.store.path}: the end of this session was not "
+                                  f"recorded in sessions.jsonl: {exc}", RuntimeWarning,
+                                  stacklevel=3)  # fmt: skip
 
     def _record_result(self) -> RBBOResult:
         """The result so far, also written to summary.json and best_basis.npy."""
@@ -610,8 +645,9 @@ class RBBO:
         if self.config.n_confirm == 0:
             raise ValueError("the run was made with no confirmation seeds (n_confirm = 0)")
         self._session = ("confirm", {"workers": executor.workers})
-        self._confirm(executor, callback, again=True)
-        return self._record_result()
+        with self._session_ending():
+            self._confirm(executor, callback, again=True)
+            return self._record_result()
 
     def _confirm(self, executor: Executor, callback, again: bool = False) -> None:
         """Evaluate the identity and the recommendation on fresh seeds at T_max (``again``:

@@ -11,7 +11,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-__all__ = ["cpu_model", "machine_description", "session_record", "source_version"]
+__all__ = [
+    "cpu_model",
+    "machine_description",
+    "session_end_record",
+    "session_record",
+    "source_version",
+]
 
 # The code that decides a run's numbers (a record committed inside the checkout, its log, its
 # histories, is not code).
@@ -100,3 +106,20 @@ def session_record(command: str) -> dict[str, Any]:
         "numpy": numpy.__version__,
         "scipy": scipy.__version__,
     }
+
+
+SESSION_ENDS = ("finished", "interrupted", "error")
+
+
+def session_end_record(started: str, status: str, error: str | None = None) -> dict[str, Any]:
+    """The end of the session that started at ``started`` (its :func:`session_record`'s stamp):
+    when, and how it ended, ``status`` being "finished", "interrupted" (Ctrl-C, SIGTERM) or
+    "error" (``error`` says which). A session killed outright (SIGKILL, a lost machine) has
+    none."""
+    if status not in SESSION_ENDS:
+        raise ValueError(f"status must be one of {list(SESSION_ENDS)}, got {status!r}")
+    record = {"event": "end", "started": started, "status": status,
+              "ended": datetime.now(timezone.utc).isoformat(timespec="seconds")}  # fmt: skip
+    if error is not None:
+        record["error"] = error
+    return record

@@ -10,9 +10,12 @@
     DIR/best_basis.npy    the recommended B_c, R*'s basis (replaced atomically when a session
                           of the run ends: a run interrupted before its first end has none)
     DIR/summary.json      R_init, R* and the rest of the report (written with it)
-    DIR/sessions.jsonl    one JSON object per session of the run (search or confirmation):
-                          when it started, the code (version, git commit) and the machine
-                          (CPU, kernel set, numpy/scipy) it ran on, append-only
+    DIR/sessions.jsonl    one JSON object when a session of the run (search or confirmation)
+                          starts: when, the code (version, git commit) and the machine (CPU,
+                          kernel set, numpy/scipy) it runs on; and one when it ends
+                          (``"event": "end"``): when, and its status, "finished",
+                          "interrupted" or "error" (a session killed outright has none);
+                          append-only
 
 A kill during a write can leave a partial last line; :meth:`RunStore.open` detects it, warns
 (:class:`TruncatedHistoryWarning`), keeps the bytes in ``history.jsonl.truncated`` and cuts
@@ -379,24 +382,35 @@ class RunStore:
         _append_line(self.history_path, evaluation.to_json())
 
     def append_session(self, record: dict[str, Any]) -> None:
-        """Append one session's record (:func:`rbbo.provenance.session_record`) durably."""
+        """Append one session's record (:func:`rbbo.provenance.session_record`, or its end's:
+        :func:`rbbo.provenance.session_end_record`) durably."""
         self._require_writer("nothing can be recorded in it")
         # nothing repairs this file: a partial line left by a kill is ended first
         _append_line(self.path / SESSIONS, json.dumps(record, sort_keys=True, allow_nan=False),
                      end_partial=True)  # fmt: skip
 
     def sessions(self) -> list[dict[str, Any]]:
-        """The sessions' records, oldest first (a run made before them has none); a partial
-        last line (a kill while writing) is left out."""
+        """The sessions' records, oldest first (a run made before them has none), each with
+        ``ended`` and ``status`` from its end's record where it has one (a session recorded
+        before they were, killed outright, or still going has none); a partial line (a kill
+        while writing) is left out."""
         path = self.path / SESSIONS
         if not path.is_file():
             return []
-        out = []
+        out: list[dict[str, Any]] = []
         for line in path.read_text(encoding="utf-8", errors="replace").split("\n")[:-1]:
             try:
-                out.append(json.loads(line))
+                record = json.loads(line)
             except json.JSONDecodeError:
                 continue
+            if not (isinstance(record, dict) and record.get("event") == "end"):
+                out.append(record)
+                continue
+            # the lock keeps sessions apart: an end follows its own start (one whose start
+            # line was torn ends nothing here, and stays in the file)
+            last = out[-1] if out and isinstance(out[-1], dict) else {}
+            if "ended" not in last and last.get("started") == record.get("started"):
+                last.update({k: v for k, v in record.items() if k not in ("event", "started")})
         return out
 
     def history(self) -> list[Evaluation]:

@@ -373,6 +373,11 @@ def test_a_signal_stops_a_run_cleanly_and_it_resumes(tmp_path, how):
     assert main(["resume", str(run), "--iterations", str(len(recorded) + 1), "--workers", "1",
                  "--no-progress"]) == 0  # fmt: skip
     assert len(_history(run)) > len(recorded)
+    # each session's record says how it ended (sessions.jsonl)
+    from rbbo.store import RunStore
+
+    sessions = RunStore.open(run, repair=False).sessions()
+    assert [s["status"] for s in sessions] == ["interrupted", "finished"]
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])

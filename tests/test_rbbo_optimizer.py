@@ -475,6 +475,35 @@ def test_sessions_are_recorded_when_they_evaluate_and_survive_a_torn_line(tmp_pa
     assert sessions[1]["max_evaluations"] == 6
 
 
+def test_each_session_records_when_and_how_it_ended(tmp_path):
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=4, n_confirm=2, **FAST)
+    path = tmp_path / "run"
+    opt = RBBO.create(path, config, objective_spec=objective.spec())
+    # a file from before the end records: its session reads as it did, with no end
+    old = {"command": "search", "started": "2026-01-01T00:00:00+00:00", "max_evaluations": 2}
+    (path / "sessions.jsonl").write_text(json.dumps(old) + "\n")
+
+    def stopped_by(error):
+        def callback(evaluation):
+            raise error
+
+        return callback
+
+    with pytest.raises(KeyboardInterrupt):  # Ctrl-C (or SIGTERM, as rbbo raises it)
+        opt.run(objective, callback=stopped_by(KeyboardInterrupt()))
+    with pytest.raises(RuntimeError):
+        opt.run(objective, callback=stopped_by(RuntimeError("disk on fire")))
+    opt.run(objective)
+    sessions = opt.store.sessions()
+    assert [s.get("status") for s in sessions] == [None, "interrupted", "error", "finished"]
+    assert sessions[0] == old and sessions[2]["error"] == "RuntimeError: disk on fire"
+    assert all(s["command"] == "search" and s["ended"] >= s["started"] for s in sessions[1:])
+    # appended after the lines before them, never rewriting one
+    lines = [json.loads(x) for x in (path / "sessions.jsonl").read_text().splitlines()]
+    assert lines[0] == old and [x.get("event") for x in lines[1:]] == [None, "end"] * 3
+
+
 def test_a_reloaded_run_keeps_the_recommendation_its_session_ended_with(tmp_path):
     # without confirmation seeds there is no confirmed answer: the summary's is kept (a GP
     # refitted in another process may rank near-equal bases otherwise)
