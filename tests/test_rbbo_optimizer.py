@@ -504,7 +504,7 @@ def test_each_session_records_when_and_how_it_ended(tmp_path):
     assert lines[0] == old and [x.get("event") for x in lines[1:]] == [None, "end"] * 3
 
 
-def test_a_reloaded_run_keeps_the_recommendation_its_session_ended_with(tmp_path):
+def test_a_reloaded_run_keeps_the_recommendation_its_session_ended_with(tmp_path, monkeypatch):
     # without confirmation seeds there is no confirmed answer: the summary's is kept (a GP
     # refitted in another process may rank near-equal bases otherwise)
     for seed in range(3):
@@ -516,6 +516,37 @@ def test_a_reloaded_run_keeps_the_recommendation_its_session_ended_with(tmp_path
         assert again.finished
         assert again.result().best_index == result.best_index
         np.testing.assert_array_equal(again.result().best_basis, np.load(path / "best_basis.npy"))
+        # a refit that ranks another basis first (as one in another process may) changes
+        # nothing: the answer is the one the session ended with
+        other = next(e for e in again.evaluations if e.index != result.best_index)
+        with monkeypatch.context() as patch:
+            patch.setattr(RBBO, "recommend", lambda self, other=other: other)
+            reloaded = RBBO.resume(path, read_only=True)
+            assert reloaded.result().best_index == result.best_index
+
+
+class _FarWorse:
+    """An objective on which every new basis scores far below the recorded ones."""
+
+    def __call__(self, basis, T, seed):
+        return -100.0
+
+
+def test_a_resumed_run_whose_recommendation_stands_is_finished(tmp_path):
+    # searched on, kept its confirmed recommendation (nothing new to confirm): finished, and
+    # best_basis.npy is still that recommendation
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=6, n_confirm=2, **FAST)
+    path = tmp_path / "run"
+    first = RBBO.create(path, config, objective_spec=objective.spec()).run(objective)
+    opt = RBBO.resume(path)
+    opt.set_limits(8, None)
+    again = opt.run(_FarWorse())
+    assert len(opt.evaluations) == 8 and again.best_index == first.best_index
+    assert again.R_star == first.R_star
+    reloaded = RBBO.resume(path, read_only=True)
+    assert reloaded.finished and reloaded.result().best_index == first.best_index
+    np.testing.assert_array_equal(np.load(path / "best_basis.npy"), first.best_basis)
 
 
 def test_a_confirmed_recommendation_evaluated_below_t_max_is_found_on_reload():
