@@ -421,3 +421,31 @@ def test_a_material_too_soft_for_the_actions_warns_once_that_elements_invert(rec
     message = str(said[0].message)
     assert "youngs_modulus = 1000 Pa" in message and "lower action_scale" in message
     env.close()
+
+
+def test_a_control_basis_from_a_npy_path_steps_as_the_array_and_keeps_the_spec_json(tmp_path):
+    import json
+
+    basis = np.linalg.qr(np.random.default_rng(0).standard_normal((20, 3)))[0]
+    np.save(tmp_path / "best_basis.npy", basis)
+    by_path = gym.make("softrom_gym/BeamWalk-v0", control_basis=tmp_path / "best_basis.npy")
+    by_array = gym.make("softrom_gym/BeamWalk-v0", control_basis=basis)
+    np.testing.assert_array_equal(by_path.unwrapped.control_basis, basis)
+    action = np.full(3, 0.5 * by_path.unwrapped.action_bound, dtype=np.float32)
+    for env in (by_path, by_array):
+        env.reset(seed=0)
+    np.testing.assert_array_equal(by_path.step(action)[0], by_array.step(action)[0])
+    by_path = gym.make("softrom_gym/BeamWalk-v0", control_basis=str(tmp_path / "best_basis.npy"))
+    assert json.loads(by_path.spec.to_json())["kwargs"]["control_basis"].endswith(".npy")
+    missing = tmp_path / "nowhere.npy"
+    with pytest.raises(FileNotFoundError, match=f"control_basis file '{missing}' does not exist"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=missing)
+    (tmp_path / "text.npy").write_text("not an array")
+    with pytest.raises(ValueError, match="control_basis file .*text.npy' is not a .npy array"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=tmp_path / "text.npy")
+    np.savez(tmp_path / "two.npz", a=basis, b=basis)
+    with pytest.raises(ValueError, match="holds several arrays"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=tmp_path / "two.npz")
+    np.save(tmp_path / "flat.npy", basis.ravel())
+    with pytest.raises(ValueError, match=r"control_basis has shape \(60,\)"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=tmp_path / "flat.npy")

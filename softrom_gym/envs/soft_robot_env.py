@@ -49,6 +49,25 @@ def _direction(direction: float | np.ndarray) -> np.ndarray:
     return np.array([d[0], d[1], 0.0]) / np.linalg.norm(d)
 
 
+def _read_basis(b_c: Any) -> Any:
+    """B_c from a ``.npy`` file when given a path (as a str it keeps ``env.spec``
+    JSON-serialisable, which an array does not), else ``b_c`` as given."""
+    if not isinstance(b_c, (str, os.PathLike)):
+        return b_c
+    try:
+        b = np.load(b_c, allow_pickle=False)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"control_basis file {os.fspath(b_c)!r} does not exist") from None
+    except (OSError, ValueError) as exc:
+        raise ValueError(
+            f"control_basis file {os.fspath(b_c)!r} is not a .npy array: {exc}"
+        ) from None
+    if not isinstance(b, np.ndarray):  # an .npz archive
+        raise ValueError(f"control_basis file {os.fspath(b_c)!r} holds several arrays (.npz); "
+                         "save B_c alone with np.save")  # fmt: skip
+    return b
+
+
 def _dimensions(
     b_c: np.ndarray | None, sim_dim: int | None, control_dim: int | None
 ) -> tuple[int, int]:
@@ -165,7 +184,9 @@ class SoftRobotEnv(gym.Env):
     trimesh.Trimesh, or a Robot), ``task``
     ("walk" or "swim"), ``direction`` (angle in radians or 2-vector), ``control_dim`` C
     (default 3, or the columns of ``control_basis``), ``sim_dim`` M (default 20, or the rows
-    of ``control_basis``), ``control_basis`` B_c (M x C, orthonormal to 1e-8; default: the
+    of ``control_basis``), ``control_basis`` B_c (M x C, orthonormal to 1e-8, or the path of
+    a ``.npy`` file holding it, such as a run's ``best_basis.npy``: given as a str, it keeps
+    ``env.spec`` JSON-serialisable, which an array does not; default: the
     first C deformation modes), ``orthonormalize`` (accept any full-rank B_c),
     ``frame_skip`` (simulation steps per action, default 5: 40 Hz control at dt = 1/200 s),
     ``dt``, ``action_scale``, ``friction`` (mu), ``contact`` ("staggered", "penalty" or
@@ -199,7 +220,7 @@ class SoftRobotEnv(gym.Env):
         direction: float | np.ndarray = 0.0,
         control_dim: int | None = None,
         sim_dim: int | None = None,
-        control_basis: np.ndarray | None = None,
+        control_basis: np.ndarray | str | os.PathLike | None = None,
         orthonormalize: bool = False,
         frame_skip: int = 5,
         dt: float = 1.0 / 200.0,
@@ -220,6 +241,7 @@ class SoftRobotEnv(gym.Env):
                 f"render_mode {render_mode!r} is not supported; valid: "
                 f"{self.metadata['render_modes']}"
             )
+        control_basis = _read_basis(control_basis)
         sim_dim, control_dim = _dimensions(control_basis, sim_dim, control_dim)
         for name, value in (("control_dim", control_dim), ("sim_dim", sim_dim),
                             ("frame_skip", frame_skip)):  # fmt: skip
