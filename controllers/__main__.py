@@ -17,9 +17,38 @@ from typing import Any
 
 import numpy as np
 
-from softrom_gym.registration import parse_env_kwarg
+from softrom_gym.registration import control_period, parse_env_kwarg
 
 from .defaults import DEFAULTS, PLANNERS, planner_for
+
+
+def _window(text: str) -> int | None:
+    if text == "all":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a number of env steps or 'all', got {text!r}"
+        ) from None
+
+
+def _registered(env_id: str, given: str) -> str:
+    """``env_id`` as registered: one without its version is its latest (as gym.make reads it,
+    and so that the planner is the one tuned for it)."""
+    import gymnasium as gym
+
+    if env_id in gym.registry:
+        return env_id
+    versions = sorted((k for k in gym.registry if k.rsplit("-v", 1)[0] == env_id),
+                      key=lambda k: int(k.rsplit("-v", 1)[1]) if k.rsplit("-v", 1)[1].isdigit()
+                      else -1)  # fmt: skip
+    if versions:
+        return versions[-1]
+    raise ValueError(
+        f"{given}: not a registered softrom env; this command runs softrom_gym's envs, e.g. "
+        "CrossWalk-v0, or SoftRobot-v0 with --env-kwarg robot=..."
+    )
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -37,7 +66,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--planner", choices=sorted(PLANNERS), default="mppi",
                    help="the MPC planner (default mppi)")  # fmt: skip
     p.add_argument("--seconds", type=float, default=10.0,
-                   help="simulated time of the episode, s (default 10)")  # fmt: skip
+                   help="simulated time of the episode, s (default 10; the env's time limit "
+                   "is raised to it)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0,
                    help="seeds the env's reset and the planner (default 0)")  # fmt: skip
     p.add_argument(
@@ -48,6 +78,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--video", type=Path, help="write the episode to this video file")
     p.add_argument("--replan-every", type=int, help="env steps between replans")
     p.add_argument("--horizon", type=int, help="override the default horizon (env steps)")
+    p.add_argument("--window", type=_window, default=argparse.SUPPRESS,
+                   help="env steps at the horizon's end over which R is counted, or 'all' "
+                   "(default: the planner's; a --horizon shorter than it needs one)")  # fmt: skip
     p.add_argument("--samples", type=int, help="override MPPI's samples")
     p.add_argument("--iterations", type=int, help="override iterations per replan")
     p.add_argument("--threads", type=int, help="C++ rollout threads")
@@ -92,11 +125,17 @@ def main(argv: list[str] | None = None) -> int:
     changes = {k: v for k, v in (("horizon", args.horizon), ("samples", args.samples),
                                  ("iterations", args.iterations), ("threads", args.threads))
                if v is not None}  # fmt: skip
+    if hasattr(args, "window"):
+        changes["window"] = args.window  # (None: 'all')
     try:
         if args.planner != "mppi" and "samples" in changes:
             raise ValueError("--samples applies to --planner mppi only")
-        if "horizon" in changes:
-            changes["window"] = None
+        env_id = _registered(env_id, args.env_id)
+        # the registered time limit (env steps) must not cut the seconds asked for short
+        period = control_period(env_id, **kwargs)
+        limit = gym.spec(env_id).max_episode_steps
+        if period is not None and limit is not None:
+            kwargs["max_episode_steps"] = max(limit, math.ceil(args.seconds / period - 1e-9))
         env = gym.make(env_id, **kwargs)
         # the defaults' times are the same seconds at the env's control period
         planner, replan_every = planner_for(env_id, args.planner, dt=env.get_wrapper_attr("dt"),
@@ -108,13 +147,22 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--replan-every must be >= 1, got {args.replan_every}")
         replan_every = args.replan_every
     start = time.perf_counter()
-    result = run_episode(env, planner, args.seconds, replan_every=replan_every, seed=args.seed,
-                         progress=not args.no_progress, video=args.video)  # fmt: skip
+    try:
+        result = run_episode(env, planner, args.seconds, replan_every=replan_every,
+                             seed=args.seed, progress=not args.no_progress,
+                             video=args.video)  # fmt: skip
+    except KeyboardInterrupt as interrupt:
+        result = getattr(interrupt, "result", None)
+        if result is not None and result.seconds > 0:
+            print(f"{env_id.split('/')[-1]} {result.summary()}")
+        print("interrupted", file=sys.stderr)
+        return 130
+    finally:
+        env.close()
     wall = time.perf_counter() - start
     rtf = result.realtime_factor(replan_every)
-    print(f"{env_id.split('/')[-1]} {result.summary()}; real-time factor {rtf:.3f}, "
-          f"episode wall {wall:.0f} s")  # fmt: skip
-    env.close()
+    print(f"{env_id.split('/')[-1]} {result.summary()}; planning real-time factor {rtf:.3f} "
+          f"(simulated s per wall s of replanning), episode wall {wall:.0f} s")  # fmt: skip
     return 0
 
 

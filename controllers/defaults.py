@@ -8,6 +8,7 @@ its ``dt`` to :func:`planner_for` or :func:`default_planner`.
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any
 
 from .cost import CostWeights
@@ -112,7 +113,14 @@ _PLANNER: dict[str, dict[str, Any]] = {
 
 
 def _benchmark(env_id: str) -> str:
+    if not isinstance(env_id, str):
+        raise TypeError(f"env_id must be a str (e.g. 'softrom_gym/CrossWalk-v0'), got {env_id!r}")
     name = env_id.split("/")[-1].split(":")[-1]
+    # An id without its version is the latest one, as gym.make reads it (every benchmark has
+    # one version): "softrom_gym/CrossWalk" is CrossWalk-v0, and its tuned planner.
+    versioned = [b for b in DEFAULTS if b.rsplit("-v", 1)[0] == name]
+    if name not in DEFAULTS and len(versioned) == 1:
+        name = versioned[0]
     if name not in DEFAULTS:
         raise ValueError(f"no defaults for {env_id!r}; benchmarks: {sorted(DEFAULTS)}")
     return name
@@ -144,12 +152,7 @@ def _rescaled(row: dict[str, Any], dt: float | None, changes: dict[str, Any]) ->
     seconds, whole steps where the planner needs them."""
     if dt is None:
         return dict(row)
-    if (
-        isinstance(dt, bool)
-        or not isinstance(dt, (int, float))
-        or not (math.isfinite(dt) and dt > 0)
-    ):
-        raise ValueError(f"dt (the env's control period, s) must be a positive number, got {dt!r}")
+    dt = _control_period(dt)
     if math.isclose(dt, TUNED_DT, rel_tol=1e-9):
         return dict(row)
     f = TUNED_DT / dt
@@ -175,6 +178,19 @@ def _rescaled(row: dict[str, Any], dt: float | None, changes: dict[str, Any]) ->
     return out
 
 
+def _control_period(dt: Any) -> float:
+    """``dt`` (None: :data:`TUNED_DT`) as a float, or a ValueError naming it."""
+    if dt is None:
+        return TUNED_DT
+    if (
+        isinstance(dt, bool)
+        or not isinstance(dt, numbers.Real)
+        or not (math.isfinite(dt) and dt > 0)
+    ):
+        raise ValueError(f"dt (the env's control period, s) must be a positive number, got {dt!r}")
+    return float(dt)
+
+
 def default_planner(
     env_id: str, planner: str, *, dt: float | None = None, **changes: Any
 ) -> tuple[Planner, int]:
@@ -184,15 +200,16 @@ def default_planner(
     Times (horizon, period, window, seed_horizon, the replan interval) are tuned in env steps
     of the benchmarks' 40 Hz control period (:data:`TUNED_DT`). ``dt``, the env's control
     period in seconds (``env.get_wrapper_attr("dt")``), keeps them the same in seconds for an
-    env made with another ``frame_skip`` or ``dt``; None takes 0.025 s. ``changes`` are in env
-    steps of the env. Rollouts run on 2 threads (the benchmarks' machines have 2 cores, and
+    env made with another ``frame_skip`` or ``dt``; None takes 0.025 s. The planner's
+    ``reset`` refuses an env with another control period. ``changes`` are in env steps of the
+    env. Rollouts run on 2 threads (the benchmarks' machines have 2 cores, and
     ``rbbo`` runs one planner per worker process): ``threads=None`` uses every CPU of this
     process's affinity.
     """
     if planner not in PLANNERS:
         raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
     settings, replan_every = _settings(planner, DEFAULTS[_benchmark(env_id)], dt, changes)
-    return PLANNERS[planner][0](settings), replan_every
+    return PLANNERS[planner][0](settings, dt=_control_period(dt)), replan_every
 
 
 def _changed(settings: PlannerSettings, changes: dict[str, Any]) -> PlannerSettings:
@@ -202,12 +219,14 @@ def _changed(settings: PlannerSettings, changes: dict[str, Any]) -> PlannerSetti
     if (
         "window" not in changes
         and isinstance(horizon, int)
+        and horizon >= 1  # (below 1 the settings name the horizon itself)
         and settings.window is not None
         and horizon < settings.window
     ):
         raise ValueError(f"horizon = {horizon!r} is shorter than the default window "
                          f"({settings.window} env steps, over which R is counted): give "
-                         "window too (None: the whole horizon)")  # fmt: skip
+                         "window too (python -m controllers: --window; None or 'all': the "
+                         "whole horizon)")  # fmt: skip
     return settings.replace(**changes) if changes else settings
 
 
@@ -249,4 +268,4 @@ def planner_for(
         raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
     row = DEFAULTS[_benchmark(env_id)] if has_defaults(env_id) else GENERIC
     settings, replan_every = _settings(planner, row, dt, changes)
-    return PLANNERS[planner][0](settings), replan_every
+    return PLANNERS[planner][0](settings, dt=_control_period(dt)), replan_every

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .planner import EnvAPI, Planner
+from .planner import EnvAPI, Planner, check_physical_actions
 
 __all__ = ["EpisodeResult", "run_episode"]
 
@@ -20,11 +20,13 @@ class EpisodeResult:
     """One closed-loop episode.
 
     Per env step t = 1..T (arrays of length T), as ``env.step`` reported them: ``rewards``
-    (R per step, m), ``orientation`` (rad), ``lateral`` (m), ``effort`` (|f_c / a|^2),
-    ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and ``distance`` (T + 1,) along d
-    since reset (m), ``states`` (ReducedState copies). Per replan: ``replan_steps`` (the step
-    it ran at) and ``replan_wall_s``. ``stop_reason`` says why the episode ended: "time" (its
-    seconds ran out), "diverged" or "truncated by the time limit" (the env's TimeLimit).
+    (R per step, m, as any reward wrapper left it), ``orientation`` (rad), ``lateral`` (m),
+    ``effort`` (|f_c / a|^2), ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and
+    ``distance`` (T + 1,) along d since reset (m), ``states`` (ReducedState copies). Per
+    replan: ``replan_steps`` (the step it ran at) and ``replan_wall_s``. ``stop_reason`` says
+    why the episode ended: "time" (its seconds ran out), "diverged", "truncated by the time
+    limit" (the env's TimeLimit) or "interrupted" (Ctrl-C: :func:`run_episode` raises the
+    KeyboardInterrupt with the steps recorded so far as its ``result``).
     """
 
     planner: str
@@ -50,8 +52,10 @@ class EpisodeResult:
 
     @property
     def R(self) -> float:
-        """The task reward: distance along d over the episode (m), without Λ."""
-        return float(self.rewards.sum())
+        """The task reward: distance along d over the episode (m), without Λ. From the centre
+        of mass, so a reward wrapper (which changes ``rewards``) cannot change it; on the env
+        itself it equals ``rewards.sum()`` to round-off."""
+        return float(self.distance[-1])
 
     @property
     def replans(self) -> int:
@@ -67,7 +71,8 @@ class EpisodeResult:
         return float(self.distance[i1] - self.distance[i0])
 
     def realtime_factor(self, replan_every: int) -> float:
-        """Simulated seconds advanced per replan / wall seconds per replan."""
+        """Simulated seconds advanced per replan / wall seconds per replan: the planning's
+        real-time factor (the episode's env steps and the gait seed at reset are not in it)."""
         if not self.replans:
             return float("nan")
         return replan_every * self.dt / float(np.mean(self.replan_wall_s))
@@ -132,7 +137,7 @@ def run_episode(
     if video is not None:
         _check_video_path(video)  # before the episode, not after it
         _imageio()
-    _check_physical_actions(env)
+    check_physical_actions(env)
     api = EnvAPI(env)
     steps = max(1, round(seconds / api.dt))
     env.reset(seed=seed)
@@ -145,6 +150,26 @@ def run_episode(
     frames = [env.render()] if video is not None else []
     bar = _progress(steps, progress, planner.name)
     stop = "time"
+    try:
+        stop = _closed_loop(env, planner, api, steps, replan_every, record, com, states,
+                            replan_steps, wall, frames, bar)  # fmt: skip
+    except KeyboardInterrupt as interrupt:
+        # what was recorded is the user's: handed back with the interrupt, not lost to it
+        interrupt.result = _result(planner, api, env, record, com, states, replan_steps, wall,
+                                   "interrupted")  # fmt: skip
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    if video is not None:
+        _write_video(video, frames, round(1.0 / api.dt))
+    return _result(planner, api, env, record, com, states, replan_steps, wall, stop)
+
+
+def _closed_loop(env, planner, api, steps, replan_every, record, com, states, replan_steps, wall,
+                 frames, bar) -> str:  # fmt: skip
+    """The episode's steps, appended to the lists given; returns why it stopped."""
+    video = bool(frames)
     for t in range(steps):
         if t % replan_every == 0:
             start = time.perf_counter()
@@ -159,56 +184,40 @@ def run_episode(
             record[key].append(value)
         com.append(np.asarray(info["com"], dtype=float))
         states.append(api.get_state())
-        if video is not None:
+        if video:
             frames.append(env.render())
         if bar is not None:
             bar.update(1)
             bar.set_postfix(distance=f"{info['distance']:+.3f} m", refresh=False)
         if terminated:
-            stop = "diverged"
-            break
+            return "diverged"
         if truncated and t < steps - 1:  # the limit ended it before the time asked for
-            stop = "truncated by the time limit"
-            break
-    if bar is not None:
-        bar.close()
-    com_arr = np.array(com)
-    if video is not None:
-        _write_video(video, frames, round(1.0 / api.dt))
+            return "truncated by the time limit"
+    return "time"
+
+
+def _result(planner, api, env, record, com, states, replan_steps, wall, stop) -> EpisodeResult:
+    # An interrupt can land between a step's appends: keep the steps recorded whole.
+    n = min(min(len(v) for v in record.values()), len(com) - 1, len(states) - 1)
+    replans = min(len(replan_steps), len(wall))
+    com_arr = np.array(com[: n + 1])
     return EpisodeResult(
         planner=planner.name,
         dt=api.dt,
         body_length=float(env.get_wrapper_attr("body_length")),
-        rewards=np.array(record["rewards"], dtype=float),
-        orientation=np.array(record["orientation"], dtype=float),
-        lateral=np.array(record["lateral"], dtype=float),
-        effort=np.array(record["effort"], dtype=float),
-        actions=np.array(record["actions"], dtype=float).reshape(-1, api.control_dim),
+        rewards=np.array(record["rewards"][:n], dtype=float),
+        orientation=np.array(record["orientation"][:n], dtype=float),
+        lateral=np.array(record["lateral"][:n], dtype=float),
+        effort=np.array(record["effort"][:n], dtype=float),
+        actions=np.array(record["actions"][:n], dtype=float).reshape(-1, api.control_dim),
         com=com_arr,
         distance=(com_arr - com_arr[0]) @ api.direction,
-        states=states,
-        replan_steps=np.array(replan_steps, dtype=int),
-        replan_wall_s=np.array(wall),
+        states=states[: n + 1],
+        replan_steps=np.array(replan_steps[:replans], dtype=int),
+        replan_wall_s=np.array(wall[:replans]),
         stop_reason=stop,
         seed_gait=getattr(planner, "seed_", {}).get("gait"),
     )
-
-
-def _check_physical_actions(env: Any) -> None:
-    """The planners return f_c in the robot's own units; an action wrapper (RescaleAction to
-    [-1, 1], or one of the user's) would transform them again. ClipAction only clips to the
-    robot's box, as the env itself does, so it may stay."""
-    import gymnasium as gym
-
-    layer = env
-    while isinstance(layer, gym.Wrapper):
-        if isinstance(layer, gym.ActionWrapper) and not isinstance(layer, gym.wrappers.ClipAction):
-            raise ValueError(
-                f"the env is wrapped in {type(layer).__name__}, an action wrapper: it would "
-                "transform the planner's actions, which are already f_c in the robot's units "
-                f"(its box {env.unwrapped.action_space}); run the episode on the env without it"
-            )
-        layer = layer.env
 
 
 _VIDEO_SUFFIXES = {".mp4", ".m4v", ".mov", ".mkv", ".avi", ".webm", ".gif"}

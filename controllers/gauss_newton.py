@@ -102,11 +102,13 @@ class GaussNewtonShooting(Planner):
 
     name = "gn"
 
-    def __init__(self, settings: GaussNewtonSettings | None = None) -> None:
+    def __init__(
+        self, settings: GaussNewtonSettings | None = None, *, dt: float | None = None
+    ) -> None:
         settings = GaussNewtonSettings() if settings is None else settings
         if not isinstance(settings, GaussNewtonSettings):
             raise TypeError(f"settings must be GaussNewtonSettings, got {type(settings).__name__}")
-        super().__init__(settings)
+        super().__init__(settings, dt=dt)
 
     def reset(self, env: Any, seed: int | None = None) -> None:
         super().reset(env, seed)

@@ -55,11 +55,11 @@ class MPPI(Planner):
 
     name = "mppi"
 
-    def __init__(self, settings: MPPISettings | None = None) -> None:
+    def __init__(self, settings: MPPISettings | None = None, *, dt: float | None = None) -> None:
         settings = MPPISettings() if settings is None else settings
         if not isinstance(settings, MPPISettings):
             raise TypeError(f"settings must be MPPISettings, got {type(settings).__name__}")
-        super().__init__(settings)
+        super().__init__(settings, dt=dt)
 
     def _optimise(self, state: Any) -> None:
         s, plan = self.settings, self.plan_

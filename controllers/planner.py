@@ -26,7 +26,7 @@ from .cost import CostWeights, Evaluation, evaluate
 from .gaits import gait_grid
 from .spline import KINDS, SplinePlan
 
-__all__ = ["EnvAPI", "Planner", "PlannerSettings"]
+__all__ = ["EnvAPI", "Planner", "PlannerSettings", "check_physical_actions"]
 
 
 def _check_int(name: str, value: Any, low: int = 1) -> None:
@@ -155,6 +155,23 @@ class PlannerSettings:
         return type(self)(**values)
 
 
+def check_physical_actions(env: Any) -> None:
+    """The planners return f_c in the robot's own units; an action wrapper (RescaleAction to
+    [-1, 1], or one of the user's) would transform them again. ClipAction only clips to the
+    robot's box, as the env itself does, so it may stay."""
+    import gymnasium as gym
+
+    layer = env
+    while isinstance(layer, gym.Wrapper):
+        if isinstance(layer, gym.ActionWrapper) and not isinstance(layer, gym.wrappers.ClipAction):
+            raise ValueError(
+                f"the env is wrapped in {type(layer).__name__}, an action wrapper: it would "
+                "transform the planner's actions, which are already f_c in the robot's units "
+                f"(its box {env.unwrapped.action_space}); plan on the env without it"
+            )
+        layer = layer.env
+
+
 class EnvAPI:
     """The env's MPC API reached through any gymnasium wrappers."""
 
@@ -184,6 +201,14 @@ class EnvAPI:
 class Planner(ABC):
     """Receding-horizon planner over a spline of knots in control space.
 
+    Parameters
+    ----------
+    settings : PlannerSettings
+    dt : float or None
+        The control period (s) whose env steps the settings' times count: :meth:`reset`
+        refuses an env that steps another (its gait would run at another frequency).
+        :func:`controllers.planner_for` sets it; None leaves it unchecked.
+
     Subclasses implement :meth:`_optimise` (one replan's update of ``self.plan_``'s knots).
     After :meth:`plan`, ``last_`` holds the replan's record: ``objective_start`` (J of the
     warm-started plan), ``objective_best`` (Gauss-Newton: J of the plan it adopts; MPPI: J
@@ -195,18 +220,42 @@ class Planner(ABC):
 
     name = "planner"
 
-    def __init__(self, settings: PlannerSettings) -> None:
+    def __init__(self, settings: PlannerSettings, *, dt: float | None = None) -> None:
         if not isinstance(settings, PlannerSettings):
             raise TypeError(f"settings must be a PlannerSettings, got {type(settings).__name__}")
+        if dt is not None:
+            _check_positive("dt (the control period the settings' env steps are of, s)", dt)
         self.settings = settings
+        # The control period (s) whose env steps the settings' times count (None: unchecked):
+        # on an env with another, the gait would run at another frequency, unseen.
+        self.dt = None if dt is None else float(dt)
         self.plan_: SplinePlan | None = None
         self.last_: dict[str, Any] = {}
 
     # ----------------------------------------------------------------- interface
     def reset(self, env: Any, seed: int | None = None) -> None:
-        """Start a new episode: an empty (or gait-seeded) plan and a fresh random stream."""
+        """Start a new episode: an empty (or gait-seeded) plan and a fresh random stream.
+
+        Refuses an env in an action wrapper (other than ``ClipAction``: the actions are f_c in
+        the robot's units, which ``RescaleAction`` would scale again) and, for a planner made
+        for a control period (``dt``), an env that steps another.
+        """
         s = self.settings
-        self.api_ = EnvAPI(env)
+        if seed is not None and (
+            isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
+        ):
+            raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+        check_physical_actions(env)
+        api = EnvAPI(env)
+        if self.dt is not None and not np.isclose(api.dt, self.dt, rtol=1e-9, atol=0.0):
+            raise ValueError(
+                f"{type(self).__name__}'s settings count env steps of a {self.dt:g} s control "
+                f"period, but the env steps {api.dt:g} s: its gait would run "
+                f"{self.dt / api.dt:.3g}x as fast as planned. Make the planner for the env's "
+                "period: controllers.planner_for(env_id, planner, "
+                "dt=env.get_wrapper_attr('dt'))"
+            )
+        self.api_ = api
         self.rng_ = np.random.default_rng(seed)
         self.plan_ = SplinePlan(s.horizon, s.knots, self.api_.control_dim, s.kind, s.period)
         self.last_ = {}

@@ -360,9 +360,16 @@ def test_defaults_are_valid_for_every_benchmark():
 
 def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
     assert cli_main(["BeamWalk-v0", "--planner", "gn", "--seconds", "0.05", "--horizon", "4",
-                     "--iterations", "1", "--no-progress"]) == 0  # fmt: skip
+                     "--window", "all", "--iterations", "1", "--no-progress"]) == 0  # fmt: skip
     line = capsys.readouterr().out.strip()
-    assert line.startswith("BeamWalk-v0 gn: 0.05 s") and "real-time factor" in line
+    assert line.startswith("BeamWalk-v0 gn: 0.05 s") and "planning real-time factor" in line
+    # a horizon shorter than the default window is named, as in Python, not silently widened
+    with pytest.raises(SystemExit):
+        cli_main(["BeamWalk-v0", "--horizon", "4", "--no-progress"])
+    assert "horizon = 4 is shorter than the default window" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli_main(["Pendulum-v1"])
+    assert "Pendulum-v1: not a registered softrom env" in capsys.readouterr().err
     assert "distance t=0..0.05 s" in line  # shorter than the settling time: the whole episode
     with pytest.raises(SystemExit) as exc:
         cli_main(["BeamWalk-v0", "--samples", "0"])
@@ -378,7 +385,7 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
 
 def test_cli_runs_a_robot_of_your_own(capsys):
     args = ["SoftRobot-v0", "--env-kwarg", "robot=beam", "--env-kwarg", "sim_dim=6",
-            "--seconds", "0.05", "--horizon", "4", "--no-progress"]  # fmt: skip
+            "--seconds", "0.05", "--horizon", "4", "--window", "4", "--no-progress"]  # fmt: skip
     assert cli_main(args) == 0
     assert capsys.readouterr().out.startswith("SoftRobot-v0 mppi: 0.05 s")
     with pytest.raises(SystemExit) as exc:
@@ -464,3 +471,102 @@ def test_the_gait_seed_picks_the_cycle_among_seed_periods(walker):
     own = planner_for("softrom_gym/SoftRobot-v0", "mppi")[0].settings
     assert own.seed_periods == (40 / 3, 10.0)  # a robot of your own: 2, 3 and 4 Hz tried
     assert default_settings("softrom_gym/TripodWalk-v0", "mppi")[0].seed_periods == ()
+
+
+def test_an_unversioned_benchmark_id_gets_its_tuned_planner():
+    for env_id in ("softrom_gym/CrossWalk", "CrossWalk"):
+        assert has_defaults(env_id)
+        planner, every = planner_for(env_id, "mppi")
+        tuned, tuned_every = planner_for("softrom_gym/CrossWalk-v0", "mppi")
+        assert (planner.settings, every) == (tuned.settings, tuned_every)
+
+
+def test_reset_refuses_an_env_the_planner_was_not_made_for():
+    env = gym.make("softrom_gym/CrossSwim-v0", frame_skip=10)
+    planner, _ = planner_for("softrom_gym/CrossSwim-v0", "mppi")  # for 0.025 s steps
+    with pytest.raises(ValueError, match=r"a 0.025 s control period, but the env steps 0.05 s"):
+        planner.reset(env, seed=0)
+    planner, _ = planner_for("softrom_gym/CrossSwim-v0", "mppi", dt=env.get_wrapper_attr("dt"))
+    planner.reset(env, seed=0)  # made for it: accepted
+    # a planner made by hand has no period to check
+    MPPI(MPPISettings(horizon=4, knots=2)).reset(env, seed=0)
+    # the actions are f_c: an action wrapper that rescales them is refused here too, not only
+    # by run_episode (a hand-written receding-horizon loop would send wrong actions)
+    one = np.ones(3, dtype=np.float32)
+    rescaled = gym.wrappers.RescaleAction(gym.make("softrom_gym/CrossSwim-v0"), -one, one)
+    planner, _ = planner_for("softrom_gym/CrossSwim-v0", "mppi")
+    with pytest.raises(ValueError, match="wrapped in RescaleAction, an action wrapper"):
+        planner.reset(rescaled, seed=0)
+    with pytest.raises(ValueError, match="seed must be a non-negative integer or None, got -1"):
+        planner.reset(gym.make("softrom_gym/CrossSwim-v0"), seed=-1)
+
+
+def test_default_planner_names_a_bad_horizon_and_takes_numpy_periods():
+    with pytest.raises(ValueError, match="horizon must be an integer >= 1, got -3"):
+        default_planner("softrom_gym/CrossSwim-v0", "mppi", horizon=-3)
+    planner, every = default_planner("softrom_gym/CrossSwim-v0", "mppi", dt=np.float32(0.05))
+    assert planner.dt == pytest.approx(0.05) and every == 10
+
+
+def test_r_is_the_distance_whatever_a_reward_wrapper_does():
+    planner, every = planner_for("softrom_gym/BeamWalk-v0", "mppi", samples=2, horizon=10,
+                                 window=None, seed_horizon=10)  # fmt: skip
+    plain = run_episode(gym.make("softrom_gym/BeamWalk-v0"), planner, 0.5, every, progress=False)
+    assert plain.R == pytest.approx(plain.rewards.sum(), abs=1e-12)
+    scaled = gym.wrappers.TransformReward(gym.make("softrom_gym/BeamWalk-v0"), lambda r: 100 * r)
+    wrapped = run_episode(scaled, planner, 0.5, every, progress=False)
+    np.testing.assert_allclose(wrapped.rewards, 100 * plain.rewards)
+    assert wrapped.R == plain.R != 0.0
+
+
+class _InterruptAt(gym.Wrapper):
+    """Raises KeyboardInterrupt (as Ctrl-C would) at the n-th step."""
+
+    def __init__(self, env, n):
+        super().__init__(env)
+        self.n, self.calls = n, 0
+
+    def step(self, action):
+        self.calls += 1
+        if self.calls == self.n:
+            raise KeyboardInterrupt
+        return self.env.step(action)
+
+
+def test_an_interrupted_episode_hands_back_what_it_recorded(capsys, monkeypatch):
+    planner, every = planner_for("softrom_gym/BeamWalk-v0", "mppi", samples=2, horizon=10,
+                                 window=None, seed_horizon=10)  # fmt: skip
+    env = _InterruptAt(gym.make("softrom_gym/BeamWalk-v0"), 6)
+    with pytest.raises(KeyboardInterrupt) as interrupt:
+        run_episode(env, planner, 1.0, every, progress=False)
+    result = interrupt.value.result
+    assert result.stop_reason == "interrupted" and result.rewards.size == 5
+    assert result.com.shape == (6, 3) and len(result.states) == 6
+    assert result.actions.shape == (5, 3) and result.R == pytest.approx(result.rewards.sum())
+    # the command line prints it and exits 130, as rbbo does
+    import controllers.episode as episode  # (main imports run_episode from it when it runs)
+
+    original = episode.run_episode
+
+    def interrupted(env, *args, **kwargs):
+        return original(_InterruptAt(env, 3), *args, **kwargs)
+
+    monkeypatch.setattr(episode, "run_episode", interrupted)
+    code = cli_main(["BeamWalk-v0", "--seconds", "1", "--samples", "2", "--no-progress"])
+    out, err = capsys.readouterr()
+    assert code == 130 and "interrupted" in err
+    assert out.startswith("BeamWalk-v0 mppi: 0.05 s") and "(stopped: interrupted)" in out
+
+
+def test_the_command_line_raises_the_time_limit_to_the_seconds_asked(capsys, monkeypatch):
+    import controllers.episode as episode
+
+    seen = {}
+
+    def record(env, planner, seconds, **kwargs):
+        seen["limit"] = env.spec.max_episode_steps
+        raise KeyboardInterrupt  # (nothing to run: the limit is what is checked)
+
+    monkeypatch.setattr(episode, "run_episode", record)
+    assert cli_main(["BeamWalk-v0", "--env-kwarg", "frame_skip=1", "--seconds", "3"]) == 130
+    assert seen["limit"] == 600  # 3 s of 5 ms steps; the registration's 400 would stop at 2 s
