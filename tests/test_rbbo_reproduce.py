@@ -300,6 +300,8 @@ def test_other_settings_on_an_existing_directory_are_refused(reproduction, capsy
         (["--mpc", "horizon=0"], "horizon"),
         (["--t-min", "1", "--settle-time", "2"], "settle_time"),
         (["--settle-time", "-1"], "need 0 <= settle_time"),
+        (["--repeats", "0"], "repeats must be an integer >= 1, got 0"),
+        (["--repeats", "two"], "'two'"),
     ],
 )
 def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys):
@@ -342,6 +344,15 @@ def test_plan_validates_and_round_trips():
         ReproducePlan(transfer_sim_dim=20)
     assert "transfer_sim_dim" in plan.differences(ReproducePlan(benchmarks=["BeamWalk-v0"],
                                                                 transfer_sim_dim=60))  # fmt: skip
+    # more Table I runs sit beside run 0 in folders of their own: a later session may add some
+    assert plan.differences(ReproducePlan(benchmarks=["BeamWalk-v0"], repeats=3)) == []
+    del stored["repeats"]  # a reproduce.json written before the setting existed: one run
+    assert ReproducePlan.from_dict(stored).repeats == 1
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match=f"repeats must be an integer >= 1, got {bad!r}"):
+            ReproducePlan(repeats=bad)
+    assert [plan.table_run("softrom_gym/BeamWalk-v0", k) for k in range(3)] == [
+        "BeamWalk-v0-boca", "BeamWalk-v0-boca-run1", "BeamWalk-v0-boca-run2"]  # fmt: skip
     per_algo = ReproducePlan(rl_steps={"ppo": 500_000, "sac": 100_000})
     assert ReproducePlan.from_dict(per_algo.to_dict()) == per_algo
     with pytest.raises(ValueError, match="must name exactly ppo, sac; got ppo"):
@@ -568,6 +579,215 @@ def test_the_launch_line_names_only_the_stages_that_run(tmp_path, monkeypatch):
     ]
     sessions = json.loads((tmp_path / "bo" / "reproduce.json").read_text())["sessions"]
     assert sessions[-1]["stages"] == ["table", "bo"]  # what --status reads back
+
+
+def test_the_launch_line_counts_the_repeated_table_runs(tmp_path, monkeypatch):
+    from rbbo.reproduce import runner
+
+    made = []
+    monkeypatch.setattr(runner, "optimise", lambda path, *args, **kwargs: made.append(
+        (path.name, args[-1] if len(args) == 8 else 0)))  # fmt: skip
+    monkeypatch.setattr(runner, "_objective", lambda plan, bench, *args: None)
+    lines = []
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0", "BeamWalk-v0"], stages=["table", "bo"],
+                         budget_s=1800.0, repeats=3, seed=4)  # fmt: skip
+    runner.reproduce(tmp_path, plan, progress=False, log=lines.append)
+    launch = next(line.split(": ", 1)[1] for line in lines if line.startswith("reproduce into "))
+    # 2 benchmarks x (3 BOCA runs + 1 BO run) x 30 min
+    assert launch == (
+        "stages table (3 runs per benchmark, seeds 4-6), bo; optimisation budgets add up to "
+        "4.0 h on 2 workers, plus the confirmations (rerun the same command to resume)"
+    )
+    # every benchmark's run 0 (and its BO run) first, then the repeats round by round
+    assert made == [
+        ("CrossSwim-v0-boca", 0), ("CrossSwim-v0-bo", 0), ("BeamWalk-v0-boca", 0),
+        ("BeamWalk-v0-bo", 0), ("CrossSwim-v0-boca-run1", 1), ("BeamWalk-v0-boca-run1", 1),
+        ("CrossSwim-v0-boca-run2", 2), ("BeamWalk-v0-boca-run2", 2),
+    ]  # fmt: skip
+    sessions = json.loads((tmp_path / "reproduce.json").read_text())["sessions"]
+    assert sessions[-1]["repeats"] == 3
+
+
+def test_the_repeats_of_a_record_are_the_most_a_table_session_asked_for():
+    from rbbo.reproduce.status import recorded_repeats
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"]).to_dict()
+    assert recorded_repeats({"plan": plan, "sessions": []}) == 1
+    assert recorded_repeats({"plan": {**plan, "repeats": 2}, "sessions": []}) == 2
+    sessions = [
+        {"command": "rbbo reproduce --out x"},  # before repeats existed: one run
+        {"command": "rbbo reproduce --out x", "stages": ["table"], "repeats": 3},
+        {"command": "rbbo reproduce --out x", "stages": ["studies"], "repeats": 5},
+        {"command": "rbbo reproduce --out x", "stages": ["table", "bo"], "repeats": 1},
+    ]
+    assert recorded_repeats({"plan": plan, "sessions": sessions}) == 3
+    assert recorded_repeats({"plan": plan, "sessions": sessions[:1]}) == 1
+
+
+def test_the_runs_table_gives_each_run_and_the_spread_over_those_confirmed():
+    from rbbo.reproduce.tables import across_runs, format_runs_markdown
+
+    def row(repeat, r_init, r_star):
+        gain = 100 * (r_star / r_init - 1) if math.isfinite(r_star) else math.nan
+        return {"benchmark": "CrossSwim-v0", "repeat": repeat, "seed": 7 + repeat,
+                "R_init": r_init, "R_star": r_star, "improvement_pct": gain}  # fmt: skip
+
+    rows = [row(0, 1.0, 2.0), row(1, 1.0, 1.5), row(2, 0.5, 1.5), row(3, 1.0, math.nan)]
+    stats = across_runs(rows)
+    assert stats["runs"] == 3
+    assert stats["improvement_mean_pct"] == pytest.approx(np.mean([100, 50, 200]))
+    assert stats["improvement_sd_pct"] == pytest.approx(np.std([100, 50, 200], ddof=1))
+    assert (stats["improvement_min_pct"], stats["improvement_max_pct"]) == (50.0, 200.0)
+    assert stats["R_star_sd"] == pytest.approx(np.std([2.0, 1.5, 1.5], ddof=1))
+    line = format_runs_markdown(rows, 4).splitlines()[2]
+    assert line == ("| CrossSwim-v0 | 3 of 4 | +100.0 % (7), +50.0 % (8), +200.0 % (9), - (10) | "
+                    "+116.7 ± 76.4 % | +50.0 .. +200.0 % | 1.667 ± 0.29 |")  # fmt: skip
+    one = format_runs_markdown(rows[:1], 1).splitlines()[2]  # no spread from one run
+    assert one == "| CrossSwim-v0 | 1 | +100.0 % (7) | +100.0 % | +100.0 .. +100.0 % | 2 |"
+
+
+@pytest.fixture(scope="module")
+def repeated(tmp_path_factory):
+    """Table I of one benchmark, made in one run, then given a second (``--repeats 2``) by a
+    later session: the record as the first session left it, and the directory."""
+    out = tmp_path_factory.mktemp("repeated")
+    # (searched long enough to recommend other bases than the identity, whose gain is 0)
+    argv = [*TINY, "--stages", "table", "--iterations", "6", "--init", "2", "--out", str(out)]
+    assert main(argv) == 0
+    first = {name: (out / name).read_bytes() for name in (
+        "table1.csv", "table1.md", "runs/CrossSwim-v0-boca/history.jsonl")}  # fmt: skip
+    first["REPORT.md"] = (out / "REPORT.md").read_text()
+    first["runs"] = sorted(p.name for p in (out / "runs").iterdir())
+    first["table1_runs.csv"] = (out / "table1_runs.csv").exists()
+    assert main([*argv, "--repeats", "2"]) == 0
+    return out, first
+
+
+def test_one_run_is_table_one_as_before(repeated, reproduction):
+    _, first = repeated
+    assert first["runs"] == ["CrossSwim-v0-boca"]
+    header = (reproduction / "table1.csv").read_text().splitlines()[0]
+    assert header == ("benchmark,robot,task,N,M,C,R_init,R_init_ci95,R_star,R_star_ci95,seeds,"
+                      "improvement_pct,apart,delta,delta_ci95,paired_apart,evaluations,failed,"
+                      "wall_s,fidelity,paper_improvement_pct,run")  # fmt: skip
+    assert first["table1.csv"].decode().splitlines()[0] == header
+    assert first["table1.md"].decode().count("| benchmark | runs |") == 0
+    assert "over 2 RBBO runs" not in first["REPORT.md"]
+    assert "- Each benchmark has one RBBO run (seed 0), as the paper's" in first["REPORT.md"]
+    assert not (reproduction / "table1_runs.csv").exists() and not first["table1_runs.csv"]
+    log = (reproduction / "reproduce.log").read_text()
+    assert "stages table, bo, transfer" in log and "runs per benchmark" not in log
+
+
+def test_repeats_make_one_run_per_seed_and_leave_run_zero_alone(repeated):
+    out, first = repeated
+    runs = sorted(p.name for p in (out / "runs").iterdir())
+    assert runs == ["CrossSwim-v0-boca", "CrossSwim-v0-boca-run1"]
+    seeds = [json.loads((out / "runs" / r / "config.json").read_text())["rbbo"]["seed"]
+             for r in runs]  # fmt: skip
+    assert seeds == [0, 1]
+    # the second session resumed run 0 without a new evaluation and made run 1 whole
+    assert (out / "runs/CrossSwim-v0-boca/history.jsonl").read_bytes() == first[
+        "runs/CrossSwim-v0-boca/history.jsonl"
+    ]
+    history = _history(out / "runs" / "CrossSwim-v0-boca-run1")
+    assert sum(not e["kind"].startswith("confirm") for e in history) == 6
+    fresh = [next(e["seeds"] for e in _history(out / "runs" / r) if e["kind"] == "confirm-init")
+             for r in runs]  # fmt: skip
+    assert fresh[0] != fresh[1]  # each run confirmed on its own fresh seeds
+    log = (out / "reproduce.log").read_text()
+    assert "stages table (2 runs per benchmark, seeds 0-1); optimisation budgets add up to " \
+        "1.5 h on 1 workers" in log  # fmt: skip
+    assert "[CrossSwim-v0-boca-run1] BOCA, budget" in log
+
+
+def test_the_table_gives_the_improvement_over_the_runs(repeated):
+    from rbbo.reproduce.tables import read_rows
+
+    out, first = repeated
+    gains, stars = [], []
+    for r in ("CrossSwim-v0-boca", "CrossSwim-v0-boca-run1"):
+        confirm = {e["kind"]: e["R_seeds"] for e in _history(out / "runs" / r)
+                   if e["kind"].startswith("confirm")}  # fmt: skip
+        r_init, r_star = np.mean(confirm["confirm-init"]), np.mean(confirm["confirm-best"])
+        gains.append(100 * (r_star / r_init - 1))
+        stars.append(r_star)
+    assert all(math.isfinite(g) for g in gains)
+    rows = read_rows(out / "table1_runs.csv")
+    assert [(r["repeat"], r["seed"], Path(r["run"]).name) for r in rows] == [
+        ("0", "0", "CrossSwim-v0-boca"), ("1", "1", "CrossSwim-v0-boca-run1")]  # fmt: skip
+    for r, gain, star in zip(rows, gains, stars, strict=True):
+        assert float(r["improvement_pct"]) == pytest.approx(gain)
+        assert float(r["R_star"]) == pytest.approx(star)
+    # Table I stays run 0's row, its columns as before, the spread over the runs beside it
+    assert (out / "table1.md").read_text().startswith(first["table1.md"].decode())
+    before = first["table1.csv"].decode().splitlines()
+    after = (out / "table1.csv").read_text().splitlines()
+    assert [x.startswith(y) for x, y in zip(after, before, strict=True)] == [True, True]
+    (table,) = read_rows(out / "table1.csv")
+    assert float(table["improvement_pct"]) == pytest.approx(gains[0])
+    assert table["runs"] == "2"
+    assert float(table["improvement_mean_pct"]) == pytest.approx(np.mean(gains))
+    assert float(table["improvement_sd_pct"]) == pytest.approx(np.std(gains, ddof=1))
+    assert float(table["improvement_min_pct"]) == pytest.approx(min(gains))
+    report = (out / "REPORT.md").read_text()
+    assert [r["improvement_pct"] for r in parse_markdown(report)] == pytest.approx(
+        [gains[0]], abs=0.05
+    )
+    section = report.split("### Table I over 2 RBBO runs per benchmark")[1].split("\n## ")[0]
+    assert "run 0 (seed 0), whose B_c the later stages (transfer, perturbation, RL) use" in section
+    line = next(x for x in section.splitlines() if x.startswith("| CrossSwim-v0 |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[1] == "2"
+    assert cells[2] == f"{gains[0]:+.1f} % (0), {gains[1]:+.1f} % (1)"
+    assert cells[3] == f"{np.mean(gains):+.1f} ± {np.std(gains, ddof=1):.1f} %"
+    assert cells[4] == f"{min(gains):+.1f} .. {max(gains):+.1f} %"
+    assert "(BOCA, each of its 2 runs)" in report
+    assert "- Each benchmark has 2 RBBO runs (seeds 0-1) where the paper has one" in report
+    assert (out / "table1.md").read_text().count("| CrossSwim-v0 | 2 |") == 1
+    assert (out / "runs" / "CrossSwim-v0-boca-run1" / "convergence.png").is_file()
+
+
+def test_a_rerun_with_repeats_resumes_every_run_and_prints_the_spread(repeated, capsys):
+    out, _ = repeated
+    runs = sorted((out / "runs").iterdir())
+    before = [p.joinpath("history.jsonl").read_bytes() for p in runs]
+    again = [*TINY, "--stages", "table", "--iterations", "6", "--init", "2", "--out", str(out)]
+    assert main([*again, "--repeats", "2"]) == 0
+    assert [p.joinpath("history.jsonl").read_bytes() for p in runs] == before
+    printed = capsys.readouterr().out
+    assert "| Cross | Swim |" in printed and "| CrossSwim-v0 | 2 |" in printed
+    # a later session of one run per benchmark keeps the record's two in the report
+    assert main(again) == 0
+    assert [p.joinpath("history.jsonl").read_bytes() for p in runs] == before
+    assert "### Table I over 2 RBBO runs per benchmark" in (out / "REPORT.md").read_text()
+
+
+def test_status_shows_each_repeated_run(repeated, capsys, tmp_path):
+    import shutil
+
+    out, _ = repeated
+    assert main(["reproduce", "--out", str(out), "--status"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [x.split(": done: ")[0] for x in lines[:2]] == [
+        "table        CrossSwim-v0         run 0 (seed 0)",
+        "table        CrossSwim-v0         run 1 (seed 1)",
+    ]
+    assert all(": done: 6 evaluations" in x for x in lines[:2])
+    assert lines[2].startswith("optimisation budget left: 0.00 h")
+    # a run not made yet is counted, in the status, its budget and the report's progress
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    shutil.rmtree(copy / "runs" / "CrossSwim-v0-boca-run1")
+    assert main(["reproduce", "--out", str(copy), "--status", "--repeats", "3"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [x.split(": ", 1)[1] for x in lines[1:3]] == ["not started", "not started"]
+    assert lines[2].startswith("table        CrossSwim-v0         run 2 (seed 2): ")
+    assert lines[3].startswith("optimisation budget left: 1.50 h")  # 2 x 45 min
+    assert main(["reproduce", "--out", str(copy), "--report-only"]) == 0
+    report = (copy / "REPORT.md").read_text()
+    assert "Under way (parts finished of those planned): table (1 of 2)" in report
+    assert "| CrossSwim-v0 | 1 of 2 |" in report
 
 
 def test_an_interrupt_does_not_wait_for_the_evaluations_in_flight():

@@ -4,6 +4,7 @@
 
     rbbo reproduce --budget-per-benchmark 45m --workers 2 --out runs/reproduce
     rbbo reproduce --benchmarks CrossSwim-v0 --budget-per-benchmark 5m --stages table,bo
+    rbbo reproduce --out runs/reproduce --stages table --repeats 3   # 2 more runs per benchmark
     rbbo reproduce --out runs/reproduce --report-only     # rewrite REPORT.md from the runs
 """
 
@@ -97,6 +98,12 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    help="comma list (default: all five)")  # fmt: skip
     p.add_argument("--budget-per-benchmark", type=parse_duration, default=defaults.budget_s,
                    help="wall time of each benchmark's RBBO run (default 45m)")  # fmt: skip
+    p.add_argument("--repeats", type=int, default=defaults.repeats, metavar="N",
+                   help="independent RBBO runs per benchmark in stage table, run k seeded "
+                   "--seed + k, each with the full budget (default 1); Table I's row is run "
+                   "0's, and so is the B_c the transfer, perturbation and RL stages use; with "
+                   "N > 1 the report adds each run's improvement and their mean ± sample sd "
+                   "and range. Stage bo stays one run per benchmark")  # fmt: skip
     p.add_argument("--iterations", type=positive_int, help="cap on evaluations per run")
     p.add_argument("--workers", type=positive_int, default=defaults.workers,
                    help=f"evaluations run at once (default {defaults.workers})")  # fmt: skip
@@ -171,14 +178,14 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--status", action="store_true",
                    help="print what each part of the reproduction in --out has done and the "
                    "budget left (the stages of the stored plan and of its earlier sessions; "
-                   "--stages and budgets given here override it), and exit")  # fmt: skip
+                   "--stages, --repeats and budgets given here override it), and exit")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
 
 def _plan(args) -> ReproducePlan:
     return ReproducePlan(
-        benchmarks=args.benchmarks, budget_s=args.budget_per_benchmark,
+        benchmarks=args.benchmarks, budget_s=args.budget_per_benchmark, repeats=args.repeats,
         iterations=args.iterations, workers=args.workers, deterministic=args.deterministic,
         executor=args.executor,
         controller=args.controller, sim_dim=args.sim_dim, control_dim=args.control_dim,
@@ -198,7 +205,7 @@ def _status(args, usage_error: type[Exception]) -> int:
     import json
     from dataclasses import replace
 
-    from .status import recorded_stages, status_lines
+    from .status import recorded_repeats, recorded_stages, status_lines
 
     path = args.out / "reproduce.json"
     if not path.exists():
@@ -210,10 +217,13 @@ def _status(args, usage_error: type[Exception]) -> int:
         ("--stages", "stages", "stages"), ("--budget-per-benchmark", "budget_per_benchmark",
          "budget_s"), ("--direction-budget", "direction_budget", "direction_budget_s"),
         ("--rl-benchmarks", "rl_benchmarks", "rl_benchmarks"), ("--rl-steps", "rl_steps",
-         "rl_steps"), ("--rl-algos", "rl_algos", "rl_algos")) if flag in given}  # fmt: skip
+         "rl_steps"), ("--rl-algos", "rl_algos", "rl_algos"),
+        ("--repeats", "repeats", "repeats")) if flag in given}  # fmt: skip
     # The stored stages are the last session's; a status is of the whole reproduction, the
-    # stages its earlier sessions ran too (not every stage: those it never ran are no part).
+    # stages its earlier sessions ran too (not every stage: those it never ran are no part),
+    # and as many Table I runs as any of them asked for.
     changes.setdefault("stages", recorded_stages(document))
+    changes.setdefault("repeats", recorded_repeats(document))
     try:
         plan = replace(stored, **changes)
     except (ValueError, TypeError) as exc:
@@ -267,6 +277,8 @@ def command(args, usage_error: type[Exception]) -> int:
             return 130
     if written.get("table"):
         print(format_markdown(written["table"]))
+    if written.get("runs_markdown"):
+        print("\n" + written["runs_markdown"])
     print(f"report: {written['report']}" + (f" (and {written['copy']})" if "copy" in written
                                              else ""))  # fmt: skip
     return 0

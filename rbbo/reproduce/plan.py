@@ -50,6 +50,10 @@ class ReproducePlan:
     budget_s : float
         Wall-time budget of each benchmark's Table I run (BOCA), seconds; the BO run of the
         BO-vs-BOCA figure gets the same budget.
+    repeats : int
+        Independent Table I runs per benchmark (stage "table"), run k seeded ``seed + k``.
+        Run 0 is Table I's row and the basis the later stages use; with more, the report
+        gives the improvement's spread over the runs. The BO run stays one per benchmark.
     iterations : int or None
         Optional cap on the evaluations of each optimisation run.
     workers : int
@@ -109,6 +113,7 @@ class ReproducePlan:
 
     benchmarks: list[str] = field(default_factory=lambda: list(BENCHMARKS))
     budget_s: float = 45 * 60.0
+    repeats: int = 1
     iterations: int | None = None
     workers: int = 2
     deterministic: bool = False
@@ -166,7 +171,7 @@ class ReproducePlan:
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         for name, low in (("workers", 1), ("sim_dim", 1), ("control_dim", 1), ("n_init", 0),
                           ("confirm_seeds", 2), ("seed", 0), ("directions", 1),
-                          ("study_seeds", 1)):  # fmt: skip
+                          ("study_seeds", 1), ("repeats", 1)):  # fmt: skip
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
@@ -203,9 +208,10 @@ class ReproducePlan:
     # Settings that may change between sessions of one reproduction (how long and how wide
     # it runs); everything else defines the experiment and must stay the same. The RL
     # baselines train in their own folders, each continued from its latest checkpoint, so a
-    # later session may train them longer or on more benchmarks.
+    # later session may train them longer or on more benchmarks; the repeated Table I runs
+    # each have their own folder beside run 0, so a later session may add some.
     RESUMABLE = ("budget_s", "direction_budget_s", "iterations", "workers", "deterministic",
-                 "executor",
+                 "executor", "repeats",
                  "timeout_s", "stages", "rl_benchmarks", "rl_algos", "rl_steps")  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
@@ -235,6 +241,12 @@ class ReproducePlan:
         parts = ["the confirmations"] if stages & {"table", "bo", "directions"} else []
         parts += [text for stage, text in _BESIDES_BUDGETS.items() if stage in stages]
         return ", ".join(parts[:-1]) + " and " + parts[-1] if len(parts) > 1 else "".join(parts)
+
+    @staticmethod
+    def table_run(benchmark: str, repeat: int = 0) -> str:
+        """The folder name (under runs/) of ``benchmark``'s Table I run ``repeat``: run 0 is
+        named as before repeats existed, so older reproductions read and resume unchanged."""
+        return f"{_short(benchmark)}-boca" + (f"-run{repeat}" if repeat else "")
 
     def env_id(self, benchmark: str) -> str:
         return f"softrom_gym/{_short(benchmark)}"

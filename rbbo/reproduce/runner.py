@@ -3,7 +3,8 @@
 Layout of ``OUT`` (every part resumable: rerunning the same command continues it)::
 
     reproduce.json            the plan, and one entry per session (command, wall time)
-    runs/<bench>-boca/        Table I's RBBO run (BOCA), one per benchmark
+    runs/<bench>-boca/        Table I's RBBO run (BOCA), one per benchmark (run 0)
+    runs/<bench>-boca-run<k>/ its repeats k = 1 .. repeats - 1 (seed + k), with --repeats
     runs/<bench>-bo/          the plain-BO run beside it (the BO-vs-BOCA figure)
     runs/<env>-dir<deg>/      one RBBO run per walking direction
     transfer.csv              Table I's two bases measured again at M = transfer_sim_dim
@@ -76,19 +77,20 @@ def _objective(plan: ReproducePlan, benchmark: str, direction_deg: float | None 
                         planner_kwargs=dict(plan.planner_kwargs))  # fmt: skip
 
 
-def _config(plan: ReproducePlan, fidelity: str, budget_s: float) -> RBBOConfig:
+def _config(plan: ReproducePlan, fidelity: str, budget_s: float, repeat: int = 0) -> RBBOConfig:
     return RBBOConfig(sim_dim=plan.sim_dim, control_dim=plan.control_dim, fidelity=fidelity,
-                      t_min=plan.t_min, t_max=plan.t_max, n_init=plan.n_init, seed=plan.seed,
+                      t_min=plan.t_min, t_max=plan.t_max, n_init=plan.n_init,
+                      seed=plan.seed + repeat,
                       n_confirm=plan.confirm_seeds, max_evaluations=plan.iterations,
                       budget_s=budget_s)  # fmt: skip
 
 
 def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity: str,
              budget_s: float, progress: bool, log: Log,
-             heartbeat: Callable[[], None] | None = None) -> Path:  # fmt: skip
+             heartbeat: Callable[[], None] | None = None, repeat: int = 0) -> Path:  # fmt: skip
     """Create or resume the RBBO run at ``path`` and run it to its budget and confirmation
-    (``heartbeat()`` after each recorded evaluation)."""
-    config = _config(plan, fidelity, budget_s)
+    (``heartbeat()`` after each recorded evaluation); ``repeat`` k seeds it ``plan.seed + k``."""
+    config = _config(plan, fidelity, budget_s, repeat)
     if (path / "config.json").exists():
         opt = RBBO.resume(path)
         stored = opt.config
@@ -296,7 +298,7 @@ def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
     for bench in plan.rl_benchmarks:
         m, c = plan.sim_dim, plan.control_dim
         bases = {"identity": np.eye(m)[:, :c]}
-        best = out / "runs" / f"{bench}-boca" / "best_basis.npy"
+        best = out / "runs" / plan.table_run(bench) / "best_basis.npy"
         if best.exists():
             recorded = RBBO.resume(best.parent, read_only=True).objective_spec
             _objective(plan, bench).expect_simulation_space(recorded.get("simulation_space"))
@@ -320,7 +322,7 @@ def _perturbation_base(out: Path, plan: ReproducePlan) -> Path:
     runs = out / "runs"
     used = {Path(r["run"]).name for r in read_rows(out / "perturbation.csv")}
     candidates = [runs / name for name in sorted(used)]
-    candidates += [runs / f"{plan.direction_env}-dir000", runs / f"{plan.direction_env}-boca"]
+    candidates += [runs / f"{plan.direction_env}-dir000", runs / plan.table_run(plan.direction_env)]
     for run in candidates:
         if (run / "best_basis.npy").exists():
             return run
@@ -367,7 +369,7 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
                "source": source_version(), "machine": machine_description(),
                "budget_s": plan.budget_s, "direction_budget_s": plan.direction_budget_s,
                "workers": plan.workers, "deterministic": plan.deterministic,
-               "stages": plan.ordered_stages()}  # fmt: skip
+               "stages": plan.ordered_stages(), "repeats": plan.repeats}  # fmt: skip
     document["sessions"].append(session)
     log(f"session {len(document['sessions'])}: {session['command']} ({session['source']})")
     started = time.perf_counter()
@@ -404,7 +406,7 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
         )
     runs = out / "runs"
     stages = set(plan.stages)
-    per_bench = sum(s in stages for s in ("table", "bo"))
+    per_bench = plan.repeats * ("table" in stages) + ("bo" in stages)
     budget = len(plan.benchmarks) * per_bench * plan.budget_s
     budget += plan.directions * plan.direction_budget_s if "directions" in stages else 0.0
     # only what this session runs (a session of some stages is one of several)
@@ -412,24 +414,35 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     if per_bench or "directions" in stages:
         budgets = (f"; optimisation budgets add up to {budget / 3600:.1f} h on {plan.workers} "
                    f"workers, plus {plan.besides_budgets()}")  # fmt: skip
-    log(f"reproduce into {out}: stages {', '.join(plan.ordered_stages())}{budgets} (rerun the "
-        "same command to resume)")  # fmt: skip
+    named = [f"table ({plan.repeats} runs per benchmark, seeds {plan.seed}-"
+             f"{plan.seed + plan.repeats - 1})" if s == "table" and plan.repeats > 1 else s
+             for s in plan.ordered_stages()]  # fmt: skip
+    log(f"reproduce into {out}: stages {', '.join(named)}{budgets} (rerun the same command to "
+        "resume)")  # fmt: skip
     try:
         for bench in plan.benchmarks:
             objective = _objective(plan, bench)
             if "table" in stages:
-                optimise(runs / f"{bench}-boca", plan, objective, "boca", plan.budget_s,
+                optimise(runs / plan.table_run(bench), plan, objective, "boca", plan.budget_s,
                          progress, log, heartbeat)  # fmt: skip
             if "bo" in stages:
                 optimise(runs / f"{bench}-bo", plan, objective, "bo", plan.budget_s, progress,
                          log, heartbeat)  # fmt: skip
             if "transfer" in stages:
-                boca = runs / f"{bench}-boca"
+                boca = runs / plan.table_run(bench)
                 if not (boca / "best_basis.npy").exists():
                     raise RunDirectoryError(f"the transfer stage needs {bench}'s finished "
                                             "Table I run (stage 'table')")  # fmt: skip
                 measure_transfer(out, plan, bench, boca, log)
             save()
+        # The repeats come after every benchmark's run 0 (and the stages that read it), one
+        # round at a time, so that a session stopped early leaves Table I whole and the
+        # benchmarks with as many runs each.
+        for repeat in range(1, plan.repeats) if "table" in stages else ():
+            for bench in plan.benchmarks:
+                optimise(runs / plan.table_run(bench, repeat), plan, _objective(plan, bench),
+                         "boca", plan.budget_s, progress, log, heartbeat, repeat)  # fmt: skip
+                save()
         if "directions" in stages:
             for deg in plan.direction_angles_deg():
                 optimise(runs / f"{plan.direction_env}-dir{deg:03.0f}", plan,

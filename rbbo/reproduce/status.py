@@ -14,7 +14,7 @@ import numpy as np
 from .plan import _STAGES, ReproducePlan
 from .tables import basis_digest, read_rows
 
-__all__ = ["recorded_stages", "stage_progress", "status_lines"]
+__all__ = ["recorded_repeats", "recorded_stages", "stage_progress", "status_lines"]
 
 
 def _session_stages(session: dict[str, Any]) -> list[str]:
@@ -43,6 +43,15 @@ def recorded_stages(document: dict[str, Any]) -> list[str]:
     for session in document.get("sessions", []):
         named.update(_session_stages(session))
     return [s for s in _STAGES if s in named]
+
+
+def recorded_repeats(document: dict[str, Any]) -> int:
+    """The Table I runs per benchmark of a reproduction (reproduce.json's ``document``): the
+    most that any session running stage "table" asked for (a later session may ask for fewer,
+    or run other stages, and the runs made stay part of the record), else the stored plan's."""
+    asked = [int(s.get("repeats", 1)) for s in document.get("sessions", [])
+             if "table" in _session_stages(s)]  # fmt: skip
+    return max(asked, default=int(document["plan"].get("repeats", 1)))
 
 
 def _run_state(path: Path, budget_s: float, iterations: int | None) -> tuple[str, float, bool]:
@@ -87,7 +96,7 @@ def _rl_jobs_done(out: Path, bench: str) -> bool:
     and, once Table I's run has a best B_c, for that B_c."""
     rows = read_rows(out / "rl" / bench / "baselines.csv")
     bases = {r["basis"] for r in rows}
-    best = out / "runs" / f"{bench}-boca" / "best_basis.npy"
+    best = out / "runs" / ReproducePlan.table_run(bench) / "best_basis.npy"
     needed = {"identity"} | ({f"rbbo-{basis_digest(np.load(best))}"} if best.exists() else set())
     return bool(rows) and needed <= bases
 
@@ -96,11 +105,12 @@ def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]
     """``{stage: (parts done, parts planned)}`` for every stage, whichever of them the last
     command named: a reproduction spans sessions that each run some stages, and its report
     says what the whole record holds. A part is one benchmark's run (table, bo, transfer,
-    rl), one direction, one perturbation offset or one study point."""
+    rl; table: each of its ``repeats`` runs), one direction, one perturbation offset or one
+    study point."""
     runs = out / "runs"
     n_bench = len(plan.benchmarks)
-    table = sum(_run_done(runs / f"{b}-boca", plan.budget_s, plan.iterations)
-                for b in plan.benchmarks)  # fmt: skip
+    table = sum(_run_done(runs / plan.table_run(b, k), plan.budget_s, plan.iterations)
+                for b in plan.benchmarks for k in range(plan.repeats))  # fmt: skip
     bo = sum(_run_done(runs / f"{b}-bo", plan.budget_s, plan.iterations) for b in plan.benchmarks)
     m = plan.transfer_sim_dim
     rows = [r for r in read_rows(out / "transfer.csv") if int(r["M"]) == m]
@@ -116,9 +126,10 @@ def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]
                 + len(read_rows(out / "studies" / "reward_vs_c.csv")), n_study)  # fmt: skip
     rl_benchmarks = _rl_benchmarks(out, plan)
     rl = sum(_rl_jobs_done(out, b) for b in rl_benchmarks)
-    return {"table": (table, n_bench), "bo": (bo, n_bench), "transfer": (transfer, n_bench),
-            "directions": (directions, len(angles)), "perturbation": (offsets, n_offsets),
-            "studies": (study, n_study), "rl": (rl, len(rl_benchmarks))}  # fmt: skip
+    return {"table": (table, n_bench * plan.repeats), "bo": (bo, n_bench),
+            "transfer": (transfer, n_bench), "directions": (directions, len(angles)),
+            "perturbation": (offsets, n_offsets), "studies": (study, n_study),
+            "rl": (rl, len(rl_benchmarks))}  # fmt: skip
 
 
 def _rl_state(folder: Path, plan: ReproducePlan) -> str:
@@ -146,11 +157,15 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
     stages = set(plan.stages)
     lines, left = [], 0.0
     for bench in plan.benchmarks:
-        for stage, fidelity in (("table", "boca"), ("bo", "bo")):
-            if stage in stages:
-                state, rest, _ = _run_state(runs / f"{bench}-{fidelity}", plan.budget_s,
-                                         plan.iterations)  # fmt: skip
-                lines.append(f"{stage:<12} {bench:<20} {state}")
+        for stage in ("table", "bo"):
+            if stage not in stages:
+                continue
+            repeats = plan.repeats if stage == "table" else 1
+            for k in range(repeats):
+                name = plan.table_run(bench, k) if stage == "table" else f"{bench}-bo"
+                state, rest, _ = _run_state(runs / name, plan.budget_s, plan.iterations)
+                run = f"run {k} (seed {plan.seed + k}): " if repeats > 1 else ""
+                lines.append(f"{stage:<12} {bench:<20} {run}{state}")
                 left += rest
         if "transfer" in stages:
             m = plan.transfer_sim_dim

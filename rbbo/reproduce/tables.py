@@ -7,12 +7,17 @@ interval is mean ± t_{0.975, n-1} s / sqrt(n) over those n seeds. Both are meas
 same seeds (common random numbers), so the paired difference R* - R_init per seed has its own,
 tighter interval ("paired"): the unpaired "apart" test below is the conservative one. "apart"
 is true when R*'s interval lies wholly above R_init's.
+
+With several Table I runs per benchmark (``--repeats``), :func:`run_row` gives each run's
+numbers and :func:`across_runs` the improvement over the runs: mean, sample standard
+deviation (n - 1) and range, over the runs confirmed so far; Table I's rows stay run 0's.
 """
 
 from __future__ import annotations
 
 import csv
 import hashlib
+import json
 import math
 import re
 from pathlib import Path
@@ -24,8 +29,9 @@ from ..intervals import confidence_interval
 from ..report import _duration
 from .plan import PAPER_TABLE1
 
-__all__ = ["basis_digest", "confidence_interval", "format_markdown", "parse_markdown",
-           "read_rows", "table_row", "write_csv"]  # fmt: skip
+__all__ = ["across_runs", "basis_digest", "confidence_interval", "format_markdown",
+           "format_runs_markdown", "parse_markdown", "read_rows", "run_row", "table_row",
+           "write_csv"]  # fmt: skip
 
 COLUMNS = ["robot", "task", "N", "M", "C", "R_init", "R*", "improvement", "R* - R_init (paired)",
            "evaluations", "wall time", "apart", "paper"]  # fmt: skip
@@ -83,6 +89,34 @@ def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
         "fidelity": opt.config.fidelity,
         "paper_improvement_pct": paper["improvement_pct"],
         "run": str(run_dir),
+    }
+
+
+def run_row(benchmark: str, repeat: int, run_dir: Path) -> dict[str, Any]:
+    """One row of table1_runs.csv: :func:`table_row` of run ``repeat`` of ``benchmark``, with
+    the run's index and the seed it was made with (read from the run)."""
+    config = json.loads((run_dir / "config.json").read_text())
+    row = table_row(benchmark, run_dir)
+    return {"benchmark": benchmark, "repeat": repeat, "seed": config["rbbo"]["seed"],
+            **{k: v for k, v in row.items() if k != "benchmark"}}  # fmt: skip
+
+
+def across_runs(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The improvement of one benchmark over its runs (rows of :func:`run_row`): how many are
+    confirmed, and over those the mean, the sample standard deviation (nan below two runs),
+    the least and the most; R* likewise (mean and sample standard deviation)."""
+    done = [r for r in rows if math.isfinite(r["improvement_pct"])]
+    gains = [r["improvement_pct"] for r in done]
+    stars = [r["R_star"] for r in done]
+    nan = math.nan
+    return {
+        "runs": len(done),
+        "improvement_mean_pct": float(np.mean(gains)) if gains else nan,
+        "improvement_sd_pct": float(np.std(gains, ddof=1)) if len(gains) > 1 else nan,
+        "improvement_min_pct": min(gains, default=nan),
+        "improvement_max_pct": max(gains, default=nan),
+        "R_star_mean": float(np.mean(stars)) if stars else nan,
+        "R_star_sd": float(np.std(stars, ddof=1)) if len(stars) > 1 else nan,
     }
 
 
@@ -144,6 +178,34 @@ def format_markdown(rows: list[dict[str, Any]]) -> str:
     average = f"{np.mean(ours):+.1f} %" if ours else "-"
     lines.append("| average | | | | | | | " + average + " | | | | | "
                  f"+{np.mean(paper):.1f} % |")  # fmt: skip
+    return "\n".join(lines)
+
+
+RUN_COLUMNS = ["benchmark", "runs", "improvement per run (seed)", "improvement mean ± sd",
+               "improvement min..max", "R* mean ± sd"]  # fmt: skip
+
+
+def _pct(value: float) -> str:
+    return "-" if not math.isfinite(value) else f"{value:+.1f} %"
+
+
+def format_runs_markdown(rows: list[dict[str, Any]], repeats: int) -> str:
+    """The improvement over each benchmark's ``repeats`` Table I runs (rows of
+    :func:`run_row`) as a Markdown table: each run's, then the mean ± sample standard
+    deviation and the range over those confirmed ("runs": confirmed, of how many planned)."""
+    lines = ["| " + " | ".join(RUN_COLUMNS) + " |", "|" + "---|" * len(RUN_COLUMNS)]
+    for bench in dict.fromkeys(r["benchmark"] for r in rows):
+        mine = sorted((r for r in rows if r["benchmark"] == bench), key=lambda r: r["repeat"])
+        stats = across_runs(mine)
+        runs = str(stats["runs"]) + ("" if stats["runs"] == repeats else f" of {repeats}")
+        per_run = ", ".join(f"{_pct(r['improvement_pct'])} ({r['seed']})" for r in mine)
+        mean, sd = stats["improvement_mean_pct"], stats["improvement_sd_pct"]
+        spread = _num(mean, "+.1f") + ("" if not math.isfinite(sd) else f" ± {sd:.1f}")
+        low, high = stats["improvement_min_pct"], stats["improvement_max_pct"]
+        span = "-" if not math.isfinite(low) else f"{low:+.1f} .. {high:+.1f} %"
+        cells = [bench, runs, per_run, spread + ("" if not math.isfinite(mean) else " %"), span,
+                 _interval(stats["R_star_mean"], stats["R_star_sd"])]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
