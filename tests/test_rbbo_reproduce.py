@@ -573,7 +573,7 @@ def test_the_launch_line_names_only_the_stages_that_run(tmp_path, monkeypatch):
         runner.reproduce(tmp_path / stages[0], plan, progress=False, log=lines.append)
     launch = [line.split(": ", 1)[1] for line in lines if line.startswith("reproduce into ")]
     assert launch == [
-        "stages table, bo; optimisation budgets add up to 1.0 h on 2 workers, plus the "
+        "stages table, bo; optimisation budgets add up to 1.00 h on 2 workers, plus the "
         "confirmations (rerun the same command to resume)",
         "stages studies (rerun the same command to resume)",
     ]
@@ -596,7 +596,7 @@ def test_the_launch_line_counts_the_repeated_table_runs(tmp_path, monkeypatch):
     # 2 benchmarks x (3 BOCA runs + 1 BO run) x 30 min
     assert launch == (
         "stages table (3 runs per benchmark, seeds 4-6), bo; optimisation budgets add up to "
-        "4.0 h on 2 workers, plus the confirmations (rerun the same command to resume)"
+        "4.00 h on 2 workers, plus the confirmations (rerun the same command to resume)"
     )
     # every benchmark's run 0 (and its BO run) first, then the repeats round by round
     assert made == [
@@ -697,7 +697,7 @@ def test_repeats_make_one_run_per_seed_and_leave_run_zero_alone(repeated):
     assert fresh[0] != fresh[1]  # each run confirmed on its own fresh seeds
     log = (out / "reproduce.log").read_text()
     assert "stages table (2 runs per benchmark, seeds 0-1); optimisation budgets add up to " \
-        "1.5 h on 1 workers" in log  # fmt: skip
+        "1.50 h on 1 worker," in log  # fmt: skip
     assert "[CrossSwim-v0-boca-run1] BOCA, budget" in log
 
 

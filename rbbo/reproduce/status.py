@@ -193,6 +193,7 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
         for bench in _rl_benchmarks(out, plan):
             lines.append(f"{'rl':<12} {bench:<20} {_rl_state(out / 'rl' / bench, plan)}")
     besides = plan.besides_budgets()
-    lines.append(f"optimisation budget left: {left / 3600:.2f} h on {plan.workers} workers"
+    workers = f"{plan.workers} worker" + ("s" if plan.workers != 1 else "")
+    lines.append(f"optimisation budget left: {left / 3600:.2f} h on {workers}"
                  + (f", plus {besides}" if besides else ""))  # fmt: skip
     return lines
