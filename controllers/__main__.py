@@ -19,7 +19,7 @@ import numpy as np
 
 from softrom_gym.registration import control_period, parse_env_kwarg
 
-from .defaults import DEFAULTS, PLANNERS, planner_for
+from .defaults import DEFAULTS, PLANNERS, parse_changes, planner_for
 
 
 def _window(text: str) -> int | None:
@@ -84,6 +84,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, help="override MPPI's samples")
     p.add_argument("--iterations", type=int, help="override iterations per replan")
     p.add_argument("--threads", type=int, help="C++ rollout threads")
+    p.add_argument("--mpc", type=parse_changes, action="append", default=[],
+                   metavar="KEY=VALUE[,...]",
+                   help="any planner setting, e.g. noise=0.3,temperature=0.05 or "
+                   "knots=8,period=20 (env steps; repeatable; the flags above win)")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -122,9 +126,12 @@ def main(argv: list[str] | None = None) -> int:
         kwargs.update(control_basis=b_c, orthonormalize=True)
     if args.video is not None:
         kwargs["render_mode"] = "rgb_array"
-    changes = {k: v for k, v in (("horizon", args.horizon), ("samples", args.samples),
-                                 ("iterations", args.iterations), ("threads", args.threads))
-               if v is not None}  # fmt: skip
+    changes: dict[str, Any] = {}
+    for part in args.mpc:
+        changes.update(part)
+    changes.update({k: v for k, v in (("horizon", args.horizon), ("samples", args.samples),
+                                      ("iterations", args.iterations), ("threads", args.threads))
+                    if v is not None})  # fmt: skip
     if hasattr(args, "window"):
         changes["window"] = args.window  # (None: 'all')
     try:

@@ -24,6 +24,7 @@ __all__ = [
     "default_planner",
     "default_settings",
     "has_defaults",
+    "parse_changes",
     "planner_for",
 ]
 
@@ -228,6 +229,32 @@ def _changed(settings: PlannerSettings, changes: dict[str, Any]) -> PlannerSetti
                          "window too (python -m controllers: --window; None or 'all': the "
                          "whole horizon)")  # fmt: skip
     return settings.replace(**changes) if changes else settings
+
+
+def parse_changes(text: str) -> dict[str, Any]:
+    """Planner setting overrides as a command line gives them (``--mpc`` of ``python -m
+    controllers``, ``rbbo optimize`` and ``rbbo reproduce``): ``'horizon=8,window=none'`` ->
+    ``{'horizon': 8, 'window': None}``. Values are ints, floats, true / false / none, else
+    strings; the settings name a wrong key or value when the planner is made. An argparse
+    ``type`` (a bad item raises ``argparse.ArgumentTypeError``)."""
+    import argparse
+
+    out: dict[str, Any] = {}
+    for item in filter(None, text.split(",")):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip().isidentifier():
+            raise argparse.ArgumentTypeError(f"expected key=value pairs, got {item!r}")
+        out[key.strip()] = _setting_value(value.strip())
+    return out
+
+
+def _setting_value(text: str) -> Any:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return {"true": True, "false": False, "none": None}.get(text.lower(), text)
 
 
 def has_defaults(env_id: str) -> bool:

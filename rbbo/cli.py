@@ -107,6 +107,12 @@ _positive_float = _number_arg(float, lambda v: math.isfinite(v) and v > 0, "a po
 _nonnegative_float = _number_arg(float, lambda v: math.isfinite(v) and v >= 0, "a number >= 0")
 
 
+def _mpc_changes(text: str) -> dict[str, Any]:
+    from controllers.defaults import parse_changes
+
+    return parse_changes(text)
+
+
 def rl_steps_arg(text: str) -> int | dict[str, int]:
     """``--steps`` / ``--rl-steps``: N for every algorithm, or ppo=N,sac=N."""
     from .rl import parse_steps
@@ -135,6 +141,10 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--sim-dim", type=_positive_int, default=20, help="M (default 20)")
     opt.add_argument("--controller", choices=["mppi", "gn"], default="mppi",
                      help="the MPC planner (default mppi)")  # fmt: skip
+    opt.add_argument("--mpc", type=_mpc_changes, action="append", default=[],
+                     metavar="KEY=VALUE[,...]",
+                     help="planner setting overrides, e.g. samples=32,noise=0.2 (env steps; "
+                     "repeatable; stored with the run)")  # fmt: skip
     opt.add_argument("--budget", type=parse_duration,
                      help="wall time, e.g. 30m, 2h (default 30m without --iterations)")  # fmt: skip
     opt.add_argument("--iterations", type=_positive_int, help="number of evaluations")
@@ -417,9 +427,12 @@ def cmd_optimize(args) -> int:
         spec.update(controller=args.controller, settle_time=args.settle_time)
         if args.env_kwarg:
             spec["env_kwargs"] = _env_kwargs(args.env_kwarg)
+        if args.mpc:
+            spec["planner_kwargs"] = {k: v for part in args.mpc for k, v in part.items()}
         problem["env_id"] = spec["env_id"]
-    elif args.env_kwarg:
-        raise UsageError("--env-kwarg is for an env, not the synthetic objective")
+    elif args.env_kwarg or args.mpc:
+        flag = "--env-kwarg" if args.env_kwarg else "--mpc"
+        raise UsageError(f"{flag} is for an env, not the synthetic objective")
     else:
         spec["t_max"] = args.t_max
     with _bad_input():
@@ -433,6 +446,7 @@ def cmd_optimize(args) -> int:
     if spec["kind"] == "env":
         with _bad_input():  # the env is made here: a bad --env-kwarg fails now, named
             problem["N"] = objective.node_count()
+            objective.planner()  # and a bad --mpc setting, not as failed evaluations
     out = args.out
     if out is None:
         name = args.env_id.split("/")[-1].split(":")[0]

@@ -570,3 +570,32 @@ def test_the_command_line_raises_the_time_limit_to_the_seconds_asked(capsys, mon
     monkeypatch.setattr(episode, "run_episode", record)
     assert cli_main(["BeamWalk-v0", "--env-kwarg", "frame_skip=1", "--seconds", "3"]) == 130
     assert seen["limit"] == 600  # 3 s of 5 ms steps; the registration's 400 would stop at 2 s
+
+
+def test_planner_settings_from_the_command_line(capsys, monkeypatch):
+    import argparse
+
+    import controllers.episode as episode
+    from controllers.defaults import parse_changes
+
+    parsed = parse_changes("horizon=8,window=none,noise=0.3,kind=linear,gait_seed=false")
+    assert parsed == {"horizon": 8, "window": None, "noise": 0.3, "kind": "linear",
+                      "gait_seed": False}  # fmt: skip
+    with pytest.raises(argparse.ArgumentTypeError, match="expected key=value pairs, got 'x'"):
+        parse_changes("horizon=8,x")
+    seen = {}
+
+    def record(env, planner, seconds, **kwargs):
+        seen["settings"] = planner.settings
+        raise KeyboardInterrupt  # (nothing to run: the settings are what is checked)
+
+    monkeypatch.setattr(episode, "run_episode", record)
+    args = ["BeamWalk-v0", "--mpc", "noise=0.3,temperature=0.05", "--mpc", "samples=8",
+            "--samples", "4"]  # fmt: skip
+    assert cli_main(args) == 130
+    settings = seen["settings"]
+    # --mpc sets any setting; the dedicated flags win over it
+    assert (settings.noise, settings.temperature, settings.samples) == (0.3, 0.05, 4)
+    with pytest.raises(SystemExit):
+        cli_main(["BeamWalk-v0", "--mpc", "nois=0.3"])
+    assert "unknown MPPISettings setting 'nois'" in capsys.readouterr().err

@@ -441,13 +441,31 @@ def test_a_new_run_on_a_robot_of_your_own_records_its_planner_and_resumes(tmp_pa
     args = ["optimize", "softrom_gym/SoftRobot-v0", "--env-kwarg", "robot=beam",
             "--sim-dim", "6", "--control-dim", "2", "--init", "1", "--iterations", "2",
             "--t-max", "1", "--settle-time", "0.5", "--confirm-seeds", "2", "--no-progress",
-            "--out", str(run)]  # fmt: skip
+            "--mpc", "samples=4", "--mpc", "noise=0.2", "--out", str(run)]  # fmt: skip
     assert main(args) == 0
     config = json.loads((run / "config.json").read_text())
     assert config["objective"]["planner"]["settings"]["seed_periods"] == [40 / 3, 10.0]
+    # --mpc overrides are the run's: stored, recorded in its planner, kept on resume
+    assert config["objective"]["planner_kwargs"] == {"samples": 4, "noise": 0.2}
+    settings = config["objective"]["planner"]["settings"]
+    assert (settings["samples"], settings["noise"]) == (4, 0.2)
     assert main(["resume", str(run), "--iterations", "3", "--no-progress"]) == 0
     capsys.readouterr()
     # resumed, searched on, and ended with its summary: finished, whether or not the
     # recommendation changed (an unchanged one is not confirmed again)
     assert main(["rollout", str(run), "--seconds", "1"]) == 0
     assert "has not finished" not in capsys.readouterr().err
+
+
+def test_a_bad_mpc_setting_is_a_usage_error_before_the_run(tmp_path, capsys):
+    base = ["optimize", "softrom_gym/SoftRobot-v0", "--env-kwarg", "robot=beam",
+            "--sim-dim", "6", "--control-dim", "2", "--iterations", "2",
+            "--out", str(tmp_path / "r")]  # fmt: skip
+    err = _error(capsys, [*base, "--mpc", "samplez=4"])
+    assert "unknown MPPISettings setting 'samplez'" in err
+    assert not (tmp_path / "r").exists()
+    err = _error(capsys, [*base, "--mpc", "samples"])
+    assert "expected key=value pairs, got 'samples'" in err
+    err = _error(capsys, ["optimize", "synthetic", "--iterations", "2", "--mpc", "samples=4",
+                          "--out", str(tmp_path / "s")])  # fmt: skip
+    assert "--mpc is for an env, not the synthetic objective" in err

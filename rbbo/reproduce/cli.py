@@ -62,23 +62,16 @@ def _names(valid: tuple[str, ...]):
     return parse
 
 
-def _value(text: str) -> Any:
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return {"true": True, "false": False, "none": None}.get(text.lower(), text)
+def _mpc_changes(text: str) -> dict[str, Any]:
+    from controllers.defaults import parse_changes
+
+    return parse_changes(text)
 
 
-def _settings(text: str) -> dict[str, Any]:
-    """'horizon=8,knots=2' -> {'horizon': 8, 'knots': 2}."""
-    out = {}
-    for item in filter(None, text.split(",")):
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise argparse.ArgumentTypeError(f"expected key=value pairs, got {item!r}")
-        out[key.strip()] = _value(value.strip())
+def _merged(changes: list[dict[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for part in changes:
+        out.update(part)
     return out
 
 
@@ -164,8 +157,9 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--rl-steps", type=_rl_steps, default=defaults.rl_steps,
                    help="env steps per RL method and basis: N, or per method ppo=N,sac=N "
                    "(default 20000)")  # fmt: skip
-    p.add_argument("--mpc", type=_settings, default={},
-                   help="MPC setting overrides, e.g. horizon=8,window=8,samples=4")  # fmt: skip
+    p.add_argument("--mpc", type=_mpc_changes, action="append", default=[],
+                   help="MPC setting overrides, e.g. horizon=8,window=8,samples=4 "
+                   "(repeatable)")  # fmt: skip
     p.add_argument("--timeout", type=parse_duration, default=defaults.timeout_s,
                    help="per-evaluation limit (default 30m)")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("runs/reproduce"),
@@ -196,7 +190,7 @@ def _plan(args) -> ReproducePlan:
         direction_budget_s=args.direction_budget, perturbations_deg=args.perturbations,
         cost_cs=args.cost_cs, reward_cs=args.reward_cs, study_seeds=args.study_seeds,
         study_seconds=args.study_seconds, rl_benchmarks=args.rl_benchmarks,
-        rl_algos=args.rl_algos, rl_steps=args.rl_steps, planner_kwargs=args.mpc,
+        rl_algos=args.rl_algos, rl_steps=args.rl_steps, planner_kwargs=_merged(args.mpc),
         timeout_s=args.timeout,
     )  # fmt: skip
 
