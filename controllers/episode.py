@@ -23,7 +23,9 @@ class EpisodeResult:
     (R per step, m, as any reward wrapper left it), ``orientation`` (rad), ``lateral`` (m),
     ``effort`` (|f_c / a|^2), ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and
     ``distance`` (T + 1,) along d since reset (m), ``states`` (ReducedState copies). Per
-    replan: ``replan_steps`` (the step it ran at) and ``replan_wall_s``. ``stop_reason`` says
+    replan: ``replan_steps`` (the step it ran at), ``replan_wall_s`` and ``replan_records``
+    (the planner's ``last_`` after it: objectives, rollouts, and the planner's own terms, as
+    :class:`~controllers.planner.Planner` lists them). ``stop_reason`` says
     why the episode ended: "time" (its seconds ran out), "diverged", "truncated by the time
     limit" (the env's TimeLimit) or "interrupted" (Ctrl-C: :func:`run_episode` raises the
     KeyboardInterrupt with the steps recorded so far as its ``result``).
@@ -42,6 +44,7 @@ class EpisodeResult:
     states: list = field(repr=False)
     replan_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     replan_wall_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    replan_records: list[dict[str, Any]] = field(default_factory=list, repr=False)
     stop_reason: str = ""
     seed_gait: str | None = None
 
@@ -146,28 +149,28 @@ def run_episode(
                                                "actions")}  # fmt: skip
     com = [api.center_of_mass()]
     states = [api.get_state()]
-    replan_steps, wall = [], []
+    replan_steps, wall, records = [], [], []
     frames = [env.render()] if video is not None else []
     bar = _progress(steps, progress, planner.name)
     stop = "time"
     try:
         stop = _closed_loop(env, planner, api, steps, replan_every, record, com, states,
-                            replan_steps, wall, frames, bar)  # fmt: skip
+                            replan_steps, wall, records, frames, bar)  # fmt: skip
     except KeyboardInterrupt as interrupt:
         # what was recorded is the user's: handed back with the interrupt, not lost to it
         interrupt.result = _result(planner, api, env, record, com, states, replan_steps, wall,
-                                   "interrupted")  # fmt: skip
+                                   records, "interrupted")  # fmt: skip
         raise
     finally:
         if bar is not None:
             bar.close()
     if video is not None:
         _write_video(video, frames, round(1.0 / api.dt))
-    return _result(planner, api, env, record, com, states, replan_steps, wall, stop)
+    return _result(planner, api, env, record, com, states, replan_steps, wall, records, stop)
 
 
 def _closed_loop(env, planner, api, steps, replan_every, record, com, states, replan_steps, wall,
-                 frames, bar) -> str:  # fmt: skip
+                 records, frames, bar) -> str:  # fmt: skip
     """The episode's steps, appended to the lists given; returns why it stopped."""
     video = bool(frames)
     for t in range(steps):
@@ -176,6 +179,7 @@ def _closed_loop(env, planner, api, steps, replan_every, record, com, states, re
             planner.plan(env)
             wall.append(time.perf_counter() - start)
             replan_steps.append(t)
+            records.append(dict(planner.last_))
         action = planner.action(env)
         _, reward, terminated, truncated, info = env.step(action)
         for key, value in (("rewards", reward), ("orientation", info["orientation"]),
@@ -196,10 +200,11 @@ def _closed_loop(env, planner, api, steps, replan_every, record, com, states, re
     return "time"
 
 
-def _result(planner, api, env, record, com, states, replan_steps, wall, stop) -> EpisodeResult:
+def _result(planner, api, env, record, com, states, replan_steps, wall, records,
+            stop) -> EpisodeResult:  # fmt: skip
     # An interrupt can land between a step's appends: keep the steps recorded whole.
     n = min(min(len(v) for v in record.values()), len(com) - 1, len(states) - 1)
-    replans = min(len(replan_steps), len(wall))
+    replans = min(len(replan_steps), len(wall), len(records))
     com_arr = np.array(com[: n + 1])
     return EpisodeResult(
         planner=planner.name,
@@ -215,6 +220,7 @@ def _result(planner, api, env, record, com, states, replan_steps, wall, stop) ->
         states=states[: n + 1],
         replan_steps=np.array(replan_steps[:replans], dtype=int),
         replan_wall_s=np.array(wall[:replans]),
+        replan_records=records[:replans],
         stop_reason=stop,
         seed_gait=getattr(planner, "seed_", {}).get("gait"),
     )

@@ -173,6 +173,11 @@ def test_episode_result_records_the_episode(walker, tmp_path):
     assert res.rewards.shape == (4,) and res.actions.shape == (4, 3) and res.com.shape == (5, 3)
     assert len(res.states) == 5 and res.replans == 2 and list(res.replan_steps) == [0, 2]
     assert res.stop_reason == "time"
+    # each replan's record, as the planner's last_ was after it
+    assert len(res.replan_records) == 2
+    for record in res.replan_records:
+        assert record["rollouts"] == 3 and record["effective_samples"] >= 1.0
+        assert record["objective_best"] >= record["objective_start"]
     assert res.R == pytest.approx(res.distance[-1], abs=1e-12)
     assert res.distance_between(0.05) == pytest.approx(res.distance[4] - res.distance[2])
     bound = env.get_wrapper_attr("action_bound")
