@@ -144,6 +144,11 @@ SET_BY_RBBO = {
 }
 
 
+# max_episode_steps for an env whose episodes the caller times itself (gym.make's None would
+# keep the registered limit)
+NO_TIME_LIMIT = 10**9
+
+
 def _check_env_keywords(env_id: str, kwargs: dict[str, Any], set_here=SET_BY_RBBO) -> None:
     """Refuse a keyword the env's constructor does not take, naming those it does (Gymnasium's
     own error quotes every keyword's value, the basis array too), and one that rbbo sets
@@ -281,11 +286,15 @@ class EnvObjective:
 
         kwargs = {**self.env_kwargs, **extra}
         _check_env_keywords(self.env_id, kwargs)
+        # The episode's T decides its length, not the registered limit: 400 env steps is
+        # 10 s at the default control period but 2 s at frame_skip=1, which cut every
+        # evaluation short unseen (R read the missing seconds as zero).
         return gym.make(
             self.env_id,
             sim_dim=self.sim_dim,
             control_dim=self.control_dim,
             control_basis=np.asarray(basis, dtype=float),
+            max_episode_steps=NO_TIME_LIMIT,
             **kwargs,
         )
 
@@ -351,6 +360,10 @@ class EnvObjective:
             raise ValueError(f"T = {T} s must exceed the settle time {self.settle_time} s")
         env = self._env_for(basis)
         result = self.episode(basis, T, seed, env)
+        if str(getattr(result, "stop_reason", "")).startswith("truncated"):
+            # (an env of the user's own wrapping): R would read the lost seconds as zero
+            raise RuntimeError(f"the env's time limit ended the T = {T:g} s episode at "
+                               f"{result.seconds:g} s")  # fmt: skip
         dt = getattr(result, "dt", None) or self.step_seconds(env)
         return settled_reward_rate(result, dt, self.settle_time, T)
 

@@ -424,8 +424,11 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
             self.physics_steps += b * h * self.env.get_wrapper_attr("frame_skip")
             return self.env.get_wrapper_attr("rollout")(state, controls, *args, **kwargs)
 
+    from .objective import NO_TIME_LIMIT
+
     # no time limit of its own: run_episode stops after ``seconds``
-    env = CountRollouts(_make_env(env_id, basis, env_kwargs, False, max_episode_steps=10**9))
+    env = CountRollouts(_make_env(env_id, basis, env_kwargs, False,
+                                  max_episode_steps=NO_TIME_LIMIT))  # fmt: skip
     k = int(env.get_wrapper_attr("frame_skip"))
     dist, physics, wall = [], [], []
     for s in seeds:

@@ -233,3 +233,21 @@ def test_the_planner_keeps_its_seconds_at_the_envs_control_period():
     assert slow.spec()["planner"]["settings"]["horizon"] == 20  # 1 s, recorded
     planner, every = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2).planner()
     assert planner.settings.period == 10 and every == 30
+
+
+def test_an_evaluation_runs_its_whole_t_whatever_the_registered_time_limit(monkeypatch):
+    from rbbo.objective import NO_TIME_LIMIT
+
+    # 400 registered env steps are 2 s at frame_skip=1: T = 2.5 s used to end there, and R
+    # read the lost half second as zero
+    fast = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2, settle_time=1.0,
+                        env_kwargs={"frame_skip": 1})  # fmt: skip
+    env = fast.make_env(np.eye(6)[:, :2])
+    assert env.spec.max_episode_steps == NO_TIME_LIMIT
+    # an env that still cuts an episode short (a user's own wrapping) fails the evaluation,
+    # named, rather than scoring the missing seconds as zero
+    cut = types.SimpleNamespace(stop_reason="truncated by the time limit", seconds=2.0,
+                                dt=0.005, rewards=np.ones(400))  # fmt: skip
+    monkeypatch.setattr(EnvObjective, "episode", lambda self, *args, **kwargs: cut)
+    with pytest.raises(RuntimeError, match="time limit ended the T = 2.5 s episode at 2 s"):
+        fast(np.eye(6)[:, :2], 2.5, 0)
