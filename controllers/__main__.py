@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
         # the registered time limit (env steps) must not cut the seconds asked for short
         period = control_period(env_id, **kwargs)
         limit = gym.spec(env_id).max_episode_steps
-        if period is not None and limit is not None:
+        if period is not None and limit is not None and "max_episode_steps" not in kwargs:
             kwargs["max_episode_steps"] = max(limit, math.ceil(args.seconds / period - 1e-9))
         env = gym.make(env_id, **kwargs)
         # the defaults' times are the same seconds at the env's control period

@@ -226,8 +226,9 @@ def _changed(settings: PlannerSettings, changes: dict[str, Any]) -> PlannerSetti
     ):
         raise ValueError(f"horizon = {horizon!r} is shorter than the default window "
                          f"({settings.window} env steps, over which R is counted): give "
-                         "window too (python -m controllers: --window; None or 'all': the "
-                         "whole horizon)")  # fmt: skip
+                         "window too (window=None for the whole horizon; on a command "
+                         "line --mpc window=none, or python -m controllers --window "
+                         "all)")  # fmt: skip
     return settings.replace(**changes) if changes else settings
 
 

@@ -28,7 +28,8 @@ class EpisodeResult:
     :class:`~controllers.planner.Planner` lists them). ``stop_reason`` says
     why the episode ended: "time" (its seconds ran out), "diverged", "truncated by the time
     limit" (the env's TimeLimit) or "interrupted" (Ctrl-C: :func:`run_episode` raises the
-    KeyboardInterrupt with the steps recorded so far as its ``result``).
+    KeyboardInterrupt with the steps recorded so far as its ``result``, and writes the video
+    of them).
     """
 
     planner: str
@@ -160,6 +161,8 @@ def run_episode(
         # what was recorded is the user's: handed back with the interrupt, not lost to it
         interrupt.result = _result(planner, api, env, record, com, states, replan_steps, wall,
                                    records, "interrupted")  # fmt: skip
+        if video is not None and len(frames) > 1:
+            _write_video(video, frames, round(1.0 / api.dt))  # the frames so far
         raise
     finally:
         if bar is not None:

@@ -15,6 +15,7 @@ Receding-horizon use::
 
 from __future__ import annotations
 
+import math
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
@@ -247,10 +248,12 @@ class Planner(ABC):
             raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
         check_physical_actions(env)
         api = EnvAPI(env)
-        if self.dt is not None and not np.isclose(api.dt, self.dt, rtol=1e-9, atol=0.0):
+        # (a float32 dt, 0.05 as 0.050000000745, is the same period: a mismatch that matters
+        # is a factor of 2 or more)
+        if self.dt is not None and not math.isclose(api.dt, self.dt, rel_tol=1e-6):
             raise ValueError(
-                f"{type(self).__name__}'s settings count env steps of a {self.dt:g} s control "
-                f"period, but the env steps {api.dt:g} s: its gait would run "
+                f"{type(self).__name__}'s settings count env steps of a {self.dt:.6g} s "
+                f"control period, but the env steps {api.dt:.6g} s: its gait would run "
                 f"{self.dt / api.dt:.3g}x as fast as planned. Make the planner for the env's "
                 "period: controllers.planner_for(env_id, planner, "
                 "dt=env.get_wrapper_attr('dt'))"

@@ -479,6 +479,21 @@ def cmd_optimize(args) -> int:
                     args.deterministic)  # fmt: skip
 
 
+def _run_mppi_overrides(run_dir) -> dict[str, Any]:
+    """The run's ``--mpc`` overrides, for the MPC rows beside the RL ones (MPPI): the planner
+    its R* was measured with. A Gauss-Newton run's overrides are not MPPI's: said, not used."""
+    from .store import RunStore
+
+    objective = RunStore.open(run_dir, repair=False).config.get("objective") or {}
+    overrides = dict(objective.get("planner_kwargs") or {})
+    if overrides and objective.get("controller", "mppi") != "mppi":
+        print(f"note: run {run_dir} planned with {objective.get('controller')} and --mpc "
+              f"{overrides}; the MPC rows are MPPI's, with its defaults",
+              file=sys.stderr)  # fmt: skip
+        return {}
+    return overrides
+
+
 def _objective_of(opt):
     from .objective import make_objective
 
@@ -717,6 +732,7 @@ def cmd_baselines(args) -> int:
                 raise UsageError(f"--env-kwarg {key} was not given to run {args.run}, whose "
                                  "B_c was found in its env as it was")  # fmt: skip
         env_kwargs = {**env_kwargs, **given}
+        planner_kwargs = _run_mppi_overrides(args.run) if args.run and not args.no_mpc else {}
     out = args.out or Path("runs") / f"baselines-{env_id.split('/')[-1]}"
     try:
         rows = rl.run_baselines(
@@ -724,7 +740,7 @@ def cmd_baselines(args) -> int:
             checkpoint_every=args.checkpoint_every, eval_seeds=args.eval_seeds,
             seconds=args.seconds, settle_time=args.settle_time, seed=args.seed,
             mpc=not args.no_mpc, env_kwargs=env_kwargs, progress=not args.no_progress,
-            workers=args.workers,
+            workers=args.workers, planner_kwargs=planner_kwargs,
         )  # fmt: skip
     except KeyboardInterrupt:
         print("\ninterrupted; run the same command again to continue from the last "

@@ -355,6 +355,7 @@ class RBBO:
             status=status, seeds=list(proposal.seeds), wall_s=float(wall_s),
             elapsed_s=self.elapsed_s, worker=str(worker), kind=proposal.kind, error=error,
             R_seeds=[float(r) for r in R_seeds], gp=proposal.info.get("gp"),
+            duplicates_skipped=int(proposal.info.get("duplicates_skipped", 0)),
         )  # fmt: skip
         self._record(evaluation, persist=True)
         del self.pending[index]

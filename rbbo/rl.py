@@ -22,6 +22,7 @@ executed ones, and the episode's wall time.
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import math
 import os
@@ -391,7 +392,7 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
 
 
 def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
-         threads: int | None = None) -> dict:  # fmt: skip
+         threads: int | None = None, planner_kwargs: dict | None = None) -> dict:  # fmt: skip
     import gymnasium as gym
 
     import controllers
@@ -401,7 +402,9 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
 
     seeds, seconds, settle = evaluation
     # not a benchmark: the shared defaults (controllers.GENERIC), as EnvObjective
-    changes = {} if threads is None else {"threads": threads}
+    changes = dict(planner_kwargs or {})
+    if threads is not None:
+        changes["threads"] = threads
     dt = control_period(env_id, **env_kwargs)
     planner, every = controllers.planner_for(env_id, "mppi", dt=dt, **changes)
     meta = {"env_id": env_id, "env_kwargs": env_kwargs, "basis": np.asarray(basis).tolist(),
@@ -463,6 +466,7 @@ def run_baselines(
     env_kwargs: dict | None = None,
     progress: bool = True,
     workers: int = 1,
+    planner_kwargs: dict | None = None,
 ) -> list[dict]:
     """Train (or resume) each algorithm on each basis, run the MPC beside them, write
     ``OUT/baselines.csv`` and ``OUT/baselines.md``.
@@ -492,6 +496,9 @@ def run_baselines(
         Extra ``gym.make`` arguments (an RBBO run's).
     progress : bool
         tqdm bars on stderr (with ``workers`` > 1 a line per finished job instead, always).
+    planner_kwargs : dict, optional
+        MPPI setting overrides for the MPC rows (an RBBO run's ``--mpc``, so that the MPC
+        beside the RL rows is the planner the run's R* was measured with).
     workers : int
         Jobs (one per algorithm and basis, one per MPC basis) run at once, each in its own
         process with one thread; the rows, files and results are those of ``workers = 1``
@@ -523,7 +530,8 @@ def run_baselines(
     jobs: list[tuple[str, tuple]] = []
     for name, basis in bases.items():
         if mpc:
-            jobs.append((f"mppi {name}", (_mpc, env_id, name, basis, out / f"mppi-{name}",
+            mpc_job = functools.partial(_mpc, planner_kwargs=dict(planner_kwargs or {}))
+            jobs.append((f"mppi {name}", (mpc_job, env_id, name, basis, out / f"mppi-{name}",
                                           env_kwargs, evaluation)))  # fmt: skip
         for algo in algos:
             n = per_algo[algo]
@@ -547,7 +555,8 @@ def _job(call: tuple, progress: bool, threads: int | None):
     fn, *args = call
     old = _torch_threads(1)
     try:
-        extra = {"threads": threads} if fn is _mpc and threads is not None else {}
+        is_mpc = getattr(fn, "func", fn) is _mpc
+        extra = {"threads": threads} if is_mpc and threads is not None else {}
         return fn(*args, progress, **extra)
     finally:
         _torch_threads(old)

@@ -112,6 +112,10 @@ class Evaluation:
     gp : dict or None
         The GP hyperparameters fitted for the proposal (an acquisition's): a resumed run
         starts its next fit from them, as the uninterrupted run did.
+    duplicates_skipped : int
+        Acquisition optima passed over because their basis had been evaluated (or was in
+        flight) at the same T (:data:`rbbo.optimizer.DUPLICATE_DISTANCE`); in the JSON only
+        when not 0.
     """
 
     index: int
@@ -127,6 +131,7 @@ class Evaluation:
     error: str | None = None
     R_seeds: list[float] = field(default_factory=list)
     gp: dict[str, float | None] | None = None
+    duplicates_skipped: int = 0
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -144,6 +149,8 @@ class Evaluation:
         record["R_seeds"] = [float(r) for r in self.R_seeds]
         if self.gp is None:
             del record["gp"]  # records without a fit read as before
+        if not self.duplicates_skipped:
+            del record["duplicates_skipped"]
         return json.dumps(record, allow_nan=False)
 
     @classmethod

@@ -511,6 +511,7 @@ def test_default_planner_names_a_bad_horizon_and_takes_numpy_periods():
         default_planner("softrom_gym/CrossSwim-v0", "mppi", horizon=-3)
     planner, every = default_planner("softrom_gym/CrossSwim-v0", "mppi", dt=np.float32(0.05))
     assert planner.dt == pytest.approx(0.05) and every == 10
+    planner.reset(gym.make("softrom_gym/CrossSwim-v0", frame_skip=10), seed=0)  # its period
 
 
 def test_r_is_the_distance_whatever_a_reward_wrapper_does():
@@ -538,12 +539,14 @@ class _InterruptAt(gym.Wrapper):
         return self.env.step(action)
 
 
-def test_an_interrupted_episode_hands_back_what_it_recorded(capsys, monkeypatch):
+def test_an_interrupted_episode_hands_back_what_it_recorded(tmp_path, capsys, monkeypatch):
     planner, every = planner_for("softrom_gym/BeamWalk-v0", "mppi", samples=2, horizon=10,
                                  window=None, seed_horizon=10)  # fmt: skip
-    env = _InterruptAt(gym.make("softrom_gym/BeamWalk-v0"), 6)
+    env = _InterruptAt(gym.make("softrom_gym/BeamWalk-v0", render_mode="rgb_array"), 6)
+    video = tmp_path / "so_far.mp4"
     with pytest.raises(KeyboardInterrupt) as interrupt:
-        run_episode(env, planner, 1.0, every, progress=False)
+        run_episode(env, planner, 1.0, every, progress=False, video=video)
+    assert video.stat().st_size > 500  # the frames so far, written
     result = interrupt.value.result
     assert result.stop_reason == "interrupted" and result.rewards.size == 5
     assert result.com.shape == (6, 3) and len(result.states) == 6

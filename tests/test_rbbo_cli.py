@@ -469,3 +469,20 @@ def test_a_bad_mpc_setting_is_a_usage_error_before_the_run(tmp_path, capsys):
     err = _error(capsys, ["optimize", "synthetic", "--iterations", "2", "--mpc", "samples=4",
                           "--out", str(tmp_path / "s")])  # fmt: skip
     assert "--mpc is for an env, not the synthetic objective" in err
+
+
+def test_baselines_take_a_runs_mppi_overrides_for_their_mpc_rows(tmp_path, capsys):
+    from rbbo import RBBO, RBBOConfig
+    from rbbo.cli import _run_mppi_overrides
+
+    for controller, expected in (("mppi", {"samples": 4}), ("gn", {})):
+        spec = {
+            "kind": "env",
+            "env_id": "softrom_gym/BeamWalk-v0",
+            "controller": controller,
+            "planner_kwargs": {"samples": 4} if controller == "mppi" else {"fd_step": 0.2},
+        }
+        RBBO.create(tmp_path / controller, RBBOConfig(6, 2), objective_spec=spec)
+        assert _run_mppi_overrides(tmp_path / controller) == expected
+    # a Gauss-Newton run's overrides are not MPPI's: said, and left out
+    assert "planned with gn and --mpc {'fd_step': 0.2}" in capsys.readouterr().err

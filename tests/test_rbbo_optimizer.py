@@ -602,8 +602,11 @@ def test_a_proposal_on_an_evaluated_basis_gives_way_to_the_next_optimum_then_a_r
     assert q.info["acq_value"] is None
     for taken in (*[e.basis for e in opt.evaluations], p.basis):
         assert projection_distance(q.basis, taken) > 1e-3
-    # an ordinary proposal records nothing of the kind
-    opt.tell(p.index, 0.0)
-    opt.tell(q.index, 0.0)
+    # the history keeps it (and an ordinary proposal records nothing of the kind)
+    told = [opt.tell(p.index, 0.0), opt.tell(q.index, 0.0)]
+    assert [e.duplicates_skipped for e in told] == [1, 2]
+    assert json.loads(told[0].to_json())["duplicates_skipped"] == 1
     monkeypatch.undo()
-    assert "duplicates_skipped" not in opt.ask().info
+    ordinary = opt.ask()
+    assert "duplicates_skipped" not in ordinary.info
+    assert "duplicates_skipped" not in json.loads(opt.tell(ordinary.index, 0.0).to_json())

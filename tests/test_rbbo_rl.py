@@ -307,3 +307,8 @@ def test_cached_mpc_rows_are_keyed_by_the_planner(tmp_path, monkeypatch):
     assert cached == json.loads(json.dumps(row)) and not calls  # the same planner: cached
     _mpc(*args, {**kwargs, "frame_skip": 10}, evaluation, False)
     assert calls  # another control period, another planner: run again
+    # a run's --mpc overrides make the rows with the planner its R* was measured with
+    calls.clear()
+    _mpc(*args, kwargs, evaluation, False, planner_kwargs={"samples": 4})
+    meta = json.loads((tmp_path / "m" / "episodes.json").read_text())["meta"]
+    assert calls and meta["planner"]["settings"]["samples"] == 4

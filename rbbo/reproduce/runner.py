@@ -310,7 +310,10 @@ def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
         rl.run_baselines(plan.env_id(bench), bases, folder, algos=tuple(plan.rl_algos),
                          steps=plan.rl_steps, eval_seeds=plan.confirm_seeds,
                          seconds=plan.t_max, settle_time=plan.settle_time, seed=plan.seed,
-                         progress=progress, workers=plan.workers)  # fmt: skip
+                         progress=progress, workers=plan.workers,
+                         # the MPC rows: the planner Table I's R* was measured with
+                         planner_kwargs=plan.planner_kwargs if plan.controller == "mppi"
+                         else None)  # fmt: skip
         folders.append(folder)
     return folders
 
