@@ -1,4 +1,5 @@
-"""The planner interface (as MuJoCo MPC's): ``reset``, ``plan``, ``action``; shared settings.
+"""The planner interface (as MuJoCo MPC's): ``reset``, ``plan``, ``action`` (and ``predict``,
+the plan's expected course); shared settings.
 
 A planner owns a :class:`SplinePlan` of normalised knots (units of the action bound a) and
 reaches the env only through its public MPC API (``get_state``, ``rollout``,
@@ -15,6 +16,7 @@ Receding-horizon use::
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from abc import ABC, abstractmethod
@@ -280,6 +282,30 @@ class Planner(ABC):
         f_c = self.api_.bound * np.clip(self.plan_.value(0.0), -1.0, 1.0)
         self.plan_.shift(1)
         return f_c
+
+    def predict(self, env: Any) -> dict[str, Any]:
+        """The current plan rolled out from the env's state, changing neither: what the
+        planner expects over its horizon (one rollout; MuJoCo MPC draws the same).
+
+        Returns ``controls`` (H, C), the f_c that :meth:`action` would send at each step;
+        ``com`` (H, 3), the centre of mass after each step; ``rewards`` (H,), R per step (m);
+        and ``objective``, R - Λ over the settings' window, as a replan scores a plan.
+        """
+        self._require_reset(env)
+        # step by step as action() reads the plan, on a copy (the batched spline matrix
+        # differs from it by round-off, and then so would the course)
+        plan = copy.deepcopy(self.plan_)
+        u = np.empty((1, plan.horizon, plan.control_dim))
+        for t in range(plan.horizon):
+            u[0, t] = np.clip(plan.value(0.0), -1.0, 1.0)
+            plan.shift(1)
+        state = self.api_.get_state()
+        out = self.api_.rollout(state, self.api_.bound * u, threads=self.settings.threads)
+        ev = evaluate(out, u, self.api_.center_of_mass(state), self.api_.direction, self.api_.dt,
+                      self.settings.weights, self.settings.window)  # fmt: skip
+        return {"controls": self.api_.bound * u[0], "com": np.asarray(out["com"][0]),
+                "rewards": np.asarray(out["rewards"][0]),
+                "objective": float(ev.objective[0])}  # fmt: skip
 
     # ----------------------------------------------------------------- helpers
     @abstractmethod

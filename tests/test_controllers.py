@@ -607,3 +607,24 @@ def test_planner_settings_from_the_command_line(capsys, monkeypatch):
     with pytest.raises(SystemExit):
         cli_main(["BeamWalk-v0", "--mpc", "nois=0.3"])
     assert "unknown MPPISettings setting 'nois'" in capsys.readouterr().err
+
+
+def test_predict_is_what_the_plan_then_does_and_changes_nothing():
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    planner, _ = planner_for("softrom_gym/BeamWalk-v0", "mppi", samples=2)
+    planner.reset(env, seed=0)
+    planner.plan(env)
+    last, knots = dict(planner.last_), planner.plan_.knots.copy()
+    predicted = planner.predict(env)
+    h = planner.settings.horizon
+    assert predicted["controls"].shape == (h, 3) and predicted["com"].shape == (h, 3)
+    assert planner.last_ == last and np.array_equal(planner.plan_.knots, knots)
+    # the plan played out step by step is the prediction, to the bit (one simulator)
+    for t in range(3):
+        action = planner.action(env)
+        np.testing.assert_array_equal(action, predicted["controls"][t])
+        _, reward, *_, info = env.step(action)
+        np.testing.assert_array_equal(info["com"], predicted["com"][t])
+        assert reward == predicted["rewards"][t]
+    assert np.isfinite(predicted["objective"])
