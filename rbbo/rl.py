@@ -280,8 +280,14 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
     from stable_baselines3.common.callbacks import BaseCallback
 
     cls = sb3.PPO if algo == "ppo" else sb3.SAC
+    from softrom_gym.registration import control_period
+
     seeds, seconds, settle = evaluation
-    train_env = _make_env(env_id, basis, env_kwargs, True)
+    # Training episodes as long as the evaluated ones (the registered 400 env steps are the
+    # benchmarks' 10 s only at the default control period: 2 s at frame_skip=1).
+    dt = control_period(env_id, **env_kwargs)
+    episode = {} if dt is None else {"max_episode_steps": max(1, round(seconds / dt))}
+    train_env = _make_env(env_id, basis, env_kwargs, True, **episode)
     dt = float(train_env.get_wrapper_attr("dt"))
     eval_env = _make_env(env_id, basis, env_kwargs, True,
                          max_episode_steps=max(1, round(seconds / dt)))  # fmt: skip

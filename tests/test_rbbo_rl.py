@@ -312,3 +312,22 @@ def test_cached_mpc_rows_are_keyed_by_the_planner(tmp_path, monkeypatch):
     _mpc(*args, kwargs, evaluation, False, planner_kwargs={"samples": 4})
     meta = json.loads((tmp_path / "m" / "episodes.json").read_text())["meta"]
     assert calls and meta["planner"]["settings"]["samples"] == 4
+
+
+def test_training_episodes_are_as_long_as_the_evaluated_ones(tmp_path, monkeypatch):
+    # the registered 400 env steps are 10 s only at the default control period
+    made = []
+
+    class Made(Exception):
+        pass
+
+    def record(env_id, basis, env_kwargs, rescale, **extra):
+        made.append(extra.get("max_episode_steps"))
+        raise Made
+
+    monkeypatch.setattr(rl, "_make_env", record)
+    for env_kwargs, steps in (({"frame_skip": 1}, 2000), ({}, 400), ({"frame_skip": 10}, 200)):
+        with pytest.raises(Made):
+            rl._train("ppo", "softrom_gym/BeamWalk-v0", "identity", np.eye(6)[:, :2],
+                      tmp_path, env_kwargs, 64, 64, ([0], 10.0, 2.0), 0, False)  # fmt: skip
+        assert made.pop() == steps
