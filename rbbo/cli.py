@@ -630,12 +630,13 @@ def cmd_rollout(args) -> int:
     seconds = args.seconds or opt.config.t_max
     # A video of the first seconds is worth having (how the robot settles); R, measured from
     # the settle time on, is what a replay without --video is for.
-    if isinstance(objective, EnvObjective) and not seconds > objective.settle_time:
+    if isinstance(objective, EnvObjective) and not seconds > _measured_from(objective):
         if not args.video:
             raise UsageError(f"--seconds {seconds:g} must exceed the run's settle time "
-                             f"{objective.settle_time:g} s, from which R is measured: give "
-                             f"more (the run's T_max is {opt.config.t_max:g} s), or add "
-                             "--video FILE to watch the episode without R")  # fmt: skip
+                             f"{objective.settle_time:g} s, from which R is measured (from "
+                             f"the first env step at or after it, {_measured_from(objective):g}"
+                             f" s): give more (the run's T_max is {opt.config.t_max:g} s), or "
+                             "add --video FILE to watch the episode without R")  # fmt: skip
     if not isinstance(objective, EnvObjective):
         if args.video:
             raise UsageError("--video needs an env run; a synthetic objective has no robot")
@@ -650,6 +651,17 @@ def cmd_rollout(args) -> int:
     print(f"R = {r:.6g} per second from t = {objective.settle_time:g} s "
           f"(T = {seconds:g} s, seed {args.seed})")  # fmt: skip
     return 0
+
+
+def _measured_from(objective) -> float:
+    """When R starts: the first env step at or after the settle time (settled_reward_rate's
+    rule), so that --seconds just past a settle time between two steps is not an empty span."""
+    from softrom_gym.registration import control_period
+
+    step = control_period(objective.env_id, **objective.env_kwargs)
+    if step is None:
+        return objective.settle_time
+    return math.ceil(objective.settle_time / step - 1e-9) * step
 
 
 def _require_imageio() -> None:
@@ -692,7 +704,7 @@ def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> 
             if not clips:
                 raise UsageError("no video was written (does the env render rgb_array frames?)")
             shutil.move(str(clips[0]), video)
-    if not seconds > objective.settle_time:
+    if not seconds > _measured_from(objective):
         print(f"video: {video} ({seconds:g} s; no R, which is measured from the run's settle "
               f"time {objective.settle_time:g} s on)")  # fmt: skip
         return 0

@@ -486,3 +486,18 @@ def test_baselines_take_a_runs_mppi_overrides_for_their_mpc_rows(tmp_path, capsy
         assert _run_mppi_overrides(tmp_path / controller) == expected
     # a Gauss-Newton run's overrides are not MPPI's: said, and left out
     assert "planned with gn and --mpc {'fd_step': 0.2}" in capsys.readouterr().err
+
+
+def test_r_is_measured_from_the_first_env_step_after_the_settle_time():
+    import types
+
+    from rbbo.cli import _measured_from
+
+    def objective(settle, **env_kwargs):
+        return types.SimpleNamespace(env_id="softrom_gym/BeamWalk-v0", env_kwargs=env_kwargs,
+                                     settle_time=settle)  # fmt: skip
+
+    # (rollout --seconds 0.52 after a 0.51-s settle time was an empty span: a traceback)
+    assert _measured_from(objective(0.51)) == pytest.approx(0.525)
+    assert _measured_from(objective(2.0)) == pytest.approx(2.0)
+    assert _measured_from(objective(0.51, frame_skip=10)) == pytest.approx(0.55)

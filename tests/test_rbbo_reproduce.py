@@ -302,6 +302,7 @@ def test_other_settings_on_an_existing_directory_are_refused(reproduction, capsy
         (["--settle-time", "-1"], "need 0 <= settle_time"),
         (["--repeats", "0"], "repeats must be an integer >= 1, got 0"),
         (["--repeats", "two"], "'two'"),
+        (["--stages", "studies", "--repeats", "3"], "--repeats 3 runs Table I's RBBO runs"),
     ],
 )
 def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys):

@@ -236,6 +236,10 @@ def command(args, usage_error: type[Exception]) -> int:
 
     try:
         plan = _plan(args)
+        given = {a.split("=")[0] for a in args.argv if a.startswith("--")}
+        if "--repeats" in given and "table" not in plan.stages and not args.status:
+            raise ValueError(f"--repeats {args.repeats} runs Table I's RBBO runs again: it "
+                             "needs stage table in --stages (e.g. --stages table)")  # fmt: skip
         if "rl" in plan.stages and not (args.report_only or args.status):
             from ..rl import require_sb3
 
