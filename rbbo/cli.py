@@ -233,6 +233,9 @@ def _parser() -> argparse.ArgumentParser:
     bas.add_argument("--sim-dim", type=_positive_int,
                      help="M of the identity basis and the env (default: the --run's, else a "
                      "PATH.npy basis's rows, else 20)")  # fmt: skip
+    bas.add_argument("--control-dim", type=_positive_int,
+                     help="C of the identity basis (default: the --run's, else a PATH.npy "
+                     "basis's columns, else 3)")  # fmt: skip
     bas.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                      type=_env_kwarg,
                      help="a gym.make keyword for the env, repeatable, as optimize's "
@@ -731,7 +734,7 @@ def cmd_baselines(args) -> int:
         rl.require_sb3()
         rl.steps_per_algo(args.steps, tuple(dict.fromkeys(algos)))
         bases, env_kwargs = rl.resolve_bases(args.control_basis.split(","), env_id, args.run,
-                                             args.sim_dim)  # fmt: skip
+                                             args.sim_dim, args.control_dim)  # fmt: skip
         given = _env_kwargs(args.env_kwarg)
         if given:
             _check_env_keywords(env_id, given, rl.SET_BY_BASELINES)

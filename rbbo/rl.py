@@ -85,21 +85,27 @@ def require_sb3():
 
 
 def resolve_bases(
-    specs: list[str], env_id: str, run_dir: str | Path | None = None, sim_dim: int | None = None
+    specs: list[str],
+    env_id: str,
+    run_dir: str | Path | None = None,
+    sim_dim: int | None = None,
+    control_dim: int | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Control bases by name: ``identity`` (first C columns of eye(M)), ``best`` (the
     best_basis.npy of RBBO run ``run_dir``) or a path to an (M, C) ``.npy``.
 
     M and C of ``identity`` are the run's when ``run_dir`` is given, else the first ``.npy``'s,
-    else ``sim_dim`` (``--sim-dim``; default 20) and 3. A ``sim_dim`` given beside a run or a
-    ``.npy`` of another M is refused: their bases belong to that M. Returns the bases and the
-    run's ``env_kwargs`` ({} without a run). Raises ValueError (RunDirectoryError for a bad run
-    directory) naming the problem.
+    else ``sim_dim`` and ``control_dim`` (``--sim-dim``, ``--control-dim``; default 20 and
+    3). A ``sim_dim`` or ``control_dim`` given beside a run or a ``.npy`` of another M or C is
+    refused: their bases belong to those. Returns the bases and the run's ``env_kwargs`` ({}
+    without a run). Raises ValueError (RunDirectoryError for a bad run directory) naming the
+    problem.
     """
     from .store import RunDirectoryError, RunStore
 
     specs = [s.strip() for s in specs]
-    dims, env_kwargs, store = (20 if sim_dim is None else sim_dim, 3), {}, None
+    dims = (20 if sim_dim is None else sim_dim, 3 if control_dim is None else control_dim)
+    env_kwargs, store = {}, None
     if run_dir is not None:
         store = RunStore.open(run_dir, repair=False)
         settings, objective = store.config.get("rbbo") or {}, store.config.get("objective") or {}
@@ -111,6 +117,10 @@ def resolve_bases(
             raise ValueError(f"--sim-dim {sim_dim} differs from run {run_dir}'s sim_dim "
                              f"{dims[0]}, the M its B_c was found in (leave --sim-dim out: "
                              "the run's is used)")  # fmt: skip
+        if control_dim is not None and control_dim != dims[1]:
+            raise ValueError(f"--control-dim {control_dim} differs from run {run_dir}'s "
+                             f"control_dim {dims[1]}, the C of its B_c (leave --control-dim "
+                             "out: the run's is used)")  # fmt: skip
         if objective.get("kind") != "env":
             raise ValueError(f"run {run_dir} optimised a {objective.get('kind') or 'non-env'} "
                              "objective, not an env: its bases belong to no robot")  # fmt: skip
@@ -135,6 +145,9 @@ def resolve_bases(
             if sim_dim is not None and b.shape[0] != sim_dim:
                 raise ValueError(f"control basis {spec} has M = {b.shape[0]} rows, not "
                                  f"--sim-dim {sim_dim}")  # fmt: skip
+            if control_dim is not None and b.shape[1] != control_dim:
+                raise ValueError(f"control basis {spec} has C = {b.shape[1]} columns, not "
+                                 f"--control-dim {control_dim}")  # fmt: skip
             if not np.all(np.isfinite(b)):
                 raise ValueError(f"control basis {spec} contains non-finite values")
             sv = np.linalg.svd(b, compute_uv=False)
@@ -150,7 +163,7 @@ def resolve_bases(
         elif spec != "identity":
             raise ValueError(f"unknown control basis {spec!r}; use identity, best or PATH.npy")
     if "identity" in specs:
-        if dims[0] < dims[1]:  # (only a --sim-dim below the default C can be)
+        if dims[0] < dims[1]:  # (only --sim-dim / --control-dim given so can be)
             raise ValueError(f"--sim-dim {dims[0]} is below C = {dims[1]}, the identity "
                              "basis's columns")  # fmt: skip
         bases = {"identity": np.eye(dims[0])[:, : dims[1]], **bases}

@@ -230,6 +230,17 @@ def test_sim_dim_sets_m_and_a_run_keeps_its_own(tmp_path, capsys, monkeypatch):
     assert "mine.npy has M = 8 rows, not --sim-dim 12" in capsys.readouterr().err
     assert main([*args, "--sim-dim", "2"]) == 2
     assert "--sim-dim 2 is below C = 3" in capsys.readouterr().err
+    # --control-dim sets C as --sim-dim sets M, and a run or a .npy keeps its own
+    assert main([*args, "--sim-dim", "12", "--control-dim", "5"]) == 0
+    np.testing.assert_array_equal(seen["identity"], np.eye(12)[:, :5])
+    capsys.readouterr()
+    assert main([*args, "--run", str(run), "--control-dim", "3"]) == 2
+    err = capsys.readouterr().err
+    assert f"--control-dim 3 differs from run {run}'s control_dim 2, the C of its B_c" in err
+    assert main([*args, "--control-basis", str(tmp_path / "mine.npy"), "--control-dim", "3"]) == 2
+    assert "mine.npy has C = 2 columns, not --control-dim 3" in capsys.readouterr().err
+    assert main([*args, "--sim-dim", "4", "--control-dim", "5"]) == 2
+    assert "--sim-dim 4 is below C = 5" in capsys.readouterr().err
 
 
 def test_baselines_do_not_offer_the_synthetic_objective(capsys, tmp_path):
