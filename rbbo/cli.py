@@ -107,10 +107,16 @@ _positive_float = _number_arg(float, lambda v: math.isfinite(v) and v > 0, "a po
 _nonnegative_float = _number_arg(float, lambda v: math.isfinite(v) and v >= 0, "a number >= 0")
 
 
-def _mpc_changes(text: str) -> dict[str, Any]:
+def mpc_changes_arg(text: str) -> dict[str, Any]:
+    """``--mpc`` (``optimize``, ``reproduce``): key=value,... planner setting overrides."""
     from controllers.defaults import parse_changes
 
     return parse_changes(text)
+
+
+def merged_mpc_changes(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """The repeated ``--mpc`` options as one dict, a later key winning."""
+    return {k: v for part in parts for k, v in part.items()}
 
 
 def rl_steps_arg(text: str) -> int | dict[str, int]:
@@ -141,7 +147,7 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--sim-dim", type=_positive_int, default=20, help="M (default 20)")
     opt.add_argument("--controller", choices=["mppi", "gn"], default="mppi",
                      help="the MPC planner (default mppi)")  # fmt: skip
-    opt.add_argument("--mpc", type=_mpc_changes, action="append", default=[],
+    opt.add_argument("--mpc", type=mpc_changes_arg, action="append", default=[],
                      metavar="KEY=VALUE[,...]",
                      help="planner setting overrides, e.g. samples=32,noise=0.2 (env steps; "
                      "repeatable; stored with the run)")  # fmt: skip
@@ -431,7 +437,7 @@ def cmd_optimize(args) -> int:
         if args.env_kwarg:
             spec["env_kwargs"] = _env_kwargs(args.env_kwarg)
         if args.mpc:
-            spec["planner_kwargs"] = {k: v for part in args.mpc for k, v in part.items()}
+            spec["planner_kwargs"] = merged_mpc_changes(args.mpc)
         problem["env_id"] = spec["env_id"]
     elif args.env_kwarg or args.mpc:
         flag = "--env-kwarg" if args.env_kwarg else "--mpc"

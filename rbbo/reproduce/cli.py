@@ -63,16 +63,9 @@ def _names(valid: tuple[str, ...]):
 
 
 def _mpc_changes(text: str) -> dict[str, Any]:
-    from controllers.defaults import parse_changes
+    from ..cli import mpc_changes_arg
 
-    return parse_changes(text)
-
-
-def _merged(changes: list[dict[str, Any]]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for part in changes:
-        out.update(part)
-    return out
+    return mpc_changes_arg(text)
 
 
 def _rl_steps(text: str) -> int | dict[str, int]:
@@ -178,6 +171,8 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
 
 
 def _plan(args) -> ReproducePlan:
+    from ..cli import merged_mpc_changes
+
     return ReproducePlan(
         benchmarks=args.benchmarks, budget_s=args.budget_per_benchmark, repeats=args.repeats,
         iterations=args.iterations, workers=args.workers, deterministic=args.deterministic,
@@ -190,7 +185,7 @@ def _plan(args) -> ReproducePlan:
         direction_budget_s=args.direction_budget, perturbations_deg=args.perturbations,
         cost_cs=args.cost_cs, reward_cs=args.reward_cs, study_seeds=args.study_seeds,
         study_seconds=args.study_seconds, rl_benchmarks=args.rl_benchmarks,
-        rl_algos=args.rl_algos, rl_steps=args.rl_steps, planner_kwargs=_merged(args.mpc),
+        rl_algos=args.rl_algos, rl_steps=args.rl_steps, planner_kwargs=merged_mpc_changes(args.mpc),
         timeout_s=args.timeout,
     )  # fmt: skip
 

@@ -234,6 +234,10 @@ class ReproducePlan:
         """The stages, each once, in the order they run."""
         return [s for s in _STAGES if s in self.stages]
 
+    def on_workers(self) -> str:
+        """'1 worker' / 'N workers', as the launch line and --status say it."""
+        return f"{self.workers} worker" + ("s" if self.workers != 1 else "")
+
     def besides_budgets(self) -> str:
         """The work of the planned stages that no optimisation budget bounds, as a phrase
         ("the confirmations, the transfer and the RL baselines"), or "" when there is none."""

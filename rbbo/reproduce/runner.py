@@ -415,9 +415,8 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     # only what this session runs (a session of some stages is one of several)
     budgets = ""
     if per_bench or "directions" in stages:
-        workers = f"{plan.workers} worker" + ("s" if plan.workers != 1 else "")
-        budgets = (f"; optimisation budgets add up to {budget / 3600:.2f} h on {workers}, "
-                   f"plus {plan.besides_budgets()}")  # fmt: skip
+        budgets = (f"; optimisation budgets add up to {budget / 3600:.2f} h on "
+                   f"{plan.on_workers()}, plus {plan.besides_budgets()}")  # fmt: skip
     named = [f"table ({plan.repeats} runs per benchmark, seeds {plan.seed}-"
              f"{plan.seed + plan.repeats - 1})" if s == "table" and plan.repeats > 1 else s
              for s in plan.ordered_stages()]  # fmt: skip

@@ -193,7 +193,6 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
         for bench in _rl_benchmarks(out, plan):
             lines.append(f"{'rl':<12} {bench:<20} {_rl_state(out / 'rl' / bench, plan)}")
     besides = plan.besides_budgets()
-    workers = f"{plan.workers} worker" + ("s" if plan.workers != 1 else "")
-    lines.append(f"optimisation budget left: {left / 3600:.2f} h on {workers}"
+    lines.append(f"optimisation budget left: {left / 3600:.2f} h on {plan.on_workers()}"
                  + (f", plus {besides}" if besides else ""))  # fmt: skip
     return lines
