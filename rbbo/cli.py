@@ -667,10 +667,12 @@ def _measured_from(objective) -> float:
     rule), so that --seconds just past a settle time between two steps is not an empty span."""
     from softrom_gym.registration import control_period
 
+    from .objective import settled_step
+
     step = control_period(objective.env_id, **objective.env_kwargs)
     if step is None:
         return objective.settle_time
-    return math.ceil(objective.settle_time / step - 1e-9) * step
+    return settled_step(step, objective.settle_time) * step
 
 
 def _require_imageio() -> None:

@@ -445,6 +445,11 @@ def planner_record(planner: Any, replan_every: int) -> dict[str, Any]:
                                   "settings": settings}, default=repr))  # fmt: skip
 
 
+def settled_step(step_seconds: float, settle_time: float) -> int:
+    """The first env step that R counts: the first starting at or after the settle time."""
+    return int(np.ceil(settle_time / step_seconds - 1e-9))
+
+
 def settled_reward_rate(result, step_seconds: float, settle_time: float, seconds: float) -> float:
     """Task reward per second from ``settle_time`` to ``seconds``, from an EpisodeResult.
 
@@ -457,7 +462,7 @@ def settled_reward_rate(result, step_seconds: float, settle_time: float, seconds
     if rewards is None:
         rewards = result.rewards
     r = np.asarray(rewards, dtype=float).ravel()
-    start = int(np.ceil(settle_time / step_seconds - 1e-9))
+    start = settled_step(step_seconds, settle_time)
     span = float(seconds) - start * step_seconds
     if span <= 0:
         raise ValueError(
