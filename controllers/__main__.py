@@ -15,8 +15,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from softrom_gym.registration import control_period, parse_env_kwarg
 
 from .defaults import DEFAULTS, PLANNERS, parse_changes, planner_for
@@ -115,15 +113,9 @@ def main(argv: list[str] | None = None) -> int:
     env_id = args.env_id if "/" in args.env_id else f"softrom_gym/{args.env_id}"
     kwargs: dict[str, Any] = dict(args.env_kwarg)
     if args.control_basis is not None:
-        try:
-            b_c = np.load(args.control_basis)
-        except (OSError, ValueError) as exc:
-            parser.error(f"--control-basis {args.control_basis}: {exc}")
-        if b_c.ndim != 2 or b_c.shape[0] < b_c.shape[1]:
-            parser.error(f"--control-basis {args.control_basis} has shape {b_c.shape}; "
-                         "expected (M, C), M >= C: one column per control direction")  # fmt: skip
-        # as `rbbo baselines`: any full-rank B_c, orthonormalised (its span is what counts)
-        kwargs.update(control_basis=b_c, orthonormalize=True)
+        # the env reads the .npy and names what is wrong with it; as `rbbo baselines`, any
+        # full-rank B_c, orthonormalised (its span is what counts)
+        kwargs.update(control_basis=str(args.control_basis), orthonormalize=True)
     if args.video is not None:
         kwargs["render_mode"] = "rgb_array"
     changes: dict[str, Any] = {}

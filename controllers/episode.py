@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .planner import EnvAPI, Planner, check_physical_actions
+from .planner import EnvAPI, Planner
 
 __all__ = ["EpisodeResult", "run_episode"]
 
@@ -141,8 +141,7 @@ def run_episode(
     if video is not None:
         _check_video_path(video)  # before the episode, not after it
         _imageio()
-    check_physical_actions(env)
-    api = EnvAPI(env)
+    api = EnvAPI(env)  # (planner.reset refuses an action wrapper: check_physical_actions)
     steps = max(1, round(seconds / api.dt))
     env.reset(seed=seed)
     planner.reset(env, seed=seed)

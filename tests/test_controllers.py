@@ -628,3 +628,25 @@ def test_predict_is_what_the_plan_then_does_and_changes_nothing():
         np.testing.assert_array_equal(info["com"], predicted["com"][t])
         assert reward == predicted["rewards"][t]
     assert np.isfinite(predicted["objective"])
+
+
+def test_the_command_line_takes_a_control_basis_file(tmp_path, capsys, monkeypatch):
+    import controllers.episode as episode
+
+    seen = {}
+
+    def record(env, planner, seconds, **kwargs):
+        seen["basis"] = env.get_wrapper_attr("control_basis")
+        raise KeyboardInterrupt  # (nothing to run: the basis is what is checked)
+
+    monkeypatch.setattr(episode, "run_episode", record)
+    np.save(tmp_path / "b.npy", 2.0 * np.eye(20)[:, :2])  # full rank: orthonormalised
+    assert cli_main(["BeamWalk-v0", "--control-basis", str(tmp_path / "b.npy")]) == 130
+    np.testing.assert_allclose(seen["basis"], np.eye(20)[:, :2])
+    with pytest.raises(SystemExit):
+        cli_main(["BeamWalk-v0", "--control-basis", str(tmp_path / "none.npy")])
+    assert "control_basis file" in capsys.readouterr().err
+    np.save(tmp_path / "t.npy", np.eye(20)[:2])
+    with pytest.raises(SystemExit):
+        cli_main(["BeamWalk-v0", "--control-basis", str(tmp_path / "t.npy")])
+    assert "B_c is M x C with M >= C" in capsys.readouterr().err
