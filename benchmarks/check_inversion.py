@@ -9,11 +9,16 @@ the largest share of the tetrahedra inverted at once.
 
     python benchmarks/check_inversion.py
     python benchmarks/check_inversion.py softrom_gym/QuadrupedWalk-v0 --moduli 5e4 2e4 1e4
+    python benchmarks/check_inversion.py --cost   # what the check costs an env step
+
+``--cost`` times, in one process and alternating, ``env.step`` (which makes the check) and
+``model.min_volume_ratio`` alone on each env, and prints the check's share of a step.
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 import warnings
 
 import gymnasium as gym
@@ -46,6 +51,27 @@ def worst_volume_ratios(env_id: str, modulus: float, seconds: float, rate: float
     return smallest, inverted
 
 
+def check_cost(env_id: str, rounds: int = 5, steps: int = 200) -> tuple[float, float]:
+    """Best-of-``rounds`` seconds of one env step and of one min_volume_ratio call."""
+    env = gym.make(env_id)
+    base = env.unwrapped
+    env.reset(seed=0)
+    zero = np.zeros(env.action_space.shape, dtype=np.float32)
+    step, check = np.inf, np.inf
+    for _ in range(rounds):
+        start = time.perf_counter()
+        for _ in range(steps):
+            env.step(zero)
+        step = min(step, (time.perf_counter() - start) / steps)
+        q = base.get_state().q
+        start = time.perf_counter()
+        for _ in range(steps):
+            base.model.min_volume_ratio(q)
+        check = min(check, (time.perf_counter() - start) / steps)
+    env.close()
+    return step, check
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
@@ -54,7 +80,15 @@ def main() -> None:
     parser.add_argument("--moduli", type=float, nargs="+", default=[5e4, 2e4, 1e4])
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--rate", type=float, default=2.0, help="square-wave frequency, Hz")
+    parser.add_argument("--cost", action="store_true", help="time the check instead")
     args = parser.parse_args()
+    if args.cost:
+        print(f"{'env':<28} {'env.step (us)':>14} {'check (us)':>11} {'share':>7}")
+        for env_id in args.env_ids:
+            step, check = check_cost(env_id)
+            print(f"{env_id.split('/')[-1]:<28} {1e6 * step:>14.0f} {1e6 * check:>11.1f}"
+                  f" {100 * check / step:>6.1f}%", flush=True)  # fmt: skip
+        return
     print(f"{'env':<28} {'E (Pa)':>8} {'min J':>8} {'inverted':>9}")
     for env_id in args.env_ids:
         for modulus in args.moduli:
