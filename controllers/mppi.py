@@ -27,7 +27,7 @@ class MPPISettings(PlannerSettings):
     Attributes
     ----------
     samples : int
-        N, rollouts per iteration (the current plan included).
+        N >= 2, rollouts per iteration: the current plan and N - 1 perturbations of it.
     noise : float
         Standard deviation of the knot perturbations, in units of the action bound (>= 0;
         0 returns the warm start).
@@ -44,7 +44,9 @@ class MPPISettings(PlannerSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        _check_int("samples", self.samples)
+        # N = 1 would be the current plan alone, never perturbed: a replan that does nothing
+        # (noise = 0 says that on purpose).
+        _check_int("samples", self.samples, low=2)
         _check_positive("noise", self.noise, allow_zero=True)
         _check_positive("temperature", self.temperature)
         _check_int("iterations", self.iterations)

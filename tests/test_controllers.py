@@ -282,8 +282,8 @@ def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
         (PlannerSettings, {"period": 4, "knots": 6}, r"knots = 6 exceeds the period \(4"),
         (PlannerSettings, {"window": 50}, r"window = 50 exceeds the horizon \(40\)"),
         (PlannerSettings, {"gait_seed": True}, "gait_seed needs a periodic plan"),
-        (MPPISettings, {"samples": 0}, "samples must be an integer >= 1, got 0"),
-        (MPPISettings, {"samples": 2.5}, "samples must be an integer >= 1, got 2.5"),
+        (MPPISettings, {"samples": 1}, "samples must be an integer >= 2, got 1"),
+        (MPPISettings, {"samples": 2.5}, "samples must be an integer >= 2, got 2.5"),
         (MPPISettings, {"temperature": 0.0}, "temperature must be a finite number > 0, got 0.0"),
         (MPPISettings, {"temperature": float("nan")}, "temperature must be .* got nan"),
         (MPPISettings, {"noise": -0.1}, "noise must be a finite number >= 0, got -0.1"),
@@ -379,7 +379,7 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
     with pytest.raises(SystemExit) as exc:
         cli_main(["BeamWalk-v0", "--samples", "0"])
     assert exc.value.code == 2
-    assert "samples must be an integer >= 1, got 0" in capsys.readouterr().err
+    assert "samples must be an integer >= 2, got 0" in capsys.readouterr().err
     for bad in (["--seconds", "0"], ["--seconds", "nan"]):
         with pytest.raises(SystemExit) as exc:
             cli_main(["BeamWalk-v0", *bad])
