@@ -42,6 +42,10 @@ class UsageError(Exception):
 
 class _Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs) -> None:
+        # Options are taken as spelled, not by unique prefix: a run's recorded command is
+        # read again on resume (--status, which options were given), and "--stage table"
+        # must not mean --stages there and nothing here; a prefix is a usage error instead.
+        kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
         # A negative duration ("--budget -5m") is read as a value, so that the option's own
         # check names it, not taken for an unknown option ("expected one argument").

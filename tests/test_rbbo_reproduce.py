@@ -208,12 +208,21 @@ def test_status_shows_the_stages_of_the_stored_plan_and_its_sessions(tmp_path, c
     document["sessions"][:0] = [
         {"command": "rbbo reproduce --stages=perturbation --out x"},
         {"command": "rbbo reproduce --out x", "stages": ["bo"]},
+        # parsed when rbbo still took option prefixes: "--stag" was --stages
+        {"command": "rbbo reproduce --stag transfer --out x"},
     ]
     (tmp_path / "reproduce.json").write_text(json.dumps(document))
     assert main(["reproduce", "--out", str(tmp_path), "--status"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert [line.split()[0] for line in lines[:-1]] == ["table", "bo", "perturbation"]
-    assert lines[-1].endswith("plus the confirmations and the perturbation study")
+    assert [line.split()[0] for line in lines[:-1]] == ["table", "bo", "transfer", "perturbation"]
+    assert lines[-1].endswith("plus the confirmations, the transfer and the perturbation study")
+
+
+def test_option_prefixes_are_usage_errors(tmp_path, capsys):
+    # "--stage table" was taken for --stages here but not where the recorded command is read
+    # again (which options a session gave): rbbo takes options only as spelled
+    assert main(["reproduce", "--out", str(tmp_path), "--stage", "table", "--status"]) == 2
+    assert "unrecognized arguments: --stage table" in capsys.readouterr().err
 
 
 def test_rerun_resumes_without_new_evaluations(reproduction):

@@ -31,8 +31,11 @@ def _session_stages(session: dict[str, Any]) -> list[str]:
         return []
     stages = list(_STAGES)
     for word, value in zip(words, [*words[1:], ""], strict=True):
-        if word == "--stages" or word.startswith("--stages="):
-            stages = (value if word == "--stages" else word.partition("=")[2]).split(",")
+        flag, eq, given = word.partition("=")
+        # Commands recorded before rbbo took options only as spelled were parsed with
+        # argparse's prefixes: "--stag" is the shortest that named --stages alone.
+        if len(flag) >= len("--stag") and "--stages".startswith(flag):
+            stages = (given if eq else value).split(",")
     return [s.strip() for s in stages]
 
 
