@@ -32,6 +32,7 @@ costs tens of milliseconds per step on the benchmark robots.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypedDict
 
 import numpy as np
 import scipy.sparse as sp
@@ -54,6 +55,15 @@ class FullSpaceState:
     x: np.ndarray
     v: np.ndarray
     impulses: np.ndarray
+
+
+class FullSpaceRollout(TypedDict):
+    """What :meth:`FullSpaceModel.rollout` returns (a plain dict)."""
+
+    com: np.ndarray
+    converged: np.ndarray
+    contact_converged: np.ndarray
+    state: FullSpaceState
 
 
 @dataclass
@@ -190,15 +200,18 @@ class FullSpaceModel:
         x_n = np.asarray(state.x, dtype=np.float64).ravel()
         v_n = np.asarray(state.v, dtype=np.float64).ravel()
         f_ext = m3 * self._gravity
-        if controls is not None and self.actuation is None:
-            raise ValueError("this model has no actuation, so it takes no controls (give "
-                             "actuation, or FullSpaceModel.matching a reduced model)")  # fmt: skip
         if controls is not None:
+            actuation = self.actuation
+            if actuation is None:
+                raise ValueError(
+                    "this model has no actuation, so it takes no controls (give "
+                    "actuation, or FullSpaceModel.matching a reduced model)"
+                )
             fc = np.asarray(controls, dtype=np.float64)
-            if fc.shape != (self.actuation.shape[1],) or not np.all(np.isfinite(fc)):
+            if fc.shape != (actuation.shape[1],) or not np.all(np.isfinite(fc)):
                 raise ValueError(f"controls must be finite with shape "
-                                 f"({self.actuation.shape[1]},), got {fc.shape}")  # fmt: skip
-            f_ext = f_ext + m3 * (self.actuation @ fc)
+                                 f"({actuation.shape[1]},), got {fc.shape}")  # fmt: skip
+            f_ext = f_ext + m3 * (actuation @ fc)
         n = self.robot.num_nodes
         diag = sp.diags(m3 * (1.0 + h * self.damping_alpha))
         damping = h * self.damping_beta * self._k0
@@ -313,7 +326,7 @@ class FullSpaceModel:
 
     # -- many steps ------------------------------------------------------------------------
     def rollout(self, state: FullSpaceState, controls: np.ndarray, *, progress: bool = False
-                ) -> dict[str, np.ndarray]:  # fmt: skip
+                ) -> FullSpaceRollout:  # fmt: skip
         """Step through ``controls`` (H, C), one row per step; returns ``com`` (H, 3) after
         each step, ``converged`` and ``contact_converged`` (H,) flags, and the final
         ``state``."""

@@ -58,6 +58,8 @@ def control_period(env_id: str, **kwargs: Any) -> float | None:
     entry = spec.entry_point
     try:
         creator = gym.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
+        if creator is None:  # (an id registered without an entry point)
+            return None
         params = inspect.signature(creator).parameters
     except (ImportError, AttributeError, TypeError, ValueError):
         return None

@@ -5,10 +5,11 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
+import numpy.typing as npt
 from gymnasium import spaces
 
 import cpp_sim
@@ -16,6 +17,9 @@ import cpp_sim
 from .._validate import real
 from ..robots import ROBOTS, Robot, from_mesh
 from ..rom import build_reduced_model, build_subspace
+
+if TYPE_CHECKING:
+    from ..rendering import SoftwareRenderer
 
 __all__ = ["TASKS", "SoftRobotEnv"]
 
@@ -49,7 +53,7 @@ def _direction(direction: float | np.ndarray) -> np.ndarray:
     return np.array([d[0], d[1], 0.0]) / np.linalg.norm(d)
 
 
-def _read_basis(b_c: Any) -> Any:
+def _read_basis(b_c: npt.ArrayLike | os.PathLike | None) -> npt.ArrayLike | None:
     """B_c from a ``.npy`` file when given a path (as a str it keeps ``env.spec``
     JSON-serialisable, which an array does not), else ``b_c`` as given."""
     if not isinstance(b_c, (str, os.PathLike)):
@@ -69,7 +73,7 @@ def _read_basis(b_c: Any) -> Any:
 
 
 def _dimensions(
-    b_c: np.ndarray | None, sim_dim: int | None, control_dim: int | None
+    b_c: npt.ArrayLike | None, sim_dim: int | None, control_dim: int | None
 ) -> tuple[int, int]:
     """(M, C): as given, else the shape of B_c when one is given, else (20, 3)."""
     shape = np.shape(b_c) if b_c is not None else ()
@@ -83,7 +87,7 @@ def _dimensions(
 
 
 def _control_basis(
-    b_c: np.ndarray | None, sim_dim: int, control_dim: int, orthonormalize: bool
+    b_c: npt.ArrayLike | None, sim_dim: int, control_dim: int, orthonormalize: bool
 ) -> np.ndarray:
     if b_c is None:
         return np.eye(sim_dim, control_dim)  # (not eye(M)[:, :C]: M may be too large, named later)
@@ -208,7 +212,10 @@ class SoftRobotEnv(gym.Env):
     * v0: initial release.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 40}
+    # Not a ClassVar: gym.Env declares it per instance (__init__ sets this env's render_fps).
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 40}  # noqa: RUF012
+    action_space: spaces.Box
+    observation_space: spaces.Box
     # Set by the first inverted element this env reports (the warning is said once); a class
     # default, so an env pickled before it existed unpickles with it.
     _inversion_warned: bool = False
@@ -241,8 +248,8 @@ class SoftRobotEnv(gym.Env):
                 f"render_mode {render_mode!r} is not supported; valid: "
                 f"{self.metadata['render_modes']}"
             )
-        control_basis = _read_basis(control_basis)
-        sim_dim, control_dim = _dimensions(control_basis, sim_dim, control_dim)
+        b_c = _read_basis(control_basis)
+        sim_dim, control_dim = _dimensions(b_c, sim_dim, control_dim)
         for name, value in (("control_dim", control_dim), ("sim_dim", sim_dim),
                             ("frame_skip", frame_skip)):  # fmt: skip
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
@@ -267,7 +274,7 @@ class SoftRobotEnv(gym.Env):
         self.frame_skip = int(frame_skip)
         self.robot = self._make_robot(robot, material or {}, resolution, scale)
         self.direction = _direction(direction)
-        self.control_basis = _control_basis(control_basis, sim_dim, control_dim, orthonormalize)
+        self.control_basis = _control_basis(b_c, sim_dim, control_dim, orthonormalize)
 
         settings: dict[str, Any] = {"dt": dt, "direction": self.direction}
         swim = {"fluid_density": fluid_density}
@@ -309,7 +316,7 @@ class SoftRobotEnv(gym.Env):
         # At least 1: a video writer cannot take 0 frames per second (env steps of 1 s or more).
         fps = max(1, round(1.0 / (self.model.dt * self.frame_skip)))
         self.metadata = {**self.metadata, "render_fps": fps}
-        self._renderer = None
+        self._renderer: SoftwareRenderer | None = None
 
     def render(self) -> np.ndarray | None:
         """An RGB frame (height, width, 3) when ``render_mode="rgb_array"``: the shaded robot
@@ -358,7 +365,7 @@ class SoftRobotEnv(gym.Env):
             if kwargs:
                 from dataclasses import replace
 
-                return replace(robot, **material)
+                return replace(robot, **kwargs)  # (here kwargs is the material alone)
             return robot
         if isinstance(robot, str) and robot in ROBOTS:
             return ROBOTS[robot](**kwargs)

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any, cast
 
 import numpy as np
+from gymnasium import spaces
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -29,10 +30,15 @@ class SoftRobotVectorEnv(VectorEnv):
     every other keyword is passed to :class:`SoftRobotEnv`.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {
+    # Not a ClassVar: gymnasium's VectorEnv declares it per instance.
+    metadata: dict[str, Any] = {  # noqa: RUF012
         "render_modes": [],
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
+    single_observation_space: spaces.Box
+    single_action_space: spaces.Box
+    observation_space: spaces.Box
+    action_space: spaces.Box
 
     def __init__(
         self,
@@ -67,8 +73,11 @@ class SoftRobotVectorEnv(VectorEnv):
         self.threads = threads
         self.single_observation_space = self.env.observation_space
         self.single_action_space = self.env.action_space
-        self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.action_space = batch_space(self.single_action_space, num_envs)
+        # (batch_space of a Box is a Box, of shape (num_envs, *shape))
+        self.observation_space = cast(
+            spaces.Box, batch_space(self.single_observation_space, num_envs)
+        )
+        self.action_space = cast(spaces.Box, batch_space(self.single_action_space, num_envs))
         self._states = [self.env.model.rest_state() for _ in range(num_envs)]
         self._com0 = np.zeros((num_envs, 3))
         self._elapsed = np.zeros(num_envs, dtype=np.int64)

@@ -49,7 +49,7 @@ def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
     centres: the shells' winding number (+1 inside an outward shell, -1 inside a cavity)
     exceeds 1 only inside two solids at once, not in a solid nested in a cavity."""
     shells = surface.split(only_watertight=False)
-    solids = sum(s.volume > 0 for s in shells)
+    solids = int(sum(s.volume > 0 for s in shells))
     if len(shells) < 2:
         return max(1, solids)
     boxes = np.array([s.bounds for s in shells])  # (S, 2, 3)

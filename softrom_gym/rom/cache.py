@@ -10,6 +10,7 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from ..robots import Robot
 
@@ -59,7 +60,7 @@ def load_entry(path: Path | None) -> dict[str, np.ndarray] | None:
         return None
 
 
-def save_entry(path: Path | None, **arrays: object) -> None:
+def save_entry(path: Path | None, **arrays: npt.ArrayLike) -> None:
     """Write ``arrays`` to ``path`` atomically: a concurrent reader never sees half a file,
     and a read-only cache location only costs speed."""
     if path is None:
@@ -67,7 +68,8 @@ def save_entry(path: Path | None, **arrays: object) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(tmp, **arrays)
+        # (numpy's stub also matches a **dict against savez's allow_pickle: bool)
+        np.savez(tmp, **arrays)  # type: ignore[arg-type]
         os.replace(tmp, path)
     except OSError:
         pass
