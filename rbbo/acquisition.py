@@ -21,7 +21,7 @@ t being the number of observations so far (at least 1).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -132,7 +132,7 @@ def make_problem(function: GrassmannFunction, sim_dim: int, control_dim: int) ->
 
 
 def _optimizer(name: str, max_iterations: int, min_gradient_norm: float):
-    common = {
+    common: dict[str, Any] = {
         "max_iterations": max_iterations,
         "min_gradient_norm": min_gradient_norm,
         "verbosity": 0,
@@ -148,7 +148,7 @@ def perturb(basis: np.ndarray, scale: float, rng: np.random.Generator) -> np.nda
     """Retract B_c along a random tangent direction of norm ``scale``."""
     g = rng.standard_normal(basis.shape)
     g -= basis @ (basis.T @ g)
-    g *= scale / max(np.linalg.norm(g), 1e-300)
+    g *= scale / max(float(np.linalg.norm(g)), 1e-300)
     u, _, vt = np.linalg.svd(basis + g, full_matrices=False)
     return u @ vt
 

@@ -47,6 +47,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import overload
 
 import numpy as np
 
@@ -142,7 +143,11 @@ class BOCAFidelity:
             raise ValueError(f"target_fraction must satisfy 0 <= lo <= hi <= 1, got {lo, hi}")
         self.recent = deque(self.recent, maxlen=self.window)
 
-    def z(self, t: float | np.ndarray) -> np.ndarray | float:
+    @overload
+    def z(self, t: float) -> float: ...
+    @overload
+    def z(self, t: np.ndarray | Sequence[float]) -> np.ndarray: ...
+    def z(self, t: float | np.ndarray | Sequence[float]) -> np.ndarray | float:
         """Normalised fidelity z = (T - T_min) / (T_max - T_min)."""
         return (np.asarray(t, dtype=float) - self.t_min) / (self.t_max - self.t_min)
 
@@ -166,6 +171,8 @@ class BOCAFidelity:
         hp = gp.hyperparameters
         z = self.z(cands)
         _, tau = gp.predict_standardized(np.repeat(np.asarray(basis)[None], len(z), axis=0), z)
+        # (predict_standardized refuses an unfitted GP; a fidelity GP fits h)
+        assert hp is not None and hp.fidelity_length_scale is not None
         phi = np.exp(-0.5 * (z - 1.0) ** 2 / hp.fidelity_length_scale**2)
         xi = np.sqrt(np.maximum(1.0 - phi**2, 0.0))
         gamma = self.kappa * xi * (cands / self.t_max) ** self.cost_exponent

@@ -523,8 +523,10 @@ def cmd_resume(args) -> int:
     from .optimizer import RBBO
 
     opt = RBBO.resume(args.run_dir)
+    store = opt.store
+    assert store is not None  # (resume opens the run's store)
     objective = _objective_of(opt)
-    execution = dict(opt.store.config.get("execution") or {"executor": "process",
+    execution = dict(store.config.get("execution") or {"executor": "process",
                      "workers": 1, "timeout_s": 600.0})  # fmt: skip
     if args.workers:
         execution["workers"] = args.workers
@@ -548,11 +550,11 @@ def cmd_resume(args) -> int:
         old = _limits_text(opt.config.max_evaluations, opt.config.budget_s)
         with _bad_input():
             opt.set_limits(iterations, budget)
-        print(f"{opt.store.path}: its limit is now {_limits_text(iterations, budget)} (was "
+        print(f"{store.path}: its limit is now {_limits_text(iterations, budget)} (was "
               f"{old}), stored in config.json for later resumes", file=sys.stderr)  # fmt: skip
     if not opt.can_submit(iterations, budget):
         done = len(opt.evaluations)
-        print(f"{opt.store.path} has reached its limit ({_limits_text(iterations, budget)}; it "
+        print(f"{store.path} has reached its limit ({_limits_text(iterations, budget)}; it "
               f"has {done} evaluations, {_duration_text(opt.elapsed_s)}): nothing more to "
               "search; give a larger --budget or --iterations to go on",
               file=sys.stderr)  # fmt: skip
@@ -571,6 +573,8 @@ def cmd_confirm(args) -> int:
     from .report import format_table, report_row
 
     opt = RBBO.resume(args.run_dir)
+    store = opt.store
+    assert store is not None  # (resume opens the run's store)
     if not opt.finished and opt.config.n_confirm > 0:
         # its R* would be a mid-search recommendation's, and the run would then read as
         # finished; the resume measures R_init and R* when the search ends
@@ -580,7 +584,7 @@ def cmd_confirm(args) -> int:
                          "R_init and R*; confirm measures a finished run again")  # fmt: skip
     before = opt.result()
     objective = _objective_of(opt)
-    execution = dict(opt.store.config.get("execution") or {"executor": "process",
+    execution = dict(store.config.get("execution") or {"executor": "process",
                      "workers": 1, "timeout_s": 600.0})  # fmt: skip
     workers = args.workers or execution["workers"]
     with _bad_input():
@@ -591,7 +595,7 @@ def cmd_confirm(args) -> int:
             after = opt.confirm_again(executor)
     except KeyboardInterrupt:
         executor.shutdown(wait=False)
-        print(f"\ninterrupted; nothing is lost: run rbbo confirm {opt.store.path} again",
+        print(f"\ninterrupted; nothing is lost: run rbbo confirm {store.path} again",
               file=sys.stderr)  # fmt: skip
         return 130
     executor.shutdown()

@@ -119,6 +119,12 @@ class GrassmannGP:
         self.hyperparameters: GPHyperparameters | None = None
         self.kernel_ = None
 
+    def _fitted(self) -> GPHyperparameters:
+        """The hyperparameters, of a GP its caller knows to be fitted."""
+        hp = self.hyperparameters
+        assert hp is not None, "the GP is not fitted"
+        return hp
+
     # -- fitting --------------------------------------------------------------------------
     def _initial_kernel(self):
         hp = self.hyperparameters
@@ -206,12 +212,13 @@ class GrassmannGP:
     def _fidelity_factor(self, z_a, z_b) -> np.ndarray:
         if not self.fidelity:
             return np.ones((np.size(z_a), np.size(z_b)))
-        h = self.hyperparameters.fidelity_length_scale
+        h = self._fitted().fidelity_length_scale
+        assert h is not None  # (a fidelity GP fits h)
         za, zb = np.atleast_1d(z_a), np.atleast_1d(z_b)
         return np.exp(-0.5 * (za[:, None] - zb[None, :]) ** 2 / h**2)
 
     def _condition(self, b, z, ys) -> None:
-        hp = self.hyperparameters
+        hp = self._fitted()
         c = self.control_dim
         self.bases_, self.z_, self.ys_ = b, z, ys
         self.proj_ = projectors(b)
@@ -251,7 +258,7 @@ class GrassmannGP:
 
     # -- posterior ------------------------------------------------------------------------
     def _cross(self, bases, z) -> np.ndarray:
-        hp = self.hyperparameters
+        hp = self._fitted()
         q = projectors(bases)
         overlap = self.proj_ @ q.T
         k = hp.signal_variance * np.exp(-(self.control_dim - overlap) / hp.length_scale**2)
@@ -276,7 +283,7 @@ class GrassmannGP:
         zq = np.broadcast_to(np.asarray(z, dtype=float), (b.shape[0],))
         k = self._cross(b, zq)
         mu = self.alpha_ @ k
-        var = self.hyperparameters.signal_variance - np.sum(k * (self.k_inv_ @ k), axis=0)
+        var = self._fitted().signal_variance - np.sum(k * (self.k_inv_ @ k), axis=0)
         return mu, np.sqrt(np.maximum(var, 1e-14))
 
     def predict(self, bases: np.ndarray, z: float | np.ndarray = 1.0):
@@ -300,12 +307,14 @@ class GrassmannGP:
         mu, sigma : floats (standardised)
         """
         b = self._query(basis)[0]
-        hp = self.hyperparameters
+        hp = self._fitted()
         q = (b @ b.T).ravel()
         overlap = self.proj_ @ q
         k = hp.signal_variance * np.exp(-(self.control_dim - overlap) / hp.length_scale**2)
         if self.fidelity:
-            k = k * np.exp(-0.5 * (self.z_ - z) ** 2 / hp.fidelity_length_scale**2)
+            h = hp.fidelity_length_scale
+            assert h is not None  # (a fidelity GP fits h)
+            k = k * np.exp(-0.5 * (self.z_ - z) ** 2 / h**2)
         mu = float(k @ self.alpha_)
         v = self.k_inv_ @ k
         sigma = float(np.sqrt(max(hp.signal_variance - float(k @ v), 1e-14)))

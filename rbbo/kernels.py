@@ -25,6 +25,12 @@ from .grassmann import _check_dims, projection_sq_distances, unflatten
 __all__ = ["FidelityKernel", "GrassmannKernel"]
 
 
+def _check_length_scale(value: float) -> None:
+    # (bool(): numpy's isscalar would narrow value to types that `> 0` does not take)
+    if not (bool(np.isscalar(value)) and value > 0):
+        raise ValueError(f"length_scale must be a positive scalar, got {value!r}")
+
+
 def _check_bounds(name: str, bounds) -> None:
     if isinstance(bounds, str):
         if bounds != "fixed":
@@ -75,8 +81,7 @@ class GrassmannKernel(NormalizedKernelMixin, Kernel):
 
     def _validate(self) -> None:
         _check_dims(self.sim_dim, self.control_dim)
-        if not (np.isscalar(self.length_scale) and self.length_scale > 0):
-            raise ValueError(f"length_scale must be a positive scalar, got {self.length_scale!r}")
+        _check_length_scale(self.length_scale)
         _check_bounds("length_scale_bounds", self.length_scale_bounds)
 
     def __call__(self, X, Y=None, eval_gradient: bool = False):
@@ -153,8 +158,7 @@ class FidelityKernel(NormalizedKernelMixin, Kernel):
 
     def __call__(self, X, Y=None, eval_gradient: bool = False):
         """Kernel matrix k(z_X, z_Y) and, if asked, its gradient w.r.t. log(h)."""
-        if not (np.isscalar(self.length_scale) and self.length_scale > 0):
-            raise ValueError(f"length_scale must be a positive scalar, got {self.length_scale!r}")
+        _check_length_scale(self.length_scale)
         _check_bounds("length_scale_bounds", self.length_scale_bounds)
         zx = self._column(X)
         if Y is not None and eval_gradient:

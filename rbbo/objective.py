@@ -166,6 +166,8 @@ def _check_env_keywords(env_id: str, kwargs: dict[str, Any], set_here=SET_BY_RBB
     entry = gym.spec(env_id).entry_point
     try:
         creator = gym.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
+        if creator is None:  # (an id registered without an entry point: let gym.make say it)
+            return
         params = inspect.signature(creator).parameters
     except (ImportError, AttributeError, TypeError, ValueError):  # let gym.make say it
         return

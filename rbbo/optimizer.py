@@ -54,7 +54,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import asdict, replace
 from typing import Any
 
@@ -98,6 +98,12 @@ def _is_duplicate(basis: np.ndarray, t: float, taken: list[tuple[np.ndarray, flo
         return False
     d2 = projection_sq_distances(basis[None], np.stack(same_t))
     return bool(d2.min() < DUPLICATE_DISTANCE**2)
+
+
+def _ok_R(evaluation: Evaluation) -> float:
+    """R of an 'ok' evaluation (which Evaluation checks is a finite number)."""
+    assert evaluation.R is not None
+    return evaluation.R
 
 
 class EvaluationsFailing(RuntimeError):
@@ -184,8 +190,10 @@ class RBBO:
         if not fitted:
             return
         latest = max(fitted, key=lambda e: e.index)
+        record: dict[str, Any] | None = latest.gp  # (read from JSON: its keys are checked here)
+        assert record is not None  # (fitted holds records with one)
         try:
-            hyperparameters = GPHyperparameters(**latest.gp)
+            hyperparameters = GPHyperparameters(**record)
         except TypeError:
             return  # another version's record: the defaults, as before the record existed
         cfg = self.config
@@ -277,7 +285,7 @@ class RBBO:
         gp = self.fit()
         if gp is None:  # fewer than two observations: the best one at T_max
             cands = [e for e in data if math.isclose(e.T, self.config.t_max)]
-            return max(cands, key=lambda e: e.R) if cands else None
+            return max(cands, key=_ok_R) if cands else None
         mu, _ = gp.predict(np.stack([e.basis for e in data]), 1.0)
         return data[int(np.argmax(mu))]
 
@@ -301,6 +309,7 @@ class RBBO:
             else:
                 start = time.perf_counter()
                 basis, t, value, skipped = self._propose(gp, rng)
+                assert gp.hyperparameters is not None  # (fit() fitted it)
                 info.update(acq_s=time.perf_counter() - start, acq_value=value,
                             gp=asdict(gp.hyperparameters))  # fmt: skip
                 kind = "acquisition"
@@ -466,7 +475,7 @@ class RBBO:
         if budget_s is not None and not _real("budget_s", budget_s) > 0:
             raise ValueError(f"budget_s must be > 0 seconds, got {budget_s!r}")
         own = executor is None
-        if own:
+        if executor is None:
             if objective is None:
                 raise ValueError("give an objective or an executor")
             if not callable(objective):
@@ -488,7 +497,7 @@ class RBBO:
         ok = False
         with self._session_ending():
             try:
-                in_flight = {}
+                in_flight: dict[Future, Proposal] = {}
                 while True:
                     while (
                         len(in_flight) < executor.workers
@@ -698,8 +707,8 @@ class RBBO:
         if r_star is not None and (best is None or not np.array_equal(r_star.basis, best.basis)):
             r_star = None  # measured for an earlier recommendation
         improvement = None
-        if r_init is not None and r_star is not None and r_init.R > 0:
-            improvement = 100.0 * (r_star.R / r_init.R - 1.0)
+        if r_init is not None and r_star is not None and _ok_R(r_init) > 0:
+            improvement = 100.0 * (_ok_R(r_star) / _ok_R(r_init) - 1.0)
         evaluations = self.evaluations
         return RBBOResult(
             best_basis=None if best is None else best.basis,

@@ -39,7 +39,13 @@ def source_version() -> str:
         # whose commit is not this code's
         return text
     try:
-        run = {"cwd": root, "capture_output": True, "text": True, "timeout": 10, "check": True}
+        run: dict[str, Any] = {
+            "cwd": root,
+            "capture_output": True,
+            "text": True,
+            "timeout": 10,
+            "check": True,
+        }
         commit = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], **run).stdout.strip()
         dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--",
                                 *_CODE_PATHS], **run).stdout.strip()  # fmt: skip

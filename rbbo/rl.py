@@ -240,7 +240,9 @@ def _make_env(env_id: str, basis: np.ndarray, env_kwargs: dict, rescale: bool, *
     # SB3's policies act in [-1, 1]; the env's box is physical (± action_bound)
     if not rescale:
         return env
-    one = np.ones(env.action_space.shape, dtype=env.action_space.dtype)  # float: a cast warning
+    box = env.action_space
+    assert isinstance(box, gym.spaces.Box)  # (softrom's envs act in a Box, as RescaleAction needs)
+    one = np.ones(box.shape, dtype=box.dtype)  # float: a cast warning
     return gym.wrappers.RescaleAction(env, -one, one)
 
 
@@ -617,8 +619,8 @@ def _run_jobs(jobs: list[tuple[str, tuple]], workers: int, progress: bool) -> li
         raise
     pool.shutdown()
     if errors:
-        label, exc = errors[0]
-        raise RuntimeError(f"baseline job {label!r} failed: {exc}") from exc
+        label, error = errors[0]
+        raise RuntimeError(f"baseline job {label!r} failed: {error}") from error
     return [results[i] for i in range(len(jobs))]
 
 

@@ -19,7 +19,7 @@ import time
 from collections import deque
 from concurrent.futures import Future
 from dataclasses import dataclass
-from multiprocessing.connection import wait
+from multiprocessing.connection import Connection, wait
 
 from .base import EvaluationTask, Executor, evaluate_task, failed
 
@@ -50,7 +50,7 @@ def _worker_main(conn, objective, name: str) -> None:
 class _Slot:
     number: int
     process: mp.process.BaseProcess | None = None
-    conn: object = None
+    conn: Connection | None = None
     task: EvaluationTask | None = None
     future: Future | None = None
     started: float = 0.0
@@ -61,6 +61,11 @@ class _Slot:
     @property
     def name(self) -> str:
         return f"process-{self.number}" + (f".{self.restarts}" if self.restarts else "")
+
+    def live(self) -> tuple[mp.process.BaseProcess, Connection]:
+        """The process and pipe of a started slot (one busy or starting)."""
+        assert self.process is not None and self.conn is not None
+        return self.process, self.conn
 
 
 def _exit_code(process, wait_s: float = 2.0) -> int | None:
@@ -115,8 +120,12 @@ class ProcessExecutor(Executor):
     # -- worker management ----------------------------------------------------------------
     def _start(self, slot: _Slot) -> None:
         parent, child = self._ctx.Pipe()
-        process = self._ctx.Process(target=_worker_main, args=(child, self.objective, slot.name),
-                                    name=f"rbbo-{slot.name}", daemon=True)  # fmt: skip
+        # (typeshed's BaseContext, what get_context(str) returns, lacks the Process that every
+        # concrete context has)
+        process = self._ctx.Process(  # type: ignore[attr-defined]
+            target=_worker_main, args=(child, self.objective, slot.name),
+            name=f"rbbo-{slot.name}", daemon=True,
+        )  # fmt: skip
         process.start()
         child.close()
         slot.process, slot.conn, slot.ready = process, parent, False
@@ -137,9 +146,11 @@ class ProcessExecutor(Executor):
 
     def _finish(self, slot: _Slot, outcome) -> None:
         future, slot.future, slot.task = slot.future, None, None
+        assert future is not None  # (a busy slot's)
         future.set_result(outcome)
 
     def _fail_and_replace(self, slot: _Slot, error: str) -> None:
+        assert slot.task is not None  # (a busy slot's)
         outcome = failed(slot.task, slot.name, time.monotonic() - slot.started, error)
         self._stop(slot, kill=True)
         self._finish(slot, outcome)
@@ -157,7 +168,7 @@ class ProcessExecutor(Executor):
                         continue
                     slot.task, slot.future, slot.started = task, future, time.monotonic()
                     try:
-                        slot.conn.send(task)
+                        slot.live()[1].send(task)
                     except (OSError, ValueError) as exc:  # the worker died while idle
                         self._fail_and_replace(slot, f"could not reach the worker: {exc}")
 
@@ -174,9 +185,10 @@ class ProcessExecutor(Executor):
             with self._lock:
                 if self._closing and not busy and not self._queue:
                     return
-            waits = [self._wake_r]
+            waits: list[Connection | int] = [self._wake_r]
             for slot in busy + starting:
-                waits += [slot.conn, slot.process.sentinel]
+                process, conn = slot.live()
+                waits += [conn, process.sentinel]
             timeout = 0.5
             if self.timeout_s is not None and busy:
                 now = time.monotonic()
@@ -191,13 +203,14 @@ class ProcessExecutor(Executor):
                 self._check(slot, ready)
 
     def _check_start(self, slot: _Slot, ready) -> None:
+        process, conn = slot.live()
         try:
-            if (slot.conn in ready or slot.conn.poll()) and slot.conn.recv() == "ready":
+            if (conn in ready or conn.poll()) and conn.recv() == "ready":
                 slot.ready, slot.failed_starts = True, 0
                 return
         except (EOFError, OSError):
             pass
-        if slot.process.is_alive():
+        if process.is_alive():
             return
         code = _exit_code(slot.process)
         self._stop(slot, kill=True)
@@ -219,15 +232,16 @@ class ProcessExecutor(Executor):
                 future.set_result(failed(task, slot.name, 0.0, self._broken))
 
     def _check(self, slot: _Slot, ready) -> None:
-        if slot.conn in ready or slot.conn.poll():
+        process, conn = slot.live()
+        if conn in ready or conn.poll():
             try:
-                outcome = slot.conn.recv()
+                outcome = conn.recv()
             except (EOFError, OSError):
                 code = _exit_code(slot.process)
                 self._fail_and_replace(slot, f"worker crashed (exit code {code})")
                 return
             self._finish(slot, outcome)
-        elif not slot.process.is_alive():
+        elif not process.is_alive():
             self._fail_and_replace(slot, f"worker crashed (exit code {_exit_code(slot.process)})")
         elif self.timeout_s is not None and time.monotonic() - slot.started >= self.timeout_s:
             self._fail_and_replace(slot, f"timed out after {self.timeout_s:g} s")

@@ -14,6 +14,7 @@ import time
 from collections import deque
 from concurrent.futures import Future
 from dataclasses import dataclass
+from typing import Any
 
 from .base import EvaluationTask, Executor, evaluate_task, failed
 
@@ -45,8 +46,9 @@ class _Worker:
 @dataclass
 class _Slot:
     number: int
-    actor: object = None
-    ref: object = None
+    # a ray ActorHandle and ObjectRef (Any: ray is imported only when the executor is made)
+    actor: Any = None
+    ref: Any = None
     task: EvaluationTask | None = None
     future: Future | None = None
     started: float = 0.0
@@ -83,7 +85,7 @@ class RayExecutor(Executor):
         self._ray = ray
         self._owns_ray = False
         if not ray.is_initialized():
-            kwargs = {"include_dashboard": False, "log_to_driver": False}
+            kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
             if address is None:
                 kwargs["num_cpus"] = workers
             ray.init(address=address, **kwargs)
@@ -109,9 +111,11 @@ class RayExecutor(Executor):
 
     def _finish(self, slot: _Slot, outcome) -> None:
         future, slot.future, slot.task, slot.ref = slot.future, None, None, None
+        assert future is not None  # (a busy slot's)
         future.set_result(outcome)
 
     def _fail_and_replace(self, slot: _Slot, error: str) -> None:
+        assert slot.task is not None  # (a busy slot's)
         outcome = failed(slot.task, slot.name, time.monotonic() - slot.started, error)
         self._ray.kill(slot.actor, no_restart=True)
         slot.restarts += 1

@@ -63,16 +63,18 @@ def _directions(out: Path, plan: ReproducePlan) -> list[dict[str, Any]]:
 
 
 def _perturbation(out: Path) -> list[dict[str, Any]]:
-    rows = [{"offset_deg": float(r["offset_deg"]), "R_mean": float(r["R_mean"]),
-             "run": Path(r.get("run") or "").name}
-            for r in read_rows(out / "perturbation.csv")]  # fmt: skip
+    rows: list[dict[str, Any]] = [
+        {"offset_deg": float(r["offset_deg"]), "R_mean": float(r["R_mean"]),
+         "run": Path(r.get("run") or "").name}
+        for r in read_rows(out / "perturbation.csv")
+    ]  # fmt: skip
     base = [r["R_mean"] for r in rows if r["offset_deg"] == 0.0]
     for r in rows:
         r["fraction"] = r["R_mean"] / base[0] if base and base[0] > 0 else math.nan
     return sorted(rows, key=lambda r: r["offset_deg"])
 
 
-def _num(x: float, spec: str = ".4g") -> str:
+def _num(x: float | None, spec: str = ".4g") -> str:
     return "-" if x is None or not math.isfinite(x) else f"{x:{spec}}"
 
 
@@ -199,10 +201,10 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                   f"{len(measured)}"
                   + (f" ({pending} not yet confirmed)." if pending else "."), ""]  # fmt: skip
         for r in table:
-            run = f"runs/{Path(r['run']).name}"
-            lines.append(f"- {r['benchmark']}: [convergence]({run}/convergence.png), "
-                         f"[best basis]({run}/best_basis.npy), "
-                         f"[history]({run}/history.jsonl)")  # fmt: skip
+            link = f"runs/{Path(r['run']).name}"
+            lines.append(f"- {r['benchmark']}: [convergence]({link}/convergence.png), "
+                         f"[best basis]({link}/best_basis.npy), "
+                         f"[history]({link}/history.jsonl)")  # fmt: skip
         lines.append("")
         if per_run:
             lines += _across_runs(per_run, runs_markdown, plan)

@@ -51,6 +51,15 @@ Log = Callable[[str], None]
 _HEARTBEAT_S = 60.0
 
 
+def _run_spec(opt: RBBO) -> dict[str, Any]:
+    """The objective a resumed run's config.json records (every run made here has one)."""
+    store, spec = opt.store, opt.objective_spec
+    assert store is not None  # (RBBO.resume opens the run's store)
+    if spec is None:
+        raise RunDirectoryError(f"{store.path}/config.json does not say what the objective is")
+    return spec
+
+
 def _log_stderr(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
@@ -100,7 +109,7 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
                 raise RunDirectoryError(f"{path} was made with {name} = "
                                         f"{getattr(stored, name)!r}, this plan has "
                                         f"{getattr(config, name)!r}")  # fmt: skip
-        stored_spec = dict(opt.objective_spec)
+        stored_spec = dict(_run_spec(opt))
         recorded = stored_spec.pop("simulation_space", None)
         planner = stored_spec.pop("planner", None)
         recorded_apart = ("simulation_space", "planner")  # checked on their own below
@@ -222,6 +231,7 @@ def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Pa
     """The direction-0 B_c walking at offsets ±p from its direction (perturbation.csv)."""
     path = out / "perturbation.csv"
     opt = RBBO.resume(base_run, read_only=True)
+    assert opt.store is not None  # (resume opens the run's store)
     basis = opt.store.best_basis()
     if basis is None:
         raise RunDirectoryError(f"{base_run} has no best basis yet")
@@ -233,12 +243,12 @@ def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Pa
     if moved:
         log(f"[perturbation] {moved} offsets of another B_c moved to "
             "perturbation-superseded.csv; measuring them again")  # fmt: skip
-    base_deg = math.degrees(float((opt.objective_spec.get("env_kwargs") or {})
+    base_deg = math.degrees(float((_run_spec(opt).get("env_kwargs") or {})
                                   .get("direction", 0.0)))  # fmt: skip
     seeds = opt.config.fresh_seeds
     # the basis is replayed in the env as built now: it must be the run's simulation space
     _objective(plan, plan.direction_env, base_deg).expect_simulation_space(
-        opt.objective_spec.get("simulation_space")
+        _run_spec(opt).get("simulation_space")
     )
     done = {float(r["offset_deg"]) for r in read_rows(path)}
     offsets = [0.0] + [s * p for p in plan.perturbations_deg for s in (-1.0, 1.0)]
@@ -272,11 +282,19 @@ def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
         # overrides that are Gauss-Newton settings (horizon, knots, ...; not MPPI's samples).
         gn_fields = {f.name for f in fields(GaussNewtonSettings)}
         gn_changes = {k: v for k, v in plan.planner_kwargs.items() if k in gn_fields}
+
+        def cost_row(r: dict) -> None:
+            _append_row(cost_path, r)
+            log(f"[cost vs C] C = {r['C']}: {r['iteration_s']:.3f} s")
+
         gn_cost_against_c(env_id, todo, threads=plan.workers, planner_changes=gn_changes,
-                          on_row=lambda r: (_append_row(cost_path, r),
-                                            log(f"[cost vs C] C = {r['C']}: "
-                                                f"{r['iteration_s']:.3f} s")))  # fmt: skip
+                          on_row=cost_row)  # fmt: skip
     reward_path = folder / "reward_vs_c.csv"
+
+    def reward_row(r: dict) -> None:
+        _append_row(reward_path, r)
+        log(f"[reward vs C] C = {r['C']} seed {r['seed']}: {r['R_m']:+.4f} m")
+
     done_pairs = {(int(r["C"]), int(r["seed"])) for r in read_rows(reward_path)}
     for c in plan.reward_cs:
         seeds = [s for s in range(plan.study_seeds) if (c, s) not in done_pairs]
@@ -284,9 +302,7 @@ def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
             reward_against_c(env_id, [c], seeds, planner=plan.controller,
                              seconds=plan.study_seconds, start=plan.settle_time,
                              threads=plan.workers, planner_changes=dict(plan.planner_kwargs),
-                             on_row=lambda r: (_append_row(reward_path, r),
-                                               log(f"[reward vs C] C = {r['C']} seed "
-                                                   f"{r['seed']}: {r['R_m']:+.4f} m")))  # fmt: skip
+                             on_row=reward_row)  # fmt: skip
     return folder
 
 
@@ -300,7 +316,7 @@ def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
         bases = {"identity": np.eye(m)[:, :c]}
         best = out / "runs" / plan.table_run(bench) / "best_basis.npy"
         if best.exists():
-            recorded = RBBO.resume(best.parent, read_only=True).objective_spec
+            recorded = _run_spec(RBBO.resume(best.parent, read_only=True))
             _objective(plan, bench).expect_simulation_space(recorded.get("simulation_space"))
             basis = np.load(best)
             # named by its bytes: a longer Table I run may recommend another B_c, which then
@@ -368,11 +384,13 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     out.mkdir(parents=True, exist_ok=True)
     log = _tee(log, out / "reproduce.log")
     document = _load_plan(out, plan)
-    session = {"command": command or " ".join(sys.argv), "started": time.time(), "wall_s": 0.0,
-               "source": source_version(), "machine": machine_description(),
-               "budget_s": plan.budget_s, "direction_budget_s": plan.direction_budget_s,
-               "workers": plan.workers, "deterministic": plan.deterministic,
-               "stages": plan.ordered_stages(), "repeats": plan.repeats}  # fmt: skip
+    session: dict[str, Any] = {
+        "command": command or " ".join(sys.argv), "started": time.time(), "wall_s": 0.0,
+        "source": source_version(), "machine": machine_description(),
+        "budget_s": plan.budget_s, "direction_budget_s": plan.direction_budget_s,
+        "workers": plan.workers, "deterministic": plan.deterministic,
+        "stages": plan.ordered_stages(), "repeats": plan.repeats,
+    }  # fmt: skip
     document["sessions"].append(session)
     log(f"session {len(document['sessions'])}: {session['command']} ({session['source']})")
     started = time.perf_counter()

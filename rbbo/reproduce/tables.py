@@ -65,6 +65,7 @@ def table_row(benchmark: str, run_dir: Path) -> dict[str, Any]:
     from ..report import load
 
     opt = load(run_dir)
+    assert opt.store is not None  # (load resumes the run from its directory)
     result = opt.result()
     problem = opt.store.config.get("problem") or {}
     paper = PAPER_TABLE1[benchmark]

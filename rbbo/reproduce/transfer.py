@@ -38,10 +38,11 @@ def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Pa
     import gymnasium as gym
 
     from softrom_gym import map_control_basis
+    from softrom_gym.envs import SoftRobotEnv
 
     from ..optimizer import RBBO
     from ..store import RunDirectoryError
-    from .runner import _append_row, _evaluate_seeds, _objective, _supersede
+    from .runner import _append_row, _evaluate_seeds, _objective, _run_spec, _supersede
 
     path = out / "transfer.csv"
     m_to = plan.transfer_sim_dim
@@ -59,17 +60,20 @@ def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Pa
     if not todo:
         return path
     opt = RBBO.resume(run_dir, read_only=True)
+    assert opt.store is not None  # (resume opens the run's store)
     best = opt.store.best_basis()
     if best is None:
         raise RunDirectoryError(f"{run_dir} has no best basis yet: run its 'table' stage first")
     m_from, c = opt.config.sim_dim, opt.config.control_dim
     # map_control_basis reads B_r at M = m_from as built now: it must be the run's
     _objective(plan, benchmark, sim_dim=m_from).expect_simulation_space(
-        opt.objective_spec.get("simulation_space")
+        _run_spec(opt).get("simulation_space")
     )
     bases = {"identity": np.eye(m_from)[:, :c], "best": np.asarray(best)}
     env = gym.make(plan.env_id(benchmark))
-    robot = env.unwrapped.robot
+    unwrapped = env.unwrapped
+    assert isinstance(unwrapped, SoftRobotEnv)  # (a softrom benchmark)
+    robot = unwrapped.robot
     env.close()
     objective = _objective(plan, benchmark, sim_dim=m_to)
     seeds = opt.config.fresh_seeds
