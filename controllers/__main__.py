@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import softrom_gym  # noqa: F401  (registers the envs)
 
-    from .episode import run_episode
+    from .episode import EpisodeResult, run_episode
 
     env_id = args.env_id if "/" in args.env_id else f"softrom_gym/{args.env_id}"
     kwargs: dict[str, Any] = dict(args.env_kwarg)
@@ -151,9 +151,9 @@ def main(argv: list[str] | None = None) -> int:
                              seed=args.seed, progress=not args.no_progress,
                              video=args.video)  # fmt: skip
     except KeyboardInterrupt as interrupt:
-        result = getattr(interrupt, "result", None)
-        if result is not None and result.seconds > 0:
-            print(f"{env_id.split('/')[-1]} {result.summary()}")
+        partial: EpisodeResult | None = getattr(interrupt, "result", None)
+        if partial is not None and partial.seconds > 0:
+            print(f"{env_id.split('/')[-1]} {partial.summary()}")
         print("interrupted", file=sys.stderr)
         return 130
     finally:

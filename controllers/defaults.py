@@ -186,7 +186,8 @@ def _control_period(dt: Any) -> float:
     if (
         isinstance(dt, bool)
         or not isinstance(dt, numbers.Real)
-        or not (math.isfinite(dt) and dt > 0)
+        or not math.isfinite(dt)
+        or dt <= 0  # (numbers.Real declares <= and <, not >)
     ):
         raise ValueError(f"dt (the env's control period, s) must be a positive number, got {dt!r}")
     return float(dt)

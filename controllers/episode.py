@@ -149,7 +149,9 @@ def run_episode(
                                                "actions")}  # fmt: skip
     com = [api.center_of_mass()]
     states = [api.get_state()]
-    replan_steps, wall, records = [], [], []
+    replan_steps: list[int] = []
+    wall: list[float] = []
+    records: list[dict[str, Any]] = []
     frames = [env.render()] if video is not None else []
     bar = _progress(steps, progress, planner.name)
     stop = "time"
@@ -158,8 +160,10 @@ def run_episode(
                             replan_steps, wall, records, frames, bar)  # fmt: skip
     except KeyboardInterrupt as interrupt:
         # what was recorded is the user's: handed back with the interrupt, not lost to it
-        interrupt.result = _result(planner, api, env, record, com, states, replan_steps, wall,
-                                   records, "interrupted")  # fmt: skip
+        # (an attribute KeyboardInterrupt does not declare: the steps ride on the interrupt)
+        interrupt.result = _result(  # type: ignore[attr-defined]
+            planner, api, env, record, com, states, replan_steps, wall, records, "interrupted"
+        )
         if video is not None and len(frames) > 1:
             _write_video(video, frames, round(1.0 / api.dt))  # the frames so far
         raise

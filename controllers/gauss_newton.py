@@ -101,6 +101,7 @@ class GaussNewtonShooting(Planner):
     """Gauss-Newton shooting over spline knots (see the module docstring)."""
 
     name = "gn"
+    settings: GaussNewtonSettings
 
     def __init__(
         self, settings: GaussNewtonSettings | None = None, *, dt: float | None = None
@@ -123,18 +124,18 @@ class GaussNewtonShooting(Planner):
         grad_reward : (K C,) dR/dx
         jac_residuals : (n, K C) dr/dx
         """
-        x = (self.plan_.knots if knots is None else knots).ravel()
+        x = (self._plan.knots if knots is None else knots).ravel()
         h = self.settings.fd_step
         steps = np.where(x + h <= 1.0, h, -h)  # stay inside the bound
         batch = np.repeat(x[None], x.size + 1, axis=0)
         batch[1:] += np.diag(steps)
-        ev = self._evaluate(state, batch.reshape(-1, *self.plan_.knots.shape))
+        ev = self._evaluate(state, batch.reshape(-1, *self._plan.knots.shape))
         grad = (ev.reward[1:] - ev.reward[0]) / steps
         jac = ((ev.residuals[1:] - ev.residuals[0]) / steps[:, None]).T
         return ev, grad, jac
 
     def _optimise(self, state: Any) -> None:
-        s, plan = self.settings, self.plan_
+        s, plan = self.settings, self._plan
         shape = plan.knots.shape
         history, accepted = [], []
         for _ in range(s.iterations):
@@ -149,11 +150,11 @@ class GaussNewtonShooting(Planner):
             if s.max_step is not None:
                 steps = [dx * min(1.0, s.max_step / max(np.abs(dx).max(), 1e-300))
                          for dx in steps]  # fmt: skip
-            trials = [np.clip(x + dx, -1.0, 1.0) for dx in steps]
+            candidates = [np.clip(x + dx, -1.0, 1.0) for dx in steps]
             if s.explore:
                 noise = s.explore_noise * self.rng_.standard_normal((s.explore, x.size))
-                trials.extend(np.clip(x[None] + noise, -1.0, 1.0))
-            trials = np.stack(trials)
+                candidates.extend(np.clip(x[None] + noise, -1.0, 1.0))
+            trials = np.stack(candidates)
             trial = self._evaluate(state, trials.reshape(-1, *shape))
             best = int(np.argmax(trial.objective))
             if trial.objective[best] > j0:

@@ -56,6 +56,7 @@ class MPPI(Planner):
     """Model-predictive path integral control over spline knots (see the module docstring)."""
 
     name = "mppi"
+    settings: MPPISettings
 
     def __init__(self, settings: MPPISettings | None = None, *, dt: float | None = None) -> None:
         settings = MPPISettings() if settings is None else settings
@@ -64,7 +65,7 @@ class MPPI(Planner):
         super().__init__(settings, dt=dt)
 
     def _optimise(self, state: Any) -> None:
-        s, plan = self.settings, self.plan_
+        s, plan = self.settings, self._plan
         history = []
         for _ in range(s.iterations):
             eps = s.noise * self.rng_.standard_normal((s.samples, *plan.knots.shape))

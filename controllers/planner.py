@@ -235,6 +235,13 @@ class Planner(ABC):
         self.plan_: SplinePlan | None = None
         self.last_: dict[str, Any] = {}
 
+    @property
+    def _plan(self) -> SplinePlan:
+        """``plan_``, which :meth:`reset` makes."""
+        if self.plan_ is None:
+            raise RuntimeError(f"{type(self).__name__}.reset(env, seed) must be called first")
+        return self.plan_
+
     # ----------------------------------------------------------------- interface
     def reset(self, env: Any, seed: int | None = None) -> None:
         """Start a new episode: an empty (or gait-seeded) plan and a fresh random stream.
@@ -279,8 +286,8 @@ class Planner(ABC):
     def action(self, env: Any) -> np.ndarray:
         """f_c (C,) for the env's current step; the plan's clock then advances one step."""
         self._require_reset(env)
-        f_c = self.api_.bound * np.clip(self.plan_.value(0.0), -1.0, 1.0)
-        self.plan_.shift(1)
+        f_c = self.api_.bound * np.clip(self._plan.value(0.0), -1.0, 1.0)
+        self._plan.shift(1)
         return f_c
 
     def predict(self, env: Any) -> dict[str, Any]:
@@ -294,7 +301,7 @@ class Planner(ABC):
         self._require_reset(env)
         # step by step as action() reads the plan, on a copy (the batched spline matrix
         # differs from it by round-off, and then so would the course)
-        plan = copy.deepcopy(self.plan_)
+        plan = copy.deepcopy(self._plan)
         u = np.empty((1, plan.horizon, plan.control_dim))
         for t in range(plan.horizon):
             u[0, t] = np.clip(plan.value(0.0), -1.0, 1.0)
@@ -323,10 +330,10 @@ class Planner(ABC):
 
     def _evaluate(self, state: Any, knots: np.ndarray, horizon: int | None = None) -> Evaluation:
         """R - Λ of a batch of knots (B, K, C) from ``state``, in one batched rollout."""
-        plan = self.plan_
+        plan = self._plan
         if horizon is not None and horizon != plan.horizon:
             plan = SplinePlan(horizon, plan.num_knots, plan.control_dim, plan.kind, plan.period)
-            plan.offset = self.plan_.offset
+            plan.offset = self._plan.offset
         return self._evaluate_controls(state, np.clip(plan.controls(knots), -1.0, 1.0), horizon)
 
     def _evaluate_controls(self, state: Any, u: np.ndarray, horizon: int | None) -> Evaluation:
@@ -342,7 +349,8 @@ class Planner(ABC):
     def _seed_gait(self) -> None:
         """Replace the knots by the best sinusoid at the period's frequency (or at one of
         ``seed_periods``', whose cycle the plan then takes)."""
-        s, plan = self.settings, self.plan_
+        s, plan = self.settings, self._plan
+        assert s.period is not None  # (gait_seed needs one: the settings check it)
         horizon = s.seed_horizon or plan.horizon
         candidates, controls = [], []
         for period in (s.period, *s.seed_periods):

@@ -25,6 +25,8 @@ Knot values are in units of the action bound a (f_c = a F_c): planners work in [
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 __all__ = ["KINDS", "SplinePlan"]
@@ -38,7 +40,7 @@ def _positive_int(name: str, value: object) -> int:
     return int(value)
 
 
-def _positive_number(name: str, value: object) -> float:
+def _positive_number(name: str, value: Any) -> float:
     ok = isinstance(value, (int, float, np.number)) and not isinstance(value, bool)
     if not (ok and np.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
@@ -84,7 +86,11 @@ class SplinePlan:
             raise ValueError(f"kind must be one of {list(KINDS)}, got {kind!r}")
         self.kind = kind
         self.period = None if period is None else _positive_number("period", period)
-        limit, what = (self.horizon, "horizon") if period is None else (self.period, "period")
+        limit: float
+        if self.period is None:
+            limit, what = self.horizon, "horizon"
+        else:
+            limit, what = self.period, "period"
         if k > limit:
             raise ValueError(f"knots = {k} exceeds the {what} ({limit:g} steps)")
         self.knots = np.zeros((k, self.control_dim))
@@ -126,6 +132,8 @@ class SplinePlan:
             u = np.clip(u, 0.0, k - 1)  # hold the end values beyond the horizon
             j = np.minimum(np.floor(u).astype(int), k - 2)
         s = u - j
+        cols: tuple[np.ndarray, ...]
+        vals: tuple[np.ndarray, ...]
         if self.kind == "linear":
             cols = (j, j + 1)
             vals = (1.0 - s, s)
@@ -152,8 +160,8 @@ class SplinePlan:
         # The missing neighbours are the linear extrapolations 2 p_0 - p_1 and
         # 2 p_{K-1} - p_{K-2}: lines stay lines up to the ends.
         for edge, a, b in ((col < 0, 0, 1), (col >= k, k - 1, k - 2)):
-            np.add.at(w, (rows[edge], a), 2.0 * val[edge])
-            np.add.at(w, (rows[edge], b), -val[edge])
+            np.add.at(w[:, a], rows[edge], 2.0 * val[edge])
+            np.add.at(w[:, b], rows[edge], -val[edge])
 
     def matrix(self) -> np.ndarray:
         """S1, the (H, K) interpolation matrix from the plan's clock: F_c = S1 F~_c."""
