@@ -808,7 +808,7 @@ def _terminate_as_interrupt():
         yield
         return
 
-    stopping = []
+    stopping: list[int] = []
 
     def interrupt(signum, frame):
         # Once, for SIGTERM and SIGINT together: ``timeout`` (``-s INT`` too) signals the
