@@ -18,12 +18,14 @@
   their posterior mean, so parallel workers are sent to different places), maximises GP-UCB
   at the target fidelity on the Grassmannian, and picks T by BOCA (``fidelity="boca"``) or
   uses T_max (``"bo"``).
-- Every basis handed out is ``grassmann.canonical``'s representative of its subspace (the
-  identity basis is its own). The GP sees subspaces, but an episode sees the representative:
-  the env bounds each of its C coordinates (a box, rotated by B_c -> B_c Q) and the
-  planners sample and clip per coordinate, so two bases of one subspace reach different
-  forces and draw different MPC noise from one seed. With one representative per subspace
-  R(B_c, T, seed) is a function on Gr(M, C), as the kernel assumes.
+- The GP models R as a function of the subspace (the kernel sees B_c B_c^T), as the paper
+  does, but an episode runs the matrix the acquisition's optimiser stopped at: the env bounds
+  each of the C coordinates of f_c and the planners sample and clip per coordinate, so
+  B_c Q reaches other forces than B_c. Measured (``benchmarks/check_basis_representatives.py``)
+  R moves 3-4x more over representatives of one subspace than over seeds, and the GP takes
+  that for noise. Proposals near an incumbent start from its basis and keep its
+  orientation; one fixed representative per subspace (``grassmann.canonical``) was tried and
+  not kept (README, "Which basis of a subspace runs").
 - Every evaluation uses the same seeds (common random numbers), so bases are compared under
   the same MPC noise. A repeat would return the same R, so a proposal within
   ``DUPLICATE_DISTANCE`` of a basis evaluated or in flight at the same T is replaced by the
@@ -73,13 +75,7 @@ from .config import (
 )
 from .executors import Executor, ProcessExecutor, SerialExecutor
 from .gp import GPHyperparameters, GrassmannGP
-from .grassmann import (
-    canonical,
-    dimension,
-    identity_basis,
-    projection_sq_distances,
-    random_points,
-)
+from .grassmann import dimension, identity_basis, projection_sq_distances, random_points
 from .store import Evaluation, RunDirectoryError, RunStore
 
 __all__ = ["FIDELITIES", "RBBO", "EvaluationsFailing", "Proposal", "RBBOConfig", "RBBOResult"]
@@ -207,8 +203,7 @@ class RBBO:
         design = [(identity_basis(cfg.sim_dim, cfg.control_dim), cfg.t_max, "initial")]
         for i in range(cfg.n_init):
             t = cfg.t_max if cfg.fidelity == "bo" or i % 2 == 1 else cfg.t_min
-            point = canonical(random_points(cfg.sim_dim, cfg.control_dim, rng=rng))
-            design.append((point, t, "initial"))
+            design.append((random_points(cfg.sim_dim, cfg.control_dim, rng=rng), t, "initial"))
         return design
 
     # -- bookkeeping --------------------------------------------------------------------
@@ -317,7 +312,7 @@ class RBBO:
                     info["duplicates_skipped"] = skipped
                     if value is None:  # every local optimum had been evaluated
                         kind = "random"
-        proposal = Proposal(index, canonical(basis), float(t), cfg.crn_seeds, kind, info)
+        proposal = Proposal(index, basis, float(t), cfg.crn_seeds, kind, info)
         self.pending[index] = proposal
         self._next_index += 1
         return proposal
@@ -386,15 +381,13 @@ class RBBO:
     def _next_design_position(self) -> int | None:
         """The first initial-design point neither recorded nor pending, if any.
 
-        Matched by subspace, not by index: confirmations share the index sequence, and a
-        point lost in flight when a run stopped is proposed again when it resumes. (Runs
-        recorded before bases were canonical hold another representative of each point.)
+        Matched by basis, not by index: confirmations share the index sequence, and a point
+        lost in flight when a run stopped is proposed again when it resumes.
         """
         started = [e.basis for e in self.history if e.kind == "initial"]
         started += [p.basis for p in self.pending.values() if p.kind == "initial"]
-        started = [b for b in started if b.shape == self._initial[0][0].shape]
         for position, (basis, _, _) in enumerate(self._initial):
-            if not started or projection_sq_distances(basis[None], np.stack(started)).min() > 1e-12:
+            if not any(b.shape == basis.shape and np.array_equal(b, basis) for b in started):
                 return position
         return None
 

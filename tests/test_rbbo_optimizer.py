@@ -9,7 +9,6 @@ import textwrap
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -18,13 +17,7 @@ from rbbo import RBBO, RBBOConfig, SyntheticObjective
 from rbbo.baselines import random_search
 from rbbo.executors import Executor
 from rbbo.executors.base import evaluate_task
-from rbbo.grassmann import (
-    canonical,
-    identity_basis,
-    projection_distance,
-    random_points,
-    validate_basis,
-)
+from rbbo.grassmann import identity_basis, projection_distance, random_points, validate_basis
 from rbbo.store import RunDirectoryError
 
 # small, fast settings: tiny GPs, few acquisition starts
@@ -246,34 +239,6 @@ def test_a_resume_inside_the_initial_design_evaluates_every_design_point(tmp_pat
     assert len(initial) == len(design) == 6
     for basis in design:
         assert sum(np.array_equal(basis, b) for b in initial) == 1
-
-
-def test_every_proposal_is_its_subspaces_canonical_representative():
-    # The env bounds each coordinate of f_c and the planners sample per coordinate, so two
-    # bases of one subspace are two different episodes: RBBO evaluates one representative
-    # per subspace, as its kernel (a function of B_c B_c^T) assumes.
-    config = RBBOConfig(8, 3, n_init=3, fidelity="boca", t_min=2.0, t_max=4.0,
-                        max_evaluations=9, n_confirm=1, **FAST)  # fmt: skip
-    opt = RBBO(config)
-    opt.run(SyntheticObjective(8, 3, noise=0.01, t_max=4.0))
-    assert {e.kind for e in opt.history} >= {"initial", "acquisition", "confirm-best"}
-    for e in opt.history:
-        np.testing.assert_array_equal(canonical(e.basis), e.basis)
-    np.testing.assert_array_equal(opt.history[0].basis, identity_basis(8, 3))
-
-
-def test_a_design_point_recorded_as_another_representative_is_not_proposed_again():
-    # runs recorded before the canonical representatives hold other bases of the same
-    # design points: a resume must see them as evaluated
-    opt = RBBO(RBBOConfig(6, 2, n_init=3, max_evaluations=8, n_confirm=0, **FAST))
-    opt.ask()  # the identity
-    second = opt.ask()
-    q = np.array([[0.6, -0.8], [0.8, 0.6]])
-    opt.pending[second.index] = replace(second, basis=second.basis @ q)
-    third = opt.ask()
-    assert third.kind == "initial"
-    assert projection_distance(third.basis, second.basis) > 0.1
-    np.testing.assert_array_equal(third.basis, opt._initial[2][0])
 
 
 def test_a_run_whose_evaluations_all_fail_stops_with_the_reason(tmp_path):
