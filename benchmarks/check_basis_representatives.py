@@ -38,21 +38,29 @@ def representatives(basis: np.ndarray, rotations: int, seed: int) -> dict[str, n
     return reps
 
 
-def measure(run: Path, rotations: int, seeds: list[int]) -> None:
+def measure(run: Path, rotations: int, seeds: list[int], as_json: bool = False) -> None:
     config = json.loads((run / "config.json").read_text())
     settings = config["rbbo"]
     objective = make_objective(config["objective"], settings["sim_dim"], settings["control_dim"])
     basis = np.load(run / "best_basis.npy")
     t_max = float(settings["t_max"])
-    print(f"{run.name}: best basis of {run}, T = {t_max:g} s, seeds {seeds}")
+    if not as_json:
+        print(f"{run.name}: best basis of {run}, T = {t_max:g} s, seeds {seeds}")
     start = time.perf_counter()
-    values = []
+    values = {}
     for name, b in representatives(basis, rotations, seed=7).items():
         assert projection_distance(b, basis) < 1e-6  # one subspace
         row = [objective(b, t_max, s) for s in seeds]
-        values.append(row)
-        print(f"  {name:<11} " + "  ".join(f"{v:.4f}" for v in row) + f"   mean {np.mean(row):.4f}")
-    r = np.asarray(values)  # (representatives, seeds)
+        values[name] = row
+        if not as_json:
+            text = "  ".join(f"{v:.4f}" for v in row)
+            print(f"  {name:<11} {text}   mean {np.mean(row):.4f}")
+    r = np.asarray(list(values.values()))  # (representatives, seeds)
+    if as_json:
+        print(json.dumps({"run": str(run), "T": t_max, "seeds": seeds, "R": values,
+                          "sd_over_representatives": float(r.std(axis=0, ddof=1).mean()),
+                          "sd_over_seeds": float(r.std(axis=1, ddof=1).mean())}))  # fmt: skip
+        return
     print(f"  sd over representatives (mean over seeds) {r.std(axis=0, ddof=1).mean():.4f}; "
           f"sd over seeds (mean over representatives) {r.std(axis=1, ddof=1).mean():.4f}; "
           f"representative means {r.mean(axis=1).min():.4f}..{r.mean(axis=1).max():.4f} "
@@ -66,12 +74,13 @@ def main() -> None:
                    "runs of docs/reproduction-45m)")  # fmt: skip
     p.add_argument("--rotations", type=int, default=4, help="random B Q (default 4)")
     p.add_argument("--seeds", type=int, default=3, help="episode seeds (default 3)")
+    p.add_argument("--json", action="store_true", help="one JSON object per run")
     args = p.parse_args()
     runs = args.runs or [COMMITTED / "BeamWalk-v0-boca", COMMITTED / "CrossSwim-v0-boca"]
     for run in runs:
         if not (run / "best_basis.npy").exists():
             p.error(f"{run} has no best_basis.npy: not a finished rbbo run")
-        measure(run, args.rotations, [1001 + k for k in range(args.seeds)])
+        measure(run, args.rotations, [1001 + k for k in range(args.seeds)], args.json)
 
 
 if __name__ == "__main__":
