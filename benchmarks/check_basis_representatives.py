@@ -20,30 +20,23 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _runs import random_rotations, run_objective
 
 from rbbo.grassmann import canonical, projection_distance
-from rbbo.objective import make_objective
 
 COMMITTED = Path(__file__).resolve().parents[1] / "docs" / "reproduction-45m" / "runs"
 
 
 def representatives(basis: np.ndarray, rotations: int, seed: int) -> dict[str, np.ndarray]:
     """The stored basis, its canonical representative and ``rotations`` random B Q."""
-    rng = np.random.default_rng(seed)
     reps = {"stored": basis, "canonical": canonical(basis)}
-    c = basis.shape[1]
-    for k in range(rotations):
-        q, r = np.linalg.qr(rng.standard_normal((c, c)))
-        reps[f"rotated {k}"] = basis @ (q * np.sign(np.diag(r)))  # Haar on O(C)
+    rotated = random_rotations(basis, rotations, np.random.default_rng(seed))
+    reps.update({f"rotated {k}": b for k, b in enumerate(rotated)})
     return reps
 
 
 def measure(run: Path, rotations: int, seeds: list[int], as_json: bool = False) -> None:
-    config = json.loads((run / "config.json").read_text())
-    settings = config["rbbo"]
-    objective = make_objective(config["objective"], settings["sim_dim"], settings["control_dim"])
-    basis = np.load(run / "best_basis.npy")
-    t_max = float(settings["t_max"])
+    objective, t_max, basis, _ = run_objective(run)
     if not as_json:
         print(f"{run.name}: best basis of {run}, T = {t_max:g} s, seeds {seeds}")
     start = time.perf_counter()

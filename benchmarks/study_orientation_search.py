@@ -20,25 +20,16 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from _runs import random_rotations, run_objective
 
 SEARCH_SEED0 = 500_000  # the search's seeds: 500000, 500001, ...
 TEST_SEED0 = 2_000_000  # the test's: beyond every run's CRN and confirmation seeds
 
 
 def study_run(run: Path, rotations: int, search_seeds: int, test_seeds: int) -> dict:
-    from rbbo.objective import make_objective
-
-    config = json.loads((run / "config.json").read_text())
-    settings = config["rbbo"]
-    objective = make_objective(config["objective"], settings["sim_dim"], settings["control_dim"])
-    t_max = float(settings["t_max"])
-    basis = np.load(run / "best_basis.npy")
+    objective, t_max, basis, settings = run_objective(run)
     rng = np.random.default_rng([settings["seed"], 77])
-    c = basis.shape[1]
-    candidates = [basis]
-    for _ in range(rotations):
-        q, r = np.linalg.qr(rng.standard_normal((c, c)))
-        candidates.append(basis @ (q * np.sign(np.diag(r))))  # Haar on O(C)
+    candidates = [basis, *random_rotations(basis, rotations, rng)]
     search = [SEARCH_SEED0 + k for k in range(search_seeds)]
     means = [float(np.mean([objective(b, t_max, s) for s in search])) for b in candidates]
     kept = int(np.argmax(means))
