@@ -319,8 +319,7 @@ class Planner(ABC):
     def _optimise(self, state: Any) -> None: ...
 
     def _require_reset(self, env: Any = None) -> None:
-        if self.plan_ is None:
-            raise RuntimeError(f"{type(self).__name__}.reset(env, seed) must be called first")
+        self._plan  # noqa: B018  (raises before reset)
         # The plan lives in the env it was reset on: planning another env's state from it
         # would be silently wrong.
         if env is not None and getattr(env, "unwrapped", env) is not self.api_.unwrapped:
