@@ -7,9 +7,11 @@ the same OUT continues from the latest checkpoint and refuses another env, basis
 larger ``steps`` trains the same run further, SAC keeping the replay-buffer size it was
 created with, the oldest transitions replaced) and
 ``progress.jsonl`` (append-only: per checkpoint the env steps, the training wall time and the
-evaluation). Every checkpoint is evaluated, so the table shows distance against simulator
-steps spent. The MPC planner (``controllers.default_planner(env_id, "mppi")``) runs beside
-it on the same bases, seeds and seconds; its results are cached in ``OUT/mppi-<basis>/``.
+evaluation), and SB3's own training log, ``sb3/from_step_<n>/progress.csv`` per training
+segment (losses, entropy, fps; a resume starts a new one). Every checkpoint is evaluated, so
+the table shows distance against simulator steps spent. The MPC planner
+(``controllers.default_planner(env_id, "mppi")``) runs beside it on the same bases, seeds and
+seconds; its results are cached in ``OUT/mppi-<basis>/``.
 
 Evaluation: the deterministic policy, one episode of ``seconds`` from ``env.reset(seed=s)``
 per seed; the score is the distance along the task direction from ``settle_time`` to the end
@@ -391,6 +393,17 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
 
     bar, trained = None, model.num_timesteps < steps
     if trained:
+        # SB3's own training log (losses, entropy, fps) kept beside ours, one file per
+        # training segment so that a resume never overwrites one; left to itself, SB3 would
+        # make an empty folder in the system's temporary directory on every learn().
+        from stable_baselines3.common.logger import configure
+
+        segment = folder / "sb3" / f"from_step_{model.num_timesteps}"
+        tries = 1
+        while segment.exists():  # a segment killed before its first checkpoint, run again
+            tries += 1
+            segment = segment.with_name(f"from_step_{model.num_timesteps}-{tries}")
+        model.set_logger(configure(str(segment), ["csv"]))
         if progress:
             from tqdm import tqdm
 
@@ -400,6 +413,7 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
                     reset_num_timesteps=not done)  # fmt: skip
         if bar is not None:
             bar.close()
+        model.logger.close()
     n = model.num_timesteps
     if trained:
         checkpoint(model)

@@ -23,9 +23,14 @@ def _lines(path):
 
 
 def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
+    import tempfile
+
     import stable_baselines3 as sb3
 
     out = tmp_path / "bl"
+    scratch = tmp_path / "tmp"  # SB3 left to itself makes a folder here per learn()
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
     assert main(["baselines", "CrossSwim-v0", "--algo", "ppo,sac", "--out", str(out), *SMALL]) == 0
     table = capsys.readouterr().out
     assert "mppi" in table and "ppo" in table and "sac" in table and "the MPC's" in table
@@ -45,6 +50,12 @@ def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
         assert progress[1]["physics_steps"] == 256 * 5 and len(progress[1]["distance"]) == 2
     assert [p.name for p in (out / "sac-identity/checkpoints").glob("*.pkl")] == [
         "step_256_replay.pkl"]  # fmt: skip
+    # SB3's own log, in the run's folder and nowhere else (SAC writes one every 4 episodes:
+    # none in these 256 steps)
+    with open(out / "ppo-identity/sb3/from_step_0/progress.csv", newline="") as f:
+        assert [int(r["time/total_timesteps"]) for r in csv.DictReader(f)] == [128, 256]
+    assert (out / "sac-identity/sb3/from_step_0/progress.csv").is_file()
+    assert not list(scratch.glob("SB3-*"))
 
     # Same command again: nothing is trained (or planned) again, the table is the same.
     def refuse(*args, **kwargs):
@@ -68,6 +79,8 @@ def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
     assert progress[2]["wall_s"] > progress[1]["wall_s"]
     model = sb3.PPO.load(out / "ppo-identity/final.zip")
     assert model.num_timesteps == 384 and model._n_updates == 3 * model.n_epochs
+    assert sorted(p.name for p in (out / "ppo-identity/sb3").iterdir()) == [
+        "from_step_0", "from_step_256"]  # fmt: skip
     capsys.readouterr()
     # ... and refuses another seed in the same OUT
     assert main(["baselines", ENV, "--algo", "ppo", "--out", str(out), *more, "--seed", "1"]) == 2

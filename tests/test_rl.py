@@ -20,7 +20,8 @@ def test_sb3_check_env(env_id):
     check_env(gym.make(env_id).unwrapped, warn=True)
 
 
-def test_ppo_smoke_run_on_beam_walk():
+def test_ppo_smoke_run_on_beam_walk(tmp_path, monkeypatch):
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path))  # not a new folder in /tmp per run
     base = gym.make("softrom_gym/BeamWalk-v0")
     one = np.ones(base.action_space.shape, dtype=np.float32)
     env = gym.wrappers.RescaleAction(base, -one, one)
