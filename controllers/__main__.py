@@ -50,8 +50,12 @@ def _registered(env_id: str, given: str) -> str:
 
 
 def _parser() -> argparse.ArgumentParser:
+    # options only as spelled, as `rbbo` takes them: a prefix such as --sample would start
+    # meaning another option the day one is added, and a script that ran would mean another run
     p = argparse.ArgumentParser(
-        prog="python -m controllers", description=__doc__.split("\n")[0].replace("``", "")
+        prog="python -m controllers",
+        description=__doc__.split("\n")[0].replace("``", ""),
+        allow_abbrev=False,
     )
     p.add_argument("env_id", help=f"a benchmark ({', '.join(sorted(DEFAULTS))}: tuned "
                    "defaults) or another softrom env, e.g. SoftRobot-v0 with --env-kwarg "

@@ -10,6 +10,7 @@ contact arrives with the reduced model). The printout compares the centre of mas
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 import numpy as np
@@ -18,13 +19,18 @@ from softrom_gym.robots import ROBOTS
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="Drop one soft robot and report its motion.")
+    parser = argparse.ArgumentParser(
+        description="Drop one soft robot and report its motion.", allow_abbrev=False
+    )
     parser.add_argument("--robot", default="cross", choices=sorted(ROBOTS))
     parser.add_argument("--seconds", type=float, default=0.5, help="simulated time, s")
     parser.add_argument("--dt", type=float, default=1.0 / 200.0, help="time step, s")
     args = parser.parse_args(argv)
-    if not args.seconds > 0 or not args.dt > 0:
-        parser.error("--seconds and --dt must be > 0")
+    for flag, value in (("--seconds", args.seconds), ("--dt", args.dt)):
+        if not (math.isfinite(value) and value > 0):
+            parser.error(f"{flag} must be a positive number, got {value}")
+    if args.dt > args.seconds:
+        parser.error(f"--dt {args.dt} is longer than --seconds {args.seconds}: no step to take")
 
     robot = ROBOTS[args.robot]()
     fem = robot.fem_model()

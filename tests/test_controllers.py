@@ -386,6 +386,11 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
         assert exc.value.code == 2
         err = capsys.readouterr().err
         assert f"--seconds must be a positive number, got {float(bad[1])}" in err
+    # options only as spelled, as rbbo takes them
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["BeamWalk-v0", "--second", "1"])
+    assert exc.value.code == 2
+    assert "unrecognized arguments: --second 1" in capsys.readouterr().err
 
 
 def test_cli_runs_a_robot_of_your_own(capsys):

@@ -264,3 +264,23 @@ def test_supernodal_step_matches_reference_on_a_larger_block():
             x, v = fem.step(x, v, 0.005)
         results.append(x)
     np.testing.assert_allclose(results[1], results[0], rtol=0, atol=1e-10)
+
+
+def test_demo_drops_a_robot_and_names_bad_arguments(capsys):
+    from softrom_gym.demo import main
+
+    main(["--robot", "beam", "--seconds", "0.1"])
+    lines = capsys.readouterr().out.splitlines()
+    t, com = map(float, lines[-2].split()[:2])
+    # no ground: the centre of mass falls as implicit Euler's free fall, g dt^2 n (n + 1) / 2
+    # after n steps, whatever the squashed body's elastic forces do (printed to 0.1 mm)
+    assert t == pytest.approx(0.1)
+    assert com == pytest.approx(-9.81 * 0.005**2 * 20 * 21 / 2, abs=6e-5)
+    for bad, message in ((["--seconds", "inf"], "--seconds must be a positive number, got inf"),
+                         (["--dt", "0"], "--dt must be a positive number, got 0.0"),
+                         (["--dt", "1"], "--dt 1.0 is longer than --seconds 0.5"),
+                         (["--second", "1"], "unrecognized arguments: --second 1")):  # fmt: skip
+        with pytest.raises(SystemExit) as exc:
+            main(bad)
+        assert exc.value.code == 2
+        assert message in capsys.readouterr().err
