@@ -91,7 +91,9 @@ class PlannerSettings:
     seed_periods : tuple of float
         Other gait cycles (env steps, each at least ``knots``) the gait seed tries beside
         ``period``; the best seed's cycle becomes the plan's period for the episode. For a
-        robot whose resonance is not known (the benchmarks' are tuned: empty).
+        robot whose resonance is not known (the benchmarks' are tuned: empty). The settings
+        stay as given (as scikit-learn's parameters do): the cycle chosen is the planner's
+        ``plan_.period`` and ``seed_["period"]``.
     threads : int or None
         C++ rollout threads (None: the CPUs this process may run on, its affinity).
         Results do not depend on it.
@@ -219,6 +221,8 @@ class Planner(ABC):
     another rollout), ``rollouts`` and ``wall_s``; MPPI adds ``effective_samples`` (1 / sum
     of the squared weights), Gauss-Newton ``objectives`` (J before and after each iteration),
     ``accepted`` ("step", "explore" or "none" per iteration) and ``damping`` (mu after them).
+    With ``gait_seed``, :meth:`reset` leaves ``seed_``: the gait chosen (``gait``, its label),
+    its ``objective`` and its cycle (``period``, env steps).
     """
 
     name = "planner"
@@ -373,4 +377,5 @@ class Planner(ABC):
             self.plan_ = plan = SplinePlan(plan.horizon, plan.num_knots, plan.control_dim,
                                            plan.kind, period)  # fmt: skip
         plan.knots = knots.copy()
-        self.seed_ = {"gait": gait.label(), "objective": float(ev.objective[best])}
+        self.seed_ = {"gait": gait.label(), "objective": float(ev.objective[best]),
+                      "period": float(period)}  # fmt: skip

@@ -474,6 +474,7 @@ def test_the_gait_seed_picks_the_cycle_among_seed_periods(walker):
     per_cycle = len(gait_grid(3, (1.0,), settings.seed_amplitudes))
     assert scored == [3 * per_cycle]  # three cycles' candidates, one batched rollout
     assert planner.plan_.period == 3 and planner.plan_.horizon == 12
+    assert planner.seed_["period"] == 3 and planner.settings.period == 6  # as given
     with pytest.raises(ValueError, match=r"seed_periods must be numbers of env steps >= knots"):
         MPPISettings(knots=6, period=20, gait_seed=True, seed_periods=(4,))
     with pytest.raises(ValueError, match="set gait_seed=True"):
