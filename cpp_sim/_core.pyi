@@ -92,7 +92,9 @@ class FEMModel:
         """
     @property
     def max_newton_iterations(self) -> int:
-        ...
+        """
+        Cap on Newton iterations per step (at most 1000: a step is interrupted only between steps).
+        """
     @max_newton_iterations.setter
     def max_newton_iterations(self, arg1: typing.Any) -> None:
         ...
@@ -351,7 +353,7 @@ class ReducedModel:
     @property
     def max_newton_iterations(self) -> typing.Any:
         """
-        cap on implicit-solve iterations per step
+        cap on implicit-solve iterations per step (at most 1000: a step is interrupted only between steps)
         """
     @max_newton_iterations.setter
     def max_newton_iterations(self, arg1: typing.Any) -> None:
@@ -367,7 +369,7 @@ class ReducedModel:
     @property
     def max_stagger_iterations(self) -> typing.Any:
         """
-        cap on staggered-projection iterations per step
+        cap on staggered-projection iterations per step (at most 10000: a step is interrupted only between steps)
         """
     @max_stagger_iterations.setter
     def max_stagger_iterations(self, arg1: typing.Any) -> None:
@@ -540,7 +542,7 @@ class ReducedConfig:
     @property
     def max_newton_iterations(self) -> typing.Any:
         """
-        cap on implicit-solve iterations per step
+        cap on implicit-solve iterations per step (at most 1000: a step is interrupted only between steps)
         """
     @max_newton_iterations.setter
     def max_newton_iterations(self, arg1: typing.Any) -> None:
@@ -556,7 +558,7 @@ class ReducedConfig:
     @property
     def max_stagger_iterations(self) -> typing.Any:
         """
-        cap on staggered-projection iterations per step
+        cap on staggered-projection iterations per step (at most 10000: a step is interrupted only between steps)
         """
     @max_stagger_iterations.setter
     def max_stagger_iterations(self, arg1: typing.Any) -> None:

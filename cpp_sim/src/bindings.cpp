@@ -174,10 +174,12 @@ density : float
       .def_property(
           "max_newton_iterations", [](const FEMModel& f) { return f.max_newton_iterations; },
           [](FEMModel& f, py::handle x) {
-            const int n = v::integer_at_least(x, "max_newton_iterations", 1);
+            const int n = v::integer_at_least(x, "max_newton_iterations", 1, v::kMaxNewtonCap);
             std::lock_guard<std::mutex> lock(f.mutex());
             f.max_newton_iterations = n;
-          })
+          },
+          "Cap on Newton iterations per step (at most 1000: a step is interrupted only between "
+          "steps).")
       .def_property(
           "solver", [](const FEMModel& f) { return solver_name(f.solver()); },
           [](FEMModel& f, py::handle x) {

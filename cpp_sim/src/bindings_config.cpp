@@ -64,11 +64,11 @@ const char* contact_name(ContactModel c) {
         },                                                                                \
         doc                                                                               \
   }
-#define SOFTROM_COUNT(field, doc)                                                         \
-  Setting {                                                                               \
-    #field, [](const ReducedConfig& c) -> py::object { return py::int_(c.field); },       \
-        [](ReducedConfig& c, py::handle x) { c.field = v::integer_at_least(x, #field, 1); }, \
-        doc                                                                               \
+#define SOFTROM_COUNT(field, high, doc)                                                      \
+  Setting {                                                                                 \
+    #field, [](const ReducedConfig& c) -> py::object { return py::int_(c.field); },         \
+        [](ReducedConfig& c, py::handle x) { c.field = v::integer_at_least(x, #field, 1, high); }, \
+        doc                                                                                 \
   }
 
 const std::vector<Setting>& settings() {
@@ -118,11 +118,15 @@ const std::vector<Setting>& settings() {
       SOFTROM_NON_NEGATIVE(damping_beta, "Rayleigh damping times the rest stiffness K_0, s"),
       SOFTROM_POSITIVE(newton_tolerance,
                        "the implicit solve stops when max |dv| / sqrt(m) < this, m/s"),
-      SOFTROM_COUNT(max_newton_iterations, "cap on implicit-solve iterations per step"),
+      SOFTROM_COUNT(max_newton_iterations, v::kMaxNewtonCap,
+                    "cap on implicit-solve iterations per step (at most 1000: a step is "
+                    "interrupted only between steps)"),
       SOFTROM_POSITIVE(contact_tolerance,
                        "staggered projection stops when contact-node velocities change less "
                        "than this, m/s"),
-      SOFTROM_COUNT(max_stagger_iterations, "cap on staggered-projection iterations per step"),
+      SOFTROM_COUNT(max_stagger_iterations, v::kMaxStaggerCap,
+                    "cap on staggered-projection iterations per step (at most 10000: a step "
+                    "is interrupted only between steps)"),
       {"stabilization", [](const ReducedConfig& c) -> py::object { return py::float_(c.stabilization); },
        [](ReducedConfig& c, py::handle x) {
          const double b = v::real(x, "stabilization");

@@ -105,9 +105,10 @@ inline double real(py::handle x, const char* name) {
                        std::string(py::repr(x)));
 }
 
-// A Python integer (numpy's too: __index__), never a bool, within [low, INT_MAX], or an error
+// A Python integer (numpy's too: __index__), never a bool, within [low, high], or an error
 // naming the setting.
-inline int integer_at_least(py::handle x, const char* name, int low) {
+inline int integer_at_least(py::handle x, const char* name, int low,
+                            int high = std::numeric_limits<int>::max()) {
   if (py::isinstance<py::bool_>(x) || !PyIndex_Check(x.ptr()))
     throw py::type_error(std::string(name) + " must be an integer, got " +
                          std::string(py::repr(x)));
@@ -115,15 +116,20 @@ inline int integer_at_least(py::handle x, const char* name, int low) {
   if (!index) throw py::error_already_set();
   int overflow = 0;
   const long long wide = PyLong_AsLongLongAndOverflow(index.ptr(), &overflow);
-  if (overflow > 0 || wide > std::numeric_limits<int>::max())
-    throw py::value_error(std::string(name) + " must be at most " +
-                          std::to_string(std::numeric_limits<int>::max()) + ", got " +
-                          std::string(py::repr(x)));
+  if (overflow > 0 || wide > high)
+    throw py::value_error(std::string(name) + " must be at most " + std::to_string(high) +
+                          ", got " + std::string(py::repr(x)));
   if (overflow < 0 || wide < low)
     throw py::value_error(std::string(name) + " must be >= " + std::to_string(low) + ", got " +
                           std::string(py::repr(x)));
   return static_cast<int>(wide);
 }
+
+// Caps on a step's iterations. A step runs without the GIL and is interrupted (Ctrl-C) only
+// between steps, so its caps bound how long it may run: these keep one step under seconds
+// even when it never converges (the defaults are 30-60; no solve here needs more than ~100).
+constexpr int kMaxNewtonCap = 1000;
+constexpr int kMaxStaggerCap = 10000;
 
 inline double positive(double v, const char* name) {
   if (!(std::isfinite(v) && v > 0.0)) {
