@@ -46,7 +46,8 @@
   the confirmation decides R*: at the end of :meth:`RBBO.run` the recommendation and the
   identity are evaluated on ``n_confirm`` fresh seeds at T_max: R* and R_init.
 - With a run directory every finished evaluation is fsynced to history.jsonl before the next
-  proposal; :meth:`RBBO.resume` rebuilds the optimiser from it.
+  proposal, and every proposal to proposals.jsonl before it is evaluated;
+  :meth:`RBBO.resume` rebuilds the optimiser from them, the proposals in flight included.
 """
 
 from __future__ import annotations
@@ -125,6 +126,9 @@ class RBBO:
         self.objective_spec = objective_spec
         self.history: list[Evaluation] = []
         self.pending: dict[int, Proposal] = {}
+        # proposals a stopped session handed out and never saw evaluated (resume): ask()
+        # hands them out again, in index order, before it proposes anything new
+        self._restored: list[Proposal] = []
         self._next_index = 0
         self._elapsed_offset = 0.0
         self._t0 = time.monotonic()
@@ -152,10 +156,12 @@ class RBBO:
     def resume(cls, path, *, read_only: bool = False) -> RBBO:
         """Rebuild the optimiser of run directory ``path`` from its history.
 
-        Evaluations that were in flight when the run stopped are lost (they have no record);
-        everything recorded is kept. A truncated last line is dropped with a warning (with
-        ``read_only``, for looking at a run that may still be going, it is skipped and the
-        directory is left untouched).
+        Everything recorded is kept. The evaluations in flight when the run stopped have no
+        result; their proposals (DIR/proposals.jsonl) are handed out again first, so a run
+        told in proposal order (one worker, or ``deterministic``) resumed with as many
+        workers goes on as the uninterrupted run would have. A truncated last line is dropped
+        with a warning (with ``read_only``, for looking at a run that may still be going, it
+        is skipped and the directory is left untouched).
         """
         store = RunStore.open(path, repair=not read_only)
         settings = store.config.get("rbbo")
@@ -171,23 +177,52 @@ class RBBO:
         history = store.history()
         for evaluation in history:
             opt._record(evaluation, persist=False)
+        opt._restored = opt._restore_proposals(store, {e.index for e in history})
+        indices = [e.index for e in history] + [p.index for p in opt._restored]
+        if indices:
+            opt._next_index = max(indices) + 1
         if history:
-            opt._next_index = max(e.index for e in history) + 1
             opt._elapsed_offset = max(e.elapsed_s for e in history)
         opt._warm_start_from(history)
         return opt
+
+    def _restore_proposals(self, store: RunStore, recorded: set[int]) -> list[Proposal]:
+        """The search proposals DIR/proposals.jsonl holds and the history does not: those
+        in flight when the run stopped, oldest first."""
+        cfg = self.config
+        out: dict[int, Proposal] = {}
+        for record in store.proposals():
+            index = record["index"]
+            if index in recorded or index in out:
+                continue
+            try:
+                basis = np.asarray(record["basis"], dtype=float)
+                if basis.shape != (cfg.sim_dim, cfg.control_dim):
+                    raise ValueError(f"basis of shape {basis.shape}, the run's is "
+                                     f"{(cfg.sim_dim, cfg.control_dim)}")  # fmt: skip
+                info = {k: record[k] for k in ("gp", "duplicates_skipped") if k in record}
+                proposal = Proposal(index, basis, float(record["T"]),
+                                    tuple(int(x) for x in record["seeds"]), str(record["kind"]),
+                                    info)  # fmt: skip
+            except (KeyError, TypeError, ValueError) as exc:
+                raise RunDirectoryError(f"{store.path}/proposals.jsonl: proposal {index} is "
+                                        f"unreadable: {exc}") from exc  # fmt: skip
+            if proposal.kind not in CONFIRM_KINDS:
+                out[index] = proposal
+        return [out[i] for i in sorted(out)]
 
     def _warm_start_from(self, history: list[Evaluation]) -> None:
         """Start the next GP fit from the hyperparameters of the latest recorded proposal's
         fit, as the session that made it would have: with one worker a resumed run then
         proposes what the uninterrupted run proposed (records made before the hyperparameters
         were recorded start from the defaults)."""
-        fitted = [e for e in history if e.gp is not None and e.kind not in CONFIRM_KINDS]
+        fitted = [(e.index, e.gp) for e in history
+                  if e.gp is not None and e.kind not in CONFIRM_KINDS]  # fmt: skip
+        # (a proposal still in flight when the run stopped was fitted after those told)
+        fitted += [(p.index, p.info["gp"]) for p in self._restored if p.info.get("gp")]
         if not fitted:
             return
-        latest = max(fitted, key=lambda e: e.index)
-        record: dict[str, Any] | None = latest.gp  # (read from JSON: its keys are checked here)
-        assert record is not None  # (fitted holds records with one)
+        record: dict[str, Any] = max(fitted, key=lambda x: x[0])[1]  # (its keys checked here)
         try:
             hyperparameters = GPHyperparameters(**record)
         except TypeError:
@@ -286,7 +321,16 @@ class RBBO:
 
     # -- ask / tell ---------------------------------------------------------------------
     def ask(self) -> Proposal:
-        """The next (B_c, T) to evaluate; it stays pending until :meth:`tell`."""
+        """The next (B_c, T) to evaluate; it stays pending until :meth:`tell`.
+
+        A resumed run first hands out again, oldest first, the proposals its stopped session
+        had handed out and not seen evaluated (DIR/proposals.jsonl), so that it evaluates
+        what the uninterrupted run would have.
+        """
+        if self._restored:
+            proposal = self._restored.pop(0)
+            self.pending[proposal.index] = proposal
+            return proposal
         cfg = self.config
         index = self._next_index
         info: dict[str, Any] = {}
@@ -313,6 +357,11 @@ class RBBO:
                     if value is None:  # every local optimum had been evaluated
                         kind = "random"
         proposal = Proposal(index, basis, float(t), cfg.crn_seeds, kind, info)
+        if self.store is not None and self.store.writable:  # (a reader may ask, not record)
+            record = {"index": index, "basis": basis.tolist(), "T": float(t),
+                      "seeds": [int(x) for x in cfg.crn_seeds], "kind": kind}  # fmt: skip
+            record.update({k: info[k] for k in ("gp", "duplicates_skipped") if k in info})
+            self.store.append_proposal(record)
         self.pending[index] = proposal
         self._next_index += 1
         return proposal

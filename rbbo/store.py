@@ -7,6 +7,11 @@
     DIR/history.jsonl     one JSON object per finished evaluation, append-only; each line is
                           flushed and fsynced before the optimiser moves on, so a kill -9
                           loses at most the evaluations still in flight
+    DIR/proposals.jsonl   one JSON object per search proposal when it is handed out, before
+                          it is evaluated (index, basis, T, seeds, kind and the GP
+                          hyperparameters its fit found), append-only and fsynced: a resumed
+                          run evaluates the proposals that were in flight when it stopped
+                          instead of proposing others in their place
     DIR/best_basis.npy    the recommended B_c, R*'s basis (replaced atomically when a session
                           of the run ends: a run interrupted before its first end has none)
     DIR/summary.json      R_init, R* and the rest of the report (written with it)
@@ -58,6 +63,7 @@ HISTORY = "history.jsonl"
 BEST = "best_basis.npy"
 SUMMARY = "summary.json"
 SESSIONS = "sessions.jsonl"
+PROPOSALS = "proposals.jsonl"
 STATUSES = ("ok", "failed")
 LOCK = ".rbbo.lock"
 
@@ -273,6 +279,11 @@ class RunStore:
         except Exception:  # pragma: no cover - interpreter shutdown; the OS drops the lock
             pass
 
+    @property
+    def writable(self) -> bool:
+        """Whether this store holds the directory's lock and may write (not a reader's)."""
+        return self._lock_key is not None
+
     def _require_writer(self, what: str) -> None:
         """Refuse a write through a reader: it holds no lock, and the run may still be going
         in another process, which would then record the same evaluation indices."""
@@ -395,6 +406,31 @@ class RunStore:
         # nothing repairs this file: a partial line left by a kill is ended first
         _append_line(self.path / SESSIONS, json.dumps(record, sort_keys=True, allow_nan=False),
                      end_partial=True)  # fmt: skip
+
+    def append_proposal(self, record: dict[str, Any]) -> None:
+        """Append one proposal's record (a JSON object with ``index``) durably."""
+        self._require_writer("nothing can be recorded in it")
+        # a partial line left by a kill is ended first, and skipped when read
+        _append_line(self.path / PROPOSALS, json.dumps(record, allow_nan=False),
+                     end_partial=True)  # fmt: skip
+
+    def proposals(self) -> list[dict[str, Any]]:
+        """The proposals' records, in the order they were handed out (a run made before they
+        were recorded has none); a partial line (a kill while writing) is left out."""
+        path = self.path / PROPOSALS
+        if not path.is_file():
+            return []
+        out: list[dict[str, Any]] = []
+        lines = path.read_text(encoding="utf-8", errors="replace").split("\n")
+        for number, line in enumerate(lines, start=1):
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # the torn end of a write a kill interrupted, or the final ""
+            if not (isinstance(record, dict) and isinstance(record.get("index"), int)):
+                raise RunDirectoryError(f"{path} line {number} is not a proposal: {line[:80]!r}")
+            out.append(record)
+        return out
 
     def sessions(self) -> list[dict[str, Any]]:
         """The sessions' records, oldest first (a run made before them has none), each with

@@ -124,6 +124,77 @@ def test_a_deterministic_parallel_run_repeats_whatever_order_results_arrive_in()
         np.testing.assert_array_equal(a.basis, b.basis)
 
 
+def test_a_deterministic_parallel_run_resumed_after_an_interrupt_is_the_same_run(tmp_path):
+    # The proposals in flight when the run stopped are recorded (proposals.jsonl) and handed
+    # out again first, so with the same workers the resumed proposals see what the
+    # uninterrupted run's saw. Without the record they would see every told result and no
+    # fantasies, and part ways (checked below by deleting it).
+    config = RBBOConfig(6, 2, n_init=3, seed=4, seeds=1, max_evaluations=10, n_confirm=0,
+                        **FAST)  # fmt: skip
+    objective = SyntheticObjective(6, 2, optimum_seed=2, noise=0.01)
+
+    def interrupted_at(index):
+        # one call per evaluation (one seed), started in proposal order: proposal k + 1 is
+        # asked only after k - 1 is told, when k has started
+        def evaluate(basis, t, seed):
+            if calls.append(seed) or len(calls) == index + 1:
+                raise KeyboardInterrupt  # (a thread's result: raised where it is told)
+            return objective(basis, t, seed)
+
+        calls: list[int] = []
+        return evaluate
+
+    slow = set(range(0, 10, 2))
+    whole = RBBO.create(tmp_path / "whole", config, objective_spec=objective.spec())
+    with _ScrambledExecutor(objective, slow, last=9) as executor:
+        whole.run(executor=executor, deterministic=True)
+    for name in ("resumed", "unrecorded"):
+        broken = RBBO.create(tmp_path / name, config, objective_spec=objective.spec())
+        with _ScrambledExecutor(interrupted_at(6), set(), last=9) as executor:
+            with pytest.raises(KeyboardInterrupt):
+                broken.run(executor=executor, deterministic=True)
+        broken.store.close()
+        assert [e.index for e in broken.evaluations] == list(range(6))
+        in_flight = [r["index"] for r in broken.store.proposals()][6:]
+        assert in_flight == [6, 7]  # handed out, never told
+        if name == "unrecorded":
+            (tmp_path / name / "proposals.jsonl").unlink()
+        resumed = RBBO.resume(tmp_path / name)
+        with _ScrambledExecutor(objective, slow, last=9) as executor:
+            resumed.run(executor=executor, deterministic=True)
+        assert [e.index for e in resumed.evaluations] == list(range(10))
+        same = [np.array_equal(a.basis, b.basis) and (a.T, a.R) == (b.T, b.R)
+                for a, b in zip(whole.evaluations, resumed.evaluations, strict=True)]  # fmt: skip
+        assert all(same[:6])
+        assert all(same) == (name == "resumed"), same
+
+
+def test_a_resumed_run_hands_out_the_proposals_it_never_saw_told_first(tmp_path):
+    config = RBBOConfig(4, 2, n_init=3, **FAST)
+    opt = RBBO.create(tmp_path / "run", config)
+    asked = [opt.ask() for _ in range(3)]
+    opt.tell(asked[1].index, 0.5)
+    opt.store.close()
+    resumed = RBBO.resume(tmp_path / "run")
+    again = [resumed.ask(), resumed.ask()]
+    assert [p.index for p in again] == [0, 2]  # oldest first, with their records' values
+    for p, q in zip(again, (asked[0], asked[2]), strict=True):
+        np.testing.assert_array_equal(p.basis, q.basis)
+        assert (p.T, p.seeds, p.kind) == (q.T, q.seeds, q.kind)
+    assert resumed.ask().index == 3  # then new ones, numbered after them
+    # a handed-out proposal counts against a limit; one not handed out again does not
+    resumed.store.close()
+    lowered = RBBO.resume(tmp_path / "run")
+    assert lowered.can_submit(2, None) and lowered.ask().index == 0
+    assert not lowered.can_submit(2, None)
+    lowered.store.close()
+    with open(tmp_path / "run" / "proposals.jsonl", "a") as f:
+        f.write(json.dumps({"index": 9, "basis": [[1.0]], "T": 4.0, "seeds": [0],
+                            "kind": "acquisition"}) + "\n")  # fmt: skip
+    with pytest.raises(RunDirectoryError, match=r"proposal 9 is unreadable: basis of shape"):
+        RBBO.resume(tmp_path / "run")
+
+
 def test_pending_points_get_fantasies_so_parallel_proposals_differ():
     objective = SyntheticObjective(6, 2, optimum_seed=1)
     opt = RBBO(RBBOConfig(6, 2, n_init=4, **FAST))

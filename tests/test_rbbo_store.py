@@ -156,3 +156,21 @@ def test_update_config_merges_rewrites_and_needs_the_lock(tmp_path):
     reader = RunStore.open(tmp_path / "run", repair=False)
     with pytest.raises(RunDirectoryError, match="read-only"):
         reader.update_config({"x": 2})
+
+
+def test_proposals_survive_a_torn_line_and_name_a_corrupted_one(tmp_path):
+    store = RunStore.create(tmp_path / "run", {})
+    store.append_proposal({"index": 0, "basis": [[1.0], [0.0]], "T": 4.0})
+    with open(tmp_path / "run" / "proposals.jsonl", "a") as f:
+        f.write('{"index": 1, "basis": [[0.0')  # a kill while the record was written
+    store.append_proposal({"index": 2, "basis": [[0.0], [1.0]], "T": 4.0})  # on a new line
+    assert [r["index"] for r in store.proposals()] == [0, 2]
+    assert RunStore.open(tmp_path / "run", repair=False).proposals() == store.proposals()
+    with open(tmp_path / "run" / "proposals.jsonl", "a") as f:
+        f.write('{"basis": []}\n')
+    with pytest.raises(RunDirectoryError, match=r"proposals.jsonl line 4 is not a proposal"):
+        store.proposals()
+    reader = RunStore.open(tmp_path / "run", repair=False)
+    assert store.writable and not reader.writable
+    with pytest.raises(RunDirectoryError, match="opened read-only"):
+        reader.append_proposal({"index": 3})
