@@ -179,9 +179,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="evaluations run at once (default 1)")  # fmt: skip
     opt.add_argument("--deterministic", action="store_true",
                      help="tell results in proposal order, so that a run with the same "
-                     "--workers and --iterations repeats bitwise (a worker may wait for "
-                     "an older evaluation; default: a free worker gets a new point at "
-                     "once)")  # fmt: skip
+                     "--workers and --iterations repeats bitwise, interrupted and resumed "
+                     "or not (a worker may wait for an older evaluation; default: a free "
+                     "worker gets a new point at once)")  # fmt: skip
     opt.add_argument("--executor", choices=["process", "ray", "serial"], default="process",
                      help="where evaluations run (default process)")  # fmt: skip
     opt.add_argument("--address", help="Ray cluster address (with --executor ray)")

@@ -6,7 +6,7 @@
                           :meth:`RunStore.update_config`, e.g. ``rbbo resume`` with a new limit)
     DIR/history.jsonl     one JSON object per finished evaluation, append-only; each line is
                           flushed and fsynced before the optimiser moves on, so a kill -9
-                          loses at most the evaluations still in flight
+                          loses at most the results still in flight
     DIR/proposals.jsonl   one JSON object per search proposal when it is handed out, before
                           it is evaluated (index, basis, T, seeds, kind and the GP
                           hyperparameters its fit found), append-only and fsynced: a resumed
