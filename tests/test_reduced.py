@@ -272,6 +272,22 @@ def test_rollout_with_no_observables_returns_an_empty_observed(walker):
     assert "observed" not in walker.rollout(walker.rest_state(), np.zeros((2, 3, 3)))
 
 
+def test_a_model_without_actuation_steps_and_rolls_out_as_a_passive_body():
+    # C = 0 (no control space) is accepted: its controls are (..., 0) arrays, and the body
+    # moves as the same model with B_c actuated by zero forces
+    model = build_reduced_model(beam(), control_basis=np.zeros((20, 0)))
+    assert model.C == 0
+    actuated = build_reduced_model(beam(), control_basis=np.eye(20)[:, :3])
+    state, _ = model.step(model.rest_state(), np.zeros(0))
+    other, _ = actuated.step(actuated.rest_state(), np.zeros(3))
+    np.testing.assert_array_equal(state.q, other.q)
+    out = model.rollout(model.rest_state(), np.zeros((2, 5, 0)))
+    np.testing.assert_array_equal(
+        out["q"], actuated.rollout(actuated.rest_state(), np.zeros((2, 5, 3)))["q"]
+    )
+    model.control_basis = np.zeros((20, 0))  # the setter too (Eigen checks build: no assert)
+
+
 _LONG_ROLLOUT = """
 import sys
 import numpy as np

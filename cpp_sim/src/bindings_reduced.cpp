@@ -280,10 +280,13 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
             if (b.cols() > b.rows())
               throw py::value_error("control_basis has " + std::to_string(b.cols()) +
                                     " columns, more than M = " + std::to_string(b.rows()));
-            // The control space is a point of the Grassmannian: orthonormal columns.
+            // The control space is a point of the Grassmannian: orthonormal columns. (C = 0, no
+            // actuation, has none to check, and maxCoeff of an empty matrix is undefined.)
             const double err =
-                (b.transpose() * b - MatX::Identity(b.cols(), b.cols())).cwiseAbs().maxCoeff();
-            if (b.cols() > 0 && !(err <= 1e-8)) {
+                b.cols() == 0
+                    ? 0.0
+                    : (b.transpose() * b - MatX::Identity(b.cols(), b.cols())).cwiseAbs().maxCoeff();
+            if (!(err <= 1e-8)) {
               std::ostringstream msg;
               msg << "control_basis is not orthonormal: max |B_c^T B_c - I| = " << err
                   << " (tolerance 1e-8)";
