@@ -380,6 +380,37 @@ def test_a_signal_stops_a_run_cleanly_and_it_resumes(tmp_path, how):
     assert [s["status"] for s in sessions] == ["interrupted", "finished"]
 
 
+def test_a_deterministic_run_stopped_by_ctrl_c_resumes_into_the_uninterrupted_run(tmp_path):
+    """The quick start's kind of run (process workers, --deterministic), stopped by SIGINT
+    with evaluations in flight and resumed: its record is the uninterrupted run's, bitwise."""
+    import time
+
+    args = ["optimize", "synthetic:noise=0.01,delay=0.3", *TINY, "--workers", "2",
+            "--deterministic", "--iterations", "9"]  # fmt: skip
+    whole, broken = tmp_path / "whole", tmp_path / "broken"
+    assert main([*args, "--out", str(whole)]) == 0
+    proc = subprocess.Popen([sys.executable, "-m", "rbbo", *args, "--out", str(broken)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
+    history = broken / "history.jsonl"
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline and proc.poll() is None:
+        if history.exists() and history.read_text().count("\n") >= 5:
+            break
+        time.sleep(0.02)
+    else:
+        proc.kill()
+        pytest.fail(f"no 5 evaluations recorded in 90 s: {proc.communicate()[1][-2000:]}")
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    stopped = len(_history(broken))
+    assert 5 <= stopped < 9 + 2  # stopped before its end: a resume has work left
+    assert main(["resume", str(broken), "--no-progress"]) == 0
+    key = [(h["index"], h["basis"], h["T"], h["R"], h["kind"]) for h in _history(whole)]
+    assert [(h["index"], h["basis"], h["T"], h["R"], h["kind"]) for h in _history(broken)] == key
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_second_signal_does_not_break_off_the_shutdown(signum):
     # ``timeout`` (``-s INT`` too) signals the process and then its group: the second signal
