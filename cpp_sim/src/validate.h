@@ -126,8 +126,10 @@ inline int integer_at_least(py::handle x, const char* name, int low,
 }
 
 // Caps on a step's iterations. A step runs without the GIL and is interrupted (Ctrl-C) only
-// between steps, so its caps bound how long it may run: these keep one step under seconds
-// even when it never converges (the defaults are 30-60; no solve here needs more than ~100).
+// between steps, so its caps bound how long it may run when it never converges: a few
+// seconds for a reduced step (line searches and staggers included), and up to a minute for a
+// full-space step of the 1,400-node robots (tens of ms per Newton iteration). The defaults
+// are 30 to 60 (the reduced model's Newton and stagger caps, the full space's Newton cap).
 constexpr int kMaxNewtonCap = 1000;
 constexpr int kMaxStaggerCap = 10000;
 
