@@ -323,6 +323,23 @@ def test_parse_duration(text, seconds):
     assert parse_duration(text) == seconds
 
 
+def _start_and_wait(args: list[str], run, evaluations: int) -> subprocess.Popen:
+    """``python -m rbbo ARGS`` in a session of its own (a signal can reach its group), once
+    ``evaluations`` are recorded in ``run``; the test fails if none are within 90 s."""
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "rbbo", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    history = run / "history.jsonl"
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline and proc.poll() is None:
+        if history.exists() and history.read_text().count("\n") >= evaluations:
+            return proc
+        time.sleep(0.02)
+    proc.kill()
+    pytest.fail(f"no {evaluations} evaluations recorded in 90 s: {proc.communicate()[1][-2000:]}")
+
+
 @pytest.mark.parametrize(
     "how",
     [
@@ -339,19 +356,8 @@ def test_a_signal_stops_a_run_cleanly_and_it_resumes(tmp_path, how):
     import time
 
     run = tmp_path / "run"
-    argv = [sys.executable, "-m", "rbbo", "optimize", "synthetic:delay=0.2", *TINY,
-            "--workers", "2", "--iterations", "500", "--out", str(run)]  # fmt: skip
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)  # fmt: skip
-    history = run / "history.jsonl"
-    deadline = time.monotonic() + 90
-    while time.monotonic() < deadline and proc.poll() is None:
-        if history.exists() and history.read_text().count("\n") >= 4:
-            break
-        time.sleep(0.05)
-    else:
-        proc.kill()
-        pytest.fail(f"no 4 evaluations recorded in 90 s: {proc.communicate()[1][-2000:]}")
+    proc = _start_and_wait(["optimize", "synthetic:delay=0.2", *TINY, "--workers", "2",
+                            "--iterations", "500", "--out", str(run)], run, 4)  # fmt: skip
     if how.startswith("SIGTERM twice"):
         os.kill(proc.pid, signal.SIGTERM)
         time.sleep(0.05)
@@ -383,24 +389,11 @@ def test_a_signal_stops_a_run_cleanly_and_it_resumes(tmp_path, how):
 def test_a_deterministic_run_stopped_by_ctrl_c_resumes_into_the_uninterrupted_run(tmp_path):
     """The quick start's kind of run (process workers, --deterministic), stopped by SIGINT
     with evaluations in flight and resumed: its record is the uninterrupted run's, bitwise."""
-    import time
-
     args = ["optimize", "synthetic:noise=0.01,delay=0.3", *TINY, "--workers", "2",
             "--deterministic", "--iterations", "9"]  # fmt: skip
     whole, broken = tmp_path / "whole", tmp_path / "broken"
     assert main([*args, "--out", str(whole)]) == 0
-    proc = subprocess.Popen([sys.executable, "-m", "rbbo", *args, "--out", str(broken)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)  # fmt: skip
-    history = broken / "history.jsonl"
-    deadline = time.monotonic() + 90
-    while time.monotonic() < deadline and proc.poll() is None:
-        if history.exists() and history.read_text().count("\n") >= 5:
-            break
-        time.sleep(0.02)
-    else:
-        proc.kill()
-        pytest.fail(f"no 5 evaluations recorded in 90 s: {proc.communicate()[1][-2000:]}")
+    proc = _start_and_wait([*args, "--out", str(broken)], broken, 5)
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130, err
