@@ -18,6 +18,7 @@ from typing import Any
 from softrom_gym.registration import control_period, parse_env_kwarg
 
 from .defaults import DEFAULTS, PLANNERS, parse_changes, planner_for
+from .planner import EnvAPI
 
 
 def _window(text: str) -> int | None:
@@ -89,7 +90,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--mpc", type=parse_changes, action="append", default=[],
                    metavar="KEY=VALUE[,...]",
                    help="any planner setting, e.g. noise=0.3,temperature=0.05 or "
-                   "knots=8,period=20 (env steps; repeatable; the flags above win)")  # fmt: skip
+                   "knots=8,period=20; a tuple colon-separated, noise=0.3:0.1:0.1 (env steps; "
+                   "repeatable; the flags above win)")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -143,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         # the defaults' times are the same seconds at the env's control period
         planner, replan_every = planner_for(env_id, args.planner, dt=env.get_wrapper_attr("dt"),
                                             **changes)  # fmt: skip
+        planner.settings.check_control_dim(EnvAPI(env).control_dim)
     except (ValueError, TypeError, FileNotFoundError, gym.error.Error) as exc:
         parser.error(str(exc))
     if args.replan_every is not None:

@@ -236,9 +236,10 @@ def _changed(settings: PlannerSettings, changes: dict[str, Any]) -> PlannerSetti
 def parse_changes(text: str) -> dict[str, Any]:
     """Planner setting overrides as a command line gives them (``--mpc`` of ``python -m
     controllers``, ``rbbo optimize`` and ``rbbo reproduce``): ``'horizon=8,window=none'`` ->
-    ``{'horizon': 8, 'window': None}``. Values are ints, floats, true / false / none, else
-    strings; the settings name a wrong key or value when the planner is made. An argparse
-    ``type`` (a bad item raises ``argparse.ArgumentTypeError``)."""
+    ``{'horizon': 8, 'window': None}``. Values are ints, floats, true / false / none,
+    colon-separated numbers as a tuple (``noise=0.2:0.1:0.05``, one per control dimension;
+    ``seed_amplitudes=0.5:1``), else strings; the settings name a wrong key or value when the
+    planner is made. An argparse ``type`` (a bad item raises ``argparse.ArgumentTypeError``)."""
     import argparse
 
     out: dict[str, Any] = {}
@@ -251,6 +252,11 @@ def parse_changes(text: str) -> dict[str, Any]:
 
 
 def _setting_value(text: str) -> Any:
+    if ":" in text:
+        try:  # (a comma would end the item: --mpc's items are comma-separated)
+            return tuple(float(part) for part in text.split(":"))
+        except ValueError:
+            return text
     for kind in (int, float):
         try:
             return kind(text)

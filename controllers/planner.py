@@ -20,8 +20,8 @@ import copy
 import math
 import time
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -148,6 +148,27 @@ class PlannerSettings:
         if self.threads is not None:
             _check_int("threads", self.threads)
 
+    # Settings added after runs began recording their planner (rbbo compares a resumed run's
+    # record with the planner's), each with the value at which the planner plans as it did
+    # before the setting existed. A subclass that adds one lists it here, so that
+    # :meth:`record` leaves it out at that value and a run recorded before it still resumes.
+    _neutral_since_records: ClassVar[dict[str, Any]] = {}
+
+    def record(self) -> dict[str, Any]:
+        """The settings as a run records them: every field but ``threads`` (results do not
+        depend on it), less any setting added since records began that is at its neutral
+        value (the record of a planner that plans as before it)."""
+        neutral = self._neutral_since_records
+        return {
+            name: value
+            for name, value in asdict(self).items()
+            if name != "threads" and not (name in neutral and value == neutral[name])
+        }
+
+    def check_control_dim(self, control_dim: int) -> None:
+        """Raise ValueError if these settings cannot plan C = ``control_dim`` dimensions (a
+        per-dimension setting of another length); the planner checks it at reset."""
+
     def replace(self, **changes: Any):
         """A copy with some fields changed (validated again)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -271,12 +292,18 @@ class Planner(ABC):
                 "period: controllers.planner_for(env_id, planner, "
                 "dt=env.get_wrapper_attr('dt'))"
             )
+        self._check_env(api)
         self.api_ = api
         self.rng_ = np.random.default_rng(seed)
         self.plan_ = SplinePlan(s.horizon, s.knots, self.api_.control_dim, s.kind, s.period)
         self.last_ = {}
         if s.gait_seed:
             self._seed_gait()
+
+    def _check_env(self, api: EnvAPI) -> None:
+        """Raise ValueError if the settings cannot plan for this env (before :meth:`reset`
+        changes anything)."""
+        self.settings.check_control_dim(api.control_dim)
 
     def plan(self, env: Any) -> None:
         """One replan from the env's current state: shift-warm-started, then optimised."""

@@ -323,8 +323,13 @@ class EnvObjective:
         from softrom_gym.registration import control_period
 
         dt = control_period(self.env_id, **self.env_kwargs)
-        return controllers.planner_for(self.env_id, self.controller, dt=dt,
-                                       **self.planner_kwargs)  # fmt: skip
+        planner, replan_every = controllers.planner_for(self.env_id, self.controller, dt=dt,
+                                                        **self.planner_kwargs)  # fmt: skip
+        check = getattr(getattr(planner, "settings", None), "check_control_dim", None)
+        if callable(check):  # controllers.PlannerSettings
+            # (a per-dimension setting of another length fails here, not in every evaluation)
+            check(self.control_dim)
+        return planner, replan_every
 
     def episode(self, basis: np.ndarray, T: float, seed: int, env=None, **kwargs):
         """Run one MPC episode of T seconds; returns the controllers' EpisodeResult."""
@@ -438,7 +443,10 @@ def planner_record(planner: Any, replan_every: int) -> dict[str, Any]:
     import json
 
     settings = getattr(planner, "settings", None)
-    if is_dataclass(settings) and not isinstance(settings, type):
+    record = getattr(settings, "record", None)
+    if is_dataclass(settings) and callable(record):
+        settings = record()  # controllers.PlannerSettings: less neutral new settings
+    elif is_dataclass(settings) and not isinstance(settings, type):
         settings = {k: v for k, v in asdict(settings).items() if k != "threads"}
     else:  # a planner of the user's own without dataclass settings: its name only
         settings = None

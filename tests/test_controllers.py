@@ -136,6 +136,55 @@ def test_mppi_with_zero_noise_returns_its_warm_start(walker):
     np.testing.assert_array_equal(mppi.plan_.knots, knots)
 
 
+def _mppi_replan(env, knots, **settings):
+    mppi = MPPI(MPPISettings(horizon=6, knots=3, samples=6, **settings))
+    mppi.reset(env, seed=0)
+    mppi.plan_.knots = knots.copy()
+    mppi.plan(env)
+    return mppi.plan_.knots
+
+
+def test_mppi_noise_per_control_dimension(walker):
+    knots = np.random.default_rng(3).uniform(-0.5, 0.5, (3, 3))
+    scalar = _mppi_replan(walker, knots, noise=0.2)
+    # the same standard deviation given per dimension draws the same samples
+    np.testing.assert_array_equal(_mppi_replan(walker, knots, noise=[0.2, 0.2, 0.2]), scalar)
+    # a dimension at 0 keeps its knots; the others move
+    moved = _mppi_replan(walker, knots, noise=(0.2, 0.0, 0.2))
+    np.testing.assert_array_equal(moved[:, 1], knots[:, 1])
+    assert np.abs(moved[:, [0, 2]] - knots[:, [0, 2]]).max() > 1e-3
+    assert MPPISettings(noise=[0.2, 0, 1]).noise == (0.2, 0.0, 1.0)  # stored hashable
+    planner = MPPI(MPPISettings(horizon=6, knots=3, samples=2, noise=(0.1, 0.2)))
+    with pytest.raises(ValueError, match="noise has 2 standard deviations, .* C = 3: give 3"):
+        planner.reset(walker, seed=0)
+    assert planner.plan_ is None  # refused before it changed anything
+
+
+def test_mppi_noise_decay_anneals_later_sampling_rounds(walker):
+    knots = np.random.default_rng(4).uniform(-0.5, 0.5, (3, 3))
+    one_round = _mppi_replan(walker, knots, noise=0.3)
+    # A second round at a vanishing noise draws samples indistinguishable from the plan it
+    # starts from, so it ends where the first round did; at the first round's noise it moves.
+    annealed = _mppi_replan(walker, knots, noise=0.3, iterations=2, noise_decay=1e-12)
+    np.testing.assert_allclose(annealed, one_round, rtol=0, atol=1e-9)
+    constant = _mppi_replan(walker, knots, noise=0.3, iterations=2)
+    assert np.abs(constant - one_round).max() > 1e-3
+
+
+def test_a_setting_added_since_records_is_left_out_of_them_at_its_neutral_value():
+    from rbbo.objective import planner_record
+
+    # what runs recorded before noise_decay existed is still the record of the default MPPI
+    assert "noise_decay" not in MPPISettings().record()
+    assert MPPISettings(noise_decay=0.5).record()["noise_decay"] == 0.5
+    assert "threads" not in MPPISettings(threads=2).record()
+    record = planner_record(MPPI(MPPISettings(noise=(0.1, 0.2))), 4)
+    assert record["settings"]["noise"] == [0.1, 0.2]
+    assert record["settings"]["weights"] == {
+        k: v for k, v in vars(CostWeights()).items() if not k.startswith("_")
+    }
+
+
 def test_mppi_beats_zero_control_on_a_short_horizon(walker):
     mppi = MPPI(MPPISettings(horizon=10, knots=3, samples=12, noise=0.5, iterations=3))
     mppi.reset(walker, seed=0)
@@ -287,6 +336,11 @@ def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
         (MPPISettings, {"temperature": 0.0}, "temperature must be a finite number > 0, got 0.0"),
         (MPPISettings, {"temperature": float("nan")}, "temperature must be .* got nan"),
         (MPPISettings, {"noise": -0.1}, "noise must be a finite number >= 0, got -0.1"),
+        (MPPISettings, {"noise": ()}, r"noise must be .*one per control dimension\), got \(\)"),
+        (MPPISettings, {"noise": (0.1, -0.2)}, r"one per control .* got \(0.1, -0.2\)"),
+        (MPPISettings, {"noise": (0.1, "x")}, "noise must be a sequence of numbers"),
+        (MPPISettings, {"noise_decay": 0.0}, "noise_decay must be a finite number > 0, got 0.0"),
+        (MPPISettings, {"noise_decay": 1.5}, r"noise_decay must be in \(0, 1\], got 1.5"),
         (GaussNewtonSettings, {"fd_step": 0.0}, "fd_step must be a finite number > 0, got 0.0"),
         (GaussNewtonSettings, {"line_search": ()}, r"line_search must be positive numbers"),
         (GaussNewtonSettings, {"line_search": [1, "x"]}, r"line_search must be a sequence of"),
@@ -380,6 +434,12 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
         cli_main(["BeamWalk-v0", "--samples", "0"])
     assert exc.value.code == 2
     assert "samples must be an integer >= 2, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["BeamWalk-v0", "--mpc", "noise=0.1:0.2"])
+    assert exc.value.code == 2
+    assert "noise has 2 standard deviations, one per control dimension, but the env has C = 3" in (
+        capsys.readouterr().err
+    )
     for bad in (["--seconds", "0"], ["--seconds", "nan"]):
         with pytest.raises(SystemExit) as exc:
             cli_main(["BeamWalk-v0", *bad])
@@ -595,6 +655,7 @@ def test_planner_settings_from_the_command_line(capsys, monkeypatch):
     parsed = parse_changes("horizon=8,window=none,noise=0.3,kind=linear,gait_seed=false")
     assert parsed == {"horizon": 8, "window": None, "noise": 0.3, "kind": "linear",
                       "gait_seed": False}  # fmt: skip
+    assert parse_changes("noise=0.3:0.1:1,kind=a:b") == {"noise": (0.3, 0.1, 1.0), "kind": "a:b"}
     with pytest.raises(argparse.ArgumentTypeError, match="expected key=value pairs, got 'x'"):
         parse_changes("horizon=8,x")
     seen = {}

@@ -465,14 +465,15 @@ def test_a_new_run_on_a_robot_of_your_own_records_its_planner_and_resumes(tmp_pa
     args = ["optimize", "softrom_gym/SoftRobot-v0", "--env-kwarg", "robot=beam",
             "--sim-dim", "6", "--control-dim", "2", "--init", "1", "--iterations", "2",
             "--t-max", "1", "--settle-time", "0.5", "--confirm-seeds", "2", "--no-progress",
-            "--mpc", "samples=4", "--mpc", "noise=0.2", "--out", str(run)]  # fmt: skip
+            "--mpc", "samples=4", "--mpc", "noise=0.2:0.1", "--out", str(run)]  # fmt: skip
     assert main(args) == 0
     config = json.loads((run / "config.json").read_text())
     assert config["objective"]["planner"]["settings"]["seed_periods"] == [40 / 3, 10.0]
-    # --mpc overrides are the run's: stored, recorded in its planner, kept on resume
-    assert config["objective"]["planner_kwargs"] == {"samples": 4, "noise": 0.2}
+    # --mpc overrides are the run's: stored, recorded in its planner, kept on resume (a
+    # per-dimension noise, a tuple, is stored as a JSON list and read back as the same)
+    assert config["objective"]["planner_kwargs"] == {"samples": 4, "noise": [0.2, 0.1]}
     settings = config["objective"]["planner"]["settings"]
-    assert (settings["samples"], settings["noise"]) == (4, 0.2)
+    assert (settings["samples"], settings["noise"]) == (4, [0.2, 0.1])
     assert main(["resume", str(run), "--iterations", "3", "--no-progress"]) == 0
     capsys.readouterr()
     # resumed, searched on, and ended with its summary: finished, whether or not the
@@ -490,6 +491,11 @@ def test_a_bad_mpc_setting_is_a_usage_error_before_the_run(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
     err = _error(capsys, [*base, "--mpc", "samples"])
     assert "expected key=value pairs, got 'samples'" in err
+    err = _error(capsys, [*base, "--mpc", "noise=0.1:0.2:0.3"])
+    assert (
+        "noise has 3 standard deviations, one per control dimension, but the env has C = 2" in err
+    )
+    assert not (tmp_path / "r").exists()
     err = _error(capsys, ["optimize", "synthetic", "--iterations", "2", "--mpc", "samples=4",
                           "--out", str(tmp_path / "s")])  # fmt: skip
     assert "--mpc is for an env, not the synthetic objective" in err
