@@ -7,7 +7,10 @@ seconds per replan; >= 1 keeps up with the robot), and the distance along d betw
 t = ``--start`` and the end, per second and in body lengths (mean over seeds).
 
     python benchmarks/bench_mpc.py [ENV_ID ...] [--planners mppi gn] [--seconds 10]
-        [--seeds 0 1 2] [--json] [--out runs/bench_mpc]
+        [--seeds 0 1 2] [--mpc KEY=VALUE,...] [--json] [--out runs/bench_mpc]
+
+``--mpc`` changes planner settings from the defaults (e.g. ``--planners gn --mpc
+restart_damping=true``); each row records the changes.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 
 import softrom_gym
 from controllers import default_planner, run_episode
+from controllers.defaults import parse_changes
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _results import write_csv
@@ -35,7 +39,8 @@ def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
     start = time.perf_counter()
     for seed in args.seeds:
         env = gym.make(env_id)
-        planner, every = default_planner(env_id, planner_name, threads=args.threads)
+        planner, every = default_planner(env_id, planner_name, threads=args.threads,
+                                         **args.changes)  # fmt: skip
         res = run_episode(env, planner, args.seconds, replan_every=every, seed=seed,
                           progress=args.progress)  # fmt: skip
         t0 = args.start if args.seconds > args.start else 0.0
@@ -59,6 +64,7 @@ def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
         "replan_every": every,
         "horizon": planner.settings.horizon,
         "threads": args.threads,
+        "mpc": ",".join(f"{k}={v}" for k, v in args.changes.items()),
         "wall_s": time.perf_counter() - start,
     }
 
@@ -73,8 +79,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/bench_mpc"))
     p.add_argument("--progress", action="store_true", help="progress bars")
+    p.add_argument("--mpc", type=parse_changes, action="append", default=[],
+                   metavar="KEY=VALUE[,...]",
+                   help="planner settings changed from the defaults")  # fmt: skip
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     args = p.parse_args(argv)
+    args.changes = {k: v for part in args.mpc for k, v in part.items()}
     ids = [i if "/" in i else f"softrom_gym/{i}" for i in args.env_ids]
     if not (args.seconds > 0 and args.start >= 0):
         p.error(f"--seconds must be > 0 and --start >= 0, got {args.seconds}, {args.start}")

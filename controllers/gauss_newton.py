@@ -18,11 +18,15 @@ J(x) = R(x) - |r(x)|^2 - w_d n_lost(x) (see :mod:`controllers.cost`). One iterat
    rejections (where the finite-difference gradient through contact misleads) the step
    shrinks to nothing and only the exploration candidates move the plan (on the quadruped mu
    passed 1e4 after 2-4.5 s on each of 3 seeds, and reached 1e38 by 10 s on one).
-   Restarting mu at each replan was measured (3 seeds, t = 2..10 s): the quadruped 2.16
-   against 1.58 body lengths, the tripod 0.67 against 0.89, the cross and the beam within
-   their spread; not a clear gain, so not the default. With ``max_step`` each step is first
-   scaled into a trust region (no knot moves by more than ``max_step``): a gait then changes
-   gradually from replan to replan, where a full step can trade it for a one-horizon lunge;
+   Restarting mu at each replan (``restart_damping``) was measured (``python
+   benchmarks/bench_mpc.py QuadrupedWalk-v0 TripodWalk-v0 CrossWalk-v0 BeamWalk-v0 --planners
+   gn --seeds 0 1 2 [--mpc restart_damping=true]``, t = 2..10 s, body lengths, mean ± sd over
+   seeds; AMD EPYC, 2026-12-05): the quadruped 2.16 ± 1.07 against 1.58 ± 0.69, the tripod
+   0.67 ± 0.21 against 0.89 ± 0.35, the cross 0.77 against 0.74 and the beam 1.40 against
+   1.40; within the chaotic spread, so not the default. With ``max_step``
+   each step is first scaled into a trust region (no knot moves by more than ``max_step``): a
+   gait then changes gradually from replan to replan, where a full step can trade it for a
+   one-horizon lunge;
 4. with ``explore > 0`` the same rollout also runs that many random candidates around the
    plan, under the same acceptance rule. A finite-difference gradient through contact sees
    one basin of a kinked objective; on the quadruped and the tripod the pure step kept the
@@ -33,7 +37,7 @@ J(x) = R(x) - |r(x)|^2 - w_d n_lost(x) (see :mod:`controllers.cost`). One iterat
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -71,6 +75,10 @@ class GaussNewtonSettings(PlannerSettings):
         a replan can leave a basin that the local step cannot see out of. 0: pure GN.
     explore_noise : float
         Standard deviation of the exploration candidates.
+    restart_damping : bool
+        Start every replan from ``damping`` instead of the mu the last one ended with (which
+        a run of rejected iterations can have raised until the step is nil; see the module
+        docstring for what each measured).
     """
 
     iterations: int = 1
@@ -80,6 +88,11 @@ class GaussNewtonSettings(PlannerSettings):
     max_step: float | None = None
     explore: int = 0
     explore_noise: float = 0.15
+    restart_damping: bool = False
+
+    # Added after runs began recording their planner; at these values Gauss-Newton plans as
+    # it did before they existed (see PlannerSettings.record).
+    _neutral_since_records: ClassVar[dict[str, Any]] = {"restart_damping": False}
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -92,6 +105,8 @@ class GaussNewtonSettings(PlannerSettings):
             _check_positive("max_step", self.max_step)
         _check_int("explore", self.explore, low=0)
         _check_positive("explore_noise", self.explore_noise)
+        if not isinstance(self.restart_damping, (bool, np.bool_)):
+            raise TypeError(f"restart_damping must be True or False, got {self.restart_damping!r}")
         ls = _real_tuple(self, "line_search")
         if ls.size == 0 or not np.all(np.isfinite(ls) & (ls > 0)):
             raise ValueError(f"line_search must be positive numbers, got {self.line_search!r}")
@@ -137,6 +152,8 @@ class GaussNewtonShooting(Planner):
     def _optimise(self, state: Any) -> None:
         s, plan = self.settings, self._plan
         shape = plan.knots.shape
+        if s.restart_damping:
+            self.damping_ = float(s.damping)
         history, accepted = [], []
         for _ in range(s.iterations):
             ev, grad, jac = self.jacobian(state)

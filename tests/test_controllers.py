@@ -171,6 +171,20 @@ def test_mppi_noise_decay_anneals_later_sampling_rounds(walker):
     assert np.abs(constant - one_round).max() > 1e-3
 
 
+@pytest.mark.parametrize("restart", [False, True])
+def test_gauss_newton_damping_carries_over_replans_unless_restarted(walker, restart):
+    gn = GaussNewtonShooting(GaussNewtonSettings(horizon=6, knots=2, restart_damping=restart))
+    gn.reset(walker, seed=0)
+    gn.damping_ = 1e6  # as a run of rejected replans leaves it
+    gn.plan(walker)
+    # one iteration tries mu * line_search (0.1 .. 100) and ends at one of them or 10 x the
+    # largest: at most 1e-2 * 1e3 from the setting, at least 1e6 * 0.1 carried over
+    if restart:
+        assert gn.last_["damping"] <= 10.0
+    else:
+        assert gn.last_["damping"] >= 1e5
+
+
 def test_a_setting_added_since_records_is_left_out_of_them_at_its_neutral_value():
     from rbbo.objective import planner_record
 
@@ -178,6 +192,8 @@ def test_a_setting_added_since_records_is_left_out_of_them_at_its_neutral_value(
     assert "noise_decay" not in MPPISettings().record()
     assert MPPISettings(noise_decay=0.5).record()["noise_decay"] == 0.5
     assert "threads" not in MPPISettings(threads=2).record()
+    assert "restart_damping" not in GaussNewtonSettings().record()
+    assert GaussNewtonSettings(restart_damping=True).record()["restart_damping"] is True
     record = planner_record(MPPI(MPPISettings(noise=(0.1, 0.2))), 4)
     assert record["settings"]["noise"] == [0.1, 0.2]
     assert record["settings"]["weights"] == {
@@ -381,6 +397,8 @@ def test_invalid_weights_and_inputs_raise_clear_errors(walker):
         MPPI().reset(gym.make("CartPole-v1"))
     with pytest.raises(TypeError, match="gait_seed must be True or False, got 'no'"):
         PlannerSettings(gait_seed="no", period=10)
+    with pytest.raises(TypeError, match="restart_damping must be True or False, got 1"):
+        GaussNewtonSettings(restart_damping=1)
     # lists are stored as tuples: the frozen settings stay hashable
     settings = GaussNewtonSettings(line_search=[1, 10], seed_amplitudes=np.array([0.5]))
     assert settings.line_search == (1.0, 10.0) and settings.seed_amplitudes == (0.5,)
