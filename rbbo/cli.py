@@ -617,6 +617,14 @@ def cmd_report(args) -> int:
         raise UsageError("--png names one plot: give one DIR")
     rows = []
     if args.png is not None:
+        # the suffix picks the format: one matplotlib cannot write would fail after the table
+        # was computed, and none at all would write PNG.png, not the file named
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        formats = sorted(FigureCanvasAgg.get_supported_filetypes())
+        if args.png.suffix.lower().lstrip(".") not in formats:
+            raise UsageError(f"--png {args.png}: the file name must end in one of "
+                             f"{', '.join('.' + f for f in formats)}")  # fmt: skip
         try:
             args.png.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -624,7 +632,11 @@ def cmd_report(args) -> int:
     for run_dir in args.run_dirs:
         opt = load(run_dir)
         rows.append(report_row(opt))
-        png = plot_convergence(opt, args.png or Path(run_dir) / "convergence.png")
+        path = args.png or Path(run_dir) / "convergence.png"
+        try:
+            png = plot_convergence(opt, path)
+        except OSError as exc:
+            raise UsageError(f"cannot write the plot {path}: {exc}") from exc
         print(f"{run_dir}: plot {png}", file=sys.stderr)
     print(format_table(rows))
     return 0

@@ -307,6 +307,25 @@ def test_output_paths_that_cannot_be_written_are_usage_errors(tmp_path, capsys):
     assert png.exists()
 
 
+def test_report_png_that_matplotlib_cannot_write_is_a_usage_error(tmp_path, capsys):
+    run = tmp_path / "run"
+    main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+          "--out", str(run)])  # fmt: skip
+    capsys.readouterr()
+    # an unknown format, and none (matplotlib would write plot.png and report "plot")
+    for name in ("plot.txt", "plot"):
+        err = _error(capsys, ["report", str(run), "--png", str(tmp_path / name)])
+        assert f"--png {tmp_path / name}: the file name must end in one of" in err
+        assert ".png" in err and ".pdf" in err
+    assert not (tmp_path / "plot.png").exists()
+    folder = tmp_path / "taken.png"  # a folder where the plot should go
+    folder.mkdir()
+    err = _error(capsys, ["report", str(run), "--png", str(folder)])
+    assert f"cannot write the plot {folder}" in err
+    assert main(["report", str(run), "--png", str(tmp_path / "plot.PDF")]) == 0
+    assert (tmp_path / "plot.PDF").read_bytes()[:4] == b"%PDF"
+
+
 def test_console_entry_point_exit_status():
     """The real process: ``python -m rbbo`` (what the ``rbbo`` script runs) exits with 2."""
     proc = subprocess.run([sys.executable, "-m", "rbbo", "optimize", "synthetic", "--budget",
