@@ -674,6 +674,7 @@ def cmd_rollout(args) -> int:
               f"optimum {objective.value(objective.optimum):.6g}")  # fmt: skip
         return 0
     if args.video:
+        _check_video_name(args.video)  # before the env is built and the episode run
         _require_imageio()  # before the episode, so a missing extra costs nothing
         return _rollout_video(objective, basis, seconds, args.seed, args.video)
     r = objective(basis, seconds, args.seed)
@@ -693,6 +694,18 @@ def _measured_from(objective) -> float:
     if step is None:
         return objective.settle_time
     return settled_step(step, objective.settle_time) * step
+
+
+def _check_video_name(video: Path) -> None:
+    """A --video name whose suffix no video writer takes is a usage error (its folder is
+    created, so only the name is checked)."""
+    try:
+        from controllers.episode import _VIDEO_SUFFIXES
+    except ImportError:  # a stand-in controllers module (the tests'): it writes no video
+        return
+    if video.suffix.lower() not in _VIDEO_SUFFIXES:
+        raise UsageError(f"--video {video}: the file name must end in one of "
+                         f"{', '.join(sorted(_VIDEO_SUFFIXES))}")  # fmt: skip
 
 
 def _require_imageio() -> None:

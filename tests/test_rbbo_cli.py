@@ -167,6 +167,26 @@ def test_rollout_video_of_the_settling_seconds_prints_no_r(tmp_path, capsys, mon
     assert "give more (the run's T_max is 4 s), or add --video FILE" in err
 
 
+def test_rollout_video_name_without_a_video_suffix_is_a_usage_error(tmp_path, capsys,
+                                                                     monkeypatch):  # fmt: skip
+    import controllers.episode  # the real suffixes, under the stand-in package below
+    import rbbo.cli
+
+    monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
+    monkeypatch.setattr(rbbo.cli, "_require_imageio", lambda: None)
+    run = tmp_path / "env-run"
+    assert main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
+                 "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",
+                 "--executor", "serial", "--no-progress", "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    for name in ("clip", "clip.png"):
+        video = tmp_path / "new" / name
+        err = _error(capsys, ["rollout", str(run), "--video", str(video)])
+        assert f"--video {video}: the file name must end in one of .avi" in err
+        assert ".mp4" in err and sorted(controllers.episode._VIDEO_SUFFIXES)[0] == ".avi"
+    assert not (tmp_path / "new").exists()
+
+
 def _error(capsys, argv):
     code = main(argv)
     err = capsys.readouterr().err
