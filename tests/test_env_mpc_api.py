@@ -62,6 +62,10 @@ def test_per_step_terms_have_their_documented_shapes_and_meaning():
     assert env.get_wrapper_attr("body_length") == pytest.approx(0.8)
     with pytest.raises(ValueError, match=r"observe has shape \(2, 3\), expected \(P, 26\)"):
         rollout(state, controls, observe=np.zeros((2, 3)))
+    # the row is the caller's, not the core's (which stacks the orientation rows above it)
+    observe[1, 4] = np.nan
+    with pytest.raises(ValueError, match=r"non-finite value \(nan\) at \(1, 4\)"):
+        rollout(state, controls, observe=observe)
 
 
 def test_divergence_is_marked_as_lost_steps_from_the_diverging_step_on():

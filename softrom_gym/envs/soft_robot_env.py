@@ -589,6 +589,10 @@ class SoftRobotEnv(gym.Env):
             extra = np.asarray(observe, dtype=np.float64)
             if extra.ndim != 2 or extra.shape[1] != self.model.dim:
                 raise ValueError(f"observe has shape {extra.shape}, expected (P, {self.model.dim})")
+            if not np.all(np.isfinite(extra)):
+                # named here: the core sees observe under the orientation rows, n_orient lower
+                bad = tuple(int(i) for i in np.argwhere(~np.isfinite(extra))[0])
+                raise ValueError(f"observe contains a non-finite value ({extra[bad]}) at {bad}")
             rows = np.vstack([rows, extra])
         out = self.model.rollout(state, np.repeat(u, k, axis=1), threads=threads, observe=rows)
         com = out["com"].reshape(b, h, k, 3)[:, :, -1]
