@@ -81,7 +81,7 @@ def test_divergence_is_marked_as_lost_steps_from_the_diverging_step_on():
     np.testing.assert_array_equal(out["rewards"][1, 3:], 0.0)
 
 
-def test_control_basis_is_swapped_in_place_and_validated():
+def test_control_basis_is_swapped_in_place_and_validated(tmp_path):
     env = gym.make("softrom_gym/BeamWalk-v0")
     base = env.unwrapped
     model, subspace = base.model, base.subspace
@@ -103,3 +103,9 @@ def test_control_basis_is_swapped_in_place_and_validated():
         base.set_control_basis(2.0 * b)
     base.set_control_basis(2.0 * b, orthonormalize=True)
     np.testing.assert_allclose(base.control_basis, b, atol=1e-12)
+    # a .npy path, as the constructor takes (a run's best_basis.npy)
+    np.save(tmp_path / "basis.npy", b[:, ::-1])
+    base.set_control_basis(str(tmp_path / "basis.npy"))
+    np.testing.assert_array_equal(model.control_basis, b[:, ::-1])
+    with pytest.raises(FileNotFoundError, match="control_basis file .* does not exist"):
+        base.set_control_basis(tmp_path / "missing.npy")

@@ -487,15 +487,18 @@ class SoftRobotEnv(gym.Env):
         )  # fmt: skip
 
     # ---------------------------------------------------------------- control space
-    def set_control_basis(self, control_basis: np.ndarray, orthonormalize: bool = False) -> None:
+    def set_control_basis(
+        self, control_basis: np.ndarray | str | os.PathLike, orthonormalize: bool = False
+    ) -> None:
         """Swap the control space B_c (M x C, the same C) on this env, keeping its simulation
         space, cubature and state: the public way to evaluate many bases with one env.
+        ``control_basis`` may be the path of a ``.npy`` file holding it, as for the constructor.
 
         Raises ValueError naming the problem for a wrong shape, non-finite entries, or a
         non-orthonormal B_c (pass ``orthonormalize=True`` to accept any full-rank matrix).
         """
         m, c = self.control_basis.shape
-        b = _control_basis(control_basis, m, c, orthonormalize)
+        b = _control_basis(_read_basis(control_basis), m, c, orthonormalize)
         self.model.control_basis = b
         self.control_basis = b
 
