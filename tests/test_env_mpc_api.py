@@ -68,6 +68,20 @@ def test_per_step_terms_have_their_documented_shapes_and_meaning():
         rollout(state, controls, observe=observe)
 
 
+def test_set_state_refuses_a_state_of_another_model():
+    import cpp_sim
+
+    base = gym.make("softrom_gym/BeamWalk-v0").unwrapped
+    base.reset(seed=0)
+    state = base.get_state()
+    with pytest.raises(ValueError, match="state has dimension 27, expected 26"):
+        base.set_state(cpp_sim.ReducedState(np.zeros(27), np.zeros(27), state.impulses))
+    # impulses of another robot: refused here, not by the step after it
+    with pytest.raises(ValueError, match=r"state has 6 contact impulses, expected 1146 \(3 per"):
+        base.set_state(cpp_sim.ReducedState(state.q, state.qdot, np.zeros(6)))
+    np.testing.assert_array_equal(base.get_state().impulses, state.impulses)  # unchanged
+
+
 def test_divergence_is_marked_as_lost_steps_from_the_diverging_step_on():
     # A huge action bound lets one step blow the simulation up on purpose.
     env = gym.make("softrom_gym/SoftRobot-v0", robot="beam", action_scale=1e9)

@@ -513,6 +513,10 @@ class SoftRobotEnv(gym.Env):
             raise TypeError(f"state must be a ReducedState from get_state(), got {type(state)}")
         if state.q.shape != (self.model.dim,):
             raise ValueError(f"state has dimension {state.q.shape[0]}, expected {self.model.dim}")
+        impulses = 3 * len(self.model.surface_nodes)  # (the next step's would refuse others)
+        if state.impulses.shape != (impulses,):
+            raise ValueError(f"state has {state.impulses.size} contact impulses, expected "
+                             f"{impulses} (3 per surface node of this env's robot)")  # fmt: skip
         self._state = state.copy()
 
     def center_of_mass(self, state: cpp_sim.ReducedState | None = None) -> np.ndarray:
