@@ -269,6 +269,13 @@ def test_vector_env_unseeded_reset_continues_each_stream():
                         vectorization_mode="vector_entry_point")  # fmt: skip
     with pytest.raises(ValueError, match="seed must be None, an int or a list of 2 ints, got 'x'"):
         venv.reset(seed="x")
+    # each entry of a list as a single seed: not truncated (1.5) or parsed ("3")
+    for bad, text in ((1.5, "1.5"), ("3", "'3'"), (True, "True")):
+        with pytest.raises(
+            ValueError, match=f"seed list entry 1 must be an int or None, got {text}"
+        ):
+            venv.reset(seed=[0, bad])
+    venv.reset(seed=[np.int64(0), None])
     venv.close()
     with pytest.raises(ValueError, match="the vector env does not render"):
         gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, render_mode="rgb_array",

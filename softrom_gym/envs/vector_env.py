@@ -103,6 +103,10 @@ class SoftRobotVectorEnv(VectorEnv):
             seeds = list(seed)
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed list has {len(seeds)} entries, expected {self.num_envs}")
+            for i, s in enumerate(seeds):  # (int() would read 1.5 as 1 and "3" as 3)
+                if s is not None and (isinstance(s, (bool, np.bool_))
+                                      or not isinstance(s, (int, np.integer))):  # fmt: skip
+                    raise ValueError(f"seed list entry {i} must be an int or None, got {s!r}")
         else:
             raise ValueError(
                 f"seed must be None, an int or a list of {self.num_envs} ints, got {seed!r}"
