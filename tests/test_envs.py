@@ -149,6 +149,10 @@ def test_direction_sets_the_reward_axis():
     ra = a.rollout(a.get_state(), ctrl)["rewards"].sum()
     rb = b.rollout(b.get_state(), ctrl)["rewards"].sum()
     assert ra == pytest.approx(-rb, rel=1e-9, abs=1e-15)
+    # a 2-vector is a direction at any scale (its norm neither underflows nor overflows)
+    for scale in (1e-200, 1.0, 1e200):
+        env = gym.make("softrom_gym/BeamWalk-v0", direction=[3 * scale, 4 * scale]).unwrapped
+        np.testing.assert_allclose(env.direction, [0.6, 0.8, 0.0], rtol=1e-15)
 
 
 def test_custom_mesh_robot_runs(tmp_path):

@@ -46,10 +46,12 @@ def _direction(direction: float | np.ndarray) -> np.ndarray:
         if not np.isfinite(d):
             raise ValueError(f"direction angle must be finite, got {direction!r}")
         return np.array([np.cos(d), np.sin(d), 0.0])
-    if d.shape != (2,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+    if d.shape != (2,) or not np.all(np.isfinite(d)) or not np.any(d):
         raise ValueError(
             f"direction must be an angle in radians or a non-zero 2-vector, got {direction!r}"
         )
+    # scaled first: the norm of [1e-200, 1e-200] underflows to 0, that of [1e200, 1e200] to inf
+    d = d / np.abs(d).max()
     return np.array([d[0], d[1], 0.0]) / np.linalg.norm(d)
 
 
