@@ -138,7 +138,8 @@ def rl_steps_arg(text: str) -> int | dict[str, int]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="rbbo", description=__doc__.split("\n\n")[0])
+    # (the docstring's reST quotes are not for a terminal)
+    parser = _Parser(prog="rbbo", description=__doc__.split("\n\n")[0].replace("``", ""))
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     opt = sub.add_parser("optimize", help="optimise B_c for an env (or a synthetic objective)")

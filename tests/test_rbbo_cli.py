@@ -346,6 +346,15 @@ def test_report_png_that_matplotlib_cannot_write_is_a_usage_error(tmp_path, caps
     assert (tmp_path / "plot.PDF").read_bytes()[:4] == b"%PDF"
 
 
+def test_help_prints_plain_text(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert "rbbo: optimise a control space B_c from the command line." in out
+    assert "``" not in out
+
+
 def test_console_entry_point_exit_status():
     """The real process: ``python -m rbbo`` (what the ``rbbo`` script runs) exits with 2."""
     proc = subprocess.run([sys.executable, "-m", "rbbo", "optimize", "synthetic", "--budget",
