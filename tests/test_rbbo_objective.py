@@ -130,6 +130,16 @@ def test_settled_reward_counts_a_short_episode_as_zero_for_the_rest():
     assert settled_reward_rate(result, STEP, 2.0, 6.0) == pytest.approx(0.1 * 40 / 4.0)
 
 
+def test_settled_reward_is_per_second_simulated_when_t_is_off_the_step_grid():
+    # BOCA's T = 2 + 2/3 s at 25 ms steps: the episode runs round(106.67) = 107 steps
+    result = EpisodeResult(np.full(107, 0.1))
+    rate = settled_reward_rate(result, 0.025, 1.0, 2.0 + 2.0 / 3.0)
+    assert rate == pytest.approx(0.1 * 67 / (107 * 0.025 - 1.0), rel=1e-12)
+    # on the grid, the time asked for (the arithmetic of recorded runs, to the bit)
+    result = EpisodeResult(np.full(160, 0.1))
+    assert settled_reward_rate(result, 0.025, 1.0, 4.0) == np.full(120, 0.1).sum() / (4.0 - 1.0)
+
+
 def test_synthetic_objective_is_deterministic_and_rotation_invariant():
     objective = SyntheticObjective(6, 2, noise=0.1)
     u = objective.optimum
