@@ -46,7 +46,11 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'t (s)':>6} {'com z (m)':>10} {'1/2 g t^2 (m)':>14} {'height/rest':>12} {'newton':>7}")
     start = time.perf_counter()
     for n in range(1, steps + 1):
-        x, v = fem.step(x, v, args.dt)
+        try:
+            x, v = fem.step(x, v, args.dt)
+        except RuntimeError as exc:  # (a diverged step: one line, not a traceback)
+            parser.exit(1, f"{parser.prog}: step {n} (t = {n * args.dt:g} s, dt = {args.dt:g} "
+                           f"s) failed: {exc}\n")  # fmt: skip
         if n % report_every == 0 or n == steps:
             t = n * args.dt
             com = m @ x / m.sum()

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +19,7 @@ _FORMATS = (".obj", ".ply", ".stl", ".glb")
 
 
 def export_trajectory(
-    states: Sequence[Any],
+    states: Iterable[Any],
     path: str | os.PathLike,
     *,
     env: Any = None,
@@ -29,9 +29,12 @@ def export_trajectory(
 
     Parameters
     ----------
-    states : sequence
-        Frames: ``ReducedState`` objects (from ``env.unwrapped.get_state()``; needs ``env``)
-        or node positions of shape (N, 3) (needs ``env`` or ``robot`` for the surface).
+    states : iterable
+        Frames (a list, or a generator): ``ReducedState`` objects (from
+        ``env.unwrapped.get_state()``; needs ``env``) or node positions of shape (N, 3)
+        (needs ``env`` or ``robot`` for the surface). Every frame is checked before any
+        file is written: a frame of the wrong shape or with non-finite positions (a
+        diverged simulation) is a ValueError naming it, and nothing is written.
     path : path
         ``frames/walk.ply`` writes ``frames/walk_0000.ply``, ``frames/walk_0001.ply``, ...;
         the extension (.obj, .ply, .stl or .glb) picks the format. Folders are created.
@@ -51,10 +54,7 @@ def export_trajectory(
     path = Path(path)
     if path.suffix.lower() not in _FORMATS:
         raise ValueError(f"unsupported mesh format {path.suffix!r}; use one of {_FORMATS}")
-    if len(states) == 0:
-        raise ValueError("states is empty: nothing to export")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    written = []
+    frames = []
     for i, frame in enumerate(states):
         if isinstance(frame, cpp_sim.ReducedState):
             if base is None:
@@ -64,6 +64,15 @@ def export_trajectory(
             positions = np.asarray(frame, dtype=float)
         if positions.shape != robot.nodes.shape:
             raise ValueError(f"frame {i} has shape {positions.shape}, expected {robot.nodes.shape}")
+        if not np.all(np.isfinite(positions)):
+            raise ValueError(f"frame {i} has non-finite node positions (a diverged simulation?); "
+                             "no file was written")  # fmt: skip
+        frames.append(positions)
+    if not frames:
+        raise ValueError("states is empty: nothing to export")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    written = []
+    for i, positions in enumerate(frames):
         out = path.with_name(f"{path.stem}_{i:04d}{path.suffix}")
         mesh = robot.surface(positions)
         mesh.remove_unreferenced_vertices()

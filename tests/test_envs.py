@@ -192,6 +192,8 @@ def test_bad_input_errors():
     bad = np.eye(20)[:, :3] * 1.01
     with pytest.raises(ValueError, match=r"control_basis is not orthonormal: max \|B_c\^T B_c"):
         gym.make("softrom_gym/BeamWalk-v0", control_basis=bad)
+    with pytest.raises(ValueError, match="control_basis must be real, got a complex128 matrix"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis=np.eye(20)[:, :3] + 0j)
     with pytest.raises(ValueError, match=r"control_basis has shape \(20, 2\), expected"):
         gym.make("softrom_gym/BeamWalk-v0", control_basis=np.eye(20)[:, :2], control_dim=3)
     # without control_dim (sim_dim), C (M) is the basis's: its columns (rows)
@@ -324,6 +326,16 @@ def test_export_trajectory_writes_one_mesh_per_frame(tmp_path):
         softrom_gym.export_trajectory(states, tmp_path / "x.txt", env=env)
     with pytest.raises(ValueError, match="needs env= or robot="):
         softrom_gym.export_trajectory(states, tmp_path / "x.ply")
+    # a generator of frames; a diverged frame is named before any file is written
+    files = softrom_gym.export_trajectory((s for s in states[:2]), tmp_path / "g.obj", env=env)
+    assert [f.name for f in files] == ["g_0000.obj", "g_0001.obj"]
+    bad = [env.unwrapped.model.positions(s.q) for s in states]
+    bad[2][5, 1] = np.nan
+    with pytest.raises(ValueError, match="frame 2 has non-finite node positions"):
+        softrom_gym.export_trajectory(bad, tmp_path / "nan" / "b.ply", env=env)
+    assert not (tmp_path / "nan").exists()
+    with pytest.raises(ValueError, match="states is empty"):
+        softrom_gym.export_trajectory(iter([]), tmp_path / "e.ply", env=env)
 
 
 @pytest.mark.parametrize("env_id", ["softrom_gym/QuadrupedWalk-v0", "softrom_gym/CrossSwim-v0"])

@@ -284,3 +284,8 @@ def test_demo_drops_a_robot_and_names_bad_arguments(capsys):
             main(bad)
         assert exc.value.code == 2
         assert message in capsys.readouterr().err
+    # a step that diverges (M / dt^2 overflows) ends in one line naming the step, not a traceback
+    with pytest.raises(SystemExit) as exc:
+        main(["--robot", "beam", "--dt", "1e-300"])
+    assert exc.value.code == 1
+    assert "step 1 (t = 1e-300 s, dt = 1e-300 s) failed: implicit Euler" in capsys.readouterr().err

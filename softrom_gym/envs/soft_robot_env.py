@@ -93,7 +93,10 @@ def _control_basis(
 ) -> np.ndarray:
     if b_c is None:
         return np.eye(sim_dim, control_dim)  # (not eye(M)[:, :C]: M may be too large, named later)
-    b = np.asarray(b_c, dtype=float)
+    raw = np.asarray(b_c)
+    if np.iscomplexobj(raw):  # (float() would drop the imaginary part with a warning only)
+        raise ValueError(f"control_basis must be real, got a {raw.dtype} matrix")
+    b = np.asarray(raw, dtype=float)
     if b.shape != (sim_dim, control_dim):
         raise ValueError(
             f"control_basis has shape {b.shape}, expected (sim_dim, control_dim) = "
