@@ -23,10 +23,9 @@ J(x) = R(x) - |r(x)|^2 - w_d n_lost(x) (see :mod:`controllers.cost`). One iterat
    gn --seeds 0 1 2 [--mpc restart_damping=true]``, t = 2..10 s, body lengths, mean ± sd over
    seeds; AMD EPYC, 2026-12-05): the quadruped 2.16 ± 1.07 against 1.58 ± 0.69, the tripod
    0.67 ± 0.21 against 0.89 ± 0.35, the cross 0.77 against 0.74 and the beam 1.40 against
-   1.40; within the chaotic spread, so not the default. With ``max_step``
-   each step is first scaled into a trust region (no knot moves by more than ``max_step``): a
-   gait then changes gradually from replan to replan, where a full step can trade it for a
-   one-horizon lunge;
+   1.40; within the chaotic spread, so not the default. With ``max_step`` each step is first
+   scaled into a trust region (no knot moves by more than ``max_step``): a gait then changes
+   gradually from replan to replan, where a full step can trade it for a one-horizon lunge;
 4. with ``explore > 0`` the same rollout also runs that many random candidates around the
    plan, under the same acceptance rule. A finite-difference gradient through contact sees
    one basin of a kinked objective; on the quadruped and the tripod the pure step kept the

@@ -443,11 +443,12 @@ def planner_record(planner: Any, replan_every: int) -> dict[str, Any]:
     import json
 
     settings = getattr(planner, "settings", None)
-    record = getattr(settings, "record", None)
-    if is_dataclass(settings) and callable(record):
-        settings = record()  # controllers.PlannerSettings: less neutral new settings
-    elif is_dataclass(settings) and not isinstance(settings, type):
-        settings = {k: v for k, v in asdict(settings).items() if k != "threads"}
+    if is_dataclass(settings) and not isinstance(settings, type):
+        record = getattr(settings, "record", None)
+        if callable(record):  # controllers.PlannerSettings: less neutral new settings
+            settings = record()
+        else:
+            settings = {k: v for k, v in asdict(settings).items() if k != "threads"}
     else:  # a planner of the user's own without dataclass settings: its name only
         settings = None
     name = getattr(planner, "name", type(planner).__name__)
