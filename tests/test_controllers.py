@@ -201,6 +201,26 @@ def test_a_setting_added_since_records_is_left_out_of_them_at_its_neutral_value(
     }
 
 
+def test_the_default_planners_record_as_runs_recorded_them():
+    """Every run records its planner, and resuming one compares the record with the planner
+    of the day (rbbo's PlannerMismatch). tests/data/planner_records.json holds the records of
+    the tuned and the shared (SoftRobot-v0) defaults as runs hold them (the same at f0a7552,
+    before noise_decay and restart_damping were added): a changed default, or a new setting
+    not listed in ``_neutral_since_records``, makes every such run unresumable. If that is
+    meant, regenerate the file and say so in the change."""
+    import json
+    from pathlib import Path
+
+    from controllers import TUNED_DT
+    from rbbo.objective import planner_record
+
+    expected = json.loads((Path(__file__).parent / "data" / "planner_records.json").read_text())
+    for key, record in expected.items():
+        env_id, name = key.split()
+        planner, every = planner_for(env_id, name, dt=TUNED_DT)
+        assert planner_record(planner, every) == record, key
+
+
 def test_mppi_beats_zero_control_on_a_short_horizon(walker):
     mppi = MPPI(MPPISettings(horizon=10, knots=3, samples=12, noise=0.5, iterations=3))
     mppi.reset(walker, seed=0)
