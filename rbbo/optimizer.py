@@ -411,9 +411,13 @@ class RBBO:
         """Record the outcome of proposal ``index`` (persisted before returning)."""
         if index not in self.pending:
             raise ValueError(f"no pending proposal with index {index}")
+        if R is not None:
+            # numpy's scalars (np.float32 from a torch model) as Python's: the history is JSON
+            R = _real("R", R)
         if status == "ok" and (R is None or not math.isfinite(R)):
             status, error = "failed", error or f"non-finite R {R!r}"
         proposal = self.pending[index]
+        index = proposal.index  # (an np.int64 that matched it would not serialise)
         # built (and so validated) before the proposal leaves `pending`: a bad status or R
         # raises with the proposal still there to be told again
         evaluation = Evaluation(

@@ -60,6 +60,21 @@ def test_ask_starts_with_the_identity_and_tell_records():
     assert opt.tell(third.index, 1.0).status == "ok"
 
 
+def test_tell_takes_numpy_scalars_into_a_run_directory(tmp_path):
+    # an np.int64 index (from an array of indices) or an np.float32 R (a torch or float32
+    # model's) is recorded as Python's: the history is JSON
+    opt = RBBO.create(tmp_path / "run", RBBOConfig(6, 2, n_init=2, **FAST))
+    first, second = opt.ask(), opt.ask()
+    told = [opt.tell(np.int64(first.index), np.float32(0.5)), opt.tell(second.index, np.int32(1))]
+    assert [(e.index, e.R) for e in told] == [(0, 0.5), (1, 1.0)]
+    assert all(type(e.index) is int and type(e.R) is float for e in told)
+    assert [e.R for e in RBBO.resume(tmp_path / "run", read_only=True).history] == [0.5, 1.0]
+    third = opt.ask()
+    with pytest.raises(ValueError, match=r"R must be a number, got array\(\[0.3\]\)"):
+        opt.tell(third.index, np.array([0.3]))
+    assert third.index in opt.pending
+
+
 def test_a_serial_run_is_reproducible_and_answer_order_decides_the_next_proposal():
     def run(order):
         objective = SyntheticObjective(6, 2, optimum_seed=3, noise=0.01)
