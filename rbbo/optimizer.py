@@ -414,6 +414,15 @@ class RBBO:
         if R is not None:
             # numpy's scalars (np.float32 from a torch model) as Python's: the history is JSON
             R = _real("R", R)
+        wall_s = _real("wall_s", wall_s)
+        if not math.isfinite(wall_s):
+            raise ValueError(f"wall_s must be a finite number of seconds, got {wall_s!r}")
+        r_seeds = [float(r) for r in R_seeds]
+        if not all(math.isfinite(r) for r in r_seeds):
+            # (the history is JSON, which has no NaN): a failure, as evaluate_task reports one
+            if status == "ok":
+                status, error = "failed", error or f"non-finite R over seeds: {tuple(r_seeds)}"
+            r_seeds = []
         if status == "ok" and (R is None or not math.isfinite(R)):
             status, error = "failed", error or f"non-finite R {R!r}"
         proposal = self.pending[index]
@@ -422,9 +431,9 @@ class RBBO:
         # raises with the proposal still there to be told again
         evaluation = Evaluation(
             index=index, basis=proposal.basis, T=proposal.T, R=R if status == "ok" else None,
-            status=status, seeds=list(proposal.seeds), wall_s=float(wall_s),
+            status=status, seeds=list(proposal.seeds), wall_s=wall_s,
             elapsed_s=self.elapsed_s, worker=str(worker), kind=proposal.kind, error=error,
-            R_seeds=[float(r) for r in R_seeds], gp=proposal.info.get("gp"),
+            R_seeds=r_seeds, gp=proposal.info.get("gp"),
             duplicates_skipped=int(proposal.info.get("duplicates_skipped", 0)),
         )  # fmt: skip
         self._record(evaluation, persist=True)

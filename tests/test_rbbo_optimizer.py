@@ -75,6 +75,23 @@ def test_tell_takes_numpy_scalars_into_a_run_directory(tmp_path):
     assert third.index in opt.pending
 
 
+def test_tell_with_a_non_finite_seed_records_a_failure_in_a_run_directory(tmp_path):
+    # one seed's episode diverged: R (their mean) and R_seeds hold NaN, which JSON cannot
+    opt = RBBO.create(tmp_path / "run", RBBOConfig(6, 2, n_init=2, **FAST))
+    first, second = opt.ask(), opt.ask()
+    failed = opt.tell(first.index, float("nan"), R_seeds=[0.4, float("nan")])
+    assert failed.status == "failed" and failed.R_seeds == [] and "non-finite" in failed.error
+    failed = opt.tell(second.index, 0.4, R_seeds=[0.4, float("inf")])
+    assert failed.status == "failed" and failed.R is None
+    assert failed.error == "non-finite R over seeds: (0.4, inf)"
+    third = opt.ask()
+    with pytest.raises(ValueError, match="wall_s must be a finite number of seconds, got nan"):
+        opt.tell(third.index, 0.5, wall_s=float("nan"))
+    assert third.index in opt.pending
+    assert [e.status for e in RBBO.resume(tmp_path / "run", read_only=True).history] == [
+        "failed", "failed"]  # fmt: skip
+
+
 def test_a_serial_run_is_reproducible_and_answer_order_decides_the_next_proposal():
     def run(order):
         objective = SyntheticObjective(6, 2, optimum_seed=3, noise=0.01)
