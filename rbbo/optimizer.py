@@ -76,7 +76,13 @@ from .config import (
 )
 from .executors import Executor, ProcessExecutor, SerialExecutor
 from .gp import GPHyperparameters, GrassmannGP
-from .grassmann import dimension, identity_basis, projection_sq_distances, random_points
+from .grassmann import (
+    dimension,
+    identity_basis,
+    projection_sq_distances,
+    random_points,
+    validate_basis,
+)
 from .store import Evaluation, RunDirectoryError, RunStore
 
 __all__ = ["FIDELITIES", "RBBO", "EvaluationsFailing", "Proposal", "RBBOConfig", "RBBOResult"]
@@ -101,6 +107,22 @@ def _ok_R(evaluation: Evaluation) -> float:
     """R of an 'ok' evaluation (which Evaluation checks is a finite number)."""
     assert evaluation.R is not None
     return evaluation.R
+
+
+def _check_history(store: RunStore, history: list[Evaluation], config: RBBOConfig) -> None:
+    """Refuse, naming the line, a history line that parses but does not belong to this run
+    (a basis of another shape or not orthonormal, an index recorded twice): an edited file."""
+    seen: dict[int, int] = {}
+    for number, evaluation in enumerate(history, start=1):  # (one line per evaluation)
+        where = f"{store.history_path} line {number} is corrupted"
+        try:
+            validate_basis(evaluation.basis, config.sim_dim, config.control_dim, name="its basis")
+        except ValueError as exc:
+            raise RunDirectoryError(f"{where}: {exc}") from exc
+        if evaluation.index in seen:
+            raise RunDirectoryError(f"{where}: evaluation {evaluation.index} is recorded on "
+                                    f"line {seen[evaluation.index]} already")  # fmt: skip
+        seen[evaluation.index] = number
 
 
 class EvaluationsFailing(RuntimeError):
@@ -175,6 +197,7 @@ class RBBO:
             ) from exc
         opt = cls(config, store=store, objective_spec=store.config.get("objective"))
         history = store.history()
+        _check_history(store, history, config)
         for evaluation in history:
             opt._record(evaluation, persist=False)
         opt._restored = opt._restore_proposals(store, {e.index for e in history})

@@ -140,11 +140,21 @@ class Evaluation:
     duplicates_skipped: int = 0
 
     def __post_init__(self) -> None:
+        # (from_json reads an edited line too: what is wrong is named there, with the line)
+        if isinstance(self.index, bool) or not isinstance(self.index, (int, np.integer)):
+            raise ValueError(f"index must be an integer, got {self.index!r}")
+        self.index = int(self.index)
+        real = (int, float, np.integer, np.floating)
+        if isinstance(self.T, bool) or not isinstance(self.T, real) or not 0 < self.T < math.inf:
+            raise ValueError(f"T must be a positive number of seconds, got {self.T!r}")
+        self.T = float(self.T)
         if self.status not in STATUSES:
             raise ValueError(f"status must be one of {list(STATUSES)}, got {self.status!r}")
         self.basis = np.asarray(self.basis, dtype=float)
         if self.basis.ndim != 2:
             raise ValueError(f"basis must be an (M, C) array, got shape {self.basis.shape}")
+        if not np.all(np.isfinite(self.basis)):
+            raise ValueError("basis holds non-finite values")
         if self.status == "ok" and (self.R is None or not math.isfinite(self.R)):
             raise ValueError(f"an 'ok' evaluation needs a finite R, got {self.R!r}")
 

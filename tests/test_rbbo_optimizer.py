@@ -368,6 +368,32 @@ def test_a_run_whose_evaluations_all_fail_stops_with_the_reason(tmp_path):
     assert result.evaluations == 12 and result.failed == 4
 
 
+def _with_basis(line, basis):
+    return json.dumps({**json.loads(line), "basis": np.asarray(basis).tolist()})
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda lines: [lines[0], lines[1], lines[1]],
+         "line 3 is corrupted: evaluation 1 is recorded on line 2 already"),
+        (lambda lines: [lines[0], _with_basis(lines[1], np.eye(2))],
+         r"line 2 is corrupted: its basis has shape \(2, 2\), expected"),
+        (lambda lines: [lines[0], _with_basis(lines[1], 2 * np.eye(6)[:, :2])],
+         "line 2 is corrupted: its basis is not orthonormal"),
+    ],
+)  # fmt: skip
+def test_resume_names_a_history_line_that_does_not_belong_to_the_run(tmp_path, edit, match):
+    opt = RBBO.create(tmp_path / "run", RBBOConfig(6, 2, n_init=2, **FAST))
+    for _ in range(2):
+        opt.tell(opt.ask().index, 0.5)
+    opt.store.close()
+    history = tmp_path / "run" / "history.jsonl"
+    history.write_text("\n".join(edit(history.read_text().splitlines())) + "\n")
+    with pytest.raises(RunDirectoryError, match=match):
+        RBBO.resume(tmp_path / "run", read_only=True)
+
+
 def test_resume_rejects_bad_settings(tmp_path):
     (tmp_path / "config.json").write_text(json.dumps({"rbbo": {"sim_dim": 4, "control_dim": 9}}))
     with pytest.raises(RunDirectoryError, match="invalid settings: control_dim = 9 exceeds"):

@@ -101,6 +101,28 @@ def test_evaluation_validation():
         Evaluation(0, np.eye(2), 1.0, float("nan"))
 
 
+@pytest.mark.parametrize(
+    ("key", "value", "match"),
+    [
+        ("T", "5.0", "T must be a positive number of seconds, got '5.0'"),
+        ("T", None, "T must be a positive number of seconds, got None"),
+        ("index", "1", "index must be an integer, got '1'"),
+        ("index", 1.5, "index must be an integer, got 1.5"),
+        ("basis", [[1.0, None], [0.0, 1.0]], "basis holds non-finite values"),
+    ],
+)
+def test_an_edited_line_of_the_wrong_type_is_named(tmp_path, key, value, match):
+    # parsed, but not an evaluation: refused where it is read, naming the line
+    store = RunStore.create(tmp_path, {})
+    store.append(_evaluation(0))
+    record = json.loads(_evaluation(1).to_json())
+    record[key] = value
+    with open(store.history_path, "a") as f:
+        f.write(json.dumps(record) + "\n")
+    with pytest.raises(RunDirectoryError, match=rf"history.jsonl line 2 is corrupted \({match}"):
+        RunStore.open(tmp_path).history()
+
+
 def test_a_run_killed_before_its_history_existed_reads_as_empty(tmp_path):
     store = RunStore.create(tmp_path / "run", {"rbbo": {}})
     store.history_path.unlink()  # as if killed between writing config.json and the history
