@@ -22,6 +22,21 @@ def test_distance_is_invariant_under_rotation_of_columns(rng):
     assert gr.projection_distance(a, a @ q) == pytest.approx(0.0, abs=1e-7)
 
 
+@pytest.mark.parametrize("eps", [1e-4, 1e-7, 1e-10, 1e-13])
+def test_distance_of_near_identical_subspaces_matches_principal_angles(rng, eps):
+    from scipy.linalg import subspace_angles
+
+    a = gr.random_points(20, 3, rng=rng)
+    g = rng.standard_normal(a.shape)
+    g -= a @ (a.T @ g)
+    u, _, vt = np.linalg.svd(a + eps * g / np.linalg.norm(g), full_matrices=False)
+    b = u @ vt
+    expected = np.sqrt(2.0) * np.linalg.norm(np.sin(subspace_angles(a, b)))
+    assert gr.projection_distance(a, b) == pytest.approx(expected, rel=1e-6)
+    assert gr.projection_distance(a, b) == gr.projection_distance(b, a)
+    assert gr.projection_distance(a, a @ ortho_group.rvs(3, random_state=2)) < 1e-14
+
+
 def test_orthogonal_subspaces_are_sqrt_2c_apart():
     e = np.eye(6)
     assert gr.projection_distance(e[:, :3], e[:, 3:]) == pytest.approx(np.sqrt(6.0))
