@@ -70,9 +70,12 @@ def validate_basis(
         Largest accepted entry of |B_c^T B_c - I|.
     """
     try:
-        b = np.asarray(b_c, dtype=float)
+        raw = np.asarray(b_c)
+        b = None if np.iscomplexobj(raw) else np.asarray(b_c, dtype=float)
     except (TypeError, ValueError) as exc:
         raise TypeError(f"{name} must be a real (M, C) array, got {type(b_c).__name__}") from exc
+    if b is None:  # (float() would drop the imaginary part with a warning only)
+        raise TypeError(f"{name} must be real, got a {raw.dtype} array")
     if b.ndim != 2:
         raise ValueError(f"{name} must be a 2-D (M, C) array, got shape {b.shape}")
     m, c = b.shape

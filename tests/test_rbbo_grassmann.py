@@ -106,3 +106,8 @@ def test_bad_dims_and_rank():
         gr.orthonormalize(np.ones((4, 2)))
     with pytest.raises(TypeError, match="real \\(M, C\\) array"):
         gr.validate_basis([["a", "b"]])
+    # not read as its real part (numpy would only warn)
+    with pytest.raises(TypeError, match="B_c must be real, got a complex128 array"):
+        gr.validate_basis(np.eye(4)[:, :2] + 1e-3j)
+    with pytest.raises(TypeError, match="B_i must be real, got a complex64 array"):
+        gr.projection_distance(np.eye(4, 2, dtype=np.complex64), np.eye(4)[:, :2])
