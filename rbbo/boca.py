@@ -124,20 +124,32 @@ class BOCAFidelity:
     recent: deque = field(default_factory=deque, repr=False)
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.t_min) and np.isfinite(self.t_max) and 0 < self.t_min):
+        real = (int, float, np.integer, np.floating)
+        for name in ("t_min", "t_max", "kappa", "cost_exponent", "max_cost_ratio", "kappa_step"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, real):
+                raise ValueError(f"{name} must be a number, got {value!r}")
+            if not np.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value!r}")
+        if not 0 < self.t_min:
             raise ValueError(f"T_min must be a positive finite number, got {self.t_min}")
         if not self.t_max > self.t_min:
             raise ValueError(f"T_max = {self.t_max} must exceed T_min = {self.t_min}")
-        if (
-            isinstance(self.floor_after, bool)
-            or not isinstance(self.floor_after, int)
-            or (self.floor_after < 1)
-        ):
-            raise ValueError(f"floor_after must be an integer >= 1, got {self.floor_after!r}")
-        if self.n_candidates < 2:
-            raise ValueError(f"n_candidates must be >= 2, got {self.n_candidates}")
+        for name, low in (("floor_after", 1), ("n_candidates", 2), ("window", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
         if not self.kappa > 0:
             raise ValueError(f"kappa must be > 0, got {self.kappa}")
+        if not self.cost_exponent >= 0:
+            raise ValueError(f"cost_exponent must be >= 0, got {self.cost_exponent}")
+        if not self.max_cost_ratio > 0:
+            raise ValueError(f"max_cost_ratio must be > 0, got {self.max_cost_ratio}")
+        if not self.kappa_step >= 1:  # (below 1 the adaptation would run the wrong way)
+            raise ValueError(f"kappa_step must be >= 1, got {self.kappa_step}")
+        if len(self.target_fraction) != 2:
+            raise ValueError(f"target_fraction must be a (low, high) pair, got "
+                             f"{self.target_fraction!r}")  # fmt: skip
         lo, hi = self.target_fraction
         if not 0 <= lo <= hi <= 1:
             raise ValueError(f"target_fraction must satisfy 0 <= lo <= hi <= 1, got {lo, hi}")

@@ -109,8 +109,33 @@ def test_bad_fidelity_ranges():
         BOCAFidelity(4.0, 3.0)
     with pytest.raises(ValueError, match="T_min must be a positive finite number, got 0"):
         BOCAFidelity(0, 3.0)
-    with pytest.raises(ValueError, match="n_candidates must be >= 2"):
+    with pytest.raises(ValueError, match="n_candidates must be an integer >= 2, got 1"):
         BOCAFidelity(1.0, 3.0, n_candidates=1)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"t_max": np.inf}, "t_max must be finite, got inf"),  # (not "T_min must be ...")
+        ({"t_min": "1"}, "t_min must be a number, got '1'"),
+        ({"n_candidates": 2.5}, "n_candidates must be an integer >= 2, got 2.5"),
+        ({"window": 0}, "window must be an integer >= 1, got 0"),
+        ({"kappa": np.inf}, "kappa must be finite, got inf"),
+        ({"kappa_step": 0.0}, "kappa_step must be >= 1, got 0.0"),
+        ({"kappa_step": 0.5}, "kappa_step must be >= 1, got 0.5"),
+        ({"cost_exponent": np.nan}, "cost_exponent must be finite, got nan"),
+        ({"cost_exponent": -1}, "cost_exponent must be >= 0, got -1"),
+        ({"max_cost_ratio": np.nan}, "max_cost_ratio must be finite, got nan"),
+        ({"max_cost_ratio": 0}, "max_cost_ratio must be > 0, got 0"),
+        ({"target_fraction": (0.5,)}, r"target_fraction must be a \(low, high\) pair"),
+    ],
+)
+def test_bad_settings_are_named_when_made(kwargs, match):
+    # each was accepted and later failed elsewhere (n_candidates in linspace, window = 0 in
+    # a mean of nothing), or silently chose T_max always (NaN thresholds), or ran the kappa
+    # adaptation backwards (kappa_step < 1)
+    with pytest.raises(ValueError, match=match):
+        BOCAFidelity(**{"t_min": 1.0, "t_max": 3.0, **kwargs})
 
 
 def test_boca_needs_a_fidelity_gp(problem):
