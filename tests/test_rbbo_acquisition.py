@@ -84,6 +84,13 @@ def test_lrbfgs_reports_its_stopping_reason(rng):
         LRBFGS(memory=0)
     with pytest.raises(ValueError, match="need 0 < c1 < c2 < 1"):
         LRBFGS(c1=0.5, c2=0.1)
+    # (0 trials: every run stopped at its start, "line search failed"; 2.5 ran 2)
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match=f"max_line_search must be a positive integer, "
+                                             f"got {bad}"):  # fmt: skip
+            LRBFGS(max_line_search=bad)
+    with pytest.raises(ValueError, match="memory must be a positive integer, got True"):
+        LRBFGS(memory=True)
 
 
 @pytest.mark.parametrize("z", [1.0, 0.3])

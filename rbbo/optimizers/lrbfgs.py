@@ -97,8 +97,9 @@ class LRBFGS(Optimizer):
     ):
         kwargs.setdefault("verbosity", 0)
         super().__init__(**kwargs)
-        if not isinstance(memory, (int, np.integer)) or memory < 1:
-            raise ValueError(f"memory must be a positive integer, got {memory!r}")
+        for name, value in (("memory", memory), ("max_line_search", max_line_search)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if not 0 < c1 < c2 < 1:
             raise ValueError(f"need 0 < c1 < c2 < 1, got c1 = {c1}, c2 = {c2}")
         self._memory = int(memory)
