@@ -165,7 +165,7 @@ def flatten(bases: np.ndarray) -> np.ndarray:
         b = b[None]
     if b.ndim != 3:
         raise ValueError(f"bases must have shape (n, M, C) or (M, C), got {b.shape}")
-    return b.reshape(b.shape[0], -1)
+    return b.reshape(b.shape[0], b.shape[1] * b.shape[2])  # (-1 is ambiguous when n = 0)
 
 
 def unflatten(x: np.ndarray, sim_dim: int, control_dim: int) -> np.ndarray:

@@ -51,6 +51,7 @@ def test_random_points_are_orthonormal_and_spread(rng):
     mean_overlap = np.mean(np.sum((pts.transpose(0, 2, 1) @ u) ** 2, axis=(1, 2)))
     assert mean_overlap == pytest.approx(4 / 10, abs=0.06)
     assert gr.random_points(5, 2, 0, rng).shape == (0, 5, 2)
+    assert gr.flatten(gr.random_points(5, 2, 0, rng)).shape == (0, 10)  # an empty X
     for n in (2.5, -1, True):
         with pytest.raises(ValueError, match="n must be an integer >= 0"):
             gr.random_points(5, 2, n, rng)
