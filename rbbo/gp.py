@@ -67,6 +67,12 @@ class GPHyperparameters:
     noise_variance: float
 
 
+def _real_bases(bases) -> np.ndarray:
+    if np.iscomplexobj(bases):  # (float() would drop the imaginary part with a warning only)
+        raise TypeError(f"bases must be real, got a {np.asarray(bases).dtype} array")
+    return np.asarray(bases, dtype=float)
+
+
 def _parts(kernel):
     params = kernel.get_params(deep=True)
     found = {}
@@ -141,7 +147,7 @@ class GrassmannGP:
         return k + WhiteKernel(hp.noise_variance if hp else 1e-2, self.noise_bounds)
 
     def _check_data(self, bases, y, z):
-        b = np.asarray(bases, dtype=float)
+        b = _real_bases(bases)
         if b.ndim != 3 or b.shape[1:] != (self.sim_dim, self.control_dim) or b.shape[0] < 1:
             raise ValueError(
                 f"bases must have shape (n, {self.sim_dim}, {self.control_dim}), n >= 1, got "
@@ -268,7 +274,7 @@ class GrassmannGP:
         """Query bases as (m, M, C), or an error naming what is wrong (or that it is unfitted)."""
         if self.hyperparameters is None:
             raise RuntimeError("fit the GP before predicting")
-        b = np.asarray(bases, dtype=float)
+        b = _real_bases(bases)
         if b.ndim == 2:
             b = b[None]
         if b.ndim != 3 or b.shape[1:] != (self.sim_dim, self.control_dim):
@@ -278,7 +284,11 @@ class GrassmannGP:
         return b
 
     def predict_standardized(self, bases: np.ndarray, z: float | np.ndarray = 1.0):
-        """Latent posterior mean and standard deviation on the standardised scale."""
+        """Latent posterior mean and standard deviation on the standardised scale.
+
+        The bases are not checked for orthonormality (the acquisition's hot path; use
+        :meth:`predict` for bases from elsewhere).
+        """
         b = self._query(bases)
         zq = np.broadcast_to(np.asarray(z, dtype=float), (b.shape[0],))
         k = self._cross(b, zq)
@@ -293,7 +303,12 @@ class GrassmannGP:
         ----------
         bases : (m, M, C) or (M, C)
         z : fidelity in [0, 1] (ignored without fidelity)
+
+        Each basis must be orthonormal (the kernel reads its span through B B^T): one that
+        is not is refused, as by :meth:`fit`, instead of predicted far off.
         """
+        for i, basis in enumerate(self._query(bases)):
+            validate_basis(basis, name=f"bases[{i}]")
         mu, sd = self.predict_standardized(bases, z)
         return self.y_mean_ + self.y_std_ * mu, self.y_std_ * sd
 

@@ -156,3 +156,10 @@ def test_gp_rejects_bad_data(rng):
     gp.fit(bases, rng.normal(size=4))
     with pytest.raises(ValueError, match=r"bases must have shape \(n, 7, 2\) or \(7, 2\)"):
         gp.predict(bases[:, :5])
+    # a basis the kernel cannot read (its span is read through B B^T) is named, not
+    # predicted far off (2 B gave a mean of -2e6 for R in [-2, 2])
+    with pytest.raises(ValueError, match=r"bases\[1\] is not orthonormal"):
+        gp.predict(np.stack([bases[0], 2.0 * bases[1]]))
+    for call in (lambda b: gp.predict(b), lambda b: GrassmannGP(M, C).fit(b, np.zeros(4))):
+        with pytest.raises(TypeError, match="bases must be real, got a complex128 array"):
+            call(bases + 1e-3j)
