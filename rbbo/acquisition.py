@@ -31,7 +31,7 @@ import numpy as np
 
 from ._pymanopt import ConjugateGradient, Grassmann, OptimizerResult, pymanopt
 from .gp import GrassmannGP, single_threaded_blas
-from .grassmann import _check_dims, random_points
+from .grassmann import _check_dims, random_points, validate_basis
 from .optimizers import LRBFGS
 
 __all__ = [
@@ -217,7 +217,13 @@ def _maximize(function, m, c, incumbents, rng, optimizer, n_random, n_perturbati
               perturbation_scale, n_starts, max_iterations, min_gradient_norm):  # fmt: skip
     candidates = [random_points(m, c, n_random, rng)] if n_random > 0 else []
     if incumbents is not None and len(incumbents):
-        inc = np.asarray(incumbents, dtype=float).reshape(-1, m, c)
+        inc = np.asarray(incumbents, dtype=float)
+        inc = inc[None] if inc.ndim == 2 else inc
+        if inc.ndim != 3 or inc.shape[1:] != (m, c):  # (a reshape took any array of n M C)
+            raise ValueError(f"incumbents must have shape (n, {m}, {c}) or ({m}, {c}), got "
+                             f"{np.shape(incumbents)}")  # fmt: skip
+        for i, basis in enumerate(inc):  # (each is a start: a point of the manifold)
+            validate_basis(basis, name=f"incumbents[{i}]")
         candidates.append(inc)
         for scale in perturbation_scale * np.linspace(0.5, 1.5, max(n_perturbations, 0)):
             candidates.append(np.stack([perturb(b, scale, rng) for b in inc]))

@@ -153,3 +153,15 @@ def test_beta_schedule_grows_logarithmically():
 def test_bad_optimizer_name(rng):
     with pytest.raises(ValueError, match=r"unknown optimizer 'bfgs'; valid: \['lrbfgs', 'cg'\]"):
         maximize_on_grassmann(TraceQuadratic(np.eye(M)), M, C, optimizer="bfgs")
+
+
+def test_incumbents_of_another_shape_or_off_the_manifold_are_refused(rng):
+    f = TraceQuadratic(np.eye(M))
+    wrong = gr.random_points(6, 4, 3, rng)  # 72 numbers: a reshape to (-1, 8, 3) took them
+    assert (M, C) == (8, 3)
+    with pytest.raises(ValueError, match=rf"incumbents must have shape \(n, {M}, {C}\)"):
+        maximize_on_grassmann(f, M, C, incumbents=wrong, rng=0, n_random=4)
+    with pytest.raises(ValueError, match=r"incumbents\[0\] is not orthonormal"):
+        maximize_on_grassmann(f, M, C, incumbents=2 * gr.identity_basis(M, C), rng=0)
+    result = maximize_on_grassmann(f, M, C, incumbents=gr.identity_basis(M, C), rng=0, n_random=0)
+    gr.validate_basis(result.basis, M, C)  # one (M, C) incumbent is a stack of one
