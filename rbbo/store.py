@@ -338,8 +338,9 @@ class RunStore:
     def open(cls, path: str | os.PathLike, *, repair: bool = True) -> RunStore:
         """Open an existing run directory.
 
-        With ``repair`` (for resuming) a truncated last history line is cut with a warning;
-        without (for reading a run that may still be writing) it is only skipped.
+        With ``repair`` (for resuming) a truncated last history line is cut with a warning
+        (a whole evaluation that lacks only its newline is ended and kept); without (for
+        reading a run that may still be writing) it is only skipped.
         """
         path = Path(path)
         if not path.is_dir():
@@ -369,6 +370,17 @@ class RunStore:
         cut = data.rfind(b"\n") + 1  # end of the last complete line
         tail = data[cut:]
         if not tail:
+            return
+        try:
+            Evaluation.from_json(tail.decode("utf-8"))
+        except (ValueError, TypeError, UnicodeDecodeError):
+            pass  # cut short: dropped below
+        else:
+            # a whole evaluation whose write stopped before its newline: ended, not dropped
+            with open(hist, "ab") as f:
+                f.write(b"\n")
+                f.flush()
+                os.fsync(f.fileno())
             return
         warnings.warn(
             f"{hist}: dropped a truncated last line ({len(tail)} bytes, an evaluation that "

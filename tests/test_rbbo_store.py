@@ -44,6 +44,20 @@ def test_truncated_last_line_is_dropped_with_a_warning(tmp_path):
     assert [e.index for e in RunStore.open(tmp_path).history()] == [0, 1, 2, 4]
 
 
+def test_a_whole_last_line_without_its_newline_is_kept(tmp_path, recwarn):
+    store = RunStore.create(tmp_path, {})
+    for i in range(2):
+        store.append(_evaluation(i))
+    with open(store.history_path, "a") as f:
+        f.write(_evaluation(2).to_json())  # the write stopped before its newline
+    assert [e.index for e in RunStore.open(tmp_path, repair=False).history()] == [0, 1]
+    reopened = RunStore.open(tmp_path)
+    assert not recwarn.list and not (tmp_path / "history.jsonl.truncated").exists()
+    assert [e.index for e in reopened.history()] == [0, 1, 2]
+    reopened.append(_evaluation(3))
+    assert [e.index for e in RunStore.open(tmp_path).history()] == [0, 1, 2, 3]
+
+
 def test_read_only_open_skips_a_line_being_written_and_changes_nothing(tmp_path):
     store = RunStore.create(tmp_path, {})
     store.append(_evaluation(0))
