@@ -65,6 +65,8 @@ SUMMARY = "summary.json"
 SESSIONS = "sessions.jsonl"
 PROPOSALS = "proposals.jsonl"
 STATUSES = ("ok", "failed")
+# Evaluation.kind: how the proposal was made (rbbo.config.CONFIRM_KINDS are the last two)
+KINDS = ("initial", "random", "acquisition", "confirm-init", "confirm-best")
 LOCK = ".rbbo.lock"
 
 if sys.platform != "win32":
@@ -150,6 +152,8 @@ class Evaluation:
         self.T = float(self.T)
         if self.status not in STATUSES:
             raise ValueError(f"status must be one of {list(STATUSES)}, got {self.status!r}")
+        if self.kind not in KINDS:  # (another kind would be counted as a search evaluation)
+            raise ValueError(f"kind must be one of {list(KINDS)}, got {self.kind!r}")
         self.basis = np.asarray(self.basis, dtype=float)
         if self.basis.ndim != 2:
             raise ValueError(f"basis must be an (M, C) array, got shape {self.basis.shape}")

@@ -123,6 +123,7 @@ def test_evaluation_validation():
         ("index", "1", "index must be an integer, got '1'"),
         ("index", 1.5, "index must be an integer, got 1.5"),
         ("basis", [[1.0, None], [0.0, 1.0]], "basis holds non-finite values"),
+        ("kind", "bogus", "kind must be one of .*, got 'bogus'"),
     ],
 )
 def test_an_edited_line_of_the_wrong_type_is_named(tmp_path, key, value, match):
