@@ -145,6 +145,9 @@ class BOCAFidelity:
             raise ValueError(f"cost_exponent must be >= 0, got {self.cost_exponent}")
         if not self.max_cost_ratio > 0:
             raise ValueError(f"max_cost_ratio must be > 0, got {self.max_cost_ratio}")
+        if self.floor_after > self.window:  # (the window never holds that many choices)
+            raise ValueError(f"floor_after = {self.floor_after} exceeds window = {self.window}: "
+                             "the floor could never apply")  # fmt: skip
         if not self.kappa_step >= 1:  # (below 1 the adaptation would run the wrong way)
             raise ValueError(f"kappa_step must be >= 1, got {self.kappa_step}")
         if len(self.target_fraction) != 2:
@@ -166,7 +169,7 @@ class BOCAFidelity:
     @property
     def candidates(self) -> np.ndarray:
         """Candidate T values cheaper than max_cost_ratio * T_max (T_max itself excluded)."""
-        grid = np.linspace(self.t_min, self.t_max, self.n_candidates)
+        grid = np.linspace(self.t_min, self.t_max, self.n_candidates)[:-1]  # (T_max: the target)
         return grid[grid / self.t_max <= self.max_cost_ratio]
 
     def choose(

@@ -65,6 +65,9 @@ def test_candidates_respect_the_cost_cap():
     boca = BOCAFidelity(2.0, 10.0, n_candidates=5, max_cost_ratio=0.9)
     np.testing.assert_allclose(boca.candidates, [2.0, 4.0, 6.0, 8.0])
     assert boca.z(10.0) == 1.0 and boca.z(2.0) == 0.0
+    # T_max is the target, never a candidate, whatever the cap
+    uncapped = BOCAFidelity(2.0, 10.0, n_candidates=5, max_cost_ratio=1.5)
+    np.testing.assert_allclose(uncapped.candidates, [2.0, 4.0, 6.0, 8.0])
 
 
 def test_kappa_adapts_to_the_share_of_full_fidelity_choices():
@@ -128,6 +131,7 @@ def test_bad_fidelity_ranges():
         ({"max_cost_ratio": np.nan}, "max_cost_ratio must be finite, got nan"),
         ({"max_cost_ratio": 0}, "max_cost_ratio must be > 0, got 0"),
         ({"target_fraction": (0.5,)}, r"target_fraction must be a \(low, high\) pair"),
+        ({"window": 3}, "floor_after = 4 exceeds window = 3: the floor could never apply"),
     ],
 )
 def test_bad_settings_are_named_when_made(kwargs, match):
