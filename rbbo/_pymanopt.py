@@ -29,5 +29,6 @@ import pymanopt  # noqa: E402
 from pymanopt.manifolds import Grassmann  # noqa: E402
 from pymanopt.optimizers import ConjugateGradient  # noqa: E402
 from pymanopt.optimizers.optimizer import Optimizer, OptimizerResult  # noqa: E402
+from pymanopt.tools import printer  # noqa: E402
 
-__all__ = ["ConjugateGradient", "Grassmann", "Optimizer", "OptimizerResult", "pymanopt"]
+__all__ = ["ConjugateGradient", "Grassmann", "Optimizer", "OptimizerResult", "printer", "pymanopt"]

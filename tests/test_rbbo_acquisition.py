@@ -93,6 +93,22 @@ def test_lrbfgs_reports_its_stopping_reason(rng):
         LRBFGS(memory=True)
 
 
+def test_lrbfgs_prints_as_pymanopts_optimizers_do(rng, capsys):
+    problem = make_problem(TraceQuadratic(_symmetric(rng)), M, C)
+    x0 = gr.random_points(M, C, rng=rng)
+    LRBFGS(max_iterations=3, verbosity=2).run(problem, initial_point=x0)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "Optimizing..." and "Gradient norm" in lines[1]
+    rows = [line.split() for line in lines if line.split() and line.split()[0].isdigit()]
+    assert [int(r[0]) for r in rows] == [0, 1, 2, 3]  # a row per iteration
+    assert "max iterations" in lines[-1]
+    LRBFGS(max_iterations=3, verbosity=1).run(problem, initial_point=x0)
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == "Optimizing..." and len(out) == 2
+    LRBFGS(max_iterations=3).run(problem, initial_point=x0)
+    assert capsys.readouterr().out == ""
+
+
 @pytest.mark.parametrize("z", [1.0, 0.3])
 def test_ucb_euclidean_gradient_matches_finite_differences(gp, z, rng):
     acq = UCBAcquisition(gp, beta=2.0, z=z)

@@ -36,7 +36,7 @@ from collections import deque
 
 import numpy as np
 
-from .._pymanopt import Optimizer, OptimizerResult, pymanopt
+from .._pymanopt import Optimizer, OptimizerResult, printer, pymanopt
 
 __all__ = ["LRBFGS"]
 
@@ -173,6 +173,17 @@ class LRBFGS(Optimizer):
         gradient_norm = manifold.norm(x, grad)
         cost_evaluations = 1
         pairs: deque = deque(maxlen=self._memory)
+        # pymanopt's own optimizers' output: a line at verbosity 1, a row per iteration at 2
+        if self._verbosity >= 1:
+            print("Optimizing...")
+        if self._verbosity >= 2:
+            columns = printer.ColumnPrinter(
+                columns=[("Iteration", f"{len(str(self._max_iterations))}d"),
+                         ("Cost", "+.16e"), ("Gradient norm", ".8e")]
+            )  # fmt: skip
+        else:
+            columns = printer.VoidPrinter()
+        columns.print_header()
         self._initialize_log(
             optimizer_parameters={"memory": self._memory, "c1": self._c1, "c2": self._c2}
         )
@@ -181,6 +192,7 @@ class LRBFGS(Optimizer):
         retrying = False
         start_time = time.time()
         while True:
+            columns.print_row([iteration, cost, gradient_norm])
             self._add_log_entry(
                 iteration=iteration, point=x, cost=cost, gradient_norm=gradient_norm
             )
