@@ -93,8 +93,8 @@ class UCBAcquisition:
     def __init__(self, gp: GrassmannGP, beta: float, z: float = 1.0):
         if gp.hyperparameters is None:
             raise ValueError("UCBAcquisition needs a fitted GP")
-        if not beta >= 0:
-            raise ValueError(f"beta must be >= 0, got {beta}")
+        if not 0 <= beta < np.inf:  # (inf: every candidate's value inf, or nan where sd = 0)
+            raise ValueError(f"beta must be a finite number >= 0, got {beta}")
         self.gp = gp
         self.beta = float(beta)
         self.sqrt_beta = float(np.sqrt(beta))

@@ -127,6 +127,9 @@ def test_ucb_batch_values_match_pointwise(gp, rng):
     bases = gr.random_points(M, C, 6, rng)
     pointwise = [acq.value_and_gradient(b)[0] for b in bases]
     np.testing.assert_allclose(acq.values(bases), pointwise, rtol=1e-10)
+    for bad in (-1.0, np.inf, np.nan):
+        with pytest.raises(ValueError, match=f"beta must be a finite number >= 0, got {bad}"):
+            UCBAcquisition(gp, beta=bad)
 
 
 def test_ucb_riemannian_gradient_passes_pymanopt_style_check(gp, rng):
