@@ -82,6 +82,43 @@ def test_set_state_refuses_a_state_of_another_model():
     np.testing.assert_array_equal(base.get_state().impulses, state.impulses)  # unchanged
 
 
+def test_reset_starts_from_a_state_given_as_its_option():
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    action = np.full(3, 0.5) * env.get_wrapper_attr("action_bound")
+    for _ in range(5):
+        env.step(action)
+    mid = env.get_wrapper_attr("get_state")()
+    after = env.step(action)
+    # from the state given: the same step, the distance counted from there
+    _, info = env.reset(seed=1, options={"state": mid})
+    assert info["distance"] == 0.0
+    np.testing.assert_array_equal(env.get_wrapper_attr("get_state")().q, mid.q)
+    again = env.step(action)
+    np.testing.assert_array_equal(again[0], after[0])
+    assert again[1] == after[1]
+    # the velocities are drawn all the same: the stream goes on as after a plain reset
+    plain = gym.make("softrom_gym/BeamWalk-v0")
+    plain.reset(seed=1)
+    assert env.unwrapped.np_random.random() == plain.unwrapped.np_random.random()
+    # anything else is named, and nothing changes
+    before = env.get_wrapper_attr("get_state")()
+    with pytest.raises(ValueError, match=r"reset takes the option 'state' only .* got \['start'\]"):
+        env.reset(options={"start": mid})
+    with pytest.raises(TypeError, match="state must be a ReducedState from get_state()"):
+        env.reset(options={"state": mid.q})
+    np.testing.assert_array_equal(env.get_wrapper_attr("get_state")().q, before.q)
+    # the vector env: every robot from the state
+    venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                        vectorization_mode="vector_entry_point")  # fmt: skip
+    obs, _ = venv.reset(seed=0, options={"state": mid})
+    np.testing.assert_array_equal(obs[0], obs[1])
+    np.testing.assert_array_equal(obs[0], env.reset(options={"state": mid})[0])
+    with pytest.raises(ValueError, match="reset takes the option 'state' only"):
+        venv.reset(options={"x": 1})
+    venv.close()
+
+
 def test_divergence_is_marked_as_lost_steps_from_the_diverging_step_on():
     # A huge action bound lets one step blow the simulation up on purpose.
     env = gym.make("softrom_gym/SoftRobot-v0", robot="beam", action_scale=1e9)

@@ -180,8 +180,9 @@ class SoftRobotEnv(gym.Env):
     ## Starting State
     The robot at rest (on the ground for walking), with deformation velocities drawn
     uniformly in ±``reset_noise_scale`` · sqrt(m) · 0.01 m/s from ``np_random`` (for a robot
-    shorter than 10 cm, 0.01 m/s becomes 10 % of its body length per second). ``reset``
-    takes no ``options`` (any given are ignored): to start elsewhere, ``set_state``.
+    shorter than 10 cm, 0.01 m/s becomes 10 % of its body length per second).
+    ``reset(options={"state": state})`` starts from a ``ReducedState`` of ``get_state()``
+    instead (distance is then counted from there); any other option is a ValueError.
 
     ## Episode End
     Terminated when the simulation diverges (``info["diverged"] = True``; reset() makes the
@@ -417,6 +418,7 @@ class SoftRobotEnv(gym.Env):
 
     # ---------------------------------------------------------------- gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        start = self._reset_start(options)  # (checked before anything changes)
         super().reset(seed=seed)
         rest = self.model.rest_state()
         qdot = rest.qdot
@@ -425,9 +427,22 @@ class SoftRobotEnv(gym.Env):
         speed = 0.01 * min(1.0, self.body_length / 0.1)
         noise = self.reset_noise_scale * speed * self._sqrt_m
         qdot[6:] = self.np_random.uniform(-noise, noise, size=qdot.size - 6)
-        self._state = cpp_sim.ReducedState(rest.q, qdot, rest.impulses)
+        # (the velocities are drawn even for a given start: the stream goes on as without it)
+        self._state = cpp_sim.ReducedState(rest.q, qdot, rest.impulses) if start is None else start
         self._com0 = self.model.com(self._state.q)
         return self._obs(self._state), self._info(self._state, 0.0, 0.0, False)
+
+    def _reset_start(self, options: dict | None) -> cpp_sim.ReducedState | None:
+        """The state ``reset``'s options start from (None: the robot at rest), or an error."""
+        if not options:
+            return None
+        if not isinstance(options, dict):
+            raise TypeError(f"options must be a dict or None, got {type(options).__name__}")
+        unknown = sorted(set(options) - {"state"})
+        if unknown:
+            raise ValueError(f"reset takes the option 'state' only (a ReducedState from "
+                             f"get_state()), got {unknown}")  # fmt: skip
+        return self._checked_state(options["state"])
 
     def _info(
         self, state, lateral: float, effort: float, diverged: bool, orientation: float | None = None
@@ -514,6 +529,10 @@ class SoftRobotEnv(gym.Env):
 
     def set_state(self, state: cpp_sim.ReducedState) -> None:
         """Restore a state returned by :meth:`get_state`."""
+        self._state = self._checked_state(state)
+
+    def _checked_state(self, state: cpp_sim.ReducedState) -> cpp_sim.ReducedState:
+        """A copy of ``state``, or an error naming why it is not a state of this env."""
         if not isinstance(state, cpp_sim.ReducedState):
             raise TypeError(f"state must be a ReducedState from get_state(), got {type(state)}")
         if state.q.shape != (self.model.dim,):
@@ -522,7 +541,7 @@ class SoftRobotEnv(gym.Env):
         if state.impulses.shape != (impulses,):
             raise ValueError(f"state has {state.impulses.size} contact impulses, expected "
                              f"{impulses} (3 per surface node of this env's robot)")  # fmt: skip
-        self._state = state.copy()
+        return state.copy()
 
     def center_of_mass(self, state: cpp_sim.ReducedState | None = None) -> np.ndarray:
         """The centre of mass (3,) of ``state`` (default: the current state), m."""

@@ -25,6 +25,8 @@ class SoftRobotVectorEnv(VectorEnv):
     :class:`SoftRobotEnv` reset with seed ``seed + i``. Autoreset follows Gymnasium's
     ``AutoresetMode.NEXT_STEP``: the step after an episode ends resets that robot and returns
     its first observation with reward 0. Episodes are truncated after ``max_episode_steps``.
+    ``reset(options={"state": state})`` starts every robot from that ``ReducedState`` (an
+    autoreset later starts it at rest, as a plain reset does).
 
     Create it with ``gym.make_vec(id, num_envs=n, vectorization_mode="vector_entry_point")``;
     every other keyword is passed to :class:`SoftRobotEnv`.
@@ -84,10 +86,10 @@ class SoftRobotVectorEnv(VectorEnv):
         self._autoreset = np.zeros(num_envs, dtype=bool)
         self._rngs = [seeding.np_random()[0] for _ in range(num_envs)]
 
-    def _reset_one(self, i: int) -> tuple[np.ndarray, dict[str, Any]]:
+    def _reset_one(self, i: int, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         env = self.env
         env._np_random = self._rngs[i]  # the sub-env's own stream, as a single env's
-        obs, info = env.reset()
+        obs, info = env.reset(options=options)
         self._rngs[i] = env.np_random
         self._states[i] = env.get_state()
         self._com0[i] = info["com"]
@@ -111,13 +113,14 @@ class SoftRobotVectorEnv(VectorEnv):
             raise ValueError(
                 f"seed must be None, an int or a list of {self.num_envs} ints, got {seed!r}"
             )
+        self.env._reset_start(options)  # (an error before any sub-env is reset)
         infos: dict[str, Any] = {}
         obs = np.zeros(self.observation_space.shape, dtype=np.float32)
         for i, s in enumerate(seeds):
             # Gymnasium's rule: an unseeded reset continues each sub-env's own stream.
             if s is not None:
                 self._rngs[i] = seeding.np_random(int(s))[0]
-            obs[i], info = self._reset_one(i)
+            obs[i], info = self._reset_one(i, options)
             infos = self._add_info(infos, info, i)
         self._autoreset[:] = False
         return obs, infos
