@@ -165,13 +165,13 @@ def run_episode(
             planner, api, env, record, com, states, replan_steps, wall, records, "interrupted"
         )
         if video is not None and len(frames) > 1:
-            _write_video(video, frames, round(1.0 / api.dt))  # the frames so far
+            _write_video(video, frames, _fps(api.dt))  # the frames so far
         raise
     finally:
         if bar is not None:
             bar.close()
     if video is not None:
-        _write_video(video, frames, round(1.0 / api.dt))
+        _write_video(video, frames, _fps(api.dt))
     return _result(planner, api, env, record, com, states, replan_steps, wall, records, stop)
 
 
@@ -269,6 +269,16 @@ def _imageio():
 _FFMPEG_SUFFIXES = {".mp4", ".m4v", ".mov", ".mkv", ".avi", ".webm"}
 
 
+def _fps(dt: float) -> int:
+    """Frames per second of a video of env steps of ``dt`` s: one frame a step, at least 1
+    (as the env's ``render_fps``: a control period over 2 s rounds to 0, which ffmpeg plays at
+    its own rate and a GIF cannot be written at)."""
+    return max(1, round(1.0 / dt))
+
+
 def _write_video(path: str | os.PathLike, frames: list[np.ndarray], fps: int) -> None:
-    extra = {"macro_block_size": 2} if Path(path).suffix.lower() in _FFMPEG_SUFFIXES else {}
-    _imageio().mimwrite(os.fspath(path), frames, fps=fps, **extra)
+    if Path(path).suffix.lower() in _FFMPEG_SUFFIXES:
+        timing: dict[str, Any] = {"fps": fps, "macro_block_size": 2}
+    else:  # a GIF: imageio's pillow writer takes each frame's duration (ms); fps is deprecated
+        timing = {"duration": 1000.0 / fps}
+    _imageio().mimwrite(os.fspath(path), frames, **timing)

@@ -299,6 +299,19 @@ def test_a_bad_video_path_fails_before_the_episode(tmp_path):
     assert exc.value.code == 2
 
 
+def test_a_video_of_control_periods_over_two_seconds_plays_one_frame_a_second(tmp_path):
+    # 1 / 2.5 s rounds to 0 frames per second: the GIF writer divided by it after the episode
+    env = small_env("walk", render_mode="rgb_array", dt=0.5, frame_skip=5)
+    planner = MPPI(MPPISettings(horizon=1, knots=1, samples=2, threads=1))
+    video = tmp_path / "slow.gif"
+    res = run_episode(env, planner, 5.0, seed=0, progress=False, video=video)
+    assert res.rewards.size == 2
+    from PIL import Image
+
+    with Image.open(video) as gif:
+        assert gif.n_frames == 3 and gif.info["duration"] == 1000
+
+
 def test_an_action_wrapper_that_rescales_is_refused():
     # The planners act in the robot's units; RescaleAction would scale their actions again
     # (every action ended up clipped to the bound, with no error).
