@@ -238,7 +238,8 @@ def parse_changes(text: str) -> dict[str, Any]:
     controllers``, ``rbbo optimize`` and ``rbbo reproduce``): ``'horizon=8,window=none'`` ->
     ``{'horizon': 8, 'window': None}``. Values are ints, floats, true / false / none,
     colon-separated numbers as a tuple (``noise=0.2:0.1:0.05``, one per control dimension;
-    ``seed_amplitudes=0.5:1``), else strings; the settings name a wrong key or value when the
+    ``seed_amplitudes=0.5:1``; a setting that takes a tuple reads one number as a tuple of one,
+    ``seed_periods=10``), else strings; the settings name a wrong key or value when the
     planner is made. An argparse ``type`` (a bad item raises ``argparse.ArgumentTypeError``)."""
     import argparse
 

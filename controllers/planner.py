@@ -46,9 +46,12 @@ def _check_positive(name: str, value: Any, allow_zero: bool = False) -> None:
 
 
 def _real_tuple(settings: Any, name: str) -> np.ndarray:
-    """Settings field ``name``, a sequence of numbers, stored as a tuple (the settings stay
-    hashable, as a frozen dataclass's should) and returned as an array; anything else named."""
+    """Settings field ``name``, a sequence of numbers (or one number: a sequence of one, which
+    a command line's ``seed_periods=10`` gives), stored as a tuple (the settings stay hashable,
+    as a frozen dataclass's should) and returned as an array; anything else named."""
     value = getattr(settings, name)
+    if isinstance(value, (int, float, np.number)) and not isinstance(value, (bool, np.bool_)):
+        value = (value,)
     try:
         numbers = tuple(float(v) for v in value if not isinstance(v, (bool, str)))
         ok = len(numbers) == len(value)

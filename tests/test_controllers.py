@@ -709,6 +709,18 @@ def test_planner_settings_from_the_command_line(capsys, monkeypatch):
     assert parse_changes("noise=0.3:0.1:1,kind=a:b") == {"noise": (0.3, 0.1, 1.0), "kind": "a:b"}
     with pytest.raises(argparse.ArgumentTypeError, match="expected key=value pairs, got 'x'"):
         parse_changes("horizon=8,x")
+    # one number for a tuple setting is a tuple of one (a command line has no other way to
+    # give one): seed_periods=10 was refused as "must be a sequence of numbers"
+    gn, _ = planner_for(
+        "softrom_gym/BeamWalk-v0",
+        "gn",
+        **parse_changes("seed_periods=20,seed_amplitudes=1,line_search=1"),
+    )
+    assert (gn.settings.seed_periods, gn.settings.seed_amplitudes,
+            gn.settings.line_search) == ((20.0,), (1.0,), (1.0,))  # fmt: skip
+    assert hash(gn.settings) == hash(gn.settings.replace(line_search=(1.0,)))
+    with pytest.raises(ValueError, match="line_search must be a sequence of numbers"):
+        GaussNewtonSettings(line_search=True)
     seen = {}
 
     def record(env, planner, seconds, **kwargs):
