@@ -68,10 +68,13 @@ class EpisodeResult:
     def distance_between(self, t0: float, t1: float | None = None) -> float:
         """Distance along d between times t0 and t1 (default: the end), m."""
         n = self.rewards.size
+        end = self.seconds if t1 is None else t1
+        slack = 1e-9 * max(1.0, self.seconds)  # (n dt, the end, to round-off)
+        # the times themselves, not their nearest steps: a time half a step outside counts
+        if not -slack <= t0 <= end <= self.seconds + slack:
+            raise ValueError(f"times ({t0}, {t1}) must lie in [0, {self.seconds:g}] s, in order")
         i0 = round(t0 / self.dt)
         i1 = n if t1 is None else round(t1 / self.dt)
-        if not 0 <= i0 <= i1 <= n:
-            raise ValueError(f"times ({t0}, {t1}) must lie in [0, {self.seconds:g}] s, in order")
         return float(self.distance[i1] - self.distance[i0])
 
     def realtime_factor(self, replan_every: int) -> float:

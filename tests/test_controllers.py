@@ -274,6 +274,11 @@ def test_episode_result_records_the_episode(walker, tmp_path):
         assert reader.get_data(0).shape == env.render().shape
     with pytest.raises(ValueError, match=r"times \(0.5, None\) must lie in \[0, 0.1\] s"):
         res.distance_between(0.5)
+    # within half a step outside the episode, a time rounded into it and was taken
+    for times in [(0.11,), (-0.01,), (0.0, 0.11), (0.06, 0.04)]:
+        with pytest.raises(ValueError, match=r"must lie in \[0, 0.1\] s, in order"):
+            res.distance_between(*times)
+    assert res.distance_between(0.0, 0.1) == pytest.approx(res.distance[-1])
 
 
 def test_a_video_without_imageio_fails_before_the_episode(tmp_path, monkeypatch):
