@@ -23,9 +23,10 @@ J(x) = R(x) - |r(x)|^2 - w_d n_lost(x) (see :mod:`controllers.cost`). One iterat
    gn --seeds 0 1 2 [--mpc restart_damping=true]``, t = 2..10 s, body lengths, mean ± sd over
    seeds; AMD EPYC, 2026-12-05): the quadruped 2.16 ± 1.07 against 1.58 ± 0.69, the tripod
    0.67 ± 0.21 against 0.89 ± 0.35, the cross 0.77 against 0.74 and the beam 1.40 against
-   1.40; within the chaotic spread, so not the default. With ``max_step`` each step is first
-   scaled into a trust region (no knot moves by more than ``max_step``): a gait then changes
-   gradually from replan to replan, where a full step can trade it for a one-horizon lunge;
+   1.40; within the chaotic spread, so not the default. With ``max_step`` each step (and each
+   exploration candidate of 4.) is first scaled into a trust region (no knot moves by more
+   than ``max_step``): a gait then changes gradually from replan to replan, where a full
+   step can trade it for a one-horizon lunge;
 4. with ``explore > 0`` the same rollout also runs that many random candidates around the
    plan, under the same acceptance rule. A finite-difference gradient through contact sees
    one basin of a kinked objective; on the quadruped and the tripod the pure step kept the
@@ -65,8 +66,9 @@ class GaussNewtonSettings(PlannerSettings):
     line_search : tuple of float
         Multipliers of mu tried in one batched rollout.
     max_step : float or None
-        Trust region: each trial step is scaled down so that no knot moves by more than
-        this (units of the bound); None: no limit.
+        Trust region: each trial step, and each exploration candidate's perturbation, is
+        scaled down so that no knot moves by more than this (units of the bound); None: no
+        limit.
     explore : int
         Random candidates added to the line search's rollout: the plan plus Gaussian noise of
         ``explore_noise`` (units of the bound), seeded by ``reset``. They compete with the
@@ -169,6 +171,9 @@ class GaussNewtonShooting(Planner):
             candidates = [np.clip(x + dx, -1.0, 1.0) for dx in steps]
             if s.explore:
                 noise = s.explore_noise * self.rng_.standard_normal((s.explore, x.size))
+                if s.max_step is not None:  # the candidates stay in the trust region too
+                    largest = np.maximum(np.abs(noise).max(axis=1, keepdims=True), 1e-300)
+                    noise *= np.minimum(1.0, s.max_step / largest)
                 candidates.extend(np.clip(x[None] + noise, -1.0, 1.0))
             trials = np.stack(candidates)
             trial = self._evaluate(state, trials.reshape(-1, *shape))

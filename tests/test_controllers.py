@@ -96,6 +96,13 @@ def test_gauss_newton_trust_region_bounds_every_knot_move(walker):
     moved = np.abs(gn.plan_.knots - before).max()
     assert 0 < moved <= 3 * 0.05 + 1e-12  # three iterations, each inside the region
     assert all(e >= s for s, e in gn.last_["objectives"])
+    # exploration candidates too: they moved knots by up to the whole bound, as "explore"
+    explorer = GaussNewtonShooting(settings.replace(max_step=0.01, explore=8, explore_noise=0.3))
+    explorer.reset(walker, seed=0)
+    before = explorer.plan_.knots.copy()
+    explorer.plan(walker)
+    assert "explore" in explorer.last_["accepted"]
+    assert np.abs(explorer.plan_.knots - before).max() <= 3 * 0.01 + 1e-12
     with pytest.raises(ValueError, match="max_step"):
         GaussNewtonSettings(max_step=0.0)
 
