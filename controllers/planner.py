@@ -314,6 +314,7 @@ class Planner(ABC):
         start = time.perf_counter()
         state = self.api_.get_state()
         self.last_ = {"rollouts": 0}
+        self._plan.rebase()  # an open plan's knots move to the steps since the last replan
         self._optimise(state)
         self.last_["wall_s"] = time.perf_counter() - start
 

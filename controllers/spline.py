@@ -15,10 +15,12 @@ A plan is either *open* (the knots span the horizon, at steps ``k (H - 1) / (K -
 means a constant plan) or *periodic* with a period of P env steps (the knots at
 ``k P / K`` and the spline wrapping around, so that the H steps may cover several cycles of
 one gait). The plan has a clock (``offset``, env steps): ``controls()`` are the H steps from
-it. ``shift(n)`` moves the plan n steps into the future, the warm start of receding-horizon
-control: a periodic plan advances its phase (exact for any n); an open plan re-samples its
-knots at their times n steps later, holding the last value beyond the horizon (exact at the
-new knots; everywhere for linear plans when n is a multiple of the knot spacing).
+it. ``shift(n)`` moves the clock n steps into the future, exactly for any n (so n calls of
+``shift(1)`` send the controls the plan was scored on): a periodic plan advances its phase;
+an open plan's values past its last knot hold the last value. ``rebase()``, the warm start of
+receding-horizon control, then moves an open plan's knots to the clock: it re-samples them at
+their times ``offset`` steps later and sets the clock to 0 (exact at the new knots;
+everywhere for linear plans when ``offset`` is a multiple of the knot spacing).
 
 Knot values are in units of the action bound a (f_c = a F_c): planners work in [-1, 1].
 """
@@ -182,7 +184,8 @@ class SplinePlan:
 
     # ------------------------------------------------------------- warm start
     def shift(self, steps: float) -> None:
-        """Move the plan ``steps`` env steps into the future (see the module docstring)."""
+        """Move the plan's clock ``steps`` env steps into the future (see the module
+        docstring); an open plan's knots stay where they are until :meth:`rebase`."""
         if not np.isfinite(steps) or steps < 0:
             raise ValueError(f"steps must be a finite number >= 0, got {steps!r}")
         if steps == 0:
@@ -190,9 +193,19 @@ class SplinePlan:
         if self.period is not None:
             self.offset = float(np.mod(self.offset + steps, self.period))
             return
+        # (re-sampling the knots here, at every step, compounded: after n shift(1) an open plan
+        # sent controls up to half the bound away from those it was scored on)
+        self.offset = self.offset + steps
+
+    def rebase(self) -> None:
+        """Warm start: re-sample an open plan's knots at their times ``offset`` steps later
+        and set its clock to 0, holding the last value beyond the horizon (a periodic plan's
+        clock is its phase: unchanged)."""
+        if self.period is not None or self.offset == 0:
+            return
         if self.num_knots == 1:  # spacing is infinite: one knot holds the whole horizon
-            times = np.array([self.offset + steps])
+            times = np.array([self.offset])
         else:
-            times = self.offset + steps + self.spacing * np.arange(self.num_knots)
+            times = self.offset + self.spacing * np.arange(self.num_knots)
         self.knots = self.weights(times) @ self.knots
         self.offset = 0.0

@@ -772,6 +772,24 @@ def test_predict_is_what_the_plan_then_does_and_changes_nothing():
     assert np.isfinite(predicted["objective"])
 
 
+def test_an_open_plan_sends_between_replans_the_controls_its_replan_scored(walker):
+    # action() re-sampled an open plan's knots at every step: by the tenth step after a replan
+    # it sent f_c half the bound away from the plan the replan had optimised
+    planner = MPPI(MPPISettings(horizon=40, knots=6, samples=4, noise=0.8, threads=1))
+    planner.reset(walker, seed=0)
+    bound = walker.get_wrapper_attr("action_bound")
+    for _ in range(2):  # the second replan warm-starts from the clock the first left
+        planner.plan(walker)
+        scored = bound * np.clip(planner.plan_.controls(), -1.0, 1.0)
+        state = walker.get_wrapper_attr("get_state")()
+        sent = [planner.action(walker) for _ in range(10)]
+        walker.get_wrapper_attr("set_state")(state)  # (the env itself stays where it was)
+        np.testing.assert_allclose(np.array(sent), scored[:10], rtol=0, atol=1e-12 * bound)
+    assert planner.plan_.offset == 10.0  # the steps since the last replan
+    planner.plan(walker)
+    assert planner.plan_.offset == 0.0
+
+
 def test_the_command_line_takes_a_control_basis_file(tmp_path, capsys, monkeypatch):
     import controllers.episode as episode
 

@@ -66,6 +66,31 @@ def test_shift_keeps_the_future_values():
     np.testing.assert_allclose(single.knots, held, atol=1e-14)
 
 
+@pytest.mark.parametrize("kind", ["cubic", "linear"])
+def test_an_open_plan_stepped_one_step_at_a_time_sends_the_controls_it_was_scored_on(kind):
+    # shift(1) at every step re-sampled the knots each time, and the errors compounded: the
+    # tenth control was 0.5 of the bound away from the plan's own tenth
+    rng = np.random.default_rng(2)
+    plan = SplinePlan(horizon=40, knots=6, control_dim=2, kind=kind)
+    plan.knots = rng.uniform(-1, 1, (6, 2))
+    scored = plan.controls()
+    sent = []
+    for _ in range(40):
+        sent.append(plan.value(0.0))
+        plan.shift(1)
+    np.testing.assert_allclose(np.array(sent), scored, atol=1e-14)
+    # the warm start moves the knots to the clock: exact at the new knot times
+    plan.rebase()
+    assert plan.offset == 0.0
+    np.testing.assert_allclose(plan.knots, np.tile(scored[-1], (6, 1)), atol=1e-14)
+    again = SplinePlan(horizon=40, knots=6, control_dim=2, kind=kind)
+    again.knots = rng.uniform(-1, 1, (6, 2))
+    before = again.controls()
+    again.shift(3)
+    again.rebase()
+    np.testing.assert_allclose(again.controls()[[0, 39]], before[[3, 39]], atol=1e-14)
+
+
 def test_bad_plans_raise_errors_naming_the_value():
     with pytest.raises(ValueError, match="horizon must be a positive integer, got 0"):
         SplinePlan(0, 2, 3)
