@@ -115,8 +115,10 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
     args = parser.parse_args()
-    if args.gaits < 1 or not args.seconds >= 0.05:
-        parser.error(f"need --gaits >= 1 and --seconds >= 0.05, got {args.gaits}, {args.seconds}")
+    if args.gaits < 1 or not 0.05 <= args.seconds < np.inf:
+        parser.error(
+            f"need --gaits >= 1 and finite --seconds >= 0.05, got {args.gaits}, {args.seconds}"
+        )
     if not args.json:
         print(
             f"{'benchmark':<15} {'step dv':>9} {'err ref':>9} {'err fast':>9} | "
