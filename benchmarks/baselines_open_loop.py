@@ -67,7 +67,7 @@ def measure(env_id: str, args: argparse.Namespace) -> list[dict]:
     ]
 
 
-def plot(rows: list[dict], path: Path) -> None:
+def plot(rows: list[dict], path: Path, span: str) -> None:
     try:
         import matplotlib
 
@@ -85,7 +85,7 @@ def plot(rows: list[dict], path: Path) -> None:
         ]
         ax.plot(freqs, best, "o-", label=env_id.split("/")[-1])
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("best distance t = 2..10 s (body lengths)")
+    ax.set_ylabel(f"best distance t = {span} s (body lengths)")
     ax.axhline(0.0, color="0.7", lw=0.8)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    plot(rows, args.out / "open_loop.png")
+    plot(rows, args.out / "open_loop.png", f"{args.start:g}..{args.seconds:g}")
     best = []
     for env_id in ids:
         mine = [r for r in rows if r["env_id"] == env_id and np.isfinite(r["distance_bl"])]
