@@ -111,6 +111,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.steps < 1:
         parser.error(f"--steps must be >= 1, got {args.steps}")
+    args.solvers = list(dict.fromkeys(args.solvers))  # a solver named twice is one run
     if not args.json:
         header = (
             f"{'robot':<10} {'nodes':>6} {'tets':>6} {'solver':<16} {'newton/step':>11} "
