@@ -89,9 +89,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if not (args.seconds > 0 and args.start >= 0):
         p.error(f"--seconds must be > 0 and --start >= 0, got {args.seconds}, {args.start}")
     for env_id in ids:
+        try:  # an unknown id or --mpc setting, or --threads 0: named now, not as a traceback
+            spec = gym.spec(env_id)
+            for planner in args.planners:
+                default_planner(env_id, planner, threads=args.threads, **args.changes)
+        except (ValueError, TypeError, gym.error.Error) as exc:
+            p.error(str(exc))
         # the registered time limit ends an episode early: the distance per second would be
         # divided by time the robot never walked
-        spec = gym.spec(env_id)
         if spec.max_episode_steps is not None:
             period = spec.kwargs.get("frame_skip", 5) * spec.kwargs.get("dt", 1.0 / 200.0)
             limit = spec.max_episode_steps * period
