@@ -4,7 +4,8 @@ For every (benchmark, planner): one closed-loop episode of ``--seconds`` per see
 defaults of :mod:`controllers.defaults`, on ``--threads`` rollout threads. Reports the mean
 wall time of one replan, the real-time factor (simulated seconds advanced per replan / wall
 seconds per replan; >= 1 keeps up with the robot), and the distance along d between
-t = ``--start`` and the end, per second and in body lengths (mean over seeds).
+t = ``--start`` and the end, per second and in body lengths (mean over seeds). Writes the
+rows to ``bench_mpc.csv`` in ``--out`` (default ``runs/bench_mpc``).
 
     python benchmarks/bench_mpc.py [ENV_ID ...] [--planners mppi gn] [--seconds 10]
         [--seeds 0 1 2] [--mpc KEY=VALUE,...] [--json] [--out runs/bench_mpc]
