@@ -110,6 +110,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if not 0 < args.start < args.seconds:
         p.error(f"--start {args.start:g} must lie inside (0, --seconds {args.seconds:g})")
     ids = [i if "/" in i else f"softrom_gym/{i}" for i in args.env_ids]
+    if not 1 <= args.control_dim <= args.sim_dim or args.threads < 1:
+        p.error(f"need 1 <= --control-dim <= --sim-dim and --threads >= 1, got "
+                f"{args.control_dim}, {args.sim_dim}, {args.threads}")  # fmt: skip
+    try:  # an unknown id or a bad grid: named now, not as a traceback after other rows ran
+        for env_id in ids:
+            gym.spec(env_id)
+        gait_grid(args.control_dim, tuple(args.frequencies), tuple(args.amplitudes))
+    except (ValueError, gym.error.Error) as exc:
+        p.error(str(exc))
     rows = [row for env_id in ids for row in measure(env_id, args)]
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "open_loop.csv", "w", newline="") as f:
