@@ -292,9 +292,16 @@ def main(argv=None) -> None:
         parser.error("--real is for part (b); use --part b or both")
     if args.confirm_seeds < 1:
         parser.error("--confirm-seeds must be >= 1")
+    for name in ("seeds", "evaluations"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if not 0 <= args.noise < np.inf:
+        parser.error(f"--noise must be finite and >= 0, got {args.noise}")
 
     def budget(p):
-        return (args.seeds or DEFAULTS[p]["seeds"], args.evaluations or DEFAULTS[p]["evaluations"])
+        seeds, evaluations = args.seeds, args.evaluations
+        return (DEFAULTS[p]["seeds"] if seeds is None else seeds,
+                DEFAULTS[p]["evaluations"] if evaluations is None else evaluations)  # fmt: skip
 
     if part in ("a", "both"):
         part_a(args, *budget("a"), args.png or Path("runs/bench_rbbo_vs.png"))
