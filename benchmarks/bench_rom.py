@@ -49,6 +49,7 @@ run it with ``SOFTROM_KERNELS=baseline`` to measure the baseline set on the same
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import sys
 import time
@@ -339,6 +340,9 @@ def main() -> None:
               "penalty/s penalty_steps_per_s, batch2/s batched_rollout_steps_per_s, "
               "2thr/1thr thread_speedup, cpu 2/1 thread_cpu_ratio, drop err drop_error_rel, "
               "vs MuJoCo vs_mujoco")  # fmt: skip
+        if importlib.util.find_spec("mujoco") is None:
+            print("vs MuJoCo: not measured, the optional mujoco package is not installed "
+                  "(.venv/bin/pip install mujoco)")  # fmt: skip
 
 
 if __name__ == "__main__":
