@@ -69,6 +69,8 @@ def main() -> None:
     p.add_argument("--seeds", type=int, default=3, help="episode seeds (default 3)")
     p.add_argument("--json", action="store_true", help="one JSON object per run")
     args = p.parse_args()
+    if args.seeds < 2 or args.rotations < 0:  # an sd over seeds needs two
+        p.error(f"need --seeds >= 2 and --rotations >= 0, got {args.seeds}, {args.rotations}")
     runs = args.runs or [COMMITTED / "BeamWalk-v0-boca", COMMITTED / "CrossSwim-v0-boca"]
     for run in runs:
         if not (run / "best_basis.npy").exists():
