@@ -70,6 +70,9 @@ def main() -> None:
     p.add_argument("--beta-plus-h", action="store_true",
                    help="also the finest dt with damping_beta + 1/200 s")  # fmt: skip
     args = p.parse_args()
+    if not 0 < args.start < args.seconds or min(args.dts) < 1:
+        p.error(f"need 0 < --start < --seconds and --dts >= 1, got {args.start:g}, "
+                f"{args.seconds:g}, {args.dts}")  # fmt: skip
     for env_id in args.env_ids:
         if env_id not in GAITS:
             p.error(f"no stroke for {env_id}; valid: {', '.join(GAITS)}")
