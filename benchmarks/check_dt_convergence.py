@@ -80,8 +80,9 @@ def main() -> None:
         cells = [f"1/{r}: {distance(env_id, r, args.seconds, args.start, args.amplitude):+.3f} m"
                  for r in args.dts]  # fmt: skip
         if args.beta_plus_h:
-            d = distance(env_id, args.dts[-1], args.seconds, args.start, args.amplitude, 1 / 200)
-            cells.append(f"1/{args.dts[-1]} with beta + 1/200 s: {d:+.3f} m")
+            finest = max(args.dts)
+            d = distance(env_id, finest, args.seconds, args.start, args.amplitude, 1 / 200)
+            cells.append(f"1/{finest} with beta + 1/200 s: {d:+.3f} m")
         print(
             f"{env_id.split('/')[-1]} {frequency:g} Hz {'/'.join(map(str, phases))}, x from "
             f"t = {args.start:g} to {args.seconds:g} s, dt = " + ", ".join(cells),
