@@ -116,16 +116,27 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--closed-loop-dims", type=int, nargs="*", default=[],
                    help="also run the closed loop with these sim_dim (M) values")  # fmt: skip
     args = p.parse_args(argv)
+    if not 0 <= args.start < args.seconds or min(args.cs) < 1:
+        p.error(f"need 0 <= --start < --seconds and --cs >= 1, got {args.start:g}, "
+                f"{args.seconds:g}, {args.cs}")  # fmt: skip
     global BASIS
     if args.control_basis is not None:
-        BASIS = np.load(args.control_basis, allow_pickle=False)
+        try:
+            BASIS = np.load(args.control_basis, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            p.error(f"--control-basis {args.control_basis}: {exc}")
+        if BASIS.ndim != 2 or BASIS.shape[0] != DEFAULT_M:
+            p.error(f"--control-basis must be {DEFAULT_M} x C, got shape {BASIS.shape}")
         args.cs = [BASIS.shape[1]]
 
     def numerics(env: gym.Env) -> None:
         env.unwrapped.model.solver = "reference"
         env.unwrapped.model.contact_tolerance = 1e-5
 
-    probe = gym.make(args.env_id)
+    try:
+        probe = gym.make(args.env_id)
+    except gym.error.Error as exc:
+        p.error(str(exc))
     physics_dt = float(probe.unwrapped.model.dt)
     walking = probe.unwrapped.task == "walk"  # the ground figures mean nothing in a fluid
     probe.close()
