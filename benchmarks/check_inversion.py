@@ -82,6 +82,14 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=2.0, help="square-wave frequency, Hz")
     parser.add_argument("--cost", action="store_true", help="time the check instead")
     args = parser.parse_args()
+    if not (min(args.moduli) > 0 and 0 < args.seconds < np.inf and args.rate > 0):
+        parser.error(f"need --moduli, --seconds and --rate > 0, got {args.moduli}, "
+                     f"{args.seconds:g}, {args.rate:g}")  # fmt: skip
+    for env_id in args.env_ids:
+        try:  # an unknown id: named now, not as a traceback after the other rows ran
+            gym.spec(env_id)
+        except gym.error.Error as exc:
+            parser.error(str(exc))
     if args.cost:
         print(f"{'env':<28} {'env.step (us)':>14} {'check (us)':>11} {'share':>7}")
         for env_id in args.env_ids:
