@@ -138,7 +138,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             f"  M={m:<3}" + "".join(f" {names[f]:>6}" for f in args.forces)
             for m in args.sim_dims) + ("    full" if full is not None else ""))  # fmt: skip
         for i, j in enumerate(best):
-            cells = "".join("  " + " ".join(f"{table[(m, f)][j]:+6.3f}" for f in args.forces)
+            # each M's values under its header's force names, past its "  M=20 " label
+            cells = "".join(" " * 7 + "".join(f" {table[(m, f)][j]:+6.3f}" for f in args.forces)
                             for m in args.sim_dims)  # fmt: skip
             if full is not None:
                 cells += f"  {full[i]:+6.3f}"
