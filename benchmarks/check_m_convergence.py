@@ -100,6 +100,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
                         "walkers only; slow: the beam's three took 21 min on 2 shared "
                         "cores)")  # fmt: skip
     args = p.parse_args(argv)
+    if not 0 < args.start < args.seconds or min(args.sim_dims) < 3:
+        p.error(f"need 0 < --start < --seconds and --sim-dims >= 3, got {args.start:g}, "
+                f"{args.seconds:g}, {args.sim_dims}")  # fmt: skip
     gaits = gait_grid(3, tuple(args.frequencies), tuple(args.amplitudes))
     rows = []
     for env_id in args.env_ids:
