@@ -67,7 +67,14 @@ def main() -> None:
     args = p.parse_args()
     if not 0 < args.start < args.seconds:
         p.error(f"--start {args.start} must lie inside (0, --seconds {args.seconds})")
-    env = gym.make(args.env_id, control_dim=len(args.phases))
+    try:
+        env = gym.make(args.env_id, control_dim=len(args.phases))
+    except (ValueError, gym.error.Error) as exc:  # an unknown id, more phases than M
+        p.error(str(exc))
+    dt = env.get_wrapper_attr("dt")
+    if not 1 <= round(args.start / dt) < round(args.seconds / dt):  # (else the end minus itself)
+        p.error(f"--start {args.start:g} and --seconds {args.seconds:g} must round to at least "
+                f"one control period ({dt:g} s) from 0 and from each other")  # fmt: skip
     gait = SinusoidGait(args.frequency, args.amplitude, tuple(np.radians(args.phases)))
     if not args.json:
         print(f"{args.env_id}, {gait.label()}, seed {args.seed}: distance (BL) from "
