@@ -70,9 +70,13 @@ def main() -> None:
     p.add_argument("--beta-plus-h", action="store_true",
                    help="also the finest dt with damping_beta + 1/200 s")  # fmt: skip
     args = p.parse_args()
-    if not 0 < args.start < args.seconds or min(args.dts) < 1:
-        p.error(f"need 0 < --start < --seconds and --dts >= 1, got {args.start:g}, "
-                f"{args.seconds:g}, {args.dts}")  # fmt: skip
+    if min(args.dts) < 1:
+        p.error(f"--dts must be >= 1 step per second, got {args.dts}")
+    # at every rate --start must round to a step after 0 and before the end (else the distance
+    # is the end's position minus itself)
+    if not all(1 <= round(args.start * r) < round(args.seconds * r) for r in args.dts):
+        p.error(f"--start {args.start:g} and --seconds {args.seconds:g} must round to at least "
+                f"one step from 0 and from each other at every --dts")  # fmt: skip
     for env_id in args.env_ids:
         if env_id not in GAITS:
             p.error(f"no stroke for {env_id}; valid: {', '.join(GAITS)}")
