@@ -100,9 +100,21 @@ def main(argv: list[str] | None = None) -> list[dict]:
                         "walkers only; slow: the beam's three took 21 min on 2 shared "
                         "cores)")  # fmt: skip
     args = p.parse_args(argv)
-    if not 0 < args.start < args.seconds or min(args.sim_dims) < 3:
-        p.error(f"need 0 < --start < --seconds and --sim-dims >= 3, got {args.start:g}, "
-                f"{args.seconds:g}, {args.sim_dims}")  # fmt: skip
+    if min(args.sim_dims) < 3:
+        p.error(f"--sim-dims must be >= C = 3, got {args.sim_dims}")
+    for env_id in args.env_ids:
+        try:
+            spec = gym.spec(env_id)
+        except gym.error.Error as exc:
+            p.error(str(exc))
+        period = spec.kwargs.get("frame_skip", 5) * spec.kwargs.get("dt", 1.0 / 200.0)
+        # --start must round to an env step after 0 and before the end (else the distance is
+        # the end's position minus itself)
+        if not 1 <= round(args.start / period) < round(args.seconds / period):
+            p.error(
+                f"--start {args.start:g} and --seconds {args.seconds:g} must round to at "
+                f"least one control period ({period:g} s) from 0 and from each other"
+            )
     gaits = gait_grid(3, tuple(args.frequencies), tuple(args.amplitudes))
     rows = []
     for env_id in args.env_ids:
