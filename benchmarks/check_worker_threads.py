@@ -40,7 +40,18 @@ def main() -> None:
     p.add_argument("--seconds", type=float, default=6.0)
     p.add_argument("--rounds", type=int, default=2)
     args = p.parse_args()
+    if min(args.workers, args.episodes, args.rounds) < 1 or not args.seconds > 0:
+        p.error(f"need --workers, --episodes, --rounds >= 1 and --seconds > 0, got "
+                f"{args.workers}, {args.episodes}, {args.rounds}, {args.seconds:g}")  # fmt: skip
     env_id = args.env if "/" in args.env else f"softrom_gym/{args.env}"
+    import gymnasium as gym
+
+    import softrom_gym  # noqa: F401  (registers the envs)
+
+    try:  # an unknown id: named here, not as a worker's traceback
+        gym.spec(env_id)
+    except gym.error.Error as exc:
+        p.error(str(exc))
     with mp.get_context("spawn").Pool(args.workers) as pool:
         # warm up: each worker builds (or loads) B_r and imports once
         pool.map(_episode, [(env_id, 1, s, 0.5) for s in range(args.workers)])
