@@ -71,12 +71,16 @@ def migrate(run: Path, old_dir: Path, tolerance: float = 1e-8) -> dict:
 
     store = RunStore.open(run)
     lines = (run / "history.jsonl").read_text().splitlines()
-    out = []
-    for line in lines:
-        record = json.loads(line)
-        record["basis"] = carry(record["basis"])
-        out.append(json.dumps(record))
-    (run / "history.jsonl").write_text("\n".join(out) + "\n")
+    # proposals.jsonl too: a resumed run evaluates the proposals in flight from it
+    for path in (run / "history.jsonl", run / "proposals.jsonl"):
+        if not path.exists():  # (runs from before proposals were recorded have none)
+            continue
+        out = []
+        for line in path.read_text().splitlines():
+            record = json.loads(line)
+            record["basis"] = carry(record["basis"])
+            out.append(json.dumps(record))
+        path.write_text("\n".join(out) + "\n")
     if (run / "best_basis.npy").exists():
         store.save_best(np.asarray(carry(np.load(run / "best_basis.npy"))))
     summary = store.summary()
