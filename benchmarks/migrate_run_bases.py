@@ -56,6 +56,8 @@ def migrate(run: Path, old_dir: Path, tolerance: float = 1e-8) -> dict:
     new = np.asarray(env.unwrapped.subspace.basis)
     env.close()
     name = env_id.split("/")[-1]
+    if not (old_dir / f"{name}-M{sim_dim}.npz").exists():
+        raise SystemExit(f"{run}: --old {old_dir} has no {name}-M{sim_dim}.npz; nothing changed")
     data = np.load(old_dir / f"{name}-M{sim_dim}.npz")
     t, error = transform(data["basis"], new, data["mass"])
     if error > tolerance:
@@ -122,6 +124,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--old", type=Path, required=True, help="folder of <Benchmark>-M<M>.npz")
     p.add_argument("runs", type=Path, nargs="+")
     args = p.parse_args(argv)
+    if not args.old.is_dir():
+        p.error(f"--old {args.old} is not a folder")
+    for run in args.runs:
+        if not (run / "config.json").exists() or not (run / "history.jsonl").exists():
+            p.error(f"{run} has no config.json and history.jsonl: not an rbbo run")
     for run in args.runs:
         note = migrate(run, args.old)
         print(f"{run}: modes {note['sign_changes']} change sign "
