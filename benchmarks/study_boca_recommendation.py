@@ -45,7 +45,7 @@ def main() -> None:
     p.add_argument("--no-floor", action="store_true", help="BOCA without its T_max floor")
     args = p.parse_args()
     if args.no_floor:
-        boca.BOCAFidelity.below_floor = lambda self: False
+        boca.BOCAFidelity.below_floor = lambda self, pending=(): False
     m, c = args.sim_dim, args.control_dim
     print(f"Gr({m}, {c}), T in [{args.t_min:g}, {args.t_max:g}] s, noise {args.noise:g}, "
           f"{args.seeds} seeds, floor {'off' if args.no_floor else 'on'}; the identity's R is "
