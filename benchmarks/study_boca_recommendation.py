@@ -44,6 +44,13 @@ def main() -> None:
     p.add_argument("--noise", type=float, default=0.05)
     p.add_argument("--no-floor", action="store_true", help="BOCA without its T_max floor")
     args = p.parse_args()
+    if args.seeds < 1 or min(args.iterations) < 1 or not 0 < args.t_min < args.t_max:
+        p.error(f"need --seeds, --iterations >= 1 and 0 < --t-min < --t-max, got {args.seeds}, "
+                f"{args.iterations}, {args.t_min:g}, {args.t_max:g}")  # fmt: skip
+    try:  # the objective names a bad M, C or noise
+        SyntheticObjective(args.sim_dim, args.control_dim, noise=args.noise)
+    except ValueError as exc:
+        p.error(str(exc))
     if args.no_floor:
         boca.BOCAFidelity.below_floor = lambda self, pending=(): False
     m, c = args.sim_dim, args.control_dim
