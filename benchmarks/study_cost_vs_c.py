@@ -16,8 +16,11 @@ import argparse
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
+import softrom_gym  # noqa: F401  (registers the envs)
+from controllers import default_planner
 from controllers.studies import gn_cost_against_c
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -39,6 +42,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
         changes.update(horizon=args.horizon, window=None)
     if args.knots is not None:
         changes["knots"] = args.knots
+    if min(args.cs) < 1 or args.repeats < 1:
+        p.error(f"need --cs and --repeats >= 1, got {args.cs}, {args.repeats}")
+    try:  # an unknown id, C above M, a bad thread count or setting: named before any row
+        gym.make(args.env_id, control_dim=max(args.cs)).close()
+        default_planner(args.env_id, "gn", threads=args.threads, **changes)
+    except (ValueError, TypeError, gym.error.Error) as exc:
+        p.error(str(exc))
     print(f"{'C':>3} {'rollouts':>9} {'GN iteration s':>15} {'per rollout ms':>15}")
 
     def show(row: dict) -> None:
