@@ -15,8 +15,11 @@ import argparse
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
+import softrom_gym  # noqa: F401  (registers the envs)
+from controllers import default_planner
 from controllers.studies import reward_against_c
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -34,6 +37,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/study_reward_vs_c"))
     args = p.parse_args(argv)
+    if min(args.cs) < 1 or not 0 < args.seconds < np.inf:
+        p.error(f"need --cs >= 1 and --seconds > 0, got {args.cs}, {args.seconds:g}")
+    try:  # an unknown id, C above M, a bad thread count or setting: named before any row
+        gym.make(args.env_id, control_dim=max(args.cs)).close()
+        default_planner(args.env_id, args.planner, threads=args.threads)
+    except (ValueError, TypeError, gym.error.Error) as exc:
+        p.error(str(exc))
     start = args.start if args.seconds > args.start else 0.0
     print(f"{'C':>3} {'R mean (m)':>11} {'std':>8}  per seed")
     per_seed: list[float] = []
