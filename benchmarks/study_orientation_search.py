@@ -49,6 +49,11 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=1, help="runs studied at once (default 1)")
     p.add_argument("--json", action="store_true", help="one JSON object per run")
     args = p.parse_args()
+    if args.rotations < 0 or min(args.search_seeds, args.test_seeds, args.workers) < 1:
+        p.error(
+            f"need --rotations >= 0 and --search-seeds, --test-seeds, --workers >= 1, got "
+            f"{args.rotations}, {args.search_seeds}, {args.test_seeds}, {args.workers}"
+        )
     for run in args.runs:
         if not (run / "best_basis.npy").exists():
             p.error(f"{run} has no best_basis.npy: not a finished rbbo run")
