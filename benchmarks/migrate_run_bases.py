@@ -129,6 +129,8 @@ def main(argv: list[str] | None = None) -> None:
     for run in args.runs:
         if not (run / "config.json").exists() or not (run / "history.jsonl").exists():
             p.error(f"{run} has no config.json and history.jsonl: not an rbbo run")
+        if "env_id" not in json.loads((run / "config.json").read_text())["objective"]:
+            p.error(f"{run} is not a run of an env (no B_r): nothing to migrate")
     for run in args.runs:
         note = migrate(run, args.old)
         print(f"{run}: modes {note['sign_changes']} change sign "
