@@ -42,7 +42,7 @@ It also prints (`kernels` in --json) the instruction set of the fast solver's de
 `cpp_sim.kernel_instruction_set()`: x86-64-v3 where the CPU has AVX2 + FMA, else the baseline;
 run it with ``SOFTROM_KERNELS=baseline`` to measure the baseline set on the same machine.
 
-    python benchmarks/bench_rom.py [--json] [--robots quadruped ...] [--seconds 1.0]
+    python benchmarks/bench_rom.py [--json] [--robots quadruped-walk ...] [--seconds 1.0]
         [--actuation random|gait]
 """
 
