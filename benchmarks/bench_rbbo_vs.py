@@ -117,7 +117,8 @@ def part_a(args, seeds: int, n: int, png: Path) -> None:
     if not args.json:
         print(f"{seeds} seeds, {n} evaluations each, noise {args.noise}; score = noise-free "
               "R of the best-observed point (optimum 1)")  # fmt: skip
-        print(f"{'problem':>9} {'method':>7} {'R after 10':>11} {'after 20':>9} "
+        print(f"{'problem':>9} {'method':>7} {f'R after {min(10, n)}':>11} "
+              f"{f'after {min(20, n)}':>9} "
               f"{'final':>13} {'wins':>5} {'wall s':>7}")  # fmt: skip
         for m, c in PROBLEMS:
             finals = {k: results[(m, c, k)][0][:, -1] for k in METHODS}
