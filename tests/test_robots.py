@@ -70,6 +70,15 @@ def test_bad_resolution():
         make_robot("beam", resolution=4)
 
 
+@pytest.mark.parametrize(("name", "resolution"), [("quadruped", 10), ("tripod", 14), ("beam", 12)])
+def test_a_resolution_that_splits_the_shape_is_refused(name, resolution):
+    # At these resolutions a part boundary falls on a layer of voxel centres, which is left
+    # empty: the quadruped kept its body and lost its legs, the beam became one foot voxel.
+    with pytest.raises(ValueError, match=rf"resolution {resolution} splits the {name} into"):
+        make_robot(name, resolution=resolution)
+    assert make_robot(name, resolution=resolution + 1).num_nodes > 50  # the next one is whole
+
+
 def test_from_mesh_box_volume():
     box = trimesh.creation.box((0.3, 0.2, 0.1))
     robot = from_mesh(box, resolution=20)
@@ -163,3 +172,19 @@ def test_degenerate_faces_do_not_make_a_mesh_open():
     broken = trimesh.Trimesh(box.vertices, faces, process=False)
     assert not broken.is_watertight
     assert from_mesh(broken, 6).num_nodes == from_mesh(box, 6).num_nodes
+
+
+def test_from_mesh_names_a_flat_mesh_and_non_finite_vertices():
+    # both were reported as "resolution 6 is too coarse", which no resolution cures
+    flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 1]], process=False)
+    assert flat.is_watertight
+    with pytest.raises(ValueError, match="the mesh encloses no volume"):
+        from_mesh(flat, 6)
+    box = trimesh.creation.box((0.2, 0.1, 0.1))
+    nan = trimesh.Trimesh(box.vertices.copy(), box.faces, process=False)
+    nan.vertices[0, 0] = np.nan
+    with pytest.raises(ValueError, match=r"1 vertices with non-finite coordinates \(NaN or inf\)"):
+        from_mesh(nan, 6)
+    ring = trimesh.creation.annulus(r_min=0.9, r_max=1.0, height=1.0)  # centres in the hole
+    with pytest.raises(ValueError, match="resolution 2 is too coarse"):  # still said where true
+        from_mesh(ring, 2)

@@ -49,7 +49,9 @@ def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
     centres: the shells' winding number (+1 inside an outward shell, -1 inside a cavity)
     exceeds 1 only inside two solids at once, not in a solid nested in a cavity."""
     shells = surface.split(only_watertight=False)
-    solids = int(sum(s.volume > 0 for s in shells))
+    with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume
+        volumes = [float(s.volume) for s in shells]
+    solids = int(sum(v > 0 for v in volumes))
     if len(shells) < 2:
         return max(1, solids)
     boxes = np.array([s.bounds for s in shells])  # (S, 2, 3)
@@ -63,7 +65,7 @@ def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
         near = np.flatnonzero(np.all((centres >= lo) & (centres <= hi), axis=1))
         if near.size:
             inside = shells[k].contains(centres[near])
-            winding[near[inside]] += 1 if shells[k].volume > 0 else -1
+            winding[near[inside]] += 1 if volumes[k] > 0 else -1
     if winding.max(initial=0) > 1:
         raise ValueError(
             f"the mesh has {solids} closed shells, and some overlap (a voxel centre lies inside "
@@ -120,6 +122,9 @@ def from_mesh(
     scale = real("scale", scale)
     if not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"scale must be > 0, got {scale}")
+    if not np.isfinite(surface.vertices).all():
+        bad = int((~np.isfinite(surface.vertices).all(axis=1)).sum())
+        raise ValueError(f"the mesh has {bad} vertices with non-finite coordinates (NaN or inf)")
     degenerate = ~surface.nondegenerate_faces()
     if not surface.is_watertight and degenerate.any():
         # Zero-area triangles carry no geometry but can leave an edge count odd; without them
@@ -156,6 +161,13 @@ def from_mesh(
     bodies = _solid_bodies(surface, centres)
     occ = surface.contains(centres).reshape(counts)
     if not occ.any():
+        with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume
+            volume = abs(float(surface.volume))
+        if not volume > 1e-9 * float((hi - lo).max()) ** 3:
+            raise ValueError(
+                f"the mesh encloses no volume ({volume:.3g}): it is closed but flat or folded "
+                "onto itself, so no voxel lies inside it"
+            )
         raise ValueError(
             f"resolution {resolution} is too coarse: no voxel centre falls inside the mesh"
         )

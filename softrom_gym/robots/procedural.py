@@ -63,7 +63,16 @@ def _from_function(
             f"resolution {resolution} is too coarse for the {name}: no voxel centre falls "
             "inside the shape; use a larger resolution"
         )
-    nodes, tets = voxels_to_tets(largest_component(occ), pitch, lo_a)
+    kept = largest_component(occ)
+    if kept.sum() < occ.sum():
+        # The shape is connected, so a split is the grid's doing: a part boundary on a layer
+        # of voxel centres leaves that layer empty (a quadruped at resolution 10 lost its legs).
+        raise ValueError(
+            f"resolution {resolution} splits the {name} into pieces (a part's boundary falls on "
+            f"a layer of voxel centres; the largest piece has {int(kept.sum())} of "
+            f"{int(occ.sum())} voxels): use another resolution"
+        )
+    nodes, tets = voxels_to_tets(kept, pitch, lo_a)
     nodes[:, :2] -= 0.5 * (nodes[:, :2].min(axis=0) + nodes[:, :2].max(axis=0))
     nodes[:, 2] -= nodes[:, 2].min()
     meta = {"resolution": resolution, "pitch": pitch}
