@@ -1,5 +1,7 @@
 """Simulation space B_r and cubature (softrom_gym.rom)."""
 
+import io
+
 import numpy as np
 import pytest
 import trimesh
@@ -112,11 +114,78 @@ def test_subspace_is_cached_on_disk(robot, subspace, monkeypatch):
         patch.setattr(module, "_dense_eigh", no_eigensolve)
         again = build_subspace(robot, 20)
     np.testing.assert_array_equal(again.basis, subspace.basis)
-    # A corrupt cache entry is rebuilt, not fatal.
-    for f in files:
-        f.write_bytes(b"not a zip file")
-    rebuilt = build_subspace(robot, 20)
+    # A corrupt cache entry is rebuilt, not fatal, and said so. (Only this one: the cache is
+    # the session's, and other tests' entries, corrupted, would warn there.)
+    from softrom_gym.rom.cache import mesh_key
+
+    entry = cache_dir() / f"subspace-{mesh_key(robot, 20, 20 // 3)}.npz"
+    assert entry in files
+    entry.write_bytes(b"not a zip file")
+    with pytest.warns(RuntimeWarning, match="corrupt cache entry .* it is rebuilt"):
+        rebuilt = build_subspace(robot, 20)
     np.testing.assert_allclose(rebuilt.basis, subspace.basis, atol=1e-8)
+
+
+def _saved(save, *args, **kwargs) -> bytes:
+    """The bytes np.save / np.savez writes."""
+    buf = io.BytesIO()
+    save(buf, *args, **kwargs)
+    return buf.getvalue()
+
+
+def test_a_truncated_or_foreign_cache_entry_is_rebuilt_with_a_warning(tmp_path):
+    small = beam(resolution=6)
+    sub = build_subspace(small, 6, cache=tmp_path)
+    rule = train_cubature(small, sub, num_poses=8, cache=tmp_path)
+    entry = next(tmp_path.glob("subspace-*.npz"))
+    data = entry.read_bytes()
+    other = build_subspace(small, 7, cache=False)
+    for name, write in (
+        # a truncated zip once left its file open (a ResourceWarning) and was rebuilt silently
+        ("truncated", lambda f: f.write_bytes(data[: len(data) // 2])),
+        # a bare .npy crashed with a TypeError (an array is no context manager)
+        ("npy", lambda f: f.write_bytes(_saved(np.save, np.zeros(3)))),
+        # a readable entry of another shape was returned as this robot's B_r
+        ("shape", lambda f: f.write_bytes(_saved(np.savez, basis=other.basis,
+                                                  frequencies=other.frequencies, num_modes=4))),
+    ):  # fmt: skip
+        write(entry)
+        with pytest.warns(RuntimeWarning, match="corrupt cache entry"):
+            again = build_subspace(small, 6, cache=tmp_path)
+        np.testing.assert_array_equal(again.basis, sub.basis, err_msg=name)
+        assert np.array_equal(np.load(entry)["basis"], sub.basis), name  # written anew
+    cub = next(tmp_path.glob("cubature-*.npz"))
+    cub.write_bytes(_saved(np.savez, elements=np.array([small.num_tets]), weights=np.ones(1),
+                           training_error=0.0))  # fmt: skip
+    with pytest.warns(RuntimeWarning, match=r"element index outside \[0, 36\)"):
+        again = train_cubature(small, sub, num_poses=8, cache=tmp_path)
+    np.testing.assert_array_equal(again.elements, rule.elements)
+
+
+def test_two_threads_writing_one_entry_do_not_share_a_temporary_file(tmp_path, monkeypatch):
+    import threading
+
+    import softrom_gym.rom.cache as module
+
+    seen, barrier = [], threading.Barrier(2)
+    savez = np.savez
+
+    def slow_savez(file, **arrays):
+        seen.append(str(file))
+        barrier.wait(timeout=10)  # both writers are mid-write together
+        savez(file, **arrays)
+
+    monkeypatch.setattr(module.np, "savez", slow_savez)
+    path = tmp_path / "entry.npz"
+    threads = [threading.Thread(target=module.save_entry, args=(path,), kwargs={"a": np.ones(9)})
+               for _ in range(2)]  # fmt: skip
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(set(seen)) == 2, seen
+    np.testing.assert_array_equal(np.load(path)["a"], np.ones(9))
+    assert [p.name for p in tmp_path.iterdir()] == ["entry.npz"]  # no temporary left behind
 
 
 def test_cache_dir_is_user_settable(tmp_path, monkeypatch):
@@ -130,6 +199,9 @@ def test_too_many_modes_raise(robot):
         build_subspace(small, 500, cache=False)
     with pytest.raises(TypeError, match="M must be an integer"):
         build_subspace(robot, 2.5, cache=False)
+    for m in (0, -3):  # were "M = 0 deformation modes requested, but the robot has only 78"
+        with pytest.raises(ValueError, match=f"M must be >= 1 deformation mode, got {m}"):
+            build_subspace(small, m, cache=False)
     with pytest.raises(ValueError, match="num_derivatives must be in"):
         build_subspace(robot, 10, num_derivatives=10, cache=False)
 
@@ -175,3 +247,17 @@ def test_cubature_cache_is_keyed_on_the_frequencies_that_scale_its_poses(tmp_pat
     train_cubature(small, stiffer, num_poses=8, cache=tmp_path)
     # Same basis, other frequencies: a second entry, not the first one read back.
     assert len(list(tmp_path.glob("cubature-*.npz"))) == 2
+
+
+def test_the_cubature_cap_is_honoured_and_checked():
+    small = beam(resolution=6)
+    sub = build_subspace(small, 6, cache=False)
+    # greedy NNLS added four candidates a round, so max_elements=1 gave three elements
+    for cap in (1, 2, 5):
+        assert 1 <= len(train_cubature(small, sub, max_elements=cap, cache=False)) <= cap
+    # -1 gave an empty rule (a body without elasticity), 0 silently the default cap
+    for cap in (0, -1):
+        with pytest.raises(ValueError, match=f"max_elements must be >= 1, got {cap}"):
+            train_cubature(small, sub, max_elements=cap, cache=False)
+    with pytest.raises(TypeError, match="max_elements must be an integer, got 2.5"):
+        train_cubature(small, sub, max_elements=2.5, cache=False)

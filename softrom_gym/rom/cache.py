@@ -1,12 +1,16 @@
 """On-disk cache of subspaces and cubature rules: where it lives, how entries are keyed, and
-atomic reads and writes (a corrupt or half-written entry is rebuilt, never fatal)."""
+atomic reads and writes (a corrupt entry is rebuilt with a warning, never fatal)."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import sys
+import threading
+import warnings
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -49,27 +53,48 @@ def cache_path(cache: bool | str | os.PathLike, name: str) -> Path | None:
     return (cache_dir() if cache is True else Path(cache)) / name
 
 
-def load_entry(path: Path | None) -> dict[str, np.ndarray] | None:
-    """The arrays stored at ``path``, or None when absent or unreadable."""
+def load_entry(
+    path: Path | None, check: Callable[[dict[str, np.ndarray]], str | None] | None = None
+) -> dict[str, np.ndarray] | None:
+    """The arrays stored at ``path``, or None when absent or unusable: unreadable (truncated,
+    not an .npz archive) or refused by ``check`` (which returns what is wrong, or None). An
+    unusable entry is reported in a warning, and the caller rebuilds it."""
     if path is None or not path.exists():
         return None
+    problem = None
     try:
-        with np.load(path) as data:
-            return {k: data[k] for k in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
-        return None
+        with open(path, "rb") as fh:  # closed here even when np.load fails half-way
+            data = np.load(fh)
+            if isinstance(data, np.lib.npyio.NpzFile):
+                with data:
+                    entry = {k: data[k] for k in data.files}
+                problem = check(entry) if check is not None else None
+            else:
+                problem = "not an .npz archive"
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        problem = f"{type(exc).__name__}: {exc}"
+    if problem is None:
+        return entry
+    warnings.warn(
+        f"softrom_gym: ignoring the corrupt cache entry {path} ({problem}); it is rebuilt",
+        RuntimeWarning,
+        stacklevel=3,
+    )
+    return None
 
 
 def save_entry(path: Path | None, **arrays: npt.ArrayLike) -> None:
     """Write ``arrays`` to ``path`` atomically: a concurrent reader never sees half a file,
-    and a read-only cache location only costs speed."""
+    nor do two writers (processes or threads) share a temporary file, and a read-only cache
+    location only costs speed."""
     if path is None:
         return
+    tmp = path.with_name(f"{path.stem}.{os.getpid()}.{threading.get_ident()}.tmp.npz")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
         # (numpy's stub also matches a **dict against savez's allow_pickle: bool)
         np.savez(tmp, **arrays)  # type: ignore[arg-type]
         os.replace(tmp, path)
     except OSError:
-        pass
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)

@@ -94,7 +94,8 @@ def _greedy_nnls(
     while err > tolerance and len(selected) < max_elements:
         score = (a.T @ residual) / norms
         score[selected] = -np.inf
-        picks = [int(i) for i in _ranked(score)[:batch] if score[i] > 0]
+        room = max_elements - len(selected)  # NNLS only prunes: never pick past the cap
+        picks = [int(i) for i in _ranked(score)[: min(batch, room)] if score[i] > 0]
         if not picks:
             break
         selected += picks
@@ -108,6 +109,20 @@ def _greedy_nnls(
             print(f"softrom_gym:   {len(selected)} elements, training error {err:.4f} "
                   f"(target {tolerance:g})", file=sys.stderr, flush=True)  # fmt: skip
     return np.array(selected, dtype=np.int64), weights, err
+
+
+def _entry_problem(entry: dict[str, np.ndarray], num_tets: int) -> str | None:
+    """What makes a cached rule unusable for a mesh of ``num_tets`` elements, or None."""
+    if not {"elements", "weights", "training_error"} <= entry.keys():
+        return "missing arrays"
+    elements, weights = entry["elements"], entry["weights"]
+    if elements.ndim != 1 or elements.dtype.kind not in "iu" or weights.shape != elements.shape:
+        return "elements and weights are not matching index and weight vectors"
+    if elements.size and not (elements.min() >= 0 and elements.max() < num_tets):
+        return f"an element index outside [0, {num_tets})"
+    if not (np.isfinite(weights).all() and np.all(weights >= 0)):
+        return "a negative or non-finite weight"
+    return None
 
 
 def train_cubature(
@@ -147,7 +162,12 @@ def train_cubature(
         raise ValueError(f"num_poses must be >= 1, got {num_poses}")
     if not 0 < tolerance < 1:
         raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
-    max_elements = max_elements or min(robot.num_tets, 25 * subspace.M)
+    if max_elements is None:
+        max_elements = min(robot.num_tets, 25 * subspace.M)
+    elif isinstance(max_elements, bool) or not isinstance(max_elements, (int, np.integer)):
+        raise TypeError(f"max_elements must be an integer, got {max_elements!r}")
+    elif max_elements < 1:
+        raise ValueError(f"max_elements must be >= 1, got {max_elements}")
     # The poses are scaled by the subspace's frequencies, so the rule depends on them as
     # well as on the basis (they differ for a hand-built Subspace).
     digest = hashlib.sha256(np.ascontiguousarray(subspace.basis).tobytes())
@@ -155,8 +175,8 @@ def train_cubature(
     basis_hash = digest.hexdigest()
     key = mesh_key(robot, basis_hash, num_poses, tolerance, max_elements, seed)
     path = cache_path(cache, f"cubature-{key}.npz")
-    entry = load_entry(path)
-    if entry is not None and {"elements", "weights", "training_error"} <= entry.keys():
+    entry = load_entry(path, lambda e: _entry_problem(e, robot.num_tets))
+    if entry is not None:
         return Cubature(entry["elements"], entry["weights"], float(entry["training_error"]))
     if verbose:
         print(f"softrom_gym: training the cubature rule for {robot.name} ({num_poses} poses, "

@@ -204,7 +204,9 @@ def build_subspace(
     if isinstance(M, bool) or not isinstance(M, (int, np.integer)):
         raise TypeError(f"M must be an integer, got {M!r}")
     max_m = 3 * n - 6
-    if not 1 <= M <= max_m:
+    if M < 1:
+        raise ValueError(f"M must be >= 1 deformation mode, got {M}")
+    if M > max_m:
         raise ValueError(
             f"M = {M} deformation modes requested, but the robot has only {max_m} "
             f"(3N - 6 with N = {n}); choose 1 <= M <= {max_m}"
@@ -216,8 +218,8 @@ def build_subspace(
     num_modes = M - num_derivatives
 
     path = cache_path(cache, f"subspace-{mesh_key(robot, M, num_derivatives)}.npz")
-    entry = load_entry(path)
-    if entry is not None and {"basis", "frequencies", "num_modes"} <= entry.keys():
+    entry = load_entry(path, lambda e: _entry_problem(e, 3 * n, M))
+    if entry is not None:
         return Subspace(entry["basis"], entry["frequencies"], int(entry["num_modes"]))
 
     if verbose:
@@ -292,6 +294,17 @@ def build_subspace(
         )
     save_entry(path, basis=basis, frequencies=freq, num_modes=num_modes)
     return sub
+
+
+def _entry_problem(entry: dict[str, np.ndarray], rows: int, M: int) -> str | None:
+    """What makes a cached subspace unusable for a 3N = ``rows``, M-column request, or None."""
+    shapes = {"basis": (rows, M + 6), "frequencies": (M,), "num_modes": ()}
+    for key, shape in shapes.items():
+        if key not in entry:
+            return f"no {key!r} array"
+        if entry[key].shape != shape or not np.isfinite(entry[key]).all():
+            return f"{key!r} is not a finite {shape} array"
+    return None
 
 
 def _reference_fields(size: int, count: int) -> np.ndarray:
