@@ -6,8 +6,8 @@ and walking) (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) in
 their ratio (`vector_speedup`: the vector env steps its robots on 2 threads, the single env
 on one, so the ratio is batching and threading together), and batched ``rollout`` throughput
 on 2 threads in robot env-steps/s (64 rollouts x 10 env steps). Actions are uniform random in
-the action box. Each rate is one timed run after the env's first step (not best of several):
-compare rows of one run.
+the action box. Each rate is one timed run from just after reset, the first step included
+(not best of several): compare rows of one run.
 
     python benchmarks/bench_env.py [--json] [--steps 100]
 """

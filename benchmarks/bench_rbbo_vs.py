@@ -4,7 +4,9 @@ Part (a): synthetic Grassmann objectives with a known optimum (:class:`rbbo.Synt
 R = ||B^T U||_F^2 / C in [0, 1], 1 at span U, plus seed noise with common random numbers),
 several seeds each. Methods: RBBO (GP-UCB on Gr(M, C), plain BO at T_max), random search on
 Gr(M, C) (Haar), and CMA-ES (the ``cma`` package) on an unconstrained M x C matrix
-orthonormalised by QR, started at the identity. All start from the identity basis.
+orthonormalised by QR, its search distribution centred on the identity. RBBO and random
+search evaluate the identity basis first; CMA-ES's evaluations are draws around it (it never
+evaluates the identity itself).
 
 The score after k evaluations is the noise-free R of the point each method would pick so far
 (its best *observed* value), so noise cannot flatter anyone. Wall time includes each method's
