@@ -450,6 +450,24 @@ def test_a_replaced_best_basis_is_measured_again_its_old_rows_kept(reproduction,
     assert len(rows) == 3 and {r["basis_digest"] for r in rows} == {basis_digest(np.load(base))}
 
 
+def test_a_transfer_row_of_a_replaced_best_basis_is_neither_reported_nor_counted(
+    reproduction, tmp_path, capsys
+):
+    import shutil
+
+    out = tmp_path / "copy"
+    shutil.copytree(reproduction, out)
+    # as if Table I's run had searched on under a larger budget (stage table alone): its
+    # transfer row measured the old B_c, which Table I's R* no longer is
+    boca = out / "runs" / "CrossSwim-v0-boca" / "best_basis.npy"
+    np.save(boca, np.load(boca)[:, ::-1].copy())
+    assert main(["reproduce", "--out", str(out), "--status"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any("1 of 2 bases measured at M = 24" in x for x in lines), lines
+    assert main(["reproduce", "--out", str(out), "--report-only"]) == 0
+    assert "R* at M = 24" not in (out / "REPORT.md").read_text()
+
+
 def test_a_row_with_new_columns_widens_the_csv_and_keeps_the_old_rows(tmp_path):
     from rbbo.reproduce.runner import _append_row
     from rbbo.reproduce.tables import read_rows

@@ -13,6 +13,7 @@ import numpy as np
 
 from .plan import _STAGES, ReproducePlan
 from .tables import basis_digest, read_rows
+from .transfer import current_rows
 
 __all__ = ["recorded_repeats", "recorded_stages", "stage_progress", "status_lines"]
 
@@ -116,7 +117,7 @@ def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]
                 for b in plan.benchmarks for k in range(plan.repeats))  # fmt: skip
     bo = sum(_run_done(runs / f"{b}-bo", plan.budget_s, plan.iterations) for b in plan.benchmarks)
     m = plan.transfer_sim_dim
-    rows = [r for r in read_rows(out / "transfer.csv") if int(r["M"]) == m]
+    rows = current_rows(out, m)
     transfer = sum(sum(r["benchmark"] == b for r in rows) >= 2 for b in plan.benchmarks)
     angles = plan.direction_angles_deg()
     directions = sum(_run_done(runs / f"{plan.direction_env}-dir{deg:03.0f}",
@@ -172,8 +173,7 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
                 left += rest
         if "transfer" in stages:
             m = plan.transfer_sim_dim
-            done = [r for r in read_rows(out / "transfer.csv")
-                    if r["benchmark"] == bench and int(r["M"]) == m]  # fmt: skip
+            done = [r for r in current_rows(out, m) if r["benchmark"] == bench]
             lines.append(f"{'transfer':<12} {bench:<20} {len(done)} of 2 bases measured at "
                          f"M = {plan.transfer_sim_dim}")  # fmt: skip
     if "directions" in stages:

@@ -26,7 +26,7 @@ import numpy as np
 from .plan import ReproducePlan
 from .tables import _interval, _num, basis_digest, compare_seeds, read_rows
 
-__all__ = ["format_transfer_markdown", "measure_transfer", "transfer_rows"]
+__all__ = ["current_rows", "format_transfer_markdown", "measure_transfer", "transfer_rows"]
 
 BASES = ("identity", "best")
 
@@ -96,11 +96,30 @@ def _seeds(row: dict[str, str]) -> list[float]:
     return [float(v) for v in row["R_seeds"].split()]
 
 
+def current_rows(out: Path, sim_dim: int) -> list[dict[str, str]]:
+    """transfer.csv's rows at M = ``sim_dim`` that still measure Table I's bases: a "best" row
+    of a B_c its run no longer recommends (it searched on since) is left out, as the stage
+    will measure the new one (rows without a digest predate it and are kept)."""
+    digests: dict[str, str] = {}
+    rows = []
+    for r in read_rows(out / "transfer.csv"):
+        if int(r["M"]) != sim_dim:
+            continue
+        if r["basis"] == "best" and r.get("basis_digest", ""):
+            bench = r["benchmark"]
+            if bench not in digests:
+                best = out / "runs" / ReproducePlan.table_run(bench) / "best_basis.npy"
+                digests[bench] = basis_digest(np.load(best)) if best.exists() else ""
+            if digests[bench] not in ("", r["basis_digest"]):
+                continue
+        rows.append(r)
+    return rows
+
+
 def transfer_rows(out: Path, table: list[dict[str, Any]], sim_dim: int) -> list[dict[str, Any]]:
     """Per Table I row with both measurements at M = ``sim_dim``: R_init and R* there (mean,
     95 % half-width), the improvement, the paired gain and whether the intervals are apart."""
-    measured = {(r["benchmark"], r["basis"]): _seeds(r) for r in read_rows(out / "transfer.csv")
-                if int(r["M"]) == sim_dim}  # fmt: skip
+    measured = {(r["benchmark"], r["basis"]): _seeds(r) for r in current_rows(out, sim_dim)}
     rows = []
     for t in table:
         init, best = measured.get((t["benchmark"], "identity")), measured.get((t["benchmark"],
