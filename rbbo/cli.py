@@ -789,6 +789,10 @@ def cmd_baselines(args) -> int:
                 raise UsageError(f"--env-kwarg {key} was not given to run {args.run}, whose "
                                  "B_c was found in its env as it was")  # fmt: skip
         env_kwargs = {**env_kwargs, **given}
+        # the env is made here: a bad --env-kwarg value fails now, named, not as a traceback
+        # after the job folders are claimed
+        for basis in bases.values():
+            rl._make_env(env_id, basis, env_kwargs, False).close()
         planner_kwargs = _run_mppi_overrides(args.run) if args.run and not args.no_mpc else {}
     out = args.out or Path("runs") / f"baselines-{env_id.split('/')[-1]}"
     try:

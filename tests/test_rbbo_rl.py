@@ -149,6 +149,7 @@ def test_parallel_jobs_give_the_sequential_results(tmp_path, capsys):
         (["--workers", "0"], "--workers"),
         (["--env-kwarg", "sim_dim=10"], "env keyword 'sim_dim' is set by rbbo itself"),
         (["--env-kwarg", "colour=3"], "takes no keyword 'colour'"),
+        (["--env-kwarg", "frame_skip=0"], "frame_skip must be a positive integer, got 0"),
     ],
 )
 def test_bad_arguments(args, message, capsys, tmp_path):
