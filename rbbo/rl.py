@@ -66,9 +66,12 @@ def parse_steps(text: str) -> int | dict[str, int]:
         if "=" not in text:
             return int(text)
         pairs = [item.split("=", 1) for item in text.split(",") if item.strip()]
-        return {k.strip().lower(): int(v) for k, v in pairs}
+        per = {k.strip().lower(): int(v) for k, v in pairs}
     except ValueError:
         raise ValueError(f"steps must be N or ALGO=N[,ALGO=N], got {text!r}") from None
+    if len(per) < len(pairs):  # (the last would win silently)
+        raise ValueError(f"steps name an algorithm twice: {text!r}")
+    return per
 
 
 _COLUMNS = ["env", "method", "basis", "final", "env_steps", "physics_steps", "wall_s", "seeds",

@@ -145,6 +145,7 @@ def test_parallel_jobs_give_the_sequential_results(tmp_path, capsys):
         (["--steps", "0"], "--steps"),
         (["--steps", "ppo=x"], "--steps"),
         (["--steps", "ppo=0,sac=5"], "--steps"),
+        (["--algo", "ppo", "--steps", "ppo=100,ppo=200"], "name an algorithm twice"),
         (["--algo", "ppo", "--steps", "sac=500"], "ppo"),
         (["--workers", "0"], "--workers"),
         (["--env-kwarg", "sim_dim=10"], "env keyword 'sim_dim' is set by rbbo itself"),
