@@ -382,6 +382,12 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
             f.write(json.dumps(line) + "\n")
         lines.append(line)
 
+    if done and not any(x["steps"] == model.num_timesteps and {k: x[k] for k in key} == key
+                        for x in lines):  # fmt: skip
+        # killed between saving this checkpoint and logging its evaluation (or mid-write):
+        # evaluated now, before training on from it, so that its row is not lost
+        checkpoint(model, save=False)
+
     class Checkpoints(BaseCallback):
         # At a rollout's start the previous update is done, so a resume from here loses
         # nothing (for SAC, with train_freq 1, that is every step).

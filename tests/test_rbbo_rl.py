@@ -119,6 +119,21 @@ def test_a_log_without_its_weights_reports_or_restarts(tmp_path, capsys, monkeyp
     assert [x["steps"] for x in _lines(folder / "progress.jsonl")] == [128, 256, 384]
 
 
+def test_a_checkpoint_killed_before_its_evaluation_is_evaluated_on_resume(tmp_path, capsys):
+    out = tmp_path / "bl"
+    args = ["baselines", ENV, "--algo", "ppo", "--out", str(out), *SMALL, "--no-mpc"]
+    assert main(args) == 0
+    folder = out / "ppo-identity"
+    # as if killed while logging step 128's evaluation: its checkpoint saved, its row torn
+    (folder / "checkpoints" / "step_256.zip").unlink()
+    (folder / "final.zip").unlink()
+    text = (folder / "progress.jsonl").read_text()
+    (folder / "progress.jsonl").write_text(text[:30])
+    assert main(args) == 0
+    capsys.readouterr()
+    assert [x["steps"] for x in _lines(folder / "progress.jsonl")] == [128, 256]
+
+
 def test_parallel_jobs_give_the_sequential_results(tmp_path, capsys):
     # each job is seeded and owns its folder, so two processes reproduce one process's rows
     tables = []
