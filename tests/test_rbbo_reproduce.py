@@ -176,7 +176,8 @@ def test_status_says_what_each_part_has_done(reproduction, capsys, tmp_path):
     assert any("2 of 2 bases measured at M = 24" in x for x in lines)
     assert any(x.startswith("perturbation") and "3 of 3 offsets" in x for x in lines)
     assert any(x.startswith("rl ") and "ppo-identity 64/64 steps" in x for x in lines)
-    assert lines[-1].startswith("optimisation budget left: 0.00 h")
+    # every stage done: no work besides the budgets is left either
+    assert lines[-1] == "optimisation budget left: 0.00 h on 1 worker"
     # a longer budget given on the command line: a rerun would search on, so it is counted
     stored = json.loads((reproduction / "reproduce.json").read_text())
     stored["plan"]["iterations"] = None  # as a budget-bound plan: the budget decides

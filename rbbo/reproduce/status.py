@@ -6,6 +6,7 @@ the next one knows what is left."""
 from __future__ import annotations
 
 import shlex
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -195,7 +196,10 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
     if "rl" in stages:
         for bench in _rl_benchmarks(out, plan):
             lines.append(f"{'rl':<12} {bench:<20} {_rl_state(out / 'rl' / bench, plan)}")
-    besides = plan.besides_budgets()
+    # only the work still to do: a stage whose parts are all done costs nothing more
+    progress = stage_progress(out, plan)
+    pending = [s for s in plan.ordered_stages() if progress[s][0] < progress[s][1]]
+    besides = replace(plan, stages=pending).besides_budgets() if pending else ""
     lines.append(f"optimisation budget left: {left / 3600:.2f} h on {plan.on_workers()}"
                  + (f", plus {besides}" if besides else ""))  # fmt: skip
     return lines
