@@ -322,6 +322,17 @@ def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys)
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.parametrize("flag", ["--status", "--report-only"])
+@pytest.mark.parametrize("text", ['{"plan": {"newthing": 1}, "sessions": []}', "{"])
+def test_an_unreadable_record_is_a_usage_error_for_status_and_report_only(
+    flag, text, tmp_path, capsys
+):
+    (tmp_path / "reproduce.json").write_text(text)
+    assert main(["reproduce", "--out", str(tmp_path), flag]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not a reproduce plan" in err[0]
+
+
 def test_confidence_interval_is_the_t_interval():
     mean, half = confidence_interval([1.0, 2.0, 3.0])
     assert mean == 2.0

@@ -190,17 +190,26 @@ def _plan(args) -> ReproducePlan:
     )  # fmt: skip
 
 
-def _status(args, usage_error: type[Exception]) -> int:
+def _stored(out: Path, usage_error: type[Exception], missing: str) -> tuple[dict, ReproducePlan]:
+    """reproduce.json of ``out`` and its plan; a missing or unreadable one is a usage error."""
     import json
+
+    path = out / "reproduce.json"
+    if not path.exists():
+        raise usage_error(f"{out} has no reproduce.json: {missing}")
+    try:
+        document = json.loads(path.read_text())
+        return document, ReproducePlan.from_dict(document["plan"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise usage_error(f"{path} is not a reproduce plan: {exc}") from None
+
+
+def _status(args, usage_error: type[Exception]) -> int:
     from dataclasses import replace
 
     from .status import recorded_repeats, recorded_stages, status_lines
 
-    path = args.out / "reproduce.json"
-    if not path.exists():
-        raise usage_error(f"{args.out} has no reproduce.json: no reproduction there yet")
-    document = json.loads(path.read_text())
-    stored = ReproducePlan.from_dict(document["plan"])
+    document, stored = _stored(args.out, usage_error, "no reproduction there yet")
     given = {a.split("=")[0] for a in args.argv if a.startswith("--")}
     changes = {field: getattr(args, name) for flag, name, field in (
         ("--stages", "stages", "stages"), ("--budget-per-benchmark", "budget_per_benchmark",
@@ -223,7 +232,6 @@ def _status(args, usage_error: type[Exception]) -> int:
 
 def command(args, usage_error: type[Exception]) -> int:
     """Run ``rbbo reproduce``; bad input raises ``usage_error`` (one line, exit status 2)."""
-    import json
 
     from .document import write_report
     from .runner import reproduce
@@ -253,12 +261,8 @@ def command(args, usage_error: type[Exception]) -> int:
     if args.status:
         return _status(args, usage_error)
     if args.report_only:
-        path = args.out / "reproduce.json"
-        if not path.exists():
-            raise usage_error(f"{args.out} has no reproduce.json: nothing to report")
-        document = json.loads(path.read_text())
-        written = write_report(args.out, ReproducePlan.from_dict(document["plan"]), document,
-                               args.report)  # fmt: skip
+        document, stored = _stored(args.out, usage_error, "nothing to report")
+        written = write_report(args.out, stored, document, args.report)
     else:
         command_line = "rbbo " + " ".join(shlex.quote(a) for a in args.argv)
         try:
