@@ -480,6 +480,20 @@ def test_a_transfer_row_of_a_replaced_best_basis_is_neither_reported_nor_counted
     assert "R* at M = 24" not in (out / "REPORT.md").read_text()
 
 
+def test_status_counts_no_offsets_of_a_replaced_base_basis(reproduction, tmp_path, capsys):
+    import shutil
+
+    out = tmp_path / "copy"
+    shutil.copytree(reproduction, out)
+    # the direction-0 run searched on: the perturbation stage will measure every offset again
+    base = out / "runs" / "CrossSwim-v0-dir000" / "best_basis.npy"
+    np.save(base, -np.load(base))
+    assert main(["reproduce", "--out", str(out), "--status"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(x.startswith("perturbation") and "0 of 3 offsets" in x for x in lines), lines
+    assert lines[-1].endswith("plus the perturbation study")
+
+
 def test_a_row_with_new_columns_widens_the_csv_and_keeps_the_old_rows(tmp_path):
     from rbbo.reproduce.runner import _append_row
     from rbbo.reproduce.tables import read_rows

@@ -106,6 +106,22 @@ def _rl_jobs_done(out: Path, bench: str) -> bool:
     return bool(rows) and needed <= bases
 
 
+def _current_offsets(out: Path, plan: ReproducePlan) -> list[dict[str, str]]:
+    """perturbation.csv's rows of the B_c the stage walks now: rows of a B_c its run no
+    longer recommends (it searched on since) are measured again, so they are not done."""
+    from ..store import RunDirectoryError
+    from .runner import _perturbation_base
+
+    rows = read_rows(out / "perturbation.csv")
+    try:
+        base = _perturbation_base(out, plan)
+    except RunDirectoryError:
+        return rows
+    digest = basis_digest(np.load(base / "best_basis.npy"))
+    return [r for r in rows if Path(r["run"]).name == base.name
+            and r.get("basis_digest", "") in ("", digest)]  # fmt: skip
+
+
 def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]:
     """``{stage: (parts done, parts planned)}`` for every stage, whichever of them the last
     command named: a reproduction spans sessions that each run some stages, and its report
@@ -125,7 +141,7 @@ def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]
                                plan.direction_budget_s, plan.iterations)
                      for deg in angles)  # fmt: skip
     n_offsets = 1 + 2 * len(plan.perturbations_deg)
-    offsets = min(len(read_rows(out / "perturbation.csv")), n_offsets)
+    offsets = min(len(_current_offsets(out, plan)), n_offsets)
     n_study = len(plan.cost_cs) + len(plan.reward_cs) * plan.study_seeds
     study = min(len(read_rows(out / "studies" / "cost_vs_c.csv"))
                 + len(read_rows(out / "studies" / "reward_vs_c.csv")), n_study)  # fmt: skip
@@ -186,7 +202,7 @@ def status_lines(out: Path, plan: ReproducePlan) -> list[str]:
     if "perturbation" in stages:
         n = 1 + 2 * len(plan.perturbations_deg)
         lines.append(f"{'perturbation':<12} {plan.direction_env:<20} "
-                     f"{len(read_rows(out / 'perturbation.csv'))} of {n} offsets")  # fmt: skip
+                     f"{len(_current_offsets(out, plan))} of {n} offsets")  # fmt: skip
     if "studies" in stages:
         cost = len(read_rows(out / "studies" / "cost_vs_c.csv"))
         reward = len(read_rows(out / "studies" / "reward_vs_c.csv"))
