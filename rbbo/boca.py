@@ -51,6 +51,7 @@ from typing import overload
 
 import numpy as np
 
+from .config import _positive_int, _real
 from .gp import GrassmannGP
 
 __all__ = ["BOCAFidelity", "FidelityChoice"]
@@ -124,21 +125,16 @@ class BOCAFidelity:
     recent: deque = field(default_factory=deque, repr=False)
 
     def __post_init__(self) -> None:
-        real = (int, float, np.integer, np.floating)
         for name in ("t_min", "t_max", "kappa", "cost_exponent", "max_cost_ratio", "kappa_step"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, real):
-                raise ValueError(f"{name} must be a number, got {value!r}")
-            if not np.isfinite(value):
+            if not np.isfinite(_real(name, value)):
                 raise ValueError(f"{name} must be finite, got {value!r}")
         if not 0 < self.t_min:
             raise ValueError(f"T_min must be a positive finite number, got {self.t_min}")
         if not self.t_max > self.t_min:
             raise ValueError(f"T_max = {self.t_max} must exceed T_min = {self.t_min}")
         for name, low in (("floor_after", 1), ("n_candidates", 2), ("window", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+            _positive_int(name, getattr(self, name), low)
         if not self.kappa > 0:
             raise ValueError(f"kappa must be > 0, got {self.kappa}")
         if not self.cost_exponent >= 0:
