@@ -27,8 +27,9 @@ __all__ = ["FidelityKernel", "GrassmannKernel"]
 
 def _check_length_scale(value: float) -> None:
     # (bool(): numpy's isscalar would narrow value to types that `> 0` does not take)
-    if not (bool(np.isscalar(value)) and value > 0):
-        raise ValueError(f"length_scale must be a positive scalar, got {value!r}")
+    # (inf passes `> 0` but makes k = 1 everywhere: a GP that cannot tell points apart)
+    if not (bool(np.isscalar(value)) and 0 < value < np.inf):
+        raise ValueError(f"length_scale must be a positive finite scalar, got {value!r}")
 
 
 def _check_bounds(name: str, bounds) -> None:
@@ -151,6 +152,9 @@ class FidelityKernel(NormalizedKernelMixin, Kernel):
         return Hyperparameter("length_scale", "numeric", self.length_scale_bounds)
 
     def _column(self, X) -> np.ndarray:
+        # (a float or bool column would index by truncation or as 0/1: refuse it by name)
+        if isinstance(self.column, bool) or not isinstance(self.column, (int, np.integer)):
+            raise ValueError(f"column must be an integer, got {self.column!r}")
         x = np.atleast_2d(np.asarray(X, dtype=float))
         if not -x.shape[1] <= self.column < x.shape[1]:
             raise ValueError(f"column {self.column} is out of range for X of shape {x.shape}")
@@ -177,6 +181,7 @@ class FidelityKernel(NormalizedKernelMixin, Kernel):
 
         About |z - z_target| / h near the target; 0 at the target fidelity itself.
         """
+        _check_length_scale(self.length_scale)
         z = np.asarray(z, dtype=float)
         phi = np.exp(-0.5 * (z - z_target) ** 2 / self.length_scale**2)
         return np.sqrt(np.maximum(1.0 - phi**2, 0.0))

@@ -96,8 +96,18 @@ def test_kernel_works_with_sklearn_clone_and_bounds():
 def test_kernel_rejects_bad_input(rng):
     with pytest.raises(ValueError, match=r"X must have shape \(n, >= M \* C\) = \(n, >= 14\)"):
         GrassmannKernel(M, C)(np.ones((3, 5)))
-    with pytest.raises(ValueError, match="length_scale must be a positive scalar, got -1"):
+    with pytest.raises(ValueError, match="length_scale must be a positive finite scalar, got -1"):
         GrassmannKernel(M, C, -1.0)(_x(rng))
+    with pytest.raises(ValueError, match="length_scale must be a positive finite scalar, got inf"):
+        GrassmannKernel(M, C, np.inf)(_x(rng))
+    with pytest.raises(ValueError, match="length_scale must be a positive finite scalar, got nan"):
+        FidelityKernel(np.nan).information_gap(np.array([0.5]))
+    for column in (1.0, True, "1"):
+        with pytest.raises(ValueError, match=f"column must be an integer, got {column!r}"):
+            FidelityKernel(column=column)(np.ones((2, 3)))
+    np.testing.assert_allclose(
+        FidelityKernel(column=np.int64(0))(np.eye(2)), FidelityKernel(column=0)(np.eye(2))
+    )
     with pytest.raises(ValueError, match="control_dim = 9 exceeds sim_dim = 7"):
         GrassmannKernel(M, 9)(_x(rng))
     with pytest.raises(ValueError, match="Gradient can only be evaluated when Y is None"):
