@@ -219,6 +219,39 @@ def test_status_shows_the_stages_of_the_stored_plan_and_its_sessions(tmp_path, c
     assert lines[-1].endswith("plus the confirmations, the transfer and the perturbation study")
 
 
+def test_status_narrows_to_the_benchmarks_given_and_refuses_other_settings(tmp_path, capsys):
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0", "BeamWalk-v0"], stages=["table"])
+    document = {"plan": plan.to_dict(), "sessions": []}
+    (tmp_path / "reproduce.json").write_text(json.dumps(document))
+    out = ["reproduce", "--out", str(tmp_path), "--status"]
+    assert main([*out, "--benchmarks", "softrom_gym/BeamWalk-v0"]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        "table        BeamWalk-v0          not started",
+        "optimisation budget left: 0.75 h on 2 workers, plus the confirmations",
+    ]
+    assert main(out) == 0  # both, as stored
+    assert len(capsys.readouterr().out.splitlines()) == 3
+    assert main([*out, "--benchmarks", "TripodWalk-v0,BeamWalk-v0"]) == 2
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .endswith(
+            f"TripodWalk-v0 is not part of the reproduction in {tmp_path} (its benchmarks: "
+            "CrossSwim-v0, BeamWalk-v0)"
+        )
+    )
+    # an experiment-defining setting other than the stored one would be silently ignored
+    assert main([*out, "--sim-dim", "30"]) == 2
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .endswith(
+            f"{tmp_path} was started with other settings (sim_dim 20); --status reads them from "
+            "its reproduce.json: leave those options out"
+        )
+    )
+
+
 def test_option_prefixes_are_usage_errors(tmp_path, capsys):
     # "--stage table" was taken for --stages here but not where the recorded command is read
     # again (which options a session gave): rbbo takes options only as spelled

@@ -165,7 +165,8 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--status", action="store_true",
                    help="print what each part of the reproduction in --out has done and the "
                    "budget left (the stages of the stored plan and of its earlier sessions; "
-                   "--stages, --repeats and budgets given here override it), and exit")  # fmt: skip
+                   "--stages, --repeats and budgets given here override it, --benchmarks "
+                   "narrows it to some of its benchmarks), and exit")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
@@ -204,19 +205,40 @@ def _stored(out: Path, usage_error: type[Exception], missing: str) -> tuple[dict
         raise usage_error(f"{path} is not a reproduce plan: {exc}") from None
 
 
-def _status(args, usage_error: type[Exception]) -> int:
+def _status(args, wanted: ReproducePlan, usage_error: type[Exception]) -> int:
+    """Print ``--status``: the stored plan, with what a session may change taken from the
+    command line (``wanted``), and ``--benchmarks`` narrowing it to some of its benchmarks."""
     from dataclasses import replace
 
     from .status import recorded_repeats, recorded_stages, status_lines
 
     document, stored = _stored(args.out, usage_error, "no reproduction there yet")
     given = {a.split("=")[0] for a in args.argv if a.startswith("--")}
+    # A setting that defines the experiment is the stored one: one given otherwise would be
+    # ignored, and the status read as of another plan than the user's.
+    defaults = ReproducePlan()
+    ignored = [k for k in stored.differences(wanted) if k != "benchmarks"
+               and getattr(wanted, k) != getattr(defaults, k)]  # fmt: skip
+    if ignored:
+        shown = ", ".join(f"{k} {getattr(stored, k)!r}" for k in ignored)
+        raise usage_error(
+            f"{args.out} was started with other settings ({shown}); --status reads them "
+            "from its reproduce.json: leave those options out"
+        )
     changes = {field: getattr(args, name) for flag, name, field in (
         ("--stages", "stages", "stages"), ("--budget-per-benchmark", "budget_per_benchmark",
          "budget_s"), ("--direction-budget", "direction_budget", "direction_budget_s"),
         ("--rl-benchmarks", "rl_benchmarks", "rl_benchmarks"), ("--rl-steps", "rl_steps",
          "rl_steps"), ("--rl-algos", "rl_algos", "rl_algos"),
         ("--repeats", "repeats", "repeats")) if flag in given}  # fmt: skip
+    if "--benchmarks" in given:
+        unknown = [b for b in args.benchmarks if b not in stored.benchmarks]
+        if unknown:
+            raise usage_error(
+                f"{', '.join(unknown)} is not part of the reproduction in {args.out} (its "
+                f"benchmarks: {', '.join(stored.benchmarks)})"
+            )
+        changes["benchmarks"] = [b for b in stored.benchmarks if b in args.benchmarks]
     # The stored stages are the last session's; a status is of the whole reproduction, the
     # stages its earlier sessions ran too (not every stage: those it never ran are no part),
     # and as many Table I runs as any of them asked for.
@@ -259,7 +281,7 @@ def command(args, usage_error: type[Exception]) -> int:
     except (ValueError, TypeError) as exc:
         raise usage_error(str(exc)) from exc
     if args.status:
-        return _status(args, usage_error)
+        return _status(args, plan, usage_error)
     if args.report_only:
         document, stored = _stored(args.out, usage_error, "nothing to report")
         written = write_report(args.out, stored, document, args.report)
