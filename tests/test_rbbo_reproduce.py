@@ -50,8 +50,12 @@ def test_writes_every_table_and_figure(reproduction):
     assert (out / "perturbation.csv").read_text().count("\n") == 1 + 3  # header, 0 and ±10
     rl = out / "rl" / "CrossSwim-v0"
     assert (rl / "baselines.md").is_file() and (rl / "ppo-identity" / "final.zip").is_file()
-    assert len(list(rl.glob("ppo-rbbo-*"))) == 1  # the Table I basis trained too
-    assert "## RL baselines on CrossSwim-v0" in (out / "REPORT.md").read_text()
+    # the Table I basis trained too, unless it is the identity (trained once, and said so)
+    best = np.load(out / "runs" / "CrossSwim-v0-boca" / "best_basis.npy")
+    is_identity = np.array_equal(best, np.eye(20)[:, :3])
+    assert len(list(rl.glob("ppo-rbbo-*"))) == (0 if is_identity else 1)
+    rl_section = (out / "REPORT.md").read_text().split("## RL baselines on CrossSwim-v0")[1]
+    assert ("so it is trained once, as identity" in rl_section) == is_identity
     log = (out / "reproduce.log").read_text()  # the record keeps its own log
     assert re.search(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d session 1: ", log, re.M)
     assert "[CrossSwim-v0-boca] BOCA, budget" in log and "(softrom 0.1.0" in log
@@ -942,3 +946,37 @@ def test_an_installed_copy_inside_another_checkout_names_no_commit(tmp_path):
     assert "git" not in copy.source_version()
     if (Path(rbbo.provenance.__file__).parents[1] / ".git").exists():
         assert "git " in rbbo.provenance.source_version()  # a checkout names its commit
+
+
+def test_rl_stage_trains_the_identity_once_and_says_why_it_is_alone(tmp_path, monkeypatch):
+    import rbbo.rl
+    from rbbo.reproduce.runner import rl_baselines
+    from rbbo.reproduce.status import rl_bases
+    from rbbo.reproduce.tables import basis_digest
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], rl_benchmarks=["CrossSwim-v0"])
+    trained: list[list[str]] = []
+    monkeypatch.setattr(
+        rbbo.rl, "run_baselines", lambda env, bases, *a, **k: trained.append(list(bases))
+    )
+    logged: list[str] = []
+    # no Table I run yet: the identity alone, and the log says so
+    rl_baselines(tmp_path, plan, False, logged.append)
+    assert trained.pop() == ["identity"]
+    assert logged.pop() == (
+        f"[rl] CrossSwim-v0: Table I's run {tmp_path}/runs/CrossSwim-v0-boca has no best B_c "
+        "yet, so only the identity is trained; run stage rl again once stage table has run"
+    )
+    # a search that found nothing better recommends the identity itself: trained once
+    run = tmp_path / "runs" / "CrossSwim-v0-boca"
+    run.mkdir(parents=True)
+    np.save(run / "best_basis.npy", np.eye(20)[:, :3])
+    bases, why = rl_bases(tmp_path, plan, "CrossSwim-v0")
+    assert list(bases) == ["identity"]
+    assert why == "Table I's B_c is the identity basis, so it is trained once, as identity"
+    # any other B_c is trained beside the identity, named by its bytes
+    other = np.linalg.qr(np.random.default_rng(0).standard_normal((20, 3)))[0]
+    np.save(run / "best_basis.npy", other)
+    bases, why = rl_bases(tmp_path, plan, "CrossSwim-v0")
+    assert list(bases) == ["identity", f"rbbo-{basis_digest(other)}"] and why == ""
+    np.testing.assert_array_equal(bases[f"rbbo-{basis_digest(other)}"], other)

@@ -24,7 +24,7 @@ from .figures import (
     simulated_minutes,
 )
 from .plan import PAPER_DIRECTIONS, ReproducePlan
-from .status import _rl_benchmarks, recorded_repeats, stage_progress
+from .status import _rl_benchmarks, recorded_repeats, rl_bases, stage_progress
 from .tables import (
     across_runs,
     confidence_interval,
@@ -304,10 +304,13 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
         table_md = out / "rl" / bench / "baselines.md"
         if table_md.exists():
             methods, budget = _rl_trained(out / "rl" / bench / "baselines.csv")
+            _, identity_only = rl_bases(out, plan, bench)
+            bases = "on the identity basis " + (
+                f"({identity_only})" if identity_only else "and on the Table I B_c (`rbbo-<hash>`)"
+            )
             lines += [f"## RL baselines on {bench}", "",
                       f"{methods} (Stable-Baselines3, {budget}, "
-                      "evaluated at every checkpoint) beside MPPI, on the identity basis and "
-                      "on the Table I B_c (`rbbo-<hash>`), over the same "
+                      f"evaluated at every checkpoint) beside MPPI, {bases}, over the same "
                       f"{plan.confirm_seeds} seeds and {plan.t_max:g}-s episodes, distance "
                       f"from t = {plan.settle_time:g} s (mean ± 95 % t-interval).", "",
                       table_md.read_text().strip(), ""]  # fmt: skip

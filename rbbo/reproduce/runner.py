@@ -40,6 +40,7 @@ from ..optimizer import RBBO
 from ..provenance import machine_description, source_version
 from ..store import RunDirectoryError, _atomic_write
 from .plan import ReproducePlan
+from .status import rl_bases
 from .tables import basis_digest, read_rows
 from .transfer import measure_transfer
 
@@ -306,22 +307,20 @@ def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
     return folder
 
 
-def rl_baselines(out: Path, plan: ReproducePlan, progress: bool) -> list[Path]:
+def rl_baselines(out: Path, plan: ReproducePlan, progress: bool,
+                 log: Log = _log_stderr) -> list[Path]:  # fmt: skip
     """PPO/SAC on the identity and on each benchmark's Table I B_c, MPC beside them."""
     from .. import rl
 
     folders = []
     for bench in plan.rl_benchmarks:
-        m, c = plan.sim_dim, plan.control_dim
-        bases = {"identity": np.eye(m)[:, :c]}
-        best = out / "runs" / plan.table_run(bench) / "best_basis.npy"
-        if best.exists():
-            recorded = _run_spec(RBBO.resume(best.parent, read_only=True))
+        bases, identity_only = rl_bases(out, plan, bench)
+        if identity_only:
+            log(f"[rl] {bench}: {identity_only}")
+        best = out / "runs" / plan.table_run(bench)
+        if len(bases) > 1:  # Table I's B_c lives in the simulation space its run recorded
+            recorded = _run_spec(RBBO.resume(best, read_only=True))
             _objective(plan, bench).expect_simulation_space(recorded.get("simulation_space"))
-            basis = np.load(best)
-            # named by its bytes: a longer Table I run may recommend another B_c, which then
-            # trains afresh instead of being refused by (or resumed into) the older one's run
-            bases[f"rbbo-{basis_digest(basis)}"] = basis
         folder = out / "rl" / bench
         rl.run_baselines(plan.env_id(bench), bases, folder, algos=tuple(plan.rl_algos),
                          steps=plan.rl_steps, eval_seeds=plan.confirm_seeds,
@@ -477,7 +476,7 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
             studies(out, plan, log)
             save()
         if "rl" in stages:
-            rl_baselines(out, plan, progress)
+            rl_baselines(out, plan, progress, log)
     finally:
         stop.set()
         save()

@@ -16,7 +16,7 @@ from .plan import _STAGES, ReproducePlan
 from .tables import basis_digest, read_rows
 from .transfer import current_rows
 
-__all__ = ["recorded_repeats", "recorded_stages", "stage_progress", "status_lines"]
+__all__ = ["recorded_repeats", "recorded_stages", "rl_bases", "stage_progress", "status_lines"]
 
 
 def _session_stages(session: dict[str, Any]) -> list[str]:
@@ -95,15 +95,35 @@ def _rl_benchmarks(out: Path, plan: ReproducePlan) -> list[str]:
     return list(plan.rl_benchmarks) + [b for b in held if b not in plan.rl_benchmarks]
 
 
-def _rl_jobs_done(out: Path, bench: str) -> bool:
-    """Whether one benchmark's RL stage has finished for the bases it must cover: its table
-    (baselines.csv, written when every job of a call has finished) has rows for the identity
-    and, once Table I's run has a best B_c, for that B_c."""
+def rl_bases(out: Path, plan: ReproducePlan, bench: str) -> tuple[dict[str, np.ndarray], str]:
+    """The bases the RL stage trains on for ``bench`` and, when that is the identity alone,
+    why ("" otherwise).
+
+    They are the identity and Table I's B_c, named by its bytes (``rbbo-<digest>``: a longer
+    Table I run may recommend another B_c, which then trains afresh instead of resuming the
+    older one's jobs). A B_c that is the identity itself (the search found nothing better)
+    is trained once, as ``identity``.
+    """
+    identity = np.eye(plan.sim_dim)[:, : plan.control_dim]
+    bases = {"identity": identity}
+    run = Path(out) / "runs" / plan.table_run(bench)
+    best = run / "best_basis.npy"
+    if not best.exists():
+        return bases, (f"Table I's run {run} has no best B_c yet, so only the identity is "
+                       "trained; run stage rl again once stage table has run")  # fmt: skip
+    basis = np.load(best)
+    if basis.shape == identity.shape and np.array_equal(basis, identity):
+        return bases, "Table I's B_c is the identity basis, so it is trained once, as identity"
+    bases[f"rbbo-{basis_digest(basis)}"] = basis
+    return bases, ""
+
+
+def _rl_jobs_done(out: Path, plan: ReproducePlan, bench: str) -> bool:
+    """Whether one benchmark's RL stage has finished for the bases it must cover
+    (:func:`rl_bases`): its table (baselines.csv, written when every job of a call has
+    finished) has rows for each of them."""
     rows = read_rows(out / "rl" / bench / "baselines.csv")
-    bases = {r["basis"] for r in rows}
-    best = out / "runs" / ReproducePlan.table_run(bench) / "best_basis.npy"
-    needed = {"identity"} | ({f"rbbo-{basis_digest(np.load(best))}"} if best.exists() else set())
-    return bool(rows) and needed <= bases
+    return bool(rows) and set(rl_bases(out, plan, bench)[0]) <= {r["basis"] for r in rows}
 
 
 def _current_offsets(out: Path, plan: ReproducePlan) -> list[dict[str, str]]:
@@ -146,7 +166,7 @@ def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]
     study = min(len(read_rows(out / "studies" / "cost_vs_c.csv"))
                 + len(read_rows(out / "studies" / "reward_vs_c.csv")), n_study)  # fmt: skip
     rl_benchmarks = _rl_benchmarks(out, plan)
-    rl = sum(_rl_jobs_done(out, b) for b in rl_benchmarks)
+    rl = sum(_rl_jobs_done(out, plan, b) for b in rl_benchmarks)
     return {"table": (table, n_bench * plan.repeats), "bo": (bo, n_bench),
             "transfer": (transfer, n_bench), "directions": (directions, len(angles)),
             "perturbation": (offsets, n_offsets), "studies": (study, n_study),
