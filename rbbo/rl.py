@@ -1,8 +1,9 @@
 """RL baselines: Stable-Baselines3 PPO and SAC in the same control spaces B_c as the MPC.
 
 Each (algorithm, basis) trains in ``OUT/<algo>-<basis>/``: ``checkpoints/step_<n>.zip`` every
-``checkpoint_every`` env steps and at the end (SAC also keeps the latest replay buffer, so a
-resume continues the same run), ``final.zip``, ``run.json`` (what was trained: a re-run with
+``checkpoint_every`` env steps and at the end, with ``step_<n>.json`` (its training wall time)
+beside it (SAC also keeps the latest replay buffer, so a resume continues the same run),
+``final.zip``, ``run.json`` (what was trained: a re-run with
 the same OUT continues from the latest checkpoint and refuses another env, basis or seed; a
 larger ``steps`` trains the same run further, SAC keeping the replay-buffer size it was
 created with, the oldest transitions replaced) and
@@ -286,6 +287,24 @@ def _read_progress(log: Path, mend: bool = True) -> list[dict]:
     return rows
 
 
+def _atomic_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(f"tmp_{path.name}")
+    tmp.write_text(json.dumps(data), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _wall_at_checkpoint(n: int, logged: dict[int, float], ckpts: Path) -> float:
+    """Training wall time at checkpoint ``n`` (0 for a fresh start): as logged; else, when the
+    job was killed before logging it, as saved beside the checkpoint; else (a checkpoint saved
+    before that was kept) the last logged time before it, which is a lower bound."""
+    if n in logged:
+        return logged[n]
+    try:
+        return float(json.loads((ckpts / f"step_{n}.json").read_text())["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return max((w for steps, w in logged.items() if steps < n), default=0.0)
+
+
 def _row(env_id, method, basis, final, env_steps, physics, wall, distances, body) -> dict:
     mean, half = t_interval(distances)
     return {"env": env_id, "method": method, "basis": basis, "final": final,
@@ -354,8 +373,9 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
         model = cls("MlpPolicy", train_env, buffer_size=max(steps, 1000), seed=seed,
                     learning_starts=min(100, steps // 4), device="cpu")  # fmt: skip
     wall_at = {x["steps"]: x["wall_s"] for x in lines}
-    clock = {"offset": wall_at.get(model.num_timesteps, 0.0), "start": time.perf_counter(),
-             "eval": 0.0, "saved": model.num_timesteps}  # fmt: skip
+    clock = {"offset": _wall_at_checkpoint(model.num_timesteps, wall_at, ckpts),
+             "start": time.perf_counter(), "eval": 0.0, "saved": model.num_timesteps}  # fmt: skip
+    wall_at.setdefault(model.num_timesteps, clock["offset"])  # its row, if it must be logged
 
     def checkpoint(m, save: bool = True) -> None:
         n = m.num_timesteps
@@ -366,6 +386,8 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
             m.save_replay_buffer(ckpts / "tmp_replay.pkl")
             os.replace(ckpts / "tmp_replay.pkl", ckpts / f"step_{n}_replay.pkl")
         if save:
+            # its training wall time beside it, for a resume whose log lost the row
+            _atomic_json(ckpts / f"step_{n}.json", {"wall_s": wall})
             m.save(ckpts / "tmp_step.zip")
             os.replace(ckpts / "tmp_step.zip", ckpts / f"step_{n}.zip")
             clock["saved"] = n

@@ -128,10 +128,21 @@ def test_a_checkpoint_killed_before_its_evaluation_is_evaluated_on_resume(tmp_pa
     (folder / "checkpoints" / "step_256.zip").unlink()
     (folder / "final.zip").unlink()
     text = (folder / "progress.jsonl").read_text()
+    wall_128 = _lines(folder / "progress.jsonl")[0]["wall_s"]
     (folder / "progress.jsonl").write_text(text[:30])
     assert main(args) == 0
     capsys.readouterr()
-    assert [x["steps"] for x in _lines(folder / "progress.jsonl")] == [128, 256]
+    lines = _lines(folder / "progress.jsonl")
+    assert [x["steps"] for x in lines] == [128, 256]
+    # its training wall time is the one saved with the checkpoint, and training goes on
+    # from it (the column restarted at 0 before)
+    assert lines[0]["wall_s"] == wall_128
+    assert lines[1]["wall_s"] > wall_128
+    # a checkpoint saved before its wall time was: the last logged time, a lower bound
+    from rbbo.rl import _wall_at_checkpoint
+
+    assert _wall_at_checkpoint(300, {128: 1.5, 256: 2.5}, tmp_path) == 2.5
+    assert _wall_at_checkpoint(128, {}, tmp_path) == 0.0
 
 
 def test_parallel_jobs_give_the_sequential_results(tmp_path, capsys):
