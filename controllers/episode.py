@@ -29,7 +29,8 @@ class EpisodeResult:
     why the episode ended: "time" (its seconds ran out), "diverged", "truncated by the time
     limit" (the env's TimeLimit) or "interrupted" (Ctrl-C: :func:`run_episode` raises the
     KeyboardInterrupt with the steps recorded so far as its ``result``, and writes the video
-    of them).
+    of them; interrupted in the reset or the planner's set-up, before the first state is
+    recorded, its ``result`` is None).
     """
 
     planner: str
@@ -146,8 +147,12 @@ def run_episode(
         _imageio()
     api = EnvAPI(env)  # (planner.reset refuses an action wrapper: check_physical_actions)
     steps = max(1, round(seconds / api.dt))
-    env.reset(seed=seed)
-    planner.reset(env, seed=seed)
+    try:
+        env.reset(seed=seed)
+        planner.reset(env, seed=seed)  # (a gait seed search can take seconds)
+    except KeyboardInterrupt as interrupt:
+        interrupt.result = None  # type: ignore[attr-defined]  # (nothing recorded yet)
+        raise
     record: dict[str, list] = {k: [] for k in ("rewards", "orientation", "lateral", "effort",
                                                "actions")}  # fmt: skip
     com = [api.center_of_mass()]

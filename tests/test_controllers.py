@@ -680,6 +680,17 @@ def test_an_interrupted_episode_hands_back_what_it_recorded(tmp_path, capsys, mo
     assert result.stop_reason == "interrupted" and result.rewards.size == 5
     assert result.com.shape == (6, 3) and len(result.states) == 6
     assert result.actions.shape == (5, 3) and result.R == pytest.approx(result.rewards.sum())
+
+    # interrupted in the planner's set-up: nothing recorded, and the interrupt says so
+    # (before, it carried no result at all)
+    def interrupted_reset(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(planner, "reset", interrupted_reset)
+    with pytest.raises(KeyboardInterrupt) as interrupt:
+        run_episode(env, planner, 1.0, every, progress=False)
+    assert interrupt.value.result is None
+    monkeypatch.undo()
     # the command line prints it and exits 130, as rbbo does
     import controllers.episode as episode  # (main imports run_episode from it when it runs)
 
