@@ -145,10 +145,11 @@ def test_rollout_video_without_imageio_is_a_usage_error(tmp_path, capsys, monkey
 
 
 def test_rollout_video_of_the_settling_seconds_prints_no_r(tmp_path, capsys, monkeypatch):
-    import rbbo.cli
+    import rbbo.cli.rollout
 
     monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
-    monkeypatch.setattr(rbbo.cli, "_require_imageio", lambda: None)  # the stand-in writes none
+    # the stand-in controllers write no video: imageio is not needed
+    monkeypatch.setattr(rbbo.cli.rollout, "_require_imageio", lambda: None)
     run = tmp_path / "env-run"
     assert main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
                  "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",
@@ -170,10 +171,10 @@ def test_rollout_video_of_the_settling_seconds_prints_no_r(tmp_path, capsys, mon
 def test_rollout_video_name_without_a_video_suffix_is_a_usage_error(tmp_path, capsys,
                                                                      monkeypatch):  # fmt: skip
     import controllers.episode  # the real suffixes, under the stand-in package below
-    import rbbo.cli
+    import rbbo.cli.rollout
 
     monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
-    monkeypatch.setattr(rbbo.cli, "_require_imageio", lambda: None)
+    monkeypatch.setattr(rbbo.cli.rollout, "_require_imageio", lambda: None)
     run = tmp_path / "env-run"
     assert main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
                  "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",

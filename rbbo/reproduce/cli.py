@@ -1,4 +1,4 @@
-"""``rbbo reproduce``'s arguments and command (registered by :mod:`rbbo.cli`).
+"""``rbbo reproduce``'s arguments and command (registered by :mod:`rbbo.cli.parser`).
 
 ::
 
@@ -63,19 +63,19 @@ def _names(valid: tuple[str, ...]):
 
 
 def _mpc_changes(text: str) -> dict[str, Any]:
-    from ..cli import mpc_changes_arg
+    from ..cli.arguments import mpc_changes_arg
 
     return mpc_changes_arg(text)
 
 
 def _rl_steps(text: str) -> int | dict[str, int]:
-    from ..cli import rl_steps_arg
+    from ..cli.arguments import rl_steps_arg
 
     return rl_steps_arg(text)
 
 
 def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.ArgumentParser:
-    """Add the ``reproduce`` subcommand to ``sub`` (rbbo.cli's subparsers)."""
+    """Add the ``reproduce`` subcommand to ``sub`` (rbbo.cli.parser's subparsers)."""
     p = sub.add_parser("reproduce", help="the paper's results (Table I, BO vs BOCA, "
                        "directions, studies of C, transfer to a larger M, perturbations, RL "
                        "baselines) into one directory with a REPORT.md")  # fmt: skip
@@ -172,7 +172,7 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
 
 
 def _plan(args) -> ReproducePlan:
-    from ..cli import merged_mpc_changes
+    from ..cli.arguments import merged_mpc_changes
 
     return ReproducePlan(
         benchmarks=args.benchmarks, budget_s=args.budget_per_benchmark, repeats=args.repeats,

@@ -1,0 +1,199 @@
+"""``rbbo optimize``, ``rbbo resume`` and ``rbbo confirm``: start a search, continue it,
+and measure a finished run's R_init and R* again.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+from .arguments import _env_kwargs, merged_mpc_changes
+from .errors import UsageError, _bad_input
+from .execution import _execute, _make_executor
+from .objectives import _check_controllers, _objective_of, _resolve_env
+
+
+def _duration_text(seconds: float) -> str:
+    """Seconds as people read them: '45 s', '12.5 min' (a budget as --budget was given)."""
+    return f"{seconds:.3g} s" if seconds < 120 else f"{seconds / 60:.3g} min"
+
+
+def _limits_text(iterations: int | None, budget: float | None) -> str:
+    """A run's stopping limits as a resume prints them: '30 evaluations and a budget of
+    12.5 min' (either may be absent: None)."""
+    limits = ([f"{iterations} evaluations"] if iterations is not None else []) + (
+        [f"a budget of {_duration_text(budget)}"] if budget is not None else []
+    )
+    return " and ".join(limits) or "none"
+
+
+def cmd_optimize(args) -> int:
+    from ..objective import make_objective, parse_objective_spec
+    from ..optimizer import RBBO, RBBOConfig
+
+    if args.control_dim > args.sim_dim:
+        raise UsageError(f"--control-dim {args.control_dim} exceeds --sim-dim {args.sim_dim}")
+    if args.t_min >= args.t_max and args.fidelity == "boca":
+        raise UsageError(f"--t-min {args.t_min} must be below --t-max {args.t_max} (BOCA "
+                         "searches episode lengths between them)")  # fmt: skip
+    if args.address and args.executor != "ray":
+        raise UsageError("--address is for --executor ray")
+    budget, iterations = args.budget, args.iterations
+    if budget is None and iterations is None:
+        budget = 30 * 60.0
+    with _bad_input():
+        spec = parse_objective_spec(args.env_id)
+    problem = {"env_id": args.env_id, "N": None}
+    if spec["kind"] == "env":
+        if args.t_min <= args.settle_time and args.fidelity == "boca":
+            raise UsageError(f"--t-min {args.t_min} must exceed --settle-time {args.settle_time}")
+        if args.t_max <= args.settle_time:
+            raise UsageError(f"--t-max {args.t_max} must exceed --settle-time {args.settle_time}")
+        spec["env_id"] = _resolve_env(spec["env_id"])
+        _check_controllers()
+        spec.update(controller=args.controller, settle_time=args.settle_time)
+        if args.env_kwarg:
+            spec["env_kwargs"] = _env_kwargs(args.env_kwarg)
+        if args.mpc:
+            spec["planner_kwargs"] = merged_mpc_changes(args.mpc)
+        problem["env_id"] = spec["env_id"]
+    elif args.env_kwarg or args.mpc:
+        flag = "--env-kwarg" if args.env_kwarg else "--mpc"
+        raise UsageError(f"{flag} is for an env, not the synthetic objective")
+    else:
+        spec["t_max"] = args.t_max
+    with _bad_input():
+        config = RBBOConfig(
+            sim_dim=args.sim_dim, control_dim=args.control_dim, fidelity=args.fidelity,
+            t_min=args.t_min, t_max=args.t_max, n_init=args.init, seeds=args.seeds,
+            seed=args.seed, n_confirm=args.confirm_seeds, max_evaluations=iterations,
+            budget_s=budget, optimizer=args.optimizer,
+        )  # fmt: skip
+        objective = make_objective(spec, args.sim_dim, args.control_dim, new=True)
+    if spec["kind"] == "env":
+        with _bad_input():  # the env is made here: a bad --env-kwarg fails now, named
+            problem["N"] = objective.node_count()
+            objective.planner()  # and a bad --mpc setting, not as failed evaluations
+    out = args.out
+    if out is None:
+        name = args.env_id.split("/")[-1].split(":")[0]
+        out = Path("runs") / f"{name}-{datetime.now():%Y%m%d-%H%M%S}"
+    execution = {"executor": args.executor, "workers": args.workers,
+                 "timeout_s": args.timeout, "address": args.address,
+                 "deterministic": args.deterministic}  # fmt: skip
+    executor = _make_executor(objective, execution)
+    try:
+        with _bad_input():
+            opt = RBBO.create(out, config, objective_spec=objective.spec(),
+                              extra={"execution": execution, "problem": problem})  # fmt: skip
+    except BaseException:
+        executor.shutdown(wait=False)
+        raise
+    # notes once the input is known good (a usage error stays one line)
+    if iterations is not None and iterations <= args.init + 1:
+        print(f"note: --iterations {iterations} <= 1 + --init {args.init}: the initial design "
+              f"(the identity basis, then {args.init} random points) takes every evaluation, "
+              "and the GP proposes none", file=sys.stderr)  # fmt: skip
+    if spec["kind"] == "env":
+        import controllers
+
+        if not controllers.has_defaults(spec["env_id"]):
+            print(f"note: {spec['env_id']} has no tuned planner settings; {args.controller} "
+                  "runs with the shared defaults (a 2, 3 or 4 Hz gait cycle picked at reset) "
+                  "(controllers.GENERIC; the benchmarks' own rows: controllers.DEFAULTS)",
+                  file=sys.stderr)  # fmt: skip
+    return _execute(opt, executor, iterations, budget, not args.no_progress,
+                    args.deterministic)  # fmt: skip
+
+
+def cmd_resume(args) -> int:
+    from ..optimizer import RBBO
+
+    opt = RBBO.resume(args.run_dir)
+    store = opt.store
+    assert store is not None  # (resume opens the run's store)
+    objective = _objective_of(opt)
+    execution = dict(store.config.get("execution") or {"executor": "process",
+                     "workers": 1, "timeout_s": 600.0})  # fmt: skip
+    if args.workers:
+        execution["workers"] = args.workers
+    if args.executor:
+        execution["executor"] = args.executor
+        execution["address"] = args.address if args.executor == "ray" else None
+        if args.executor == "serial" and not args.workers:
+            execution["workers"] = 1  # (the stored count was another executor's)
+    elif args.address:
+        if execution["executor"] != "ray":
+            raise UsageError("--address is for --executor ray")
+        execution["address"] = args.address
+    # A new limit replaces both stored ones: a run that stopped at its budget, resumed with
+    # --iterations, would otherwise stop again at once. It is written to config.json, so a
+    # later plain `rbbo resume` (the hint an interrupted run prints) goes on to it, or, for a
+    # lowered limit that is already reached, stays stopped at it.
+    iterations, budget = args.iterations, args.budget
+    if iterations is None and budget is None:
+        iterations, budget = opt.config.max_evaluations, opt.config.budget_s
+    elif (iterations, budget) != (opt.config.max_evaluations, opt.config.budget_s):
+        old = _limits_text(opt.config.max_evaluations, opt.config.budget_s)
+        with _bad_input():
+            opt.set_limits(iterations, budget)
+        print(f"{store.path}: its limit is now {_limits_text(iterations, budget)} (was "
+              f"{old}), stored in config.json for later resumes", file=sys.stderr)  # fmt: skip
+    if not opt.can_submit(iterations, budget):
+        done = len(opt.evaluations)
+        print(f"{store.path} has reached its limit ({_limits_text(iterations, budget)}; it "
+              f"has {done} evaluations, {_duration_text(opt.elapsed_s)}): nothing more to "
+              "search; give a larger --budget or --iterations to go on",
+              file=sys.stderr)  # fmt: skip
+    started = time.monotonic()
+    executor = _make_executor(objective, execution)
+    code = _execute(opt, executor, iterations, budget, not args.no_progress,
+                    bool(execution.get("deterministic", False)))  # fmt: skip
+    if code == 0:
+        print(f"resumed for {time.monotonic() - started:.0f} s", file=sys.stderr)
+    return code
+
+
+def cmd_confirm(args) -> int:
+    from ..executors import make_executor
+    from ..optimizer import RBBO
+    from ..report import format_table, report_row
+
+    opt = RBBO.resume(args.run_dir)
+    store = opt.store
+    assert store is not None  # (resume opens the run's store)
+    if not opt.finished and opt.config.n_confirm > 0:
+        # its R* would be a mid-search recommendation's, and the run would then read as
+        # finished; the resume measures R_init and R* when the search ends
+        n = len(opt.evaluations)
+        raise UsageError(f"{args.run_dir} has not finished its search ({n} evaluations "
+                         f"recorded): rbbo resume {args.run_dir} finishes it and measures "
+                         "R_init and R*; confirm measures a finished run again")  # fmt: skip
+    before = opt.result()
+    objective = _objective_of(opt)
+    execution = dict(store.config.get("execution") or {"executor": "process",
+                     "workers": 1, "timeout_s": 600.0})  # fmt: skip
+    workers = args.workers or execution["workers"]
+    with _bad_input():
+        executor = make_executor(execution["executor"], objective, workers,
+                                 execution["timeout_s"], execution.get("address"))  # fmt: skip
+    try:
+        with _bad_input():
+            after = opt.confirm_again(executor)
+    except KeyboardInterrupt:
+        executor.shutdown(wait=False)
+        print(f"\ninterrupted; nothing is lost: run rbbo confirm {store.path} again",
+              file=sys.stderr)  # fmt: skip
+        return 130
+    executor.shutdown()
+
+    def fmt(value: float | None) -> str:
+        return "-" if value is None else f"{value:.6g}"
+
+    seeds = ", ".join(map(str, opt.config.fresh_seeds))
+    print(f"R_init {fmt(before.R_init)} -> {fmt(after.R_init)}, R* {fmt(before.R_star)} -> "
+          f"{fmt(after.R_star)} (fresh seeds {seeds})")  # fmt: skip
+    print(format_table([report_row(opt)]))
+    return 0

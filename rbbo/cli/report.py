@@ -1,0 +1,40 @@
+"""``rbbo report``: the table of one or more runs, and each run's convergence plot."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from .errors import UsageError
+
+
+def cmd_report(args) -> int:
+    from ..report import format_table, load, plot_convergence, report_row
+
+    if args.png is not None and len(args.run_dirs) > 1:
+        raise UsageError("--png names one plot: give one DIR")
+    rows = []
+    if args.png is not None:
+        # the suffix picks the format: one matplotlib cannot write would fail after the table
+        # was computed, and none at all would write PNG.png, not the file named
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        formats = sorted(FigureCanvasAgg.get_supported_filetypes())
+        if args.png.suffix.lower().lstrip(".") not in formats:
+            raise UsageError(f"--png {args.png}: the file name must end in one of "
+                             f"{', '.join('.' + f for f in formats)}")  # fmt: skip
+        try:
+            args.png.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"cannot write --png {args.png}: {exc}") from exc
+    for run_dir in args.run_dirs:
+        opt = load(run_dir)
+        rows.append(report_row(opt))
+        path = args.png or Path(run_dir) / "convergence.png"
+        try:
+            png = plot_convergence(opt, path)
+        except OSError as exc:
+            raise UsageError(f"cannot write the plot {path}: {exc}") from exc
+        print(f"{run_dir}: plot {png}", file=sys.stderr)
+    print(format_table(rows))
+    return 0

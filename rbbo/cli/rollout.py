@@ -1,0 +1,125 @@
+"""``rbbo rollout``: replay a run's best B_c with MPC, for its R or a video of the episode."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from .errors import UsageError
+from .objectives import _objective_of
+
+
+def cmd_rollout(args) -> int:
+    from ..objective import EnvObjective
+    from ..optimizer import RBBO
+
+    opt = RBBO.resume(args.run_dir, read_only=True)
+    result = opt.result()  # the confirmed recommendation, or the current one mid-run
+    if result.best_basis is None:
+        raise UsageError(f"{args.run_dir} has no successful evaluation at T_max yet: no "
+                         "recommendation to replay")  # fmt: skip
+    basis = result.best_basis
+    if not opt.finished:
+        print(f"the run has not finished: replaying its current recommendation, evaluation "
+              f"{result.best_index}", file=sys.stderr)  # fmt: skip
+    objective = _objective_of(opt)
+    seconds = args.seconds or opt.config.t_max
+    # A video of the first seconds is worth having (how the robot settles); R, measured from
+    # the settle time on, is what a replay without --video is for.
+    if isinstance(objective, EnvObjective) and not seconds > _measured_from(objective):
+        if not args.video:
+            raise UsageError(f"--seconds {seconds:g} must exceed the run's settle time "
+                             f"{objective.settle_time:g} s, from which R is measured (from "
+                             f"the first env step at or after it, {_measured_from(objective):g}"
+                             f" s): give more (the run's T_max is {opt.config.t_max:g} s), or "
+                             "add --video FILE to watch the episode without R")  # fmt: skip
+    if not isinstance(objective, EnvObjective):
+        if args.video:
+            raise UsageError("--video needs an env run; a synthetic objective has no robot")
+        r = objective(basis, seconds, args.seed)
+        print(f"R = {r:.6g} per second (T = {seconds:g} s, seed {args.seed}); "
+              f"optimum {objective.value(objective.optimum):.6g}")  # fmt: skip
+        return 0
+    if args.video:
+        _check_video_name(args.video)  # before the env is built and the episode run
+        _require_imageio()  # before the episode, so a missing extra costs nothing
+        return _rollout_video(objective, basis, seconds, args.seed, args.video)
+    r = objective(basis, seconds, args.seed)
+    print(f"R = {r:.6g} per second from t = {objective.settle_time:g} s "
+          f"(T = {seconds:g} s, seed {args.seed})")  # fmt: skip
+    return 0
+
+
+def _measured_from(objective) -> float:
+    """When R starts: the first env step at or after the settle time (settled_reward_rate's
+    rule), so that --seconds just past a settle time between two steps is not an empty span."""
+    from softrom_gym.registration import control_period
+
+    from ..objective import settled_step
+
+    step = control_period(objective.env_id, **objective.env_kwargs)
+    if step is None:
+        return objective.settle_time
+    return settled_step(step, objective.settle_time) * step
+
+
+def _check_video_name(video: Path) -> None:
+    """A --video name whose suffix no video writer takes is a usage error (its folder is
+    created, so only the name is checked)."""
+    try:
+        from controllers.episode import _VIDEO_SUFFIXES
+    except ImportError:  # a stand-in controllers module (the tests'): it writes no video
+        return
+    if video.suffix.lower() not in _VIDEO_SUFFIXES:
+        raise UsageError(f"--video {video}: the file name must end in one of "
+                         f"{', '.join(sorted(_VIDEO_SUFFIXES))}")  # fmt: skip
+
+
+def _require_imageio() -> None:
+    """Raise a usage error naming the extra when imageio cannot be imported.
+
+    Only this import is turned into a usage error: an ImportError raised inside the episode
+    is a fault of the package and keeps its traceback.
+    """
+    try:
+        import imageio.v2  # noqa: F401
+    except ImportError as exc:
+        raise UsageError(
+            "--video needs imageio: pip install 'softrom[video]' (imageio and imageio-ffmpeg)"
+        ) from exc
+
+
+def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> int:
+    import inspect
+
+    import controllers
+
+    from ..objective import settled_reward_rate
+
+    video.parent.mkdir(parents=True, exist_ok=True)
+    env = objective.make_env(basis, render_mode="rgb_array")
+    if "video" in inspect.signature(controllers.run_episode).parameters:
+        result = objective.episode(basis, seconds, seed, env=env, video=str(video))
+    else:  # record through Gymnasium's wrapper
+        import shutil
+        import tempfile
+
+        from gymnasium.wrappers import RecordVideo
+
+        with tempfile.TemporaryDirectory() as folder:
+            wrapped = RecordVideo(env, folder, episode_trigger=lambda _: True,
+                                  name_prefix="rollout", disable_logger=True)  # fmt: skip
+            result = objective.episode(basis, seconds, seed, env=wrapped)
+            wrapped.close()
+            clips = sorted(Path(folder).glob("*.mp4"))
+            if not clips:
+                raise UsageError("no video was written (does the env render rgb_array frames?)")
+            shutil.move(str(clips[0]), video)
+    if not seconds > _measured_from(objective):
+        print(f"video: {video} ({seconds:g} s; no R, which is measured from the run's settle "
+              f"time {objective.settle_time:g} s on)")  # fmt: skip
+        return 0
+    dt = getattr(result, "dt", None) or objective.step_seconds(env)
+    r = settled_reward_rate(result, dt, objective.settle_time, seconds)
+    print(f"R = {r:.6g} per second; video: {video}")
+    return 0
