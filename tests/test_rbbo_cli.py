@@ -48,6 +48,14 @@ def test_optimize_report_resume_rollout_on_a_synthetic_objective(tmp_path, capsy
     assert main(["rollout", str(run), "--seed", "7"]) == 0
     assert capsys.readouterr().out.startswith("R = ")
 
+    # options the run's executor cannot take are refused as optimize refuses them (resume
+    # dropped the address, and confirm ran a serial run's 4 "workers" one at a time)
+    err = _error(capsys, ["resume", str(run), "--executor", "process", "--address", "auto"])
+    assert "--address is for --executor ray" in err
+    err = _error(capsys, ["confirm", str(run), "--workers", "4"])
+    assert "--executor serial runs one evaluation at a time, in this process; --workers 4" in err
+    assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == 10
+
     # confirm: the same bases measured again on the same fresh seeds, appended
     first = [h for h in _history(run) if h["kind"].startswith("confirm")]
     assert main(["confirm", str(run), "--workers", "1"]) == 0

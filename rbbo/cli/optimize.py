@@ -120,6 +120,8 @@ def cmd_resume(args) -> int:
     if args.workers:
         execution["workers"] = args.workers
     if args.executor:
+        if args.address and args.executor != "ray":
+            raise UsageError("--address is for --executor ray")  # (as optimize says)
         execution["executor"] = args.executor
         execution["address"] = args.address if args.executor == "ray" else None
         if args.executor == "serial" and not args.workers:
@@ -157,7 +159,6 @@ def cmd_resume(args) -> int:
 
 
 def cmd_confirm(args) -> int:
-    from ..executors import make_executor
     from ..optimizer import RBBO
     from ..report import format_table, report_row
 
@@ -175,10 +176,10 @@ def cmd_confirm(args) -> int:
     objective = _objective_of(opt)
     execution = dict(store.config.get("execution") or {"executor": "process",
                      "workers": 1, "timeout_s": 600.0})  # fmt: skip
-    workers = args.workers or execution["workers"]
-    with _bad_input():
-        executor = make_executor(execution["executor"], objective, workers,
-                                 execution["timeout_s"], execution.get("address"))  # fmt: skip
+    # (checked as optimize and resume check it: --workers 4 on a serial run is refused)
+    executor = _make_executor(
+        objective, {**execution, "workers": args.workers or execution["workers"]}
+    )
     try:
         with _bad_input():
             after = opt.confirm_again(executor)
