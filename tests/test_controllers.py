@@ -67,15 +67,60 @@ def test_fd_jacobian_matches_central_differences(swimmer):
     assert np.abs(ref_grad).max() > 1e-7  # the knots do move the swimmer
     np.testing.assert_allclose(grad, ref_grad, rtol=0, atol=1e-2 * np.abs(ref_grad).max())
     np.testing.assert_allclose(jac, ref_jac, rtol=0, atol=1e-2 * np.abs(ref_jac).max())
+    # A knot within fd_step of the bound is perturbed inwards (a step outwards would be
+    # clipped by the env to part of itself, and the difference read as half the slope): its
+    # column against a central difference of a step that stays inside, 4e-4 (measured:
+    # 5e-4 of the slope apart, the backward difference's truncation; 1e-2 as above).
+    knots = gn.plan_.knots.copy()
+    knots[1, 0] = 0.9995
+    _, grad, jac = gn.jacobian(state, knots)
+    pair = np.repeat(knots[None], 2, 0)
+    pair[0, 1, 0] += 4e-4
+    pair[1, 1, 0] -= 4e-4
+    ev = gn._evaluate(state, pair)
+    slope = (ev.reward[0] - ev.reward[1]) / 8e-4
+    rows = (ev.residuals[0] - ev.residuals[1]) / 8e-4
+    assert abs(slope) > 1e-7
+    assert grad[3] == pytest.approx(slope, rel=1e-2)  # (knots[1, 0] is entry 3 of x)
+    np.testing.assert_allclose(jac[:, 3], rows, rtol=0, atol=1e-2 * np.abs(rows).max())
 
 
 def test_gauss_newton_iterations_never_lower_the_objective(walker):
     settings = GaussNewtonSettings(horizon=8, knots=3, iterations=4, damping=1e-4)
     gn = GaussNewtonShooting(settings)
     gn.reset(walker, seed=0)
+    calls = []  # the knots and objectives of each batched rollout
+    real = gn._evaluate
+
+    def record(state, knots, horizon=None):
+        ev = real(state, knots, horizon)
+        calls.append((knots.copy(), ev.objective.copy()))
+        return ev
+
+    gn._evaluate = record
     gn.plan(walker)
+    del gn._evaluate
     history = gn.last_["objectives"]
     assert len(history) == 4
+    # Each iteration: a Jacobian rollout (K C + 1 = 10 plans), then the line search's (4),
+    # whose trials are the damped Gauss-Newton steps of the module docstring,
+    # dx = (2 J^T J + mu I)^-1 (grad R - 2 J^T r), for mu = mu_i * line_search; mu moves to
+    # the accepted trial's, or to ten times the largest tried. Recomputed from the same
+    # (deterministic) rollouts, the trials agree to the round-off of a 9 x 9 solve.
+    assert [len(k) for k, _ in calls] == [10, 4] * 4
+    state = walker.get_wrapper_attr("get_state")()
+    mu = settings.damping
+    for (base, _), (trials, objective) in zip(calls[::2], calls[1::2], strict=True):
+        ev, grad, jac = gn.jacobian(state, base[0])
+        x = base[0].ravel()
+        mus = mu * np.asarray(settings.line_search)
+        g = grad - 2.0 * jac.T @ ev.residuals[0]
+        for trial, m in zip(trials, mus, strict=True):
+            dx = np.linalg.solve(2.0 * jac.T @ jac + m * np.eye(9), g)
+            np.testing.assert_allclose(trial.ravel(), np.clip(x + dx, -1, 1), rtol=0, atol=1e-9)
+        best = int(np.argmax(objective))
+        mu = mus[best] if objective[best] > ev.objective[0] else 10.0 * mus.max()
+    assert gn.damping_ == pytest.approx(mu, rel=1e-15)
     starts = [h[0] for h in history]
     ends = [h[1] for h in history]
     assert all(e >= s for s, e in history)
@@ -231,8 +276,31 @@ def test_the_default_planners_record_as_runs_recorded_them():
 def test_mppi_beats_zero_control_on_a_short_horizon(walker):
     mppi = MPPI(MPPISettings(horizon=10, knots=3, samples=12, noise=0.5, iterations=3))
     mppi.reset(walker, seed=0)
+    rounds = []  # (samples, objectives) of each sampling round
+    real = mppi._evaluate
+
+    def record(state, knots, horizon=None):
+        ev = real(state, knots, horizon)
+        rounds.append((knots.copy(), ev.objective.copy()))
+        return ev
+
+    mppi._evaluate = record
     mppi.plan(walker)
+    del mppi._evaluate
     assert mppi.last_["rollouts"] == 36  # 3 iterations of 12 samples
+    # Each round moves the knots to the mean of its samples weighted exp((J - max J) /
+    # (temperature spread)) (the module docstring), sample 0 being the plan it started from;
+    # the next round starts there. The same sums in another order: round-off apart.
+    assert len(rounds) == 3
+    for i, (samples, j) in enumerate(rounds):
+        weights = np.exp((j - j.max()) / (mppi.settings.temperature * np.ptp(j)))
+        weights /= weights.sum()
+        mean = np.einsum("b,bkc->kc", weights, samples)
+        after = rounds[i + 1][0][0] if i < 2 else mppi.plan_.knots
+        np.testing.assert_allclose(after, mean, rtol=0, atol=1e-12)
+    assert mppi.last_["objective_start"] == rounds[0][1][0]
+    assert mppi.last_["objective_best"] == max(j.max() for _, j in rounds)
+    assert mppi.last_["effective_samples"] == pytest.approx(1 / np.sum(weights**2), rel=1e-12)
     state = walker.get_wrapper_attr("get_state")()
     ev = mppi._evaluate(state, np.stack([mppi.plan_.knots, np.zeros_like(mppi.plan_.knots)]))
     assert ev.objective[0] > ev.objective[1] + 1e-3
@@ -470,6 +538,38 @@ def test_evaluate_checks_what_it_is_given(walker):
         evaluate(out, np.full((2, 4, 3), bound), *args)
     with pytest.raises(ValueError, match="window must be an integer >= 1 or None, got -3"):
         evaluate(out, np.zeros((2, 4, 3)), *args, window=-3)
+
+
+def test_evaluate_is_r_minus_lambda_of_the_module_docstring():
+    # Per-step terms made up by hand (two rollouts of H = 5 steps, the second losing its last
+    # two steps to a divergence), every weight non-zero and distinct, scored term by term as
+    # controllers.cost's docstring defines R and Λ (com[t] is the centre of mass after step
+    # t + 1, so c_{H-W} is com[H - W - 1]). The same arithmetic in another order, so the two
+    # agree to round-off (1e-12 of terms of order 1).
+    rng = np.random.default_rng(11)
+    b, h, dt = 2, 5, 0.025
+    out = {"com": rng.normal(size=(b, h, 3)), "theta": 0.1 * rng.normal(size=(b, h, 3)),
+           "lost": np.array([[0, 0, 0, 0, 0], [0, 0, 0, 1, 1]])}  # fmt: skip
+    u = rng.uniform(-1.0, 1.0, (b, h, 3))
+    c0, d = rng.normal(size=3), np.array([0.6, 0.8, 0.0])
+    side = np.array([-0.8, 0.6, 0.0])  # d turned a quarter left in the ground plane
+    w = CostWeights(orientation=2.0, lateral=3.0, effort=0.5, divergence=4.0, velocity=0.7)
+    for window in (None, 2, 5):
+        ev = evaluate(out, u, c0, d, dt, w, window)
+        for i in range(b):
+            c = out["com"][i]
+            gained = d @ (c[-1] - (c0 if window in (None, h) else c[h - 1 - window]))
+            reward = gained + w.velocity * d @ (c[-1] - c[-2]) / dt
+            smooth = sum(dt * (w.orientation * out["theta"][i, t] @ out["theta"][i, t]
+                               + w.lateral * (side @ (c[t] - c0)) ** 2
+                               + w.effort * u[i, t] @ u[i, t]) for t in range(h))  # fmt: skip
+            lost = out["lost"][i].sum()
+            assert ev.reward[i] == pytest.approx(reward, rel=1e-12, abs=1e-12), window
+            assert ev.smooth[i] == pytest.approx(smooth, rel=1e-12), window
+            assert ev.lost[i] == lost
+            assert ev.objective[i] == pytest.approx(reward - smooth - 4.0 * lost, rel=1e-12)
+            # Gauss-Newton linearises the residuals: |r|^2 is the smooth part exactly
+            assert ev.residuals[i] @ ev.residuals[i] == pytest.approx(smooth, rel=1e-12)
 
 
 def test_defaults_are_valid_for_every_benchmark():
