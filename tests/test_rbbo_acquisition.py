@@ -165,6 +165,15 @@ def test_beta_schedule_grows_logarithmically():
     b = [ucb_beta(t, 51) for t in (1, 10, 100)]
     assert b[0] < b[1] < b[2]
     assert b[2] - b[1] == pytest.approx(b[1] - b[0])  # 0.4 * 2 log(10) per decade
+    assert b[1] - b[0] == pytest.approx(0.8 * np.log(10.0), rel=1e-12)
+    # beta_t = 0.2 * 2 log(d t^2 pi^2 / (6 delta)), delta = 0.1 (rbbo.acquisition's
+    # docstring), and the values it quotes for d = 51 at t = 6, 40 and 300
+    assert b[0] == pytest.approx(0.4 * np.log(51 * np.pi**2 / 0.6), rel=1e-12)
+    assert [round(ucb_beta(t, 51), 2) for t in (6, 40, 300)] == [4.13, 5.64, 7.26]
+    assert ucb_beta(0, 51) == b[0]  # fewer than one observation counts as one
+    assert ucb_beta(1, 51, delta=0.5, scale=1.0) == pytest.approx(
+        2.0 * np.log(51 * np.pi**2 / 3.0), rel=1e-12
+    )
     with pytest.raises(ValueError, match="delta must be in"):
         ucb_beta(1, 3, delta=2.0)
 

@@ -31,6 +31,23 @@ def _boca():
     return BOCAFidelity(T_MIN, T_MAX, n_candidates=2, kappa=0.5, window=10**6)
 
 
+def _check_tau_and_gamma(boca, gp, basis, choice):
+    """tau and gamma of a choice as rbbo.boca's docstring defines them: tau(z) the latent
+    posterior sd at (B_c, z) in units of the observed R's sd, gamma(z) = kappa xi(z)
+    (T / T_max)^q with xi = sqrt(1 - k_T(z, 1)^2), k_T = exp(-(z - 1)^2 / (2 h^2)), q = 1/2."""
+    t = np.asarray(choice.candidates)
+    np.testing.assert_array_equal(t, boca.candidates)
+    z = (t - T_MIN) / (T_MAX - T_MIN)
+    _, sd = gp.predict(np.repeat(basis[None], len(t), axis=0), z)
+    np.testing.assert_allclose(choice.tau, sd / gp.y_std_, rtol=1e-12)
+    h = gp.hyperparameters.fidelity_length_scale
+    xi = np.sqrt(1.0 - np.exp(-((z - 1.0) ** 2) / h**2))
+    np.testing.assert_allclose(choice.gamma, boca.kappa * xi * np.sqrt(t / T_MAX), rtol=1e-12)
+    # T is the cheapest candidate whose tau exceeds its gamma, T_max if none does
+    above = [c for c, a, b in zip(t, choice.tau, choice.gamma, strict=True) if a > b]
+    assert choice.T == (above[0] if above else T_MAX)
+
+
 def test_low_fidelity_first_when_the_gp_knows_little(problem):
     u, v, rng = problem
     boca = _boca()
@@ -39,9 +56,13 @@ def test_low_fidelity_first_when_the_gp_knows_little(problem):
     gp = GrassmannGP(M, C, fidelity=True, random_state=0).fit(
         bases, two_fidelity(bases, z, u, v), z
     )
-    choice = boca.choose(gp, gr.random_points(M, C, rng=rng))
+    basis = gr.random_points(M, C, rng=rng)
+    choice = boca.choose(gp, basis)
     assert choice.T == T_MIN
     assert choice.tau[0] > choice.gamma[0]
+    _check_tau_and_gamma(boca, gp, basis, choice)
+    wider = BOCAFidelity(T_MIN, T_MAX, n_candidates=4, kappa=0.5)  # T in (4, 6, 8)
+    _check_tau_and_gamma(wider, gp, basis, wider.choose(gp, basis))
 
 
 def test_full_fidelity_once_low_fidelity_has_been_seen_near_the_candidate(problem):
@@ -57,6 +78,7 @@ def test_full_fidelity_once_low_fidelity_has_been_seen_near_the_candidate(proble
     choice = boca.choose(gp, u)
     assert choice.T == T_MAX
     assert choice.tau[0] <= choice.gamma[0]
+    _check_tau_and_gamma(boca, gp, u, choice)
     # elsewhere the same GP is still unsure at low fidelity: a cheap look is worth it
     assert boca.choose(gp, gr.random_points(M, C, rng=rng)).T == T_MIN
 

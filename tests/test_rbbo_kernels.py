@@ -146,6 +146,15 @@ def test_gp_fantasy_shrinks_uncertainty(rng):
     mu1, sd1 = fantasy.predict(pending)
     assert sd1[0] < sd0[0]
     np.testing.assert_allclose(mu1, mu0, atol=1e-8)
+    # One more observation at the query point with noise variance n (standardised units,
+    # plus the 1e-10 jitter) leaves the variance s^2 n / (s^2 + n) there, s^2 the variance
+    # before it (measured: 7e-13 apart; 1e-6 leaves room for a less well-conditioned fit).
+    s2 = (sd0[0] / gp.y_std_) ** 2
+    n = gp.hyperparameters.noise_variance + 1e-10
+    assert (sd1[0] / gp.y_std_) ** 2 == pytest.approx(s2 * n / (s2 + n), rel=1e-6)
+    # the fantasy is a copy: the GP it came from predicts as before, on its 8 points
+    assert gp.n_observations == 8 and fantasy.n_observations == 9
+    np.testing.assert_array_equal(gp.predict(pending), (mu0, sd0))
 
 
 def test_gp_rejects_bad_data(rng):
