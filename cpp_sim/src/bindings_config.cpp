@@ -110,8 +110,8 @@ const std::vector<Setting>& settings() {
                            "m: surface nodes predicted closer than this to the ground are "
                            "contact candidates"),
       SOFTROM_NON_NEGATIVE(penalty_stiffness,
-                           "N/m per node for contact='penalty' (0: sized so that the body's weight on its "
-                           "resting nodes sinks them 1 mm)"),
+                           "N/m per node for contact='penalty' (0: the body's weight over its resting nodes "
+                           "per 1 mm of sink, plus 0.25 m_i / dt^2: they sink a little under 1 mm)"),
       SOFTROM_NON_NEGATIVE(fluid_density, "kg/m^3; > 0 turns quadratic surface drag on"),
       SOFTROM_NON_NEGATIVE(drag_coefficient, "C_d of the quadratic drag"),
       SOFTROM_NON_NEGATIVE(damping_alpha, "Rayleigh damping on all reduced coordinates, 1/s"),

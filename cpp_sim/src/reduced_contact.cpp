@@ -50,8 +50,9 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 // Penalty ground: a spring on penetration with damping and regularised Coulomb friction,
 // evaluated at the Newton iterate (implicit in position). The default stiffness is sized from
 // the weight it must carry: the body's weight shared by the surface nodes that touch the
-// ground at rest sinks them by kPenaltySink (1 mm). (The earlier 0.25 m_i / dt^2 let the
-// quadruped's feet sink 6 cm.) It is an approximate model, and no longer the fast one: each
+// ground at rest, per kPenaltySink (1 mm) of sink. The earlier default, 0.25 m_i / dt^2 (alone
+// it let the quadruped's feet sink 6 cm), is still added to it, so a resting body sinks a
+// little under 1 mm (0.89 mm for test_solver's block). It is an approximate model, and no longer the fast one: each
 // Newton iteration needs the stiffness (its springs are implicit in position), so with the
 // fast solver it runs at a sixth to a thirteenth of staggered projection's rate (bench_rom.py).
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,

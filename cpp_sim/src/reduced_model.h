@@ -287,7 +287,7 @@ class ReducedModel {
   Eigen::Index basis_cols_ = 0;
   double total_mass_ = 0.0;
   int rest_contacts_ = 1;   // surface nodes on the lowest plane at rest (penalty sizing)
-  static constexpr double kPenaltySink = 1e-3;  // m, the default penalty's resting sink
+  static constexpr double kPenaltySink = 1e-3;  // m of sink per body weight (penalty default)
   Vec3 rest_com_;
   // Cubature: G = [G_1; ...; G_K] stacked (9K x (M + 3)), G_e = d vec(F_e) / d q_e, and each
   // element's weight times rest volume. Stacking turns the reduced force and stiffness into
