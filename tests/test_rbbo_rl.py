@@ -377,7 +377,7 @@ def test_training_episodes_are_as_long_as_the_evaluated_ones(tmp_path, monkeypat
         made.append(extra.get("max_episode_steps"))
         raise Made
 
-    monkeypatch.setattr(rl, "_make_env", record)
+    monkeypatch.setattr(rl.training, "_make_env", record)  # where _train looks it up
     for env_kwargs, steps in (({"frame_skip": 1}, 2000), ({}, 400), ({"frame_skip": 10}, 200)):
         with pytest.raises(Made):
             rl._train("ppo", "softrom_gym/BeamWalk-v0", "identity", np.eye(6)[:, :2],

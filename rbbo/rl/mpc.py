@@ -1,0 +1,75 @@
+"""One MPC job: the MPPI planner on a basis, beside the RL jobs, its row cached.
+
+:func:`_mpc` runs the planner for one episode per evaluation seed, counting the physics steps
+of its planning rollouts, and keeps the row in ``OUT/mppi-<basis>/episodes.json``, reused
+while the env, basis, evaluation and planner are the same.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+
+from .envs import _make_env
+from .table import _row
+
+
+def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
+         threads: int | None = None, planner_kwargs: dict | None = None) -> dict:  # fmt: skip
+    import gymnasium as gym
+
+    import controllers
+    from softrom_gym.registration import control_period
+
+    from ..objective import planner_record
+
+    seeds, seconds, settle = evaluation
+    # not a benchmark: the shared defaults (controllers.GENERIC), as EnvObjective
+    changes = dict(planner_kwargs or {})
+    if threads is not None:
+        changes["threads"] = threads
+    dt = control_period(env_id, **env_kwargs)
+    planner, every = controllers.planner_for(env_id, "mppi", dt=dt, **changes)
+    meta = {"env_id": env_id, "env_kwargs": env_kwargs, "basis": np.asarray(basis).tolist(),
+            "seeds": list(seeds), "seconds": seconds, "settle_time": settle,
+            "planner": planner_record(planner, every)}  # fmt: skip
+    meta = json.loads(json.dumps(meta))  # as stored: tuples are lists
+    cache = folder / "episodes.json"
+    if cache.is_file():
+        old = json.loads(cache.read_text())
+        if old["meta"] == meta:  # (rows from before the planner was keyed are made again)
+            return old["row"]
+
+    class CountRollouts(gym.Wrapper):
+        """Counts the physics steps of the planner's rollouts (it finds rollout here)."""
+
+        physics_steps = 0
+
+        def rollout(self, state, controls, *args, **kwargs):
+            b, h = np.shape(controls)[:2]
+            self.physics_steps += b * h * self.env.get_wrapper_attr("frame_skip")
+            return self.env.get_wrapper_attr("rollout")(state, controls, *args, **kwargs)
+
+    from ..objective import NO_TIME_LIMIT
+
+    # no time limit of its own: run_episode stops after ``seconds``
+    env = CountRollouts(_make_env(env_id, basis, env_kwargs, False,
+                                  max_episode_steps=NO_TIME_LIMIT))  # fmt: skip
+    k = int(env.get_wrapper_attr("frame_skip"))
+    dist, physics, wall = [], [], []
+    for s in seeds:
+        planner, every = controllers.planner_for(env_id, "mppi", dt=dt, **changes)
+        env.physics_steps, t0 = 0, time.perf_counter()
+        result = controllers.run_episode(env, planner, seconds, replan_every=every, seed=s,
+                                         progress=progress)  # fmt: skip
+        wall.append(time.perf_counter() - t0)
+        dist.append(result.distance_between(min(settle, result.seconds)))
+        physics.append(env.physics_steps + result.rewards.size * k)
+    row = _row(env_id, "mppi", name, True, 0, float(np.mean(physics)), float(np.mean(wall)), dist,
+               float(env.get_wrapper_attr("body_length")))  # fmt: skip
+    env.close()
+    folder.mkdir(parents=True, exist_ok=True)
+    cache.write_text(json.dumps({"meta": meta, "row": row}) + "\n")
+    return row

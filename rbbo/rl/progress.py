@@ -1,0 +1,66 @@
+"""A job's folder: its claim (``run.json``) and its progress log (``progress.jsonl``).
+
+:func:`_claim` refuses a folder that trained another env, basis or seed;
+:func:`_read_progress` reads the append-only log (mending a last line torn by a kill);
+:func:`_atomic_json` writes a file under a temporary name and renames it;
+:func:`_wall_at_checkpoint` is the training wall time a resumed job continues from.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+
+def _claim(folder: Path, meta: dict) -> None:
+    """Refuse to continue a folder that trained something else."""
+    from ..store import RunDirectoryError
+
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "run.json"
+    text = json.dumps(meta)  # floats round-trip exactly: the basis compares bit for bit
+    if not path.is_file():
+        path.write_text(text + "\n")
+    elif json.loads(path.read_text()) != json.loads(text):
+        raise RunDirectoryError(f"{folder} holds another run (env, basis or seed); choose "
+                                "another --out")  # fmt: skip
+
+
+def _read_progress(log: Path, mend: bool = True) -> list[dict]:
+    """The rows of a training job's progress.jsonl. A last line torn by a kill mid-write is
+    skipped, and with ``mend`` (when the job resumes) dropped from the file, since the next
+    row would otherwise be glued onto it; its evaluation is made again with the checkpoint
+    it belongs to, or was of one never saved."""
+    if not log.exists():
+        return []
+    text = log.read_text(encoding="utf-8")
+    rows, torn = [], False
+    for line in text.splitlines():
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:
+            torn = torn or bool(line.strip())
+    if mend and (torn or (text and not text.endswith("\n"))):
+        tmp = log.with_name(log.name + ".tmp")
+        tmp.write_text("".join(json.dumps(r) + "\n" for r in rows), encoding="utf-8")
+        os.replace(tmp, log)
+    return rows
+
+
+def _atomic_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(f"tmp_{path.name}")
+    tmp.write_text(json.dumps(data), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _wall_at_checkpoint(n: int, logged: dict[int, float], ckpts: Path) -> float:
+    """Training wall time at checkpoint ``n`` (0 for a fresh start): as logged; else, when the
+    job was killed before logging it, as saved beside the checkpoint; else (a checkpoint saved
+    before that was kept) the last logged time before it, which is a lower bound."""
+    if n in logged:
+        return logged[n]
+    try:
+        return float(json.loads((ckpts / f"step_{n}.json").read_text())["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return max((w for steps, w in logged.items() if steps < n), default=0.0)

@@ -1,0 +1,164 @@
+"""One RL job: train (or resume) an algorithm on a basis, checkpointed and evaluated.
+
+:func:`_train` trains in ``OUT/<algo>-<basis>/``, saving a checkpoint every ``every`` env
+steps and at the end, evaluating each and logging it to ``progress.jsonl``; a re-run resumes
+from the latest checkpoint (see the package's docstring for the folder's layout).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+
+from .algorithms import require_sb3
+from .envs import _make_env
+from .evaluation import evaluate_policy
+from .progress import _atomic_json, _read_progress, _wall_at_checkpoint
+from .table import _row
+
+
+def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluation, seed,
+           progress) -> list[dict]:  # fmt: skip
+    sb3 = require_sb3()
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    cls = sb3.PPO if algo == "ppo" else sb3.SAC
+    from softrom_gym.registration import control_period
+
+    seeds, seconds, settle = evaluation
+    # Training episodes as long as the evaluated ones (the registered 400 env steps are the
+    # benchmarks' 10 s only at the default control period: 2 s at frame_skip=1).
+    dt = control_period(env_id, **env_kwargs)
+    episode = {} if dt is None else {"max_episode_steps": max(1, round(seconds / dt))}
+    train_env = _make_env(env_id, basis, env_kwargs, True, **episode)
+    dt = float(train_env.get_wrapper_attr("dt"))
+    eval_env = _make_env(env_id, basis, env_kwargs, True,
+                         max_episode_steps=max(1, round(seconds / dt)))  # fmt: skip
+    frame_skip = int(train_env.get_wrapper_attr("frame_skip"))
+    body = float(train_env.get_wrapper_attr("body_length"))
+    ckpts, log = folder / "checkpoints", folder / "progress.jsonl"
+    ckpts.mkdir(parents=True, exist_ok=True)
+    lines = _read_progress(log)
+    done = sorted(int(p.stem[5:]) for p in ckpts.glob("step_*.zip") if p.stem[5:].isdigit())
+    key = {"seeds": list(seeds), "seconds": seconds, "settle_time": settle}
+
+    def rows_up_to(n: int) -> list[dict]:
+        rows = {}
+        for x in lines:
+            if {k: x[k] for k in key} == key and x["steps"] <= n:
+                rows[x["steps"]] = _row(env_id, algo, name, x["steps"] == n, x["steps"],
+                                        x["physics_steps"], x["wall_s"], x["distance"],
+                                        body)  # fmt: skip
+        return [rows[k] for k in sorted(rows)]
+
+    if lines and not done:
+        # The log without the checkpoints it describes: a committed reproduction keeps logs,
+        # not weights. A job its log shows finished is reported from the log; an unfinished
+        # one trains again from the start, its old log kept beside, not mixed into the new.
+        logged = max((x["steps"] for x in lines if {k: x[k] for k in key} == key), default=0)
+        if logged >= steps:
+            train_env.close()
+            eval_env.close()
+            return rows_up_to(logged)
+        count = len(list(folder.glob("progress-*")))
+        os.replace(log, folder / f"progress-without-checkpoints-{count}.jsonl")
+        lines = []
+    if done:
+        model = cls.load(ckpts / f"step_{done[-1]}.zip", env=train_env, device="cpu")
+        if algo == "sac" and (ckpts / f"step_{done[-1]}_replay.pkl").is_file():
+            model.load_replay_buffer(ckpts / f"step_{done[-1]}_replay.pkl")
+    elif algo == "ppo":
+        # Checkpoints fall on rollout ends (after the update): one rollout per checkpoint
+        # interval, rounded up to the minibatch (64), at most SB3's default 2048.
+        n_steps = min(2048, 64 * math.ceil(min(steps, every) / 64))
+        model = cls("MlpPolicy", train_env, n_steps=n_steps, batch_size=64, seed=seed,
+                    device="cpu")  # fmt: skip
+    else:  # a buffer as long as the run: the default 1e6 would make each checkpoint ~400 MB
+        model = cls("MlpPolicy", train_env, buffer_size=max(steps, 1000), seed=seed,
+                    learning_starts=min(100, steps // 4), device="cpu")  # fmt: skip
+    wall_at = {x["steps"]: x["wall_s"] for x in lines}
+    clock = {"offset": _wall_at_checkpoint(model.num_timesteps, wall_at, ckpts),
+             "start": time.perf_counter(), "eval": 0.0, "saved": model.num_timesteps}  # fmt: skip
+    wall_at.setdefault(model.num_timesteps, clock["offset"])  # its row, if it must be logged
+
+    def checkpoint(m, save: bool = True) -> None:
+        n = m.num_timesteps
+        wall = clock["offset"] + time.perf_counter() - clock["start"] - clock["eval"]
+        # written under temporary names and renamed, replay buffer first: a step_<n>.zip
+        # that exists is complete and so is its replay buffer, whenever the run was killed
+        if save and algo == "sac":
+            m.save_replay_buffer(ckpts / "tmp_replay.pkl")
+            os.replace(ckpts / "tmp_replay.pkl", ckpts / f"step_{n}_replay.pkl")
+        if save:
+            # its training wall time beside it, for a resume whose log lost the row
+            _atomic_json(ckpts / f"step_{n}.json", {"wall_s": wall})
+            m.save(ckpts / "tmp_step.zip")
+            os.replace(ckpts / "tmp_step.zip", ckpts / f"step_{n}.zip")
+            clock["saved"] = n
+            for old in ckpts.glob("step_*_replay.pkl"):  # only the latest is ever resumed
+                if old.name != f"step_{n}_replay.pkl":
+                    old.unlink()
+        t0 = time.perf_counter()
+        dist = evaluate_policy(m, eval_env, seeds, seconds, settle)
+        clock["eval"] += time.perf_counter() - t0
+        wall = wall if save else wall_at.get(n, wall)
+        line = {"steps": n, "physics_steps": n * frame_skip, "wall_s": wall, **key,
+                "distance": dist}  # fmt: skip
+        with open(log, "a", encoding="utf-8") as f:
+            f.write(json.dumps(line) + "\n")
+        lines.append(line)
+
+    if done and not any(x["steps"] == model.num_timesteps and {k: x[k] for k in key} == key
+                        for x in lines):  # fmt: skip
+        # killed between saving this checkpoint and logging its evaluation (or mid-write):
+        # evaluated now, before training on from it, so that its row is not lost
+        checkpoint(model, save=False)
+
+    class Checkpoints(BaseCallback):
+        # At a rollout's start the previous update is done, so a resume from here loses
+        # nothing (for SAC, with train_freq 1, that is every step).
+        def _on_rollout_start(self) -> None:
+            if self.model.num_timesteps // every > clock["saved"] // every:
+                checkpoint(self.model)
+
+        def _on_step(self) -> bool:
+            if bar is not None:
+                bar.update(self.num_timesteps - bar.n)
+            return True
+
+    bar, trained = None, model.num_timesteps < steps
+    if trained:
+        # SB3's own training log (losses, entropy, fps) kept beside ours, one file per
+        # training segment so that a resume never overwrites one; left to itself, SB3 would
+        # make an empty folder in the system's temporary directory on every learn().
+        from stable_baselines3.common.logger import configure
+
+        segment = folder / "sb3" / f"from_step_{model.num_timesteps}"
+        tries = 1
+        while segment.exists():  # a segment killed before its first checkpoint, run again
+            tries += 1
+            segment = segment.with_name(f"from_step_{model.num_timesteps}-{tries}")
+        model.set_logger(configure(str(segment), ["csv"]))
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=steps, initial=model.num_timesteps, desc=f"{algo} {name}",
+                       unit="step", file=sys.stderr, dynamic_ncols=True)  # fmt: skip
+        model.learn(steps - model.num_timesteps, callback=Checkpoints(),
+                    reset_num_timesteps=not done)  # fmt: skip
+        if bar is not None:
+            bar.close()
+        model.logger.close()
+    n = model.num_timesteps
+    if trained:
+        checkpoint(model)
+    elif not any(x["steps"] == n and {k: x[k] for k in key} == key for x in lines):
+        checkpoint(model, save=False)  # evaluated before with other seeds or seconds
+    if trained or not (folder / "final.zip").is_file():
+        model.save(folder / "final.zip")
+    train_env.close()
+    eval_env.close()
+    return rows_up_to(n)
