@@ -383,3 +383,15 @@ def test_training_episodes_are_as_long_as_the_evaluated_ones(tmp_path, monkeypat
             rl._train("ppo", "softrom_gym/BeamWalk-v0", "identity", np.eye(6)[:, :2],
                       tmp_path, env_kwargs, 64, 64, ([0], 10.0, 2.0), 0, False)  # fmt: skip
         assert made.pop() == steps
+
+
+@pytest.mark.parametrize("bad", [{"workers": 0}, {"eval_seeds": 0}, {"checkpoint_every": 0},
+                                 {"workers": 1.5}])  # fmt: skip
+def test_run_baselines_refuses_bad_counts_before_claiming_any_folder(tmp_path, bad):
+    # (the job folders were claimed, run.json written, before workers was checked, and
+    # checkpoint_every = 0 failed inside training with a ZeroDivisionError)
+    ((what, value),) = bad.items()
+    with pytest.raises(ValueError, match=f"{what} must be a positive integer, got {value!r}"):
+        rl.run_baselines(ENV, {"identity": np.eye(8)[:, :2]}, tmp_path / "out", algos=("ppo",),
+                         **bad)  # fmt: skip
+    assert not (tmp_path / "out").exists()

@@ -53,10 +53,9 @@ def resolve_bases(
         if objective.get("kind") != "env":
             raise ValueError(f"run {run_dir} optimised a {objective.get('kind') or 'non-env'} "
                              "objective, not an env: its bases belong to no robot")  # fmt: skip
-        if objective.get("kind") == "env":
-            if objective.get("env_id") != env_id:
-                raise ValueError(f"run {run_dir} optimised {objective.get('env_id')}, not {env_id}")
-            env_kwargs = dict(objective.get("env_kwargs") or {})
+        if objective.get("env_id") != env_id:
+            raise ValueError(f"run {run_dir} optimised {objective.get('env_id')}, not {env_id}")
+        env_kwargs = dict(objective.get("env_kwargs") or {})
     bases: dict[str, np.ndarray] = {}
     for spec in specs:
         if spec == "best":

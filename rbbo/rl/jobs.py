@@ -88,6 +88,11 @@ def run_baselines(
         raise ValueError(f"unknown algorithm {unknown[0]!r}; valid: {', '.join(ALGOS)}")
     if not 0 <= settle_time < seconds:
         raise ValueError(f"settle time {settle_time} s must lie in [0, {seconds}) s")
+    every = 1 if checkpoint_every is None else checkpoint_every  # (None: a fifth of steps)
+    for what, value in (("workers", workers), ("eval_seeds", eval_seeds),
+                        ("checkpoint_every", every)):  # fmt: skip
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{what} must be a positive integer, got {value!r}")
     if algos:
         require_sb3()
     per_algo = steps_per_algo(steps, tuple(algos))
@@ -98,8 +103,6 @@ def run_baselines(
         for algo in algos:
             _claim(out / f"{algo}-{name}", {"env_id": env_id, "env_kwargs": env_kwargs,
                    "algo": algo, "seed": seed, "basis": np.asarray(basis).tolist()})  # fmt: skip
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
     jobs: list[tuple[str, tuple]] = []
     for name, basis in bases.items():
         if mpc:
