@@ -1,62 +1,25 @@
-"""A run directory: the durable record of one RBBO optimisation.
+"""The run directory itself: :class:`RunStore` (see :mod:`rbbo.store` for its layout).
 
-::
-
-    DIR/config.json       settings (written atomically; rewritten only by
-                          :meth:`RunStore.update_config`, e.g. ``rbbo resume`` with a new limit)
-    DIR/history.jsonl     one JSON object per finished evaluation, append-only; each line is
-                          flushed and fsynced before the optimiser moves on, so a kill -9
-                          loses at most the results still in flight
-    DIR/proposals.jsonl   one JSON object per search proposal when it is handed out, before
-                          it is evaluated (index, basis, T, seeds, kind and the GP
-                          hyperparameters its fit found), append-only and fsynced: a resumed
-                          run evaluates the proposals that were in flight when it stopped
-                          instead of proposing others in their place
-    DIR/best_basis.npy    the recommended B_c, R*'s basis (replaced atomically when a session
-                          of the run ends: a run interrupted before its first end has none)
-    DIR/summary.json      R_init, R* and the rest of the report (written with it)
-    DIR/sessions.jsonl    one JSON object when a session of the run (search or confirmation)
-                          starts: when, the code (version, git commit) and the machine (CPU,
-                          kernel set, numpy/scipy) it runs on; and one when it ends
-                          (``"event": "end"``): when, and its status, "finished",
-                          "interrupted" or "error" (a session killed outright has none);
-                          append-only
-
-A kill during a write can leave a partial last line; :meth:`RunStore.open` detects it, warns
-(:class:`TruncatedHistoryWarning`), keeps the bytes in ``history.jsonl.truncated`` and cuts
-the file back to its last complete line. Anything else unreadable raises
-:class:`RunDirectoryError` naming the file and line.
-
-A store that writes (:meth:`RunStore.create`, :meth:`RunStore.open` with ``repair``) holds an
-exclusive lock on ``DIR/.rbbo.lock`` (``flock``; it holds the owner's pid) until
-:meth:`RunStore.close` or the process ends, so a second process, e.g. ``rbbo resume`` while
-the run still goes on under nohup, is refused instead of appending the same evaluation
-indices. Readers (``repair=False``) take no lock. Stores of one directory in one process share
-the lock.
+Its config, the append-only history, proposals and sessions, the best basis and the summary;
+creating a run, opening one to resume (cutting a torn last history line) or to read, and the
+lock that keeps a second process from writing it.
 """
 
 from __future__ import annotations
 
 import io
 import json
-import math
 import os
-import sys
-import tempfile
 import warnings
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = [
-    "STATUSES",
-    "Evaluation",
-    "RunDirectoryError",
-    "RunStore",
-    "TruncatedHistoryWarning",
-]
+from .errors import RunDirectoryError, TruncatedHistoryWarning
+from .evaluation import Evaluation
+from .files import _append_line, _atomic_write, _fsync_dir
+from .lock import _acquire_lock, _release_lock
 
 CONFIG = "config.json"
 HISTORY = "history.jsonl"
@@ -64,206 +27,6 @@ BEST = "best_basis.npy"
 SUMMARY = "summary.json"
 SESSIONS = "sessions.jsonl"
 PROPOSALS = "proposals.jsonl"
-STATUSES = ("ok", "failed")
-# Evaluation.kind: how the proposal was made (rbbo.config.CONFIRM_KINDS are the last two)
-KINDS = ("initial", "random", "acquisition", "confirm-init", "confirm-best")
-LOCK = ".rbbo.lock"
-
-if sys.platform != "win32":
-    import fcntl
-else:  # pragma: no cover - no flock: runs are not guarded against a second writer
-    fcntl = None
-
-# realpath of a run directory -> [lock file descriptor, stores of this process holding it]
-_HELD_LOCKS: dict[str, list[int]] = {}
-
-
-class RunDirectoryError(ValueError):
-    """A run directory is missing, not a run directory, or corrupted."""
-
-
-class TruncatedHistoryWarning(UserWarning):
-    """The last line of history.jsonl was incomplete (a write was interrupted) and dropped."""
-
-
-@dataclass
-class Evaluation:
-    """One finished evaluation of the objective R(B_c, T).
-
-    Attributes
-    ----------
-    index : int
-        Order in which the evaluation was proposed (unique within the run).
-    basis : (M, C) ndarray
-        The control basis B_c evaluated.
-    T : float
-        Trajectory length (fidelity), seconds.
-    R : float or None
-        Mean reward over ``seeds`` (None when the evaluation failed).
-    status : str
-        "ok" or "failed" (crash, timeout, non-finite value).
-    seeds : list of int
-        The common random numbers used.
-    wall_s : float
-        Duration of the evaluation, seconds.
-    elapsed_s : float
-        Run time (over all sessions of the run) when the evaluation finished, seconds.
-    worker : str
-        Which worker ran it.
-    kind : str
-        "initial", "random", "acquisition", or "confirm-init" / "confirm-best" (the identity
-        baseline and the recommendation evaluated on fresh seeds at the end of a run).
-    error : str or None
-        Why it failed.
-    R_seeds : list of float
-        R for each seed (their mean is R).
-    gp : dict or None
-        The GP hyperparameters fitted for the proposal (an acquisition's): a resumed run
-        starts its next fit from them, as the uninterrupted run did.
-    duplicates_skipped : int
-        Acquisition optima passed over because their basis had been evaluated (or was in
-        flight) at the same T (:data:`rbbo.optimizer.DUPLICATE_DISTANCE`); in the JSON only
-        when not 0.
-    """
-
-    index: int
-    basis: np.ndarray
-    T: float
-    R: float | None
-    status: str = "ok"
-    seeds: list[int] = field(default_factory=list)
-    wall_s: float = 0.0
-    elapsed_s: float = 0.0
-    worker: str = ""
-    kind: str = "acquisition"
-    error: str | None = None
-    R_seeds: list[float] = field(default_factory=list)
-    gp: dict[str, float | None] | None = None
-    duplicates_skipped: int = 0
-
-    def __post_init__(self) -> None:
-        # (from_json reads an edited line too: what is wrong is named there, with the line)
-        if isinstance(self.index, bool) or not isinstance(self.index, (int, np.integer)):
-            raise ValueError(f"index must be an integer, got {self.index!r}")
-        self.index = int(self.index)
-        real = (int, float, np.integer, np.floating)
-        if isinstance(self.T, bool) or not isinstance(self.T, real) or not 0 < self.T < math.inf:
-            raise ValueError(f"T must be a positive number of seconds, got {self.T!r}")
-        self.T = float(self.T)
-        if self.status not in STATUSES:
-            raise ValueError(f"status must be one of {list(STATUSES)}, got {self.status!r}")
-        if self.kind not in KINDS:  # (another kind would be counted as a search evaluation)
-            raise ValueError(f"kind must be one of {list(KINDS)}, got {self.kind!r}")
-        self.basis = np.asarray(self.basis, dtype=float)
-        if self.basis.ndim != 2:
-            raise ValueError(f"basis must be an (M, C) array, got shape {self.basis.shape}")
-        if not np.all(np.isfinite(self.basis)):
-            raise ValueError("basis holds non-finite values")
-        if self.status == "ok" and (self.R is None or not math.isfinite(self.R)):
-            raise ValueError(f"an 'ok' evaluation needs a finite R, got {self.R!r}")
-
-    def to_json(self) -> str:
-        record = asdict(self)
-        record["basis"] = self.basis.tolist()
-        record["seeds"] = [int(s) for s in self.seeds]
-        record["R_seeds"] = [float(r) for r in self.R_seeds]
-        if self.gp is None:
-            del record["gp"]  # records without a fit read as before
-        if not self.duplicates_skipped:
-            del record["duplicates_skipped"]
-        return json.dumps(record, allow_nan=False)
-
-    @classmethod
-    def from_json(cls, line: str) -> Evaluation:
-        record = json.loads(line)
-        if not isinstance(record, dict):
-            raise ValueError(f"expected a JSON object, got {type(record).__name__}")
-        names = set(cls.__dataclass_fields__)
-        missing = {"index", "basis", "T", "R"} - set(record)
-        if missing:
-            raise ValueError(f"missing keys {sorted(missing)}")
-        return cls(**{k: v for k, v in record.items() if k in names})
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # pragma: no cover - platforms without directory fds
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _append_line(path: Path, line: str, end_partial: bool = False) -> None:
-    """Append ``line`` and a newline durably (written, flushed and fsynced); with
-    ``end_partial``, after a newline if the file ends inside a line."""
-    with open(path, "a+b") as f:
-        data = line.encode() + b"\n"
-        if end_partial and f.seek(0, os.SEEK_END) > 0:
-            f.seek(-1, os.SEEK_END)
-            if f.read(1) != b"\n":
-                data = b"\n" + data
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-
-
-# read once, at import (single-threaded): os.umask can only be read by setting it
-_UMASK = os.umask(0o022)
-os.umask(_UMASK)
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        # mkstemp's file is private (0600); a run's record is as readable as the history
-        # file beside it, which open() creates under the umask
-        os.fchmod(fd, 0o666 & ~_UMASK)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
-
-
-def _acquire_lock(path: Path) -> str:
-    """Lock run directory ``path`` for this process (shared by its stores); the key to release."""
-    key = os.path.realpath(path)
-    held = _HELD_LOCKS.get(key)
-    if held is not None:
-        held[1] += 1
-        return key
-    fd = os.open(path / LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
-    if fcntl is not None:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            owner = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
-            os.close(fd)
-            raise RunDirectoryError(
-                f"{path} is in use by another process (pid {owner}): wait for it to finish "
-                "or stop it, then run the command again"
-            ) from None
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-    _HELD_LOCKS[key] = [fd, 1]
-    return key
-
-
-def _release_lock(key: str) -> None:
-    held = _HELD_LOCKS.get(key)
-    if held is None:
-        return
-    held[1] -= 1
-    if held[1] == 0:
-        del _HELD_LOCKS[key]
-        os.close(held[0])  # releases the flock
 
 
 class RunStore:

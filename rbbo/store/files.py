@@ -1,0 +1,60 @@
+"""Durable writes: what a run directory's files are written with.
+
+:func:`_append_line` appends a line, flushed and fsynced (ending a torn last line first when
+asked); :func:`_atomic_write` writes a file under a temporary name, fsyncs it and renames it
+over the old one, so a kill leaves the old file or the new; :func:`_fsync_dir` makes a
+directory's entries (a rename, a new file) durable.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # pragma: no cover - platforms without directory fds
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _append_line(path: Path, line: str, end_partial: bool = False) -> None:
+    """Append ``line`` and a newline durably (written, flushed and fsynced); with
+    ``end_partial``, after a newline if the file ends inside a line."""
+    with open(path, "a+b") as f:
+        data = line.encode() + b"\n"
+        if end_partial and f.seek(0, os.SEEK_END) > 0:
+            f.seek(-1, os.SEEK_END)
+            if f.read(1) != b"\n":
+                data = b"\n" + data
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+# read once, at import (single-threaded): os.umask can only be read by setting it
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        # mkstemp's file is private (0600); a run's record is as readable as the history
+        # file beside it, which open() creates under the umask
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    _fsync_dir(path.parent)
