@@ -1,0 +1,274 @@
+"""The env objective: an MPC episode on a softrom env, scored as R.
+
+:class:`EnvObjective` (ENV_ID a registered env id) runs the controllers' planner on the env
+built for B_c and returns the task reward per second from the settle time on; it records
+and checks the simulation space B_r and the planner a run's evaluations used.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..grassmann import _check_dims
+from .env_keywords import NO_TIME_LIMIT, _check_env_keywords
+from .planner import planner_record
+from .protocol import PlannerMismatch, SimulationSpaceMismatch
+from .reward import settled_reward_rate
+
+
+@dataclass
+class EnvObjective:
+    """R(B_c, T, seed): the MPC controller's task reward on a softrom env, per second.
+
+    Runs ``controllers.run_episode(env, planner, T, seed=seed, progress=False)`` with the env
+    built for B_c and the controller's default planner for the benchmark,
+    and returns the reward R (the task term only, not the regulariser Lambda) collected from
+    the settle time on, divided by the time it covers:
+
+        R = sum_{t_k >= t_settle} r_k / (T - t_settle)
+
+    Why from a settle time: a robot leaning into a held pose gains about 0.2 body lengths in
+    its first second (measured on the walkers), which would dominate short trajectories and
+    rank bases by how far they lean rather than how well they walk; measuring from
+    t_settle = 2 s (as ``python -m controllers`` reports distance) and normalising per
+    second makes fidelities T comparable. T must exceed t_settle.
+
+    The env is built once per worker process; each evaluation swaps its B_c in with the env's
+    ``set_control_basis`` (an env without one is built again for each B_c).
+
+    Parameters
+    ----------
+    env_id : str
+        A registered Gymnasium id, e.g. ``softrom_gym/CrossWalk-v0``.
+    sim_dim, control_dim : int
+        M and C.
+    controller : str
+        "mppi" or "gn" (Gauss-Newton shooting).
+    settle_time : float
+        t_settle, seconds.
+    env_kwargs, planner_kwargs : dict
+        Passed to ``gym.make`` and to the planner.
+    """
+
+    env_id: str
+    sim_dim: int
+    control_dim: int
+    controller: str = "mppi"
+    settle_time: float = 2.0
+    env_kwargs: dict = field(default_factory=dict)
+    planner_kwargs: dict = field(default_factory=dict)
+
+    CONTROLLERS = ("mppi", "gn")
+
+    def __post_init__(self) -> None:
+        _check_dims(self.sim_dim, self.control_dim)
+        if self.controller not in self.CONTROLLERS:
+            raise ValueError(
+                f"unknown controller {self.controller!r}; valid: {list(self.CONTROLLERS)}"
+            )
+        if not self.settle_time >= 0:
+            raise ValueError(f"settle_time must be >= 0, got {self.settle_time!r}")
+        self._env = None
+        self._signature: list[float] | None = None
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_env"] = None  # a worker builds its own env
+        return state
+
+    def simulation_space(self) -> list[float] | None:
+        """The env's B_r fingerprint (``Subspace.signature()``), None for an env without one."""
+        if self._signature is None:
+            env = self.make_env(np.eye(self.sim_dim)[:, : self.control_dim])
+            try:
+                subspace = getattr(env.unwrapped, "subspace", None)
+                if subspace is not None and hasattr(subspace, "signature"):
+                    self._signature = [float(v) for v in subspace.signature()]
+            finally:
+                env.close()
+        return self._signature
+
+    def expect_simulation_space(self, recorded: list[float] | None) -> None:
+        """Raise :class:`SimulationSpaceMismatch` unless this env's B_r is the one a run
+        recorded (``recorded``: the run's ``simulation_space``; None skips the check, for
+        runs made before it was recorded)."""
+        if recorded is None:
+            return
+        current = self.simulation_space()
+        rec = np.asarray(recorded, dtype=float)
+        if current is None or len(current) != len(rec):
+            raise SimulationSpaceMismatch(
+                f"{self.env_id} at M = {self.sim_dim} has no simulation space like the one "
+                "this run recorded"
+            )
+        cur = np.asarray(current)
+        scale = float(np.abs(rec).max()) or 1.0
+        bad = np.flatnonzero(np.abs(cur - rec) > 1e-6 * scale)
+        if bad.size:
+            which = (f"all {rec.size} of its coordinates differ from" if bad.size == rec.size
+                     else f"coordinates {bad.tolist()} differ from")  # fmt: skip
+            raise SimulationSpaceMismatch(
+                f"{self.env_id} at M = {self.sim_dim} builds a simulation space B_r where "
+                f"{which} those this run's B_c were found in (the robot's mesh or material "
+                "changed since, or another softrom version built it): its bases would mean "
+                "other actuations. Carry them over (benchmarks/migrate_run_bases.py) or start "
+                "a new run."
+            )
+
+    def make_env(self, basis: np.ndarray, **extra):
+        import gymnasium as gym
+
+        import softrom_gym  # noqa: F401  (registers the envs)
+
+        kwargs = {**self.env_kwargs, **extra}
+        _check_env_keywords(self.env_id, kwargs)
+        # The episode's T decides its length, not the registered limit: 400 env steps is
+        # 10 s at the default control period but 2 s at frame_skip=1, which cut every
+        # evaluation short unseen (R read the missing seconds as zero).
+        return gym.make(
+            self.env_id,
+            sim_dim=self.sim_dim,
+            control_dim=self.control_dim,
+            control_basis=np.asarray(basis, dtype=float),
+            max_episode_steps=NO_TIME_LIMIT,
+            **kwargs,
+        )
+
+    def _env_for(self, basis: np.ndarray):
+        env = self._env
+        setter = getattr(getattr(env, "unwrapped", None), "set_control_basis", None)
+        if setter is not None:
+            setter(basis)
+            return env
+        if env is not None:
+            env.close()
+        self._env = self.make_env(basis)
+        return self._env
+
+    def planner(self):
+        """The MPC planner and its replan interval (env steps).
+
+        ``controllers.planner_for(env_id, controller, dt=..., **planner_kwargs)``: the
+        benchmark's tuned settings where the controllers have them for this env, else the
+        shared defaults (``controllers.GENERIC``: a 2, 3 or 4 Hz gait cycle picked at reset);
+        their times in seconds kept at the env's control period (``frame_skip``, ``dt``).
+        """
+        import controllers
+        from softrom_gym.registration import control_period
+
+        dt = control_period(self.env_id, **self.env_kwargs)
+        planner, replan_every = controllers.planner_for(self.env_id, self.controller, dt=dt,
+                                                        **self.planner_kwargs)  # fmt: skip
+        check = getattr(getattr(planner, "settings", None), "check_control_dim", None)
+        if callable(check):  # controllers.PlannerSettings
+            # (a per-dimension setting of another length fails here, not in every evaluation)
+            check(self.control_dim)
+        return planner, replan_every
+
+    def episode(self, basis: np.ndarray, T: float, seed: int, env=None, **kwargs):
+        """Run one MPC episode of T seconds; returns the controllers' EpisodeResult."""
+        import controllers
+
+        env = self._env_for(basis) if env is None else env
+        planner, replan_every = self.planner()
+        if replan_every != 1:
+            kwargs["replan_every"] = replan_every
+        return controllers.run_episode(env, planner, float(T), seed=int(seed), progress=False,
+                                       **kwargs)  # fmt: skip
+
+    def node_count(self) -> int | None:
+        """N, the robot's mesh nodes (None for an env without a robot mesh)."""
+        env = self.make_env(np.eye(self.sim_dim)[:, : self.control_dim])
+        try:
+            return int(env.unwrapped.robot.num_nodes)
+        except AttributeError:
+            return None
+        finally:
+            env.close()
+
+    @staticmethod
+    def step_seconds(env) -> float:
+        """Seconds per env step: ``env.dt`` if the env has it (Gymnasium's convention), else
+        the simulation step times ``frame_skip``."""
+        u = env.unwrapped
+        dt = getattr(u, "dt", None)
+        if dt is None:
+            dt = u.model.dt * getattr(u, "frame_skip", 1)
+        return float(dt)
+
+    def __call__(self, basis: np.ndarray, T: float, seed: int) -> float:
+        if not T > self.settle_time:
+            raise ValueError(f"T = {T} s must exceed the settle time {self.settle_time} s")
+        env = self._env_for(basis)
+        result = self.episode(basis, T, seed, env)
+        if str(getattr(result, "stop_reason", "")).startswith("truncated"):
+            # (an env of the user's own wrapping): R would read the lost seconds as zero
+            raise RuntimeError(f"the env's time limit ended the T = {T:g} s episode at "
+                               f"{result.seconds:g} s")  # fmt: skip
+        dt = getattr(result, "dt", None) or self.step_seconds(env)
+        return settled_reward_rate(result, dt, self.settle_time, T)
+
+    def spec(self) -> dict[str, Any]:
+        signature = self.simulation_space()
+        return {
+            "kind": "env",
+            "env_id": self.env_id,
+            "sim_dim": self.sim_dim,
+            "control_dim": self.control_dim,
+            "controller": self.controller,
+            "settle_time": self.settle_time,
+            "env_kwargs": self.env_kwargs,
+            "planner_kwargs": self.planner_kwargs,
+            "planner": self.planner_record(),
+            **({} if signature is None else {"simulation_space": signature}),
+        }
+
+    def planner_record(self) -> dict[str, Any]:
+        """The planner's resolved settings and replan interval, as JSON: what a run records,
+        so that a change of the controllers' defaults cannot change a resumed run's objective
+        unseen (:func:`planner_record`)."""
+        return planner_record(*self.planner())
+
+    def expect_planner(self, recorded: dict[str, Any] | None) -> None:
+        """Raise :class:`PlannerMismatch` unless the planner is the one a run recorded. A run
+        from before the record (None) passes on a benchmark, whose tuned defaults are those it
+        ran with; elsewhere the defaults changed with the record (controllers.GENERIC)."""
+        if recorded is None:
+            import controllers
+
+            if not controllers.has_defaults(self.env_id):
+                raise PlannerMismatch(
+                    f"this run on {self.env_id} predates the planner record, and a robot "
+                    "without tuned defaults has been planned with other settings since "
+                    "(controllers.GENERIC, not the library settings replanning every step): "
+                    "its R would be another objective. Start a new run, or resume with the "
+                    "softrom version that made it."
+                )
+            from softrom_gym.registration import control_period
+
+            dt = control_period(self.env_id, **self.env_kwargs)
+            if dt is not None and not math.isclose(dt, controllers.TUNED_DT, rel_tol=1e-9):
+                raise PlannerMismatch(
+                    f"this run on {self.env_id} predates the planner record, and at its "
+                    f"control period ({dt:g} s, not {controllers.TUNED_DT:g} s) the planner's "
+                    "times have been scaled to keep their seconds since: its R would be "
+                    "another objective. Start a new run, or resume with the softrom version "
+                    "that made it."
+                )
+            return
+        current = self.planner_record()
+        if current != recorded:
+            old, new = recorded.get("settings") or {}, current["settings"] or {}
+            changed = sorted(k for k in {*old, *new} if old.get(k) != new.get(k))
+            if recorded.get("replan_every") != current["replan_every"]:
+                changed.append("replan_every")
+            raise PlannerMismatch(
+                f"{self.env_id}'s {self.controller} planner is not the one this run's "
+                f"evaluations used (changed: {', '.join(changed) or 'the planner'}; this "
+                "softrom's controllers defaults differ from the run's): its R would be another "
+                "objective. Start a new run, or resume with the softrom version that made it."
+            )
