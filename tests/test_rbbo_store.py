@@ -211,3 +211,39 @@ def test_proposals_survive_a_torn_line_and_name_a_corrupted_one(tmp_path):
     assert store.writable and not reader.writable
     with pytest.raises(RunDirectoryError, match="opened read-only"):
         reader.append_proposal({"index": 3})
+
+
+def _open_fds() -> set[str]:
+    import os
+
+    return set(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.skipif(not __import__("os").path.isdir("/proc/self/fd"), reason="needs /proc")
+def test_failed_writes_and_locks_leak_no_descriptor_and_hold_no_lock(tmp_path, monkeypatch):
+    import os
+
+    from rbbo.store import _acquire_lock, _atomic_write, _release_lock
+
+    run = tmp_path / "run"
+    run.mkdir()
+
+    def refuse(*args):
+        raise OSError(37, "No locks available")  # (ENOLCK: flock on some NFS mounts)
+
+    before = _open_fds()
+    # _atomic_write: chmod of the temporary file fails; it is removed and its fd closed
+    monkeypatch.setattr(os, "fchmod", refuse)
+    with pytest.raises(OSError, match="No locks available"):
+        _atomic_write(run / "config.json", b"{}")
+    monkeypatch.undo()
+    assert sorted(p.name for p in run.iterdir()) == []
+    # _acquire_lock: the lock is taken, then writing the pid fails; the fd is closed, which
+    # lets the lock go, so that a later store (here: this process) can take it
+    monkeypatch.setattr(os, "ftruncate", refuse)
+    with pytest.raises(OSError, match="No locks available"):
+        _acquire_lock(run)
+    monkeypatch.undo()
+    assert _open_fds() == before
+    _release_lock(_acquire_lock(run))
+    assert _open_fds() == before

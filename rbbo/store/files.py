@@ -46,10 +46,10 @@ os.umask(_UMASK)
 def _atomic_write(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
     try:
-        # mkstemp's file is private (0600); a run's record is as readable as the history
-        # file beside it, which open() creates under the umask
-        os.fchmod(fd, 0o666 & ~_UMASK)
-        with os.fdopen(fd, "wb") as f:
+        with os.fdopen(fd, "wb") as f:  # (which closes fd whatever fails below)
+            # mkstemp's file is private (0600); a run's record is as readable as the history
+            # file beside it, which open() creates under the umask
+            os.fchmod(f.fileno(), 0o666 & ~_UMASK)
             f.write(data)
             f.flush()
             os.fsync(f.fileno())

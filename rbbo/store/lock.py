@@ -33,18 +33,23 @@ def _acquire_lock(path: Path) -> str:
         held[1] += 1
         return key
     fd = os.open(path / LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
-    if fcntl is not None:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            owner = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
-            os.close(fd)
-            raise RunDirectoryError(
-                f"{path} is in use by another process (pid {owner}): wait for it to finish "
-                "or stop it, then run the command again"
-            ) from None
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    try:
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                owner = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
+                raise RunDirectoryError(
+                    f"{path} is in use by another process (pid {owner}): wait for it to "
+                    "finish or stop it, then run the command again"
+                ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    except BaseException:
+        # any failure (ENOLCK on a network file system, a full disk): the descriptor closed,
+        # which also lets go of a lock already taken, so that no later store finds it held
+        os.close(fd)
+        raise
     _HELD_LOCKS[key] = [fd, 1]
     return key
 
