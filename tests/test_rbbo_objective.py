@@ -178,6 +178,8 @@ def test_bad_objective_specs():
         parse_objective_spec("synthetic:foo=1")
     with pytest.raises(ValueError, match="synthetic option noise needs a number, got 'x'"):
         parse_objective_spec("synthetic:noise=x")
+    with pytest.raises(ValueError, match="synthetic option seed needs an integer, got '1.5'"):
+        parse_objective_spec("synthetic:seed=1.5")
     with pytest.raises(ValueError, match="unknown objective kind 'csv'"):
         make_objective({"kind": "csv"}, 4, 2)
     for option in ("noise=inf", "bias=inf", "delay=nan"):

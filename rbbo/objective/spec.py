@@ -32,7 +32,8 @@ def parse_objective_spec(env_id: str) -> dict[str, Any]:
             try:
                 spec["optimum_seed" if key == "seed" else key] = _SYNTHETIC_KEYS[key](value)
             except ValueError:
-                raise ValueError(f"synthetic option {key} needs a number, got {value!r}") from None
+                kind = "an integer" if _SYNTHETIC_KEYS[key] is int else "a number"
+                raise ValueError(f"synthetic option {key} needs {kind}, got {value!r}") from None
         return spec
     return {"kind": "env", "env_id": env_id}
 
