@@ -165,9 +165,10 @@ SOFTROM_INLINE void cols_times_pass(const double* __restrict a, Index rows, Inde
   }
 }
 
-// Short outputs (4 <= rows <= 32: G^T p on the padded G's mp rows, the contact solve's
-// products with L^-1 and L^-T and the loaded tangent rows) keep out in registers over all the
-// columns; tall ones (G q, the candidates' normal rows) pass over out once per eight columns.
+// Short outputs (4 <= rows <= 32: the contact solve's products with L^-1 and L^-T and the
+// loaded rows, the quasi-Newton's inverse, the damping's K_0, the drag's padded factor) keep
+// out in registers over all the columns; tall ones (the candidates' normal rows, NNLS's G^T r)
+// pass over out once per eight columns.
 // Each out[r] is the sum over the columns in order (one multiply-add chain) in every path.
 SOFTROM_INLINE void cols_times_body(const double* __restrict a, Index rows, Index cols,
                                     const double* __restrict x, double* __restrict out) {

@@ -32,8 +32,8 @@ void gram_lower_add(const double* g, const double* x, Index rows, Index width, d
 
 // out (rows) = A x, for A of `rows` x `cols` in column-major order (an Eigen MatrixXd) and
 // x of `cols`; any `rows`. (The contact solve's products with the candidates' normal rows, the
-// loaded rows and L^-1, L^-T; the candidate test's N q; NNLS's gradient G^T r on a kept G^T;
-// the drag's and the damping's products.)
+// loaded rows and L^-1, L^-T; NNLS's gradient G^T r on a kept G^T; the quasi-Newton's
+// products with its inverse; the drag's and the damping's products.)
 void cols_times(const double* a, Index rows, Index cols, const double* x, double* out);
 
 // out (cols) = A^T x, for A of `rows` x `cols` in column-major order and x of `rows`: one dot
@@ -43,7 +43,8 @@ void cols_dot(const double* a, Index rows, Index cols, const double* x, double* 
 
 // out_x = A x and out_y = A y in one pass over A (column-major, `rows` x `cols`), the sums of
 // two calls of cols_times (each entry one multiply-add chain over the columns in order). (The
-// fast drag's surface positions and velocities: one read of the surface rows for both.)
+// fast drag's surface positions and velocities, and the candidate test's N q and N v: one read
+// of the rows for both.)
 void cols_times_pair(const double* a, Index rows, Index cols, const double* x, const double* y,
                      double* out_x, double* out_y);
 
@@ -68,7 +69,7 @@ void combine_row_triples(const double* a, Index width, const Index* blocks, cons
 // dimension (the right-hand sides) is the vectorised one. (The contact solve's
 // E^T = L^-1 J_n^T, n = 26 and ~64 right-hand sides on the quadruped: 0.08 M instructions
 // per contact step fewer than Eigen's blocked triangular solve, by callgrind; also L^-1
-// itself and the loaded candidates' L^-1 J_t,i^T.)
+// itself, whose products then give the pool's L^-1 J_t,i^T.)
 void lower_solve_rows(const double* l, Index n, double* b, Index nrhs);
 
 // Overwrites the lower triangle of the symmetric a (n x n, column-major, leading dimension

@@ -14,7 +14,7 @@
 
 namespace softrom {
 
-// How step() solves its Newton systems. All three converge to the same implicit-Euler
+// How step() solves its Newton systems. All four converge to the same implicit-Euler
 // solution under the same tolerance; they differ in cost only.
 enum class FEMSolver {
   // The step as first written, kept to measure against: numeric 9x9 eigen-projection of every

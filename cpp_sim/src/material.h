@@ -74,8 +74,6 @@ struct StableNeoHookean {
   }
 };
 
-// Projects a symmetric matrix onto the positive semi-definite cone (negative eigenvalues
-// clamped to zero), so Newton's method on the implicit-Euler energy always descends.
 // True when a is positive semi-definite up to a relative tolerance: a Cholesky of a slightly
 // shifted copy succeeds. Much cheaper than an eigen decomposition, and the stable Neo-Hookean
 // Hessian is exactly singular at rest, so an unshifted Cholesky would fail there.
@@ -87,6 +85,8 @@ bool nearly_psd(const Eigen::Matrix<double, N, N>& a) {
   return Eigen::LLT<Eigen::Matrix<double, N, N>>(b).info() == Eigen::Success;
 }
 
+// Projects a symmetric matrix onto the positive semi-definite cone (negative eigenvalues
+// clamped to zero), so Newton's method on the implicit-Euler energy always descends.
 template <int N>
 Eigen::Matrix<double, N, N> project_psd(const Eigen::Matrix<double, N, N>& a) {
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> es(a);

@@ -17,10 +17,11 @@ namespace softrom {
 
 // How the least-squares subproblem on the passive columns is solved.
 //  Qr:   column-pivoted Householder QR of the (rows x p) passive block (the reference);
-//  Gram: Cholesky of the p x p Gram matrix G_p^T G_p, falling back to QR when the Cholesky
-//        fails. Lawson-Hanson keeps the passive columns linearly independent, so the Gram
-//        matrix is positive definite, and the p x p factorisation costs p^3 / 6 instead of
-//        ~2 rows p^2 for the QR.
+//  Gram: through the p x p Gram matrix G_p^T G_p. Lawson-Hanson keeps the passive columns
+//        linearly independent, so the Gram matrix is positive definite. least_distance (the
+//        fast solver) runs it as nnls_cholesky, whose factor grows and shrinks with the set
+//        and never adds a dependent column; nnls() factors it afresh for each subproblem,
+//        p^3 / 6 instead of ~2 rows p^2 for the QR, falling back to QR when that fails.
 enum class NnlsSolve { Qr, Gram };
 
 struct NnlsResult {

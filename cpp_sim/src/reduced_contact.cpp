@@ -18,7 +18,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
                                  const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses,
                                  Workspace& ws, StepInfo& info) const {
   const int ns = static_cast<int>(surface_nodes_.size());
-  // Candidate rows: every surface node on or near the ground, or heading there this step.
+  // Candidate rows: every surface node on or near the ground, or reaching it within two steps.
   if (!ws.ground_rows_ready) {  // near_ground has not formed them for this q and v
     ws.ground_z.noalias() = normal_rows_ * q;
     ws.ground_vn.noalias() = normal_rows_ * v;
@@ -59,7 +59,7 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
                                     VecX& f, MatX& jac) const {
   const Eigen::Index m = basis_cols_;
   f.setZero(m);
-  jac.setZero(m, m);  // d f / d v (position terms are scaled by dt by the caller)
+  jac.setZero(m, m);  // d f / d v (the position terms through q = q_n + h v: times h here)
   const double h = cfg.dt;
   const VecX xs = surface_rest_ + surface_rows_ * q;
   const VecX vs = surface_rows_ * v;

@@ -16,7 +16,8 @@ void ReducedModel::drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdo
   const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
   const VecX xs = surface_rest_ + surface_rows_ * q;
   // A face's velocity is the mean of its nodes' (U_t qdot, U_t the mean of their rows): from
-  // the node velocities, half the product of the face rows with qdot.
+  // the node velocities, half the work of the face rows' product with qdot (a closed surface
+  // has about twice as many faces as nodes).
   const VecX vs = surface_rows_ * qdot;
   const double c = 0.5 * cfg.fluid_density * cfg.drag_coefficient;
   // Columns w_f = U_t^T n of the faces advancing into the fluid, scaled for one rank update.

@@ -143,8 +143,8 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
     const VecX qe = s.q.tail(md) + h * v.tail(md);
     // The exact reduced Hessian: I dominates A = I + dt^2 K_r + ..., so A stays positive
-    // definite unless an element is crushed; only then is K_r projected (below), an M x M
-    // eigen decomposition instead of one 9 x 9 decomposition per element.
+    // definite unless an element is crushed; only then is K_r projected (below), an
+    // (M + 3)-square eigen decomposition instead of one 9 x 9 decomposition per element.
     if (fast_kernels) {
       elastic_energy_force(qe, f_el, ws);
       elastic_stiffness_fast(qe, k_el, ws);

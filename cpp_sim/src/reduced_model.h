@@ -53,7 +53,7 @@ struct ReducedConfig {
   double friction = 0.8;          // Coulomb mu
   double ground_height = 0.0;     // plane z = ground_height, normal +z
   double contact_margin = 1e-3;   // m: nodes predicted closer than this are constraint rows
-  double penalty_stiffness = 0.0; // N/m per node (0: sized from the node's weight, see penalty)
+  double penalty_stiffness = 0.0; // N/m per node (0: from the body's weight, see penalty_contacts)
   double fluid_density = 0.0;     // kg/m^3; > 0 switches quadratic drag on
   double drag_coefficient = 1.0;  // C_d
   double damping_alpha = 0.0;     // 1/s, on all reduced coordinates
@@ -68,8 +68,8 @@ struct ReducedConfig {
   bool profile = false;           // time the parts of each step into StepInfo (a few % cost)
 };
 
-// Simulation state. `impulses` warm-starts the contact solver (per surface node, normal and two
-// tangential), so it is part of the state: stepping from the same state is reproducible.
+// Simulation state. `impulses` warm-starts the contact solver (per surface node, two tangential
+// then the normal), so it is part of the state: stepping from the same state is reproducible.
 struct ReducedState {
   VecX q, qdot;
   VecX impulses;
@@ -79,7 +79,7 @@ struct StepInfo {
   int newton_iterations = 0;
   int stiffness_evaluations = 0;  // reduced stiffness K_r(q) builds this step
   int stagger_iterations = 0;
-  int normal_iterations = 0;      // normal (LDP) solves
+  int normal_iterations = 0;      // normal half-steps (by NNLS or on the held loaded set)
   int friction_iterations = 0;    // reweighted least-squares solves of the friction problem
   int active_rows = 0;            // contact candidates this step
   int contacts = 0;  // surface nodes loaded (lambda_n > 0) by the staggered projection; else 0
@@ -307,7 +307,7 @@ class ReducedModel {
   std::vector<int> surface_nodes_;
   RowMatX surface_rows_;   // (3 n_s) x (M + 6)
   RowMatX normal_rows_;    // n_s x (M + 6): the z rows alone, for the candidate search
-  MatX normal_cols_;       // the same, column-major, for the fast step's kernels::cols_times
+  MatX normal_cols_;       // the same, column-major: near_ground's N q, N v (cols_times_pair)
   MatX surface_cols_;      // surface_rows_ column-major, for the fast drag (cols_times_pair)
   VecX surface_rest_;      // 3 n_s
   std::vector<std::array<int, 3>> faces_;  // indices into surface nodes

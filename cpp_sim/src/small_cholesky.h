@@ -91,8 +91,8 @@ inline void cholesky_upper_update(double* u, Index n, Index lda, double* x) {
 }
 
 // U^T U - x x^T = U'^T U' in place, by hyperbolic rotations; x is overwritten. Returns false,
-// with U partly overwritten, when a pivot would fall below `rel` times its square (the
-// difference not numerically positive definite).
+// with U partly overwritten, when a pivot's square would fall to `rel` times its old value or
+// below (the difference not numerically positive definite).
 inline bool cholesky_upper_downdate(double* u, Index n, Index lda, double* x, double rel) {
   for (Index k = 0; k < n; ++k) {
     const double ukk = u[k + k * lda];

@@ -17,8 +17,8 @@
 // with condition numbers ~1e6), so Gauss-Seidel on impulses crawls, while the primal problems
 // are strongly convex and small. The normal problem is solved exactly as a least-distance
 // programme, the friction problem (maximal dissipation) by a reweighted least-squares step on
-// |J_t,i v|_eps = sqrt(|J_t,i v|^2 + eps^2). Every step ends with a normal solve, so the normal
-// constraints hold even when staggering stops at its cap (reported in info). In the fast
+// |J_t,i v|_eps = sqrt(|J_t,i v|^2 + eps^2). A step that reaches the cap ends with one more
+// normal solve, so the normal constraints hold even then (reported in info). In the fast
 // solver, a stagger whose loaded set is the last one's (most of them) runs both halves over
 // that set's impulses (LoadedRows), falling back to NNLS when a node leaves or joins; where
 // the staggers creep on a held set, Newton on its fixed point (HeldSetNewton) or an Aitken

@@ -23,7 +23,8 @@ struct TetMesh {
   std::vector<Mat3> dm_inv;       // D_m^{-1} per tet (D_m = [X1-X0, X2-X0, X3-X0])
   std::vector<double> volume;     // rest volume per tet (> 0)
 
-  // Builds the rest data. Throws std::invalid_argument naming the first bad tet.
+  // Builds the rest data. Throws std::invalid_argument naming the first bad tet (an index out
+  // of range, a non-positive or degenerate volume) or the first node no tet uses.
   TetMesh(const VecX& rest_positions, std::vector<Tet> tetrahedra);
 
   int num_tets() const { return static_cast<int>(tets.size()); }
