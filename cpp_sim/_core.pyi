@@ -633,5 +633,5 @@ def kernel_instruction_set() -> str:
     """
 def reduced_element_forces(fem: FEMModel, basis: typing.Any, poses: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
     """
-    Per-element reduced elastic forces -V_e G_e^T vec P(F_e) (P, T, M) at poses (P, M) of the deformation basis (3N, M): the training data for cubature.
+    Per-element reduced elastic forces -V_e G_e^T vec P(F_e) (P, T, K) at poses (P, K) of a basis (3N, K), the cubature's B_e (rotations and deformation, K = M + 3): the training data for cubature.
     """

@@ -519,8 +519,9 @@ KeyboardInterrupt.)doc")
         return out;
       },
       py::arg("fem"), py::arg("basis"), py::arg("poses"),
-      "Per-element reduced elastic forces -V_e G_e^T vec P(F_e) (P, T, M) at poses (P, M) of "
-      "the deformation basis (3N, M): the training data for cubature.");
+      "Per-element reduced elastic forces -V_e G_e^T vec P(F_e) (P, T, K) at poses (P, K) of "
+      "a basis (3N, K), the cubature's B_e (rotations and deformation, K = M + 3): the "
+      "training data for cubature.");
 
   m.def(
       "kernel_instruction_set", [] { return std::string(kernels::instruction_set()); },
