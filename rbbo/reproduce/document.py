@@ -5,32 +5,31 @@ perturbation figures (:mod:`.figures`) and the two studies of C, and writes them
 commands that made them, the machine and the paper's numbers beside ours.
 """
 
+# REPORT.md, module by job: this module assembles the report (write_report),
+# report_inputs.py reads the directions, perturbation and RL rows from the run directories,
+# report_sections.py writes the sections that have a function of their own (Table I over the
+# repeated runs, BO vs BOCA, the studies of C) and report_text.py words the record (numbers,
+# machines, settings over the sessions, progress, links). _progress_lines and _told_in_order
+# are re-exported so that imports from this module keep working.
 from __future__ import annotations
 
 import math
-import os
-import re
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from .figures import (
-    plot_bo_vs_boca,
-    plot_directions,
-    plot_perturbation,
-    plot_study,
-    simulated_minutes,
-)
+from .figures import plot_directions, plot_perturbation
 from .plan import PAPER_DIRECTIONS, ReproducePlan
+from .report_inputs import _directions, _perturbation, _rl_trained, _runs
+from .report_sections import _across_runs, _bo_vs_boca, _studies
+from .report_text import _machine, _num, _relink, _session_values
+from .report_text import _progress_lines as _progress_lines
+from .report_text import _told_in_order as _told_in_order
 from .status import _rl_benchmarks, recorded_repeats, rl_bases, stage_progress
 from .tables import (
     across_runs,
-    confidence_interval,
     format_markdown,
     format_runs_markdown,
-    read_rows,
     run_row,
     table_row,
     write_csv,
@@ -38,88 +37,6 @@ from .tables import (
 from .transfer import format_transfer_markdown, transfer_rows
 
 __all__ = ["write_report"]
-
-
-def _runs(out: Path, name: str) -> Path | None:
-    path = out / "runs" / name
-    return path if (path / "config.json").exists() else None
-
-
-def _directions(out: Path, plan: ReproducePlan) -> list[dict[str, Any]]:
-    from ..report import load, plot_convergence
-
-    rows = []
-    for deg in plan.direction_angles_deg():
-        run = _runs(out, f"{plan.direction_env}-dir{deg:03.0f}")
-        if run is None:
-            continue
-        row = table_row(plan.direction_env, run)
-        plot_convergence(load(run), run / "convergence.png")
-        rows.append({"direction_deg": deg, "R_init": row["R_init"], "R_star": row["R_star"],
-                     "R_init_ci95": row["R_init_ci95"], "R_star_ci95": row["R_star_ci95"],
-                     "improvement_pct": row["improvement_pct"], "apart": row["apart"],
-                     "evaluations": row["evaluations"], "wall_s": row["wall_s"]})  # fmt: skip
-    return rows
-
-
-def _perturbation(out: Path) -> list[dict[str, Any]]:
-    rows: list[dict[str, Any]] = [
-        {"offset_deg": float(r["offset_deg"]), "R_mean": float(r["R_mean"]),
-         "run": Path(r.get("run") or "").name}
-        for r in read_rows(out / "perturbation.csv")
-    ]  # fmt: skip
-    base = [r["R_mean"] for r in rows if r["offset_deg"] == 0.0]
-    for r in rows:
-        r["fraction"] = r["R_mean"] / base[0] if base and base[0] > 0 else math.nan
-    return sorted(rows, key=lambda r: r["offset_deg"])
-
-
-def _num(x: float | None, spec: str = ".4g") -> str:
-    return "-" if x is None or not math.isfinite(x) else f"{x:{spec}}"
-
-
-def _machine(sessions: list[dict[str, Any]] | None = None) -> str:
-    """The machines the sessions ran on, as recorded (since 2026-12-02): a session that
-    recorded none is counted as such, not taken to have run where the report is written."""
-    from ..provenance import machine_description
-
-    if not sessions:
-        return machine_description()
-    seen = " / ".join(dict.fromkeys(s["machine"] for s in sessions if s.get("machine")))
-    missing = sum(not s.get("machine") for s in sessions)
-    if not missing:
-        return seen
-    unrecorded = f"{missing} session{'s' if missing > 1 else ''} whose machine was not recorded"
-    return f"{seen} (and {unrecorded})" if seen else f"a machine not recorded ({unrecorded})"
-
-
-def _session_values(sessions: list[dict[str, Any]], key: str, current: float) -> str:
-    """A setting that may change between sessions, as the report prints it: one value, or
-    each distinct value in the order the sessions used them."""
-    values = list(dict.fromkeys(s.get(key, current) for s in sessions)) or [current]
-    if key.endswith("_s"):
-        return " / ".join(f"{v / 60:g}" for v in values)
-    return " / ".join(f"{v:g}" for v in values)
-
-
-def _told_in_order(sessions: list[dict[str, Any]], current: bool) -> str:
-    """Which sessions told the optimisation runs' results in proposal order
-    (``--deterministic``), as the report says it after the workers."""
-    flags = [bool(s.get("deterministic", False)) for s in sessions] or [current]
-    if not any(flags):
-        return ""
-    if all(flags):
-        return " (results told in proposal order)"
-    which = ", ".join(str(i + 1) for i, flag in enumerate(flags) if flag)
-    return f" (results told in proposal order in session{'s' if ',' in which else ''} {which})"
-
-
-def _relink(lines: list[str], out: Path, folder: Path) -> list[str]:
-    """Rewrite the report's links (relative to ``out``) to be relative to ``folder``."""
-    prefix = Path(os.path.relpath(out.resolve(), folder.resolve())).as_posix()
-    if prefix == ".":
-        return lines
-    return [re.sub(r"\]\((?![a-z]+:)", f"]({prefix}/", line) for line in lines]
 
 
 def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
@@ -365,164 +282,3 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
         copy_to.write_text("\n".join(_relink(lines, out, copy_to.parent)))
         written["copy"] = copy_to
     return written
-
-
-def _across_runs(per_run: list[dict[str, Any]], markdown: str, plan: ReproducePlan) -> list[str]:
-    """Table I's improvement over each benchmark's runs (stage "table" with ``repeats``)."""
-    last = plan.seed + plan.repeats - 1
-    lines = [f"### Table I over {plan.repeats} RBBO runs per benchmark", "",
-             f"Each benchmark's row above is its run 0 (seed {plan.seed}), whose B_c the "
-             "later stages (transfer, perturbation, RL) use. Stage table made "
-             f"{plan.repeats} independent RBBO runs of each benchmark, run k seeded "
-             f"{plan.seed} + k (seeds {plan.seed}-{last}), each with the same budget and "
-             "confirmed on its own fresh seeds. Below, each run's improvement (its seed in "
-             "brackets) and over the runs confirmed so far (`runs`) the mean ± sample "
-             "standard deviation (n - 1) and the range: how far another optimiser seed "
-             "moves the result. Each run's R_init, R* and intervals are in "
-             "[table1_runs.csv](table1_runs.csv).", "", markdown, ""]  # fmt: skip
-    for bench in dict.fromkeys(r["benchmark"] for r in per_run):
-        links = [f"[run {r['repeat']}](runs/{Path(r['run']).name}/convergence.png)"
-                 for r in per_run if r["benchmark"] == bench]  # fmt: skip
-        lines.append(f"- {bench} convergence: {', '.join(links)}")
-    return [*lines, ""]
-
-
-def _bo_vs_boca(panels: dict[str, dict[str, list]],
-                confirmed: dict[str, dict[str, tuple[float | None, bool]]], out: Path,
-                plan: ReproducePlan, written: dict[str, Any]) -> list[str]:  # fmt: skip
-    """The BO-vs-BOCA figures (against wall time and against simulated time) and table."""
-    written["figures"] += [plot_bo_vs_boca(panels, out / "bo_vs_boca.png"),
-                           plot_bo_vs_boca(panels, out / "bo_vs_boca_simulated.png",
-                                           axis="simulated")]  # fmt: skip
-    lines = ["## BO vs BOCA", "",
-             "Reward of every evaluation against the run's wall time (the paper's axis), and "
-             "against the simulated time it evaluated (sum of T over evaluations and seeds). "
-             "BOCA saves by evaluating shorter episodes first; within one version of the "
-             "code both methods pay the same wall time per simulated second, but the two "
-             "runs of a benchmark may have run different code or on a busier machine (the "
-             "table's median wall time of one T_max evaluation says whether they did), and "
-             "then only the second axis compares them. `BO within BOCA's` is BO's best R at "
-             "T_max over the evaluations that fit in the simulated time the BOCA run spent "
-             "in all. `R* confirmed` is each run's recommendation measured on the same fresh "
-             "seeds in the current simulation space, as Table I's R*.", "",
-             *_space_note(confirmed), "![BO vs BOCA](bo_vs_boca.png)", "",
-             "![BO vs BOCA, simulated time](bo_vs_boca_simulated.png)", "",
-             "| benchmark | BOCA best R at T_max | BO best R at T_max | BO within BOCA's "
-             "simulated time | simulated time BOCA / BO (min) | wall of a T_max evaluation "
-             "BOCA / BO (s, median) | BOCA evaluations | BO evaluations | R* confirmed "
-             "BOCA / BO |",
-             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
-    for bench, runs in panels.items():
-        ok = {name: [e for e in evs if e.status == "ok"] for name, evs in runs.items()}
-        full = {name: [e for e in evs if math.isclose(e.T, plan.t_max)]
-                for name, evs in ok.items()}  # fmt: skip
-        best = {name: max((e.R for e in evs), default=math.nan) for name, evs in full.items()}
-        # simulated time over every evaluation, failed ones included: they spent it too
-        spent = {name: float(simulated_minutes(evs)[-1]) if evs else 0.0
-                 for name, evs in runs.items()}  # fmt: skip
-        within = [e.R for e, t in zip(runs["bo"], simulated_minutes(runs["bo"]), strict=True)
-                  if t <= spent["boca"] + 1e-9 and e.status == "ok"
-                  and math.isclose(e.T, plan.t_max)]  # fmt: skip
-        star = {name: value for name, (value, _) in confirmed[bench].items()}
-        wall = {name: float(np.median([e.wall_s for e in evs])) if evs else math.nan
-                for name, evs in full.items()}  # fmt: skip
-        lines.append(
-            f"| {bench} | {_num(best['boca'])} | {_num(best['bo'])} | "
-            f"{_num(max(within, default=math.nan))} | {spent['boca']:.1f} / "
-            f"{spent['bo']:.1f} | {_num(wall['boca'], '.3g')} / "
-            f"{_num(wall['bo'], '.3g')} | {len(runs['boca'])} | "
-            f"{len(runs['bo'])} | {_num(star['boca'])} / {_num(star['bo'])} |"
-        )
-    return [*lines, ""]
-
-
-def _space_note(confirmed: dict[str, dict[str, tuple[float | None, bool]]]) -> list[str]:
-    """A paragraph when a BOCA run searched another simulation space than its BO run."""
-    apart = [bench for bench, runs in confirmed.items() if runs["boca"][1] != runs["bo"][1]]
-    if not apart:
-        return []
-    return [f"The BOCA runs of {', '.join(apart)} searched the simulation space built before "
-            "cache version 4 (their bases were carried into the current one afterwards, see "
-            "Table I) and their BO runs the current one, so the search R of the two runs "
-            "(the figures and the best-R columns) come from different reduced models: even "
-            "the identity basis scores differently in them. Only `R* confirmed` compares "
-            "the two methods in one model.", ""]  # fmt: skip
-
-
-def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[str]:
-    lines: list[str] = []
-    cost = read_rows(out / "studies" / "cost_vs_c.csv")
-    if cost:
-        cs = [int(r["C"]) for r in cost]
-        walls = [float(r["iteration_s"]) for r in cost]
-        path = plot_study(cs, walls, None, "control-space dimension C", "wall time (s)",
-                          f"one Gauss-Newton iteration, {plan.direction_env}",
-                          out / "studies" / "cost_vs_c.png")  # fmt: skip
-        written["figures"].append(path)
-        lines += ["## Cost of one Gauss-Newton iteration against C", "",
-                  "![cost vs C](studies/cost_vs_c.png)", "", "| C | rollouts | wall (s) |",
-                  "|---|---|---|"]  # fmt: skip
-        lines += [f"| {r['C']} | {r['rollouts']} | {float(r['iteration_s']):.3f} |" for r in cost]
-        if len(cost) >= 2 and min(walls) > 0:
-            slope = float(np.polyfit(np.log(cs), np.log(walls), 1)[0])
-            shape = (
-                "superlinear, as the paper's"
-                if slope > 1
-                else "not superlinear, unlike the paper's"
-            )
-            lines += ["", f"log-log slope {slope:.2f} (1 = linear in C): {shape}. Each C is one "
-                      "timing on a shared machine, so single points move by 10-20 %."]  # fmt: skip
-        lines.append("")
-    reward = read_rows(out / "studies" / "reward_vs_c.csv")
-    if reward:
-        cs = sorted({int(r["C"]) for r in reward})
-        stats = [confidence_interval([float(r["R_m"]) for r in reward if int(r["C"]) == c])
-                 for c in cs]  # fmt: skip
-        sds = [float(np.std([float(r["R_m"]) for r in reward if int(r["C"]) == c])) for c in cs]
-        path = plot_study(cs, [m for m, _ in stats], sds, "control-space dimension C "
-                          "(identity basis)", f"distance from t = {plan.settle_time:g} s (m)",
-                          f"{plan.controller} on {plan.direction_env}",
-                          out / "studies" / "reward_vs_c.png")  # fmt: skip
-        written["figures"].append(path)
-        lines += ["## Task reward against C (identity bases)", "",
-                  "![reward vs C](studies/reward_vs_c.png)", "",
-                  "| C | distance mean (m) | sd | seeds |", "|---|---|---|---|"]  # fmt: skip
-        lines += [f"| {c} | {m:+.4f} | {sd:.4f} | "
-                  f"{sum(int(r['C']) == c for r in reward)} |"
-                  for c, (m, _), sd in zip(cs, stats, sds, strict=True)]  # fmt: skip
-        if len(cs) >= 2:
-            best = cs[int(np.argmax([m for m, _ in stats]))]
-            lines += ["", f"The mean distance is highest at C = {best}; the paper's levelled "
-                      "off after C = 4, its reason for C = 3."]  # fmt: skip
-        lines.append("")
-    return lines
-
-
-def _progress_lines(progress: dict[str, tuple[int, int]]) -> list[str]:
-    """What the record does not hold yet: stages with no part finished, and stages with
-    some. (A run still searching or not yet confirmed is not finished; the sections below
-    show it with what it has, its R* as "-" until confirmed.)"""
-    missing = [stage for stage, (done, n) in progress.items() if n and done == 0]
-    partial = [f"{stage} ({done} of {n})" for stage, (done, n) in progress.items()
-               if 0 < done < n]  # fmt: skip
-    lines = []
-    if missing:
-        lines += [f"No part finished yet: {', '.join(missing)}.", ""]
-    if partial:
-        lines += [f"Under way (parts finished of those planned): {', '.join(partial)}.", ""]
-    return lines
-
-
-def _rl_trained(path: Path) -> tuple[str, str]:
-    """The RL methods of a baselines.csv and the env steps each was trained to, as the
-    report says them ("PPO and SAC", "PPO 301056 and SAC 60000 env steps")."""
-    steps: dict[str, int] = {}
-    for r in read_rows(path):
-        if r["method"] != "mppi" and r["final"] == "True":
-            steps[r["method"]] = max(steps.get(r["method"], 0), int(float(r["env_steps"])))
-    if not steps:
-        return "RL", "no training finished yet"
-    names = " and ".join(m.upper() for m in steps)
-    if len(set(steps.values())) == 1:
-        return names, f"{next(iter(steps.values()))} env steps each"
-    return names, " and ".join(f"{m.upper()} {n}" for m, n in steps.items()) + " env steps"
