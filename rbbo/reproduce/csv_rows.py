@@ -1,0 +1,69 @@
+"""The record's CSV files (perturbation.csv, transfer.csv, the studies), row by row.
+
+:func:`_append_row` appends and fsyncs one row (widening an older file's header first),
+:func:`_rewrite_csv` replaces a file atomically and :func:`_supersede` moves the rows of a B_c
+that its run has since replaced to ``<stem>-superseded.csv``.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ..store import _atomic_write
+from .tables import read_rows
+
+
+def _append_row(path: Path, row: dict[str, Any]) -> None:
+    """Append one CSV row and fsync it (a finished measurement is never lost). A row with
+    columns the file lacks (written by an older version) rewrites the file with the wider
+    header first, the old rows' new cells left empty."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    new = not path.exists()
+    if not new:
+        with open(path, newline="") as f:
+            header = next(csv.reader(f), [])
+        missing = [k for k in row if k not in header]
+        if missing or not header:
+            old = read_rows(path)
+            fieldnames = header + missing
+            _rewrite_csv(path, old, fieldnames)
+        row = {k: row.get(k, "") for k in (header + missing)} | row
+    with open(path, "a", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(row))
+        if new:
+            writer.writeheader()
+        writer.writerow(row)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _rewrite_csv(path: Path, rows: list[dict[str, Any]], fieldnames: list[str]) -> None:
+    """Replace ``path`` by ``rows`` under ``fieldnames`` atomically (a kill leaves the old
+    file or the new one, never half of either)."""
+    import io
+
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=fieldnames, restval="")
+    writer.writeheader()
+    writer.writerows(rows)
+    _atomic_write(path, buffer.getvalue().encode())
+
+
+def _supersede(path: Path, stale: Callable[[dict[str, str]], bool]) -> int:
+    """Move the rows of ``path`` for which ``stale(row)`` holds to ``<stem>-superseded.csv``
+    (appended there first, so a kill between the two writes duplicates a row, never loses
+    one); returns how many moved."""
+    rows = read_rows(path)
+    old = [r for r in rows if stale(r)]
+    if not old:
+        return 0
+    for r in old:
+        _append_row(path.with_name(f"{path.stem}-superseded.csv"), r)
+    with open(path, newline="") as f:
+        header = next(csv.reader(f), [])
+    _rewrite_csv(path, [r for r in rows if not stale(r)], header)
+    return len(old)
