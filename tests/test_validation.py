@@ -53,6 +53,10 @@ def test_inverted_or_degenerate_tet(tet):
     flat[3] = [0.5, 0.5, 0.0]
     with pytest.raises(ValueError, match="non-positive rest volume"):
         make(flat, np.array([[0, 1, 2, 3]]))
+    # positive but a sliver: refused, and not called non-positive (it was)
+    flat[3] = [0.5, 0.5, 1e-14]
+    with pytest.raises(ValueError, match=r"has a near-zero rest volume 1\.66667e-15 \(under"):
+        make(flat, np.array([[0, 1, 2, 3]]))
 
 
 def test_unreferenced_node(tet):

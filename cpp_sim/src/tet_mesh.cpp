@@ -30,8 +30,10 @@ TetMesh::TetMesh(const VecX& rest_positions, std::vector<Tet> tetrahedra)
     if (!(det > 1e-12 * edge * edge * edge) || !(edge > 0.0)) {
       std::ostringstream msg;
       msg << "tets[" << e << "] = [" << t[0] << ", " << t[1] << ", " << t[2] << ", " << t[3]
-          << "] has non-positive rest volume " << det / 6.0
-          << " (tetrahedra must be positively oriented and non-degenerate)";
+          << "] has " << (det > 0.0 ? "a near-zero" : "non-positive") << " rest volume "
+          << det / 6.0;
+      if (det > 0.0) msg << " (under 1e-12 / 6 of its longest edge cubed)";
+      msg << " (tetrahedra must be positively oriented and non-degenerate)";
       throw std::invalid_argument(msg.str());
     }
     dm_inv[e] = dm.inverse();
