@@ -652,6 +652,24 @@ def test_a_running_session_records_its_wall_time_as_it_goes(tmp_path, monkeypatc
     assert heartbeats[-1] >= 0.06
 
 
+def test_a_session_that_fails_before_its_stages_leaves_no_heartbeat_running(tmp_path):
+    import threading
+
+    from rbbo.reproduce import runner
+
+    def log(message: str) -> None:
+        if message.startswith("reproduce into"):  # as a log that cannot be written
+            raise OSError("disk full")
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], stages=["table"])
+    before = set(threading.enumerate())  # (an earlier test's may still be on its way out)
+    with pytest.raises(OSError, match="disk full"):
+        runner.reproduce(tmp_path, plan, progress=False, log=log)
+    # (the thread was started before the launch line, outside the finally that stops it)
+    new = set(threading.enumerate()) - before
+    assert not [t for t in new if t.name == "reproduce-heartbeat"]
+
+
 def test_the_launch_line_names_only_the_stages_that_run(tmp_path, monkeypatch):
     from rbbo.reproduce import runner
 

@@ -118,7 +118,6 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
         while not stop.wait(max(_HEARTBEAT_S, 1.0)):
             heartbeat()
 
-    threading.Thread(target=beat, name="reproduce-heartbeat", daemon=True).start()
     if "older than its sources" in session["source"]:
         log(
             "warning: the compiled core is older than the C++ sources of this checkout; "
@@ -139,6 +138,9 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
              for s in plan.ordered_stages()]  # fmt: skip
     log(f"reproduce into {out}: stages {', '.join(named)}{budgets} (rerun the same command to "
         "resume)")  # fmt: skip
+    # started where the finally that stops it covers it: a failure before (a log that cannot
+    # be written) would leave it rewriting reproduce.json in a long-lived process
+    threading.Thread(target=beat, name="reproduce-heartbeat", daemon=True).start()
     try:
         for bench in plan.benchmarks:
             objective = _objective(plan, bench)
