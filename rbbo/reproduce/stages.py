@@ -127,9 +127,9 @@ def rl_baselines(out: Path, plan: ReproducePlan, progress: bool,
         bases, identity_only = rl_bases(out, plan, bench)
         if identity_only:
             log(f"[rl] {bench}: {identity_only}")
-        best = out / "runs" / plan.table_run(bench)
         if len(bases) > 1:  # Table I's B_c lives in the simulation space its run recorded
-            recorded = _run_spec(RBBO.resume(best, read_only=True))
+            table_run = out / "runs" / plan.table_run(bench)
+            recorded = _run_spec(RBBO.resume(table_run, read_only=True))
             _objective(plan, bench).expect_simulation_space(recorded.get("simulation_space"))
         folder = out / "rl" / bench
         rl.run_baselines(plan.env_id(bench), bases, folder, algos=tuple(plan.rl_algos),
