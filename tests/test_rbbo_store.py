@@ -247,3 +247,95 @@ def test_failed_writes_and_locks_leak_no_descriptor_and_hold_no_lock(tmp_path, m
     assert _open_fds() == before
     _release_lock(_acquire_lock(run))
     assert _open_fds() == before
+
+
+def test_an_atomic_write_killed_before_its_rename_leaves_the_old_file(tmp_path, monkeypatch):
+    # A kill between writing and renaming is simulated by a rename that fails: the old
+    # config.json (or best basis, summary) must be untouched and no temporary file left.
+    # A direct open()/write() over the file would leave it replaced (or torn) instead.
+    import rbbo.store.files as files
+
+    store = RunStore.create(tmp_path / "run", {"x": 1})
+    store.save_best(np.eye(3)[:, :1])
+    store.write_summary({"best": 1})
+    before = {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir()}
+
+    def killed(*args):
+        raise KeyboardInterrupt  # (BaseException, as a signal's handler raises)
+
+    monkeypatch.setattr(files.os, "replace", killed)
+    for write in (lambda: store.update_config({"x": 2}), lambda: store.save_best(np.eye(3)[:, 1:2]),
+                  lambda: store.write_summary({"best": 2})):  # fmt: skip
+        with pytest.raises(KeyboardInterrupt):
+            write()
+    monkeypatch.undo()
+    assert {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir()} == before
+    assert store.config == {"x": 1}  # (and no temporary file is left: the names are the same)
+
+
+@pytest.mark.skipif(not __import__("os").path.isdir("/proc/self/fd"), reason="needs /proc")
+def test_every_write_is_fsynced_with_its_data_before_it_returns(tmp_path, monkeypatch):
+    # Durability is not observable without pulling the power, so this watches os.fsync (the
+    # os module that rbbo.store.files and rbbo.store.run_store call it through): each write
+    # must fsync the file it wrote, holding all its data (its inode and size at that
+    # moment), and each new or renamed file must also have its directory fsynced once the
+    # entry is there (the directory's listing at that moment).
+    import os
+    import stat
+
+    import rbbo.store.files as files
+    import rbbo.store.run_store as run_store
+
+    assert files.os is os and run_store.os is os  # (one patch covers both modules)
+    synced = []
+    real_fsync = os.fsync
+
+    def spy(fd):
+        st = os.fstat(fd)
+        names = None
+        if stat.S_ISDIR(st.st_mode):
+            names = set(os.listdir(os.readlink(f"/proc/self/fd/{fd}")))
+        synced.append((st.st_ino, st.st_size, names))
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", spy)
+    run = tmp_path / "run"
+
+    def check(name, *, entry=False):
+        st = (run / name).stat()
+        assert (st.st_ino, st.st_size) in [(i, s) for i, s, _ in synced], f"{name} not fsynced"
+        if entry:
+            dir_ino = run.stat().st_ino
+            assert any(i == dir_ino and name in n for i, s, n in synced if n is not None), (
+                f"the directory was not fsynced after {name} was made"
+            )
+        synced.clear()
+
+    store = RunStore.create(run, {"x": 1})
+    dirs = [n for i, s, n in synced if n is not None]
+    assert dirs and "history.jsonl" in dirs[-1], "the new history's entry was not fsynced"
+    check("config.json", entry=True)
+    store.append(_evaluation(0))
+    check("history.jsonl")
+    store.append_proposal({"index": 1})
+    check("proposals.jsonl")
+    store.append_session({"started": "now"})
+    check("sessions.jsonl")
+    store.update_config({"x": 2})
+    check("config.json", entry=True)
+    store.save_best(np.eye(3)[:, :1])
+    check("best_basis.npy", entry=True)
+    store.write_summary({"best": 1})
+    check("summary.json", entry=True)
+    store.close()
+    # the repairs of a resume: a whole last line ended, a torn one cut
+    with open(run / "history.jsonl", "a") as f:
+        f.write(_evaluation(1).to_json())
+    RunStore.open(run).close()
+    check("history.jsonl")
+    with open(run / "history.jsonl", "a") as f:
+        f.write(_evaluation(2).to_json()[:30])
+    with pytest.warns(TruncatedHistoryWarning):
+        RunStore.open(run).close()
+    check("history.jsonl")
+    assert [e.index for e in RunStore.open(run, repair=False).history()] == [0, 1]
