@@ -739,3 +739,20 @@ def test_a_proposal_on_an_evaluated_basis_gives_way_to_the_next_optimum_then_a_r
     ordinary = opt.ask()
     assert "duplicates_skipped" not in ordinary.info
     assert "duplicates_skipped" not in json.loads(opt.tell(ordinary.index, 0.0).to_json())
+
+
+def test_a_resumed_run_goes_on_from_the_time_it_had_spent(tmp_path):
+    # elapsed_s is the run's time over all its sessions: a resumed run must not restart its
+    # clock, or --budget would be granted afresh by every resume and the history's elapsed_s
+    # would run backwards. (The first session's clock is set forward, not waited for.)
+    config = RBBOConfig(4, 2, n_init=3, **FAST)
+    opt = RBBO.create(tmp_path / "run", config)
+    opt._elapsed_offset = 1000.0
+    p = opt.ask()
+    assert opt.tell(p.index, 0.5).elapsed_s >= 1000.0
+    opt.store.close()
+    resumed = RBBO.resume(tmp_path / "run")
+    assert resumed.elapsed_s >= 1000.0
+    assert not resumed.can_submit(None, 500.0)  # its budget was spent in the first session
+    q = resumed.ask()
+    assert resumed.tell(q.index, 0.4).elapsed_s >= 1000.0
