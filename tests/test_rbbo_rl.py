@@ -395,3 +395,33 @@ def test_run_baselines_refuses_bad_counts_before_claiming_any_folder(tmp_path, b
         rl.run_baselines(ENV, {"identity": np.eye(8)[:, :2]}, tmp_path / "out", algos=("ppo",),
                          **bad)  # fmt: skip
     assert not (tmp_path / "out").exists()
+
+
+def test_a_checkpoint_torn_by_a_kill_while_saving_is_never_resumed_from(
+    tmp_path, capsys, monkeypatch
+):
+    # A kill while step_256's weights are being written leaves a partial zip. It must be under
+    # a temporary name (renamed when complete), so that the resume starts from step_128 and
+    # does not load the torn file; saved straight to step_256.zip it would be loaded and fail.
+    import stable_baselines3 as sb3
+
+    out = tmp_path / "bl"
+    args = ["baselines", ENV, "--algo", "ppo", "--out", str(out), *SMALL, "--no-mpc"]
+    real_save = sb3.PPO.save
+
+    def killed_while_saving(self, path, *a, **k):
+        if self.num_timesteps == 256 and "final" not in str(path):
+            with open(path, "wb") as f:
+                f.write(b"PK\x03\x04 torn")  # the start of a zip, and no more
+            raise KeyboardInterrupt
+        return real_save(self, path, *a, **k)
+
+    monkeypatch.setattr(sb3.PPO, "save", killed_while_saving)
+    assert main(args) == 130
+    monkeypatch.undo()
+    folder = out / "ppo-identity"
+    assert [x["steps"] for x in _lines(folder / "progress.jsonl")] == [128]
+    assert main(args) == 0
+    capsys.readouterr()
+    assert [x["steps"] for x in _lines(folder / "progress.jsonl")] == [128, 256]
+    assert sb3.PPO.load(folder / "final.zip").num_timesteps == 256
