@@ -543,6 +543,34 @@ def test_a_row_with_new_columns_widens_the_csv_and_keeps_the_old_rows(tmp_path):
                                {"a": "6", "b": "7", "c": "8"}]  # fmt: skip
 
 
+def test_a_measured_row_is_fsynced_before_it_counts_as_done(tmp_path, monkeypatch):
+    # A transfer or perturbation row is measured once: a resume skips it for being in the
+    # CSV, so it must be on disk when _append_row returns. Durability cannot be observed
+    # without pulling the power, so this watches os.fsync (through the os module that
+    # rbbo.reproduce.csv_rows calls it with): the file must be fsynced holding the new row.
+    import os
+
+    import rbbo.reproduce.csv_rows as csv_rows
+    from rbbo.reproduce.runner import _append_row
+
+    assert csv_rows.os is os
+    synced = []
+    real_fsync = os.fsync
+
+    def spy(fd):
+        st = os.fstat(fd)
+        synced.append((st.st_ino, st.st_size))
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", spy)
+    path = tmp_path / "t.csv"
+    for row in ({"a": 1, "b": 2}, {"a": 3, "b": 4}):
+        synced.clear()
+        _append_row(path, row)
+        st = path.stat()
+        assert (st.st_ino, st.st_size) in synced
+
+
 def test_a_progress_log_torn_by_a_kill_is_read_and_mended(tmp_path):
     from rbbo.rl import _read_progress
 
