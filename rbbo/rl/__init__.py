@@ -40,7 +40,6 @@ from .jobs import _run_jobs as _run_jobs
 from .jobs import _torch_threads as _torch_threads
 from .jobs import run_baselines
 from .mpc import _mpc as _mpc
-from .progress import _atomic_json as _atomic_json
 from .progress import _claim as _claim
 from .progress import _read_progress as _read_progress
 from .progress import _wall_at_checkpoint as _wall_at_checkpoint

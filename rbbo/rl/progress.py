@@ -2,7 +2,6 @@
 
 :func:`_claim` refuses a folder that trained another env, basis or seed;
 :func:`_read_progress` reads the append-only log (mending a last line torn by a kill);
-:func:`_atomic_json` writes a file under a temporary name and renames it;
 :func:`_wall_at_checkpoint` is the training wall time a resumed job continues from.
 """
 
@@ -46,12 +45,6 @@ def _read_progress(log: Path, mend: bool = True) -> list[dict]:
         tmp.write_text("".join(json.dumps(r) + "\n" for r in rows), encoding="utf-8")
         os.replace(tmp, log)
     return rows
-
-
-def _atomic_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(f"tmp_{path.name}")
-    tmp.write_text(json.dumps(data), encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def _wall_at_checkpoint(n: int, logged: dict[int, float], ckpts: Path) -> float:

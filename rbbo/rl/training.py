@@ -13,10 +13,11 @@ import os
 import sys
 import time
 
+from ..store import _atomic_write
 from .algorithms import require_sb3
 from .envs import _make_env
 from .evaluation import evaluate_policy
-from .progress import _atomic_json, _read_progress, _wall_at_checkpoint
+from .progress import _read_progress, _wall_at_checkpoint
 from .table import _row
 
 
@@ -94,7 +95,7 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
             os.replace(ckpts / "tmp_replay.pkl", ckpts / f"step_{n}_replay.pkl")
         if save:
             # its training wall time beside it, for a resume whose log lost the row
-            _atomic_json(ckpts / f"step_{n}.json", {"wall_s": wall})
+            _atomic_write(ckpts / f"step_{n}.json", json.dumps({"wall_s": wall}).encode())
             m.save(ckpts / "tmp_step.zip")
             os.replace(ckpts / "tmp_step.zip", ckpts / f"step_{n}.zip")
             clock["saved"] = n
