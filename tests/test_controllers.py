@@ -85,21 +85,29 @@ def test_fd_jacobian_matches_central_differences(swimmer):
     np.testing.assert_allclose(jac[:, 3], rows, rtol=0, atol=1e-2 * np.abs(rows).max())
 
 
-def test_gauss_newton_iterations_never_lower_the_objective(walker):
-    settings = GaussNewtonSettings(horizon=8, knots=3, iterations=4, damping=1e-4)
-    gn = GaussNewtonShooting(settings)
-    gn.reset(walker, seed=0)
-    calls = []  # the knots and objectives of each batched rollout
-    real = gn._evaluate
+def _plan_recording_rollouts(planner, env) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``planner.plan(env)``, returning the knots and objectives of each batched rollout."""
+    calls = []
+    real = planner._evaluate
 
     def record(state, knots, horizon=None):
         ev = real(state, knots, horizon)
         calls.append((knots.copy(), ev.objective.copy()))
         return ev
 
-    gn._evaluate = record
-    gn.plan(walker)
-    del gn._evaluate
+    planner._evaluate = record
+    try:
+        planner.plan(env)
+    finally:
+        del planner._evaluate
+    return calls
+
+
+def test_gauss_newton_iterations_never_lower_the_objective(walker):
+    settings = GaussNewtonSettings(horizon=8, knots=3, iterations=4, damping=1e-4)
+    gn = GaussNewtonShooting(settings)
+    gn.reset(walker, seed=0)
+    calls = _plan_recording_rollouts(gn, walker)  # knots and objectives of each batch
     history = gn.last_["objectives"]
     assert len(history) == 4
     # Each iteration: a Jacobian rollout (K C + 1 = 10 plans), then the line search's (4),
@@ -276,17 +284,7 @@ def test_the_default_planners_record_as_runs_recorded_them():
 def test_mppi_beats_zero_control_on_a_short_horizon(walker):
     mppi = MPPI(MPPISettings(horizon=10, knots=3, samples=12, noise=0.5, iterations=3))
     mppi.reset(walker, seed=0)
-    rounds = []  # (samples, objectives) of each sampling round
-    real = mppi._evaluate
-
-    def record(state, knots, horizon=None):
-        ev = real(state, knots, horizon)
-        rounds.append((knots.copy(), ev.objective.copy()))
-        return ev
-
-    mppi._evaluate = record
-    mppi.plan(walker)
-    del mppi._evaluate
+    rounds = _plan_recording_rollouts(mppi, walker)  # (samples, objectives) of each round
     assert mppi.last_["rollouts"] == 36  # 3 iterations of 12 samples
     # Each round moves the knots to the mean of its samples weighted exp((J - max J) /
     # (temperature spread)) (the module docstring), sample 0 being the plan it started from;

@@ -236,23 +236,15 @@ def test_status_narrows_to_the_benchmarks_given_and_refuses_other_settings(tmp_p
     assert main(out) == 0  # both, as stored
     assert len(capsys.readouterr().out.splitlines()) == 3
     assert main([*out, "--benchmarks", "TripodWalk-v0,BeamWalk-v0"]) == 2
-    assert (
-        capsys.readouterr()
-        .err.strip()
-        .endswith(
-            f"TripodWalk-v0 is not part of the reproduction in {tmp_path} (its benchmarks: "
-            "CrossSwim-v0, BeamWalk-v0)"
-        )
+    assert capsys.readouterr().err.strip() == (
+        f"rbbo: error: TripodWalk-v0 is not part of the reproduction in {tmp_path} (its "
+        "benchmarks: CrossSwim-v0, BeamWalk-v0)"
     )
     # an experiment-defining setting other than the stored one would be silently ignored
     assert main([*out, "--sim-dim", "30"]) == 2
-    assert (
-        capsys.readouterr()
-        .err.strip()
-        .endswith(
-            f"{tmp_path} was started with other settings (sim_dim 20); --status reads them from "
-            "its reproduce.json: leave those options out"
-        )
+    assert capsys.readouterr().err.strip() == (
+        f"rbbo: error: {tmp_path} was started with other settings (sim_dim 20); --status reads "
+        "them from its reproduce.json: leave those options out"
     )
 
 
