@@ -1,8 +1,9 @@
 """The core's threads under stress: results that must not depend on who calls or how many.
 
-Each case checks that rollouts give the same bits whatever the thread count or the other
-Python threads doing, and is the workload for a ThreadSanitizer build (README: "For work on
-the core"), where the point is the sanitizer's reports rather than this script's output:
+Cases a, b and f check that rollouts give the same bits whatever the thread count or the
+other Python threads doing; c, d and e check only that nothing fails. Together they are the
+workload for a ThreadSanitizer build (README: "For work on the core"), where the point is the
+sanitizer's reports rather than this script's output:
 
 - ``a``: ``rollout(threads=2)`` of (8, 20, C) controls on each benchmark against one thread,
   and the env's ``rollout`` of a list of states;
