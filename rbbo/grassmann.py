@@ -114,20 +114,45 @@ def orthonormalize(a: np.ndarray) -> np.ndarray:
     return q * np.sign(d)
 
 
-def canonical(b_c: np.ndarray) -> np.ndarray:
-    """The canonical orthonormal representative of span(B_c).
+# A row of B_c whose part outside the span of the earlier pivot rows is shorter than this is
+# not a pivot. Rows of an orthonormal B_c have length <= 1, so this is a relative threshold;
+# it keeps rounding (~1e-16) from making a pivot of a row that lies in that span, while the
+# normalised pivot direction loses at most ~1e-16 / 1e-8 of accuracy.
+_PIVOT_TOLERANCE = 1e-8
 
-    QR of B_c^T gives B_c^T = Q_1 R with Q_1 orthogonal (C x C); R^T = B_c Q_1 spans the same
-    subspace and is lower-trapezoidal. With diag(R) > 0 it depends on span(B_c) only (when
-    the leading C x C minors are non-singular, i.e. for almost every subspace), so B_c and
-    B_c Q map to the same matrix. The identity basis (the first C modes) is its own
-    representative.
+
+def canonical(b_c: np.ndarray) -> np.ndarray:
+    """The canonical orthonormal representative of span(B_c): its reduced column-echelon form.
+
+    The pivot rows p_1 < ... < p_C are found greedily: p_k is the first row of B_c that does
+    not lie in the span of rows p_1 .. p_{k-1} (its residual after projecting them out is
+    longer than ``1e-8``). With Q = [q_1 .. q_C] the Gram-Schmidt orthonormalisation of those
+    rows, the representative is B_c Q: row p_k is zero after column k and has q_k's positive
+    length at column k. Replacing B_c by B_c U (U orthogonal) rotates every row by U^T, which
+    keeps the residual lengths (so the pivots) and turns Q into U^T Q, so B_c U U^T Q = B_c Q:
+    the result depends on span(B_c) only, for every subspace (up to rounding, and up to a
+    row whose residual length is within rounding of the threshold). When the first C rows
+    are pivots (almost every subspace) it is the lower-trapezoidal representative with a
+    positive diagonal. The identity basis (the first C modes) is its own representative, and
+    so is any selection of C modes, e.g. the columns e_4, e_5, e_6 of I_M.
     """
     b = validate_basis(b_c)
-    _, r = np.linalg.qr(b.T)
-    signs = np.sign(np.diag(r))
-    signs[signs == 0] = 1.0
-    return (r.T * signs).copy()  # columns of R^T scaled: still orthonormal
+    m, c = b.shape
+    q = np.zeros((c, c))
+    found = 0
+    for row in b:
+        if found == c:
+            break
+        residual = row.copy()
+        for _ in range(2):  # Gram-Schmidt twice: orthogonal to working precision
+            residual -= q[:, :found] @ (q[:, :found].T @ residual)
+        length = np.linalg.norm(residual)
+        if length > _PIVOT_TOLERANCE:
+            q[:, found] = residual / length
+            found += 1
+    if found < c:  # unreachable for an orthonormal B_c (rank C); kept as a guard
+        raise ValueError(f"B_c of shape {(m, c)} has rank below {c}")
+    return b @ q
 
 
 def identity_basis(sim_dim: int, control_dim: int) -> np.ndarray:

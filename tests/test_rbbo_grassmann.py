@@ -64,6 +64,27 @@ def test_canonical_depends_on_span_only(rng):
     np.testing.assert_allclose(c1, c2, atol=1e-12)
     np.testing.assert_allclose(c1 @ c1.T, b @ b.T, atol=1e-12)
     np.testing.assert_array_equal(gr.canonical(gr.identity_basis(7, 3)), np.eye(7)[:, :3])
+    # almost every subspace: the leading C x C block is lower triangular with a positive
+    # diagonal (the first C rows are the pivots)
+    np.testing.assert_allclose(np.triu(c1[:3], 1), 0.0, atol=1e-15)
+    assert np.all(np.diag(c1) > 0)
+
+
+def test_canonical_depends_on_span_only_when_the_leading_block_is_singular(rng):
+    """Subspaces whose first C rows do not span R^C, e.g. a selection of modes (e_4, e_5, e_6)
+    or any subspace of the later modes: a QR of B_c^T without pivoting depends on Q there."""
+    q = ortho_group.rvs(3, random_state=5)
+    modes_456 = np.eye(9)[:, 3:6]
+    np.testing.assert_allclose(gr.canonical(modes_456 @ q), modes_456, atol=1e-14)
+    later = np.zeros((9, 3))
+    later[4:] = gr.random_points(5, 3, rng=rng)  # span inside the last five modes
+    mixed = np.zeros((9, 3))
+    mixed[[0, 3, 4, 6, 7, 8]] = gr.random_points(6, 3, rng=rng)  # rows 1, 2, 5 zero
+    mixed[2] = 0.0
+    for b in (later, mixed, gr.orthonormalize(np.eye(9)[:, [0, 1, 4]] + np.eye(9)[:, [0, 3, 4]])):
+        c1, c2 = gr.canonical(b), gr.canonical(b @ q)
+        np.testing.assert_allclose(c1, c2, atol=1e-12)
+        np.testing.assert_allclose(c1 @ c1.T, b @ b.T, atol=1e-12)
 
 
 def test_flatten_roundtrip(rng):
