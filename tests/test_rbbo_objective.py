@@ -263,3 +263,21 @@ def test_an_evaluation_runs_its_whole_t_whatever_the_registered_time_limit(monke
     monkeypatch.setattr(EnvObjective, "episode", lambda self, *args, **kwargs: cut)
     with pytest.raises(RuntimeError, match="time limit ended the T = 2.5 s episode at 2 s"):
         fast(np.eye(6)[:, :2], 2.5, 0)
+
+
+def test_an_env_without_a_simulation_space_is_built_once_to_learn_it(monkeypatch):
+    """The stand-in env has no ``subspace``: its None fingerprint is remembered like any
+    other, so ``spec()`` and the resume checks do not build the env again on every call."""
+    objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3)
+    built = []
+    real_make_env = EnvObjective.make_env
+
+    def counting(self, basis):
+        built.append(basis)
+        return real_make_env(self, basis)
+
+    monkeypatch.setattr(EnvObjective, "make_env", counting)
+    assert objective.simulation_space() is None
+    assert objective.simulation_space() is None
+    objective.spec()
+    assert len(built) == 1

@@ -74,6 +74,7 @@ class EnvObjective:
             raise ValueError(f"settle_time must be >= 0, got {self.settle_time!r}")
         self._env = None
         self._signature: list[float] | None = None
+        self._signature_read = False  # an env without a signature is asked once, not per call
 
     def __getstate__(self):
         state = self.__dict__.copy()
@@ -82,7 +83,7 @@ class EnvObjective:
 
     def simulation_space(self) -> list[float] | None:
         """The env's B_r fingerprint (``Subspace.signature()``), None for an env without one."""
-        if self._signature is None:
+        if not self._signature_read:
             env = self.make_env(np.eye(self.sim_dim)[:, : self.control_dim])
             try:
                 subspace = getattr(env.unwrapped, "subspace", None)
@@ -90,6 +91,7 @@ class EnvObjective:
                     self._signature = [float(v) for v in subspace.signature()]
             finally:
                 env.close()
+            self._signature_read = True
         return self._signature
 
     def expect_simulation_space(self, recorded: list[float] | None) -> None:
