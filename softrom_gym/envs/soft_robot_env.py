@@ -9,14 +9,14 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
-import numpy.typing as npt
 from gymnasium import spaces
 
 import cpp_sim
 
 from .._validate import real
-from ..robots import ROBOTS, Robot, from_mesh
+from ..robots import Robot
 from ..rom import build_reduced_model, build_subspace
+from .arguments import checked_control_basis, dimensions, make_robot, read_basis, task_direction
 
 if TYPE_CHECKING:
     from ..rendering import SoftwareRenderer
@@ -25,102 +25,6 @@ __all__ = ["TASKS", "SoftRobotEnv"]
 
 TASKS = ("walk", "swim")
 G = 9.81
-
-
-def _is_trimesh(value: object) -> bool:
-    # trimesh is imported on use (a second at start-up): a Trimesh exists only if it was.
-    import sys
-
-    module = sys.modules.get("trimesh")
-    return module is not None and isinstance(value, module.Trimesh)
-
-
-def _direction(direction: float | np.ndarray) -> np.ndarray:
-    try:
-        d = np.asarray(direction, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"direction must be an angle in radians or a non-zero 2-vector, got {direction!r}"
-        ) from None
-    if d.ndim == 0:
-        if not np.isfinite(d):
-            raise ValueError(f"direction angle must be finite, got {direction!r}")
-        return np.array([np.cos(d), np.sin(d), 0.0])
-    if d.shape != (2,) or not np.all(np.isfinite(d)) or not np.any(d):
-        raise ValueError(
-            f"direction must be an angle in radians or a non-zero 2-vector, got {direction!r}"
-        )
-    # scaled first: the norm of [1e-200, 1e-200] underflows to 0, that of [1e200, 1e200] to inf
-    d = d / np.abs(d).max()
-    return np.array([d[0], d[1], 0.0]) / np.linalg.norm(d)
-
-
-def _read_basis(b_c: npt.ArrayLike | os.PathLike | None) -> npt.ArrayLike | None:
-    """B_c from a ``.npy`` file when given a path (as a str it keeps ``env.spec``
-    JSON-serialisable, which an array does not), else ``b_c`` as given."""
-    if not isinstance(b_c, (str, os.PathLike)):
-        return b_c
-    try:
-        b = np.load(b_c, allow_pickle=False)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"control_basis file {os.fspath(b_c)!r} does not exist") from None
-    except (OSError, ValueError) as exc:
-        raise ValueError(
-            f"control_basis file {os.fspath(b_c)!r} is not a .npy array: {exc}"
-        ) from None
-    if not isinstance(b, np.ndarray):  # an .npz archive
-        raise ValueError(f"control_basis file {os.fspath(b_c)!r} holds several arrays (.npz); "
-                         "save B_c alone with np.save")  # fmt: skip
-    return b
-
-
-def _dimensions(
-    b_c: npt.ArrayLike | None, sim_dim: int | None, control_dim: int | None
-) -> tuple[int, int]:
-    """(M, C): as given, else the shape of B_c when one is given, else (20, 3)."""
-    shape = np.shape(b_c) if b_c is not None else ()
-    if len(shape) != 2:  # no basis, or one _control_basis will refuse with its shape
-        shape = (20, 3)
-    elif shape[0] < shape[1] and (sim_dim is None or control_dim is None):
-        raise ValueError(f"control_basis has shape {shape}: B_c is M x C with M >= C, one "
-                         "column per control direction (is it transposed?)")  # fmt: skip
-    return (shape[0] if sim_dim is None else sim_dim,
-            shape[1] if control_dim is None else control_dim)  # fmt: skip
-
-
-def _control_basis(
-    b_c: npt.ArrayLike | None, sim_dim: int, control_dim: int, orthonormalize: bool
-) -> np.ndarray:
-    if b_c is None:
-        return np.eye(sim_dim, control_dim)  # (not eye(M)[:, :C]: M may be too large, named later)
-    raw = np.asarray(b_c)
-    if np.iscomplexobj(raw):  # (float() would drop the imaginary part with a warning only)
-        raise ValueError(f"control_basis must be real, got a {raw.dtype} matrix")
-    b = np.asarray(raw, dtype=float)
-    if b.shape != (sim_dim, control_dim):
-        raise ValueError(
-            f"control_basis has shape {b.shape}, expected (sim_dim, control_dim) = "
-            f"({sim_dim}, {control_dim}): an M x C matrix, one column per control direction"
-        )
-    if not np.all(np.isfinite(b)):
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(b))[0])
-        raise ValueError(f"control_basis contains non-finite values, e.g. {b[bad]} at {bad}")
-    if orthonormalize:
-        q, r = np.linalg.qr(b)
-        sv = np.linalg.svd(b, compute_uv=False)
-        if sv[-1] <= 1e-10 * sv[0]:
-            raise ValueError(
-                "control_basis is rank-deficient (singular values "
-                f"{np.array2string(sv, precision=3)}); orthonormalize needs full rank"
-            )
-        return q * np.sign(np.diag(r))  # keep each column's orientation
-    err = float(np.abs(b.T @ b - np.eye(control_dim)).max())
-    if err > 1e-8:
-        raise ValueError(
-            f"control_basis is not orthonormal: max |B_c^T B_c - I| = {err:.3g} (tolerance "
-            "1e-8); pass orthonormalize=True to orthonormalise a full-rank matrix"
-        )
-    return b
 
 
 def _first_frozen_substep(rewards: np.ndarray, com: np.ndarray) -> int:
@@ -254,8 +158,8 @@ class SoftRobotEnv(gym.Env):
                 f"render_mode {render_mode!r} is not supported; valid: "
                 f"{self.metadata['render_modes']}"
             )
-        b_c = _read_basis(control_basis)
-        sim_dim, control_dim = _dimensions(b_c, sim_dim, control_dim)
+        b_c = read_basis(control_basis)
+        sim_dim, control_dim = dimensions(b_c, sim_dim, control_dim)
         for name, value in (("control_dim", control_dim), ("sim_dim", sim_dim),
                             ("frame_skip", frame_skip)):  # fmt: skip
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
@@ -278,9 +182,9 @@ class SoftRobotEnv(gym.Env):
         self.render_mode = render_mode
         self.task = task
         self.frame_skip = int(frame_skip)
-        self.robot = self._make_robot(robot, material or {}, resolution, scale)
-        self.direction = _direction(direction)
-        self.control_basis = _control_basis(b_c, sim_dim, control_dim, orthonormalize)
+        self.robot = make_robot(robot, material or {}, resolution, scale)
+        self.direction = task_direction(direction)
+        self.control_basis = checked_control_basis(b_c, sim_dim, control_dim, orthonormalize)
 
         settings: dict[str, Any] = {"dt": dt, "direction": self.direction}
         swim = {"fluid_density": fluid_density}
@@ -342,53 +246,6 @@ class SoftRobotEnv(gym.Env):
             positions, self.robot.surface_faces, target=com, arrow=self.direction,
             ground=self.task == "walk",
         )  # fmt: skip
-
-    @staticmethod
-    def _make_robot(
-        robot, material: dict[str, float], resolution: int | None, scale: float | None
-    ) -> Robot:
-        unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
-        if unknown:
-            raise ValueError(f"unknown material parameter(s) {sorted(unknown)}")
-        kwargs: dict[str, Any] = dict(material)
-        if resolution is not None:
-            kwargs["resolution"] = resolution
-        is_mesh = _is_trimesh(robot) or (
-            isinstance(robot, (str, os.PathLike))
-            and not (isinstance(robot, str) and robot in ROBOTS)
-        )
-        if scale is not None:
-            if not is_mesh:
-                raise ValueError(f"scale = {scale!r} applies to a mesh (a file path or a "
-                                 "trimesh.Trimesh), not to a named or meshed robot")  # fmt: skip
-            kwargs["scale"] = scale
-        if isinstance(robot, Robot):
-            if resolution is not None:
-                raise ValueError(
-                    f"resolution = {resolution} applies to a robot name or a mesh path, not to "
-                    "a Robot that is already meshed"
-                )
-            if kwargs:
-                from dataclasses import replace
-
-                return replace(robot, **kwargs)  # (here kwargs is the material alone)
-            return robot
-        if isinstance(robot, str) and robot in ROBOTS:
-            return ROBOTS[robot](**kwargs)
-        if _is_trimesh(robot):
-            return from_mesh(robot, **kwargs)
-        if isinstance(robot, (str, os.PathLike)):
-            path = os.path.expanduser(os.fspath(robot))
-            if os.path.splitext(path)[1] or os.path.isdir(path):
-                return from_mesh(path, **kwargs)  # (which names a missing file or a folder)
-            if os.path.exists(path):
-                raise ValueError(f"robot {os.fspath(robot)!r} is a file without an "
-                                 "extension: name it .stl, .obj, .ply, ... so its format "
-                                 "is known")  # fmt: skip
-        raise ValueError(
-            f"unknown robot {robot!r}; valid robots: {sorted(ROBOTS)}, a mesh file path "
-            "(STL/OBJ/PLY), a trimesh.Trimesh, or a softrom_gym.robots.Robot"
-        )
 
     # ---------------------------------------------------------------- observations
     def _obs(self, state: cpp_sim.ReducedState) -> np.ndarray:
@@ -518,7 +375,7 @@ class SoftRobotEnv(gym.Env):
         non-orthonormal B_c (pass ``orthonormalize=True`` to accept any full-rank matrix).
         """
         m, c = self.control_basis.shape
-        b = _control_basis(_read_basis(control_basis), m, c, orthonormalize)
+        b = checked_control_basis(read_basis(control_basis), m, c, orthonormalize)
         self.model.control_basis = b
         self.control_basis = b
 

@@ -1,0 +1,180 @@
+"""The arguments of :class:`~softrom_gym.envs.soft_robot_env.SoftRobotEnv`, checked and turned
+into what the env is built from: the robot, the task direction d, the control space B_c and the
+dimensions (M, C). Each function raises naming the value it refuses, before anything slow (B_r
+and the cubature rule, minutes for a new robot) is built."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from ..robots import ROBOTS, Robot, from_mesh
+
+__all__ = [
+    "checked_control_basis",
+    "dimensions",
+    "is_trimesh",
+    "make_robot",
+    "read_basis",
+    "task_direction",
+]
+
+
+def is_trimesh(value: object) -> bool:
+    """Whether ``value`` is a ``trimesh.Trimesh`` (a mesh to build a robot from)."""
+    # trimesh is imported on use (a second at start-up): a Trimesh exists only if it was.
+    import sys
+
+    module = sys.modules.get("trimesh")
+    return module is not None and isinstance(value, module.Trimesh)
+
+
+def task_direction(direction: float | np.ndarray) -> np.ndarray:
+    """The task direction d as a unit 3-vector in the ground plane, from an angle in radians
+    (about z, from +x) or a non-zero 2-vector."""
+    try:
+        d = np.asarray(direction, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"direction must be an angle in radians or a non-zero 2-vector, got {direction!r}"
+        ) from None
+    if d.ndim == 0:
+        if not np.isfinite(d):
+            raise ValueError(f"direction angle must be finite, got {direction!r}")
+        return np.array([np.cos(d), np.sin(d), 0.0])
+    if d.shape != (2,) or not np.all(np.isfinite(d)) or not np.any(d):
+        raise ValueError(
+            f"direction must be an angle in radians or a non-zero 2-vector, got {direction!r}"
+        )
+    # scaled first: the norm of [1e-200, 1e-200] underflows to 0, that of [1e200, 1e200] to inf
+    d = d / np.abs(d).max()
+    return np.array([d[0], d[1], 0.0]) / np.linalg.norm(d)
+
+
+def read_basis(b_c: npt.ArrayLike | os.PathLike | None) -> npt.ArrayLike | None:
+    """B_c from a ``.npy`` file when given a path (as a str it keeps ``env.spec``
+    JSON-serialisable, which an array does not), else ``b_c`` as given."""
+    if not isinstance(b_c, (str, os.PathLike)):
+        return b_c
+    try:
+        b = np.load(b_c, allow_pickle=False)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"control_basis file {os.fspath(b_c)!r} does not exist") from None
+    except (OSError, ValueError) as exc:
+        raise ValueError(
+            f"control_basis file {os.fspath(b_c)!r} is not a .npy array: {exc}"
+        ) from None
+    if not isinstance(b, np.ndarray):  # an .npz archive
+        raise ValueError(f"control_basis file {os.fspath(b_c)!r} holds several arrays (.npz); "
+                         "save B_c alone with np.save")  # fmt: skip
+    return b
+
+
+def dimensions(
+    b_c: npt.ArrayLike | None, sim_dim: int | None, control_dim: int | None
+) -> tuple[int, int]:
+    """(M, C): as given, else the shape of B_c when one is given, else (20, 3)."""
+    shape = np.shape(b_c) if b_c is not None else ()
+    if len(shape) != 2:  # no basis, or one checked_control_basis will refuse with its shape
+        shape = (20, 3)
+    elif shape[0] < shape[1] and (sim_dim is None or control_dim is None):
+        raise ValueError(f"control_basis has shape {shape}: B_c is M x C with M >= C, one "
+                         "column per control direction (is it transposed?)")  # fmt: skip
+    return (shape[0] if sim_dim is None else sim_dim,
+            shape[1] if control_dim is None else control_dim)  # fmt: skip
+
+
+def checked_control_basis(
+    b_c: npt.ArrayLike | None, sim_dim: int, control_dim: int, orthonormalize: bool
+) -> np.ndarray:
+    """B_c as a float (M, C) matrix with orthonormal columns (the first C modes when None).
+
+    A matrix that is not orthonormal to 1e-8 is refused, or with ``orthonormalize`` replaced
+    by the Q of its QR (each column keeping its orientation) when it has full rank.
+    """
+    if b_c is None:
+        return np.eye(sim_dim, control_dim)  # (not eye(M)[:, :C]: M may be too large, named later)
+    raw = np.asarray(b_c)
+    if np.iscomplexobj(raw):  # (float() would drop the imaginary part with a warning only)
+        raise ValueError(f"control_basis must be real, got a {raw.dtype} matrix")
+    b = np.asarray(raw, dtype=float)
+    if b.shape != (sim_dim, control_dim):
+        raise ValueError(
+            f"control_basis has shape {b.shape}, expected (sim_dim, control_dim) = "
+            f"({sim_dim}, {control_dim}): an M x C matrix, one column per control direction"
+        )
+    if not np.all(np.isfinite(b)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(b))[0])
+        raise ValueError(f"control_basis contains non-finite values, e.g. {b[bad]} at {bad}")
+    if orthonormalize:
+        q, r = np.linalg.qr(b)
+        sv = np.linalg.svd(b, compute_uv=False)
+        if sv[-1] <= 1e-10 * sv[0]:
+            raise ValueError(
+                "control_basis is rank-deficient (singular values "
+                f"{np.array2string(sv, precision=3)}); orthonormalize needs full rank"
+            )
+        return q * np.sign(np.diag(r))  # keep each column's orientation
+    err = float(np.abs(b.T @ b - np.eye(control_dim)).max())
+    if err > 1e-8:
+        raise ValueError(
+            f"control_basis is not orthonormal: max |B_c^T B_c - I| = {err:.3g} (tolerance "
+            "1e-8); pass orthonormalize=True to orthonormalise a full-rank matrix"
+        )
+    return b
+
+
+def make_robot(
+    robot: str | os.PathLike | Robot | Any,  # (Any: a trimesh.Trimesh, imported on use)
+    material: dict[str, float],
+    resolution: int | None,
+    scale: float | None,
+) -> Robot:
+    """The robot the env simulates: a name in :data:`~softrom_gym.robots.ROBOTS`, a mesh path
+    or ``trimesh.Trimesh`` (meshed with ``from_mesh``), or a :class:`Robot` as given, with
+    ``material`` (youngs_modulus, poisson_ratio, density), ``resolution`` and ``scale``
+    applied where they mean something and refused by name where they do not."""
+    unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
+    if unknown:
+        raise ValueError(f"unknown material parameter(s) {sorted(unknown)}")
+    kwargs: dict[str, Any] = dict(material)
+    if resolution is not None:
+        kwargs["resolution"] = resolution
+    is_mesh = is_trimesh(robot) or (
+        isinstance(robot, (str, os.PathLike)) and not (isinstance(robot, str) and robot in ROBOTS)
+    )
+    if scale is not None:
+        if not is_mesh:
+            raise ValueError(f"scale = {scale!r} applies to a mesh (a file path or a "
+                             "trimesh.Trimesh), not to a named or meshed robot")  # fmt: skip
+        kwargs["scale"] = scale
+    if isinstance(robot, Robot):
+        if resolution is not None:
+            raise ValueError(
+                f"resolution = {resolution} applies to a robot name or a mesh path, not to "
+                "a Robot that is already meshed"
+            )
+        if kwargs:
+            from dataclasses import replace
+
+            return replace(robot, **kwargs)  # (here kwargs is the material alone)
+        return robot
+    if isinstance(robot, str) and robot in ROBOTS:
+        return ROBOTS[robot](**kwargs)
+    if is_trimesh(robot):
+        return from_mesh(robot, **kwargs)
+    if isinstance(robot, (str, os.PathLike)):
+        path = os.path.expanduser(os.fspath(robot))
+        if os.path.splitext(path)[1] or os.path.isdir(path):
+            return from_mesh(path, **kwargs)  # (which names a missing file or a folder)
+        if os.path.exists(path):
+            raise ValueError(f"robot {os.fspath(robot)!r} is a file without an "
+                             "extension: name it .stl, .obj, .ply, ... so its format "
+                             "is known")  # fmt: skip
+    raise ValueError(
+        f"unknown robot {robot!r}; valid robots: {sorted(ROBOTS)}, a mesh file path "
+        "(STL/OBJ/PLY), a trimesh.Trimesh, or a softrom_gym.robots.Robot"
+    )
