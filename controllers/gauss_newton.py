@@ -41,7 +41,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .planner import Planner, PlannerSettings, _check_int, _check_positive, _real_tuple
+from .planner import Planner
+from .settings import PlannerSettings, _check_int, _check_positive, _real_tuple
 
 __all__ = ["GaussNewtonSettings", "GaussNewtonShooting"]
 
