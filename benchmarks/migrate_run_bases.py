@@ -4,7 +4,7 @@ Until softrom's cache version 4, a robot's simulation space B_r took each vibrat
 sign from the machine's BLAS kernel (a symmetric body's modes have two largest entries of
 equal size and opposite sign), so a B_c stored in a run meant another actuation on a machine
 with other kernels. ``build_subspace`` now picks every mode's basis by a fixed rule
-(:func:`softrom_gym.rom.subspace.canonical_eigenvectors`). This script carries the bases
+(:func:`softrom_gym.rom.eigen.canonical_eigenvectors`). This script carries the bases
 that a run recorded in an old B_r into the new one, B_c' = T B_c with
 T = B_new^T M B_old (deformation block), which is the same full-space actuation; it refuses
 when the two spaces differ by more than a rotation (T not orthogonal).

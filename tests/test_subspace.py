@@ -131,14 +131,14 @@ def test_subspace_is_cached_on_disk(robot, subspace, monkeypatch):
     files = list(cache_dir().glob("subspace-*.npz"))
     assert files, "no cache file written"
     # A cached subspace is read back, not recomputed: the eigensolvers must not run.
-    import softrom_gym.rom.subspace as module
+    import softrom_gym.rom.eigen as module
 
     def no_eigensolve(*args, **kwargs):
         raise AssertionError("the cached subspace was recomputed")
 
     with monkeypatch.context() as patch:
         patch.setattr(module.spla, "eigsh", no_eigensolve)
-        patch.setattr(module, "_dense_eigh", no_eigensolve)
+        patch.setattr(module, "dense_eigh", no_eigensolve)
         again = build_subspace(robot, 20)
     np.testing.assert_array_equal(again.basis, subspace.basis)
     # A corrupt cache entry is rebuilt, not fatal, and said so. (Only this one: the cache is
