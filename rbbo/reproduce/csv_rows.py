@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..store import _atomic_write
+from ..store import _atomic_write, _fsync_dir
 from .tables import read_rows
 
 
@@ -39,6 +39,10 @@ def _append_row(path: Path, row: dict[str, Any]) -> None:
         writer.writerow(row)
         f.flush()
         os.fsync(f.fileno())
+    if new:
+        # the file's fsync does not make its name durable: a power loss could drop the new
+        # file and its rows, and _supersede's rows are by then gone from where they were
+        _fsync_dir(path.parent)
 
 
 def _rewrite_csv(path: Path, rows: list[dict[str, Any]], fieldnames: list[str]) -> None:
