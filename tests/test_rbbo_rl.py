@@ -425,3 +425,95 @@ def test_a_checkpoint_torn_by_a_kill_while_saving_is_never_resumed_from(
     capsys.readouterr()
     assert [x["steps"] for x in _lines(folder / "progress.jsonl")] == [128, 256]
     assert sb3.PPO.load(folder / "final.zip").num_timesteps == 256
+
+
+def test_a_final_model_torn_by_a_kill_is_written_again_on_resume(tmp_path, capsys, monkeypatch):
+    # SB3 writes final.zip in place, and a finished job keeps a final.zip that exists: a kill
+    # mid-save must leave no final.zip (a temporary file instead), so that the re-run writes
+    # it whole; saved straight under its name the torn file would be kept for good.
+    from pathlib import Path
+
+    import stable_baselines3 as sb3
+
+    out = tmp_path / "bl"
+    args = ["baselines", ENV, "--algo", "ppo", "--out", str(out), *SMALL, "--no-mpc"]
+    real_save = sb3.PPO.save
+
+    def killed_while_saving(self, path, *a, **k):
+        if "final" in Path(path).name:
+            with open(path, "wb") as f:
+                f.write(b"PK\x03\x04 torn")  # the start of a zip, and no more
+            raise KeyboardInterrupt
+        return real_save(self, path, *a, **k)
+
+    monkeypatch.setattr(sb3.PPO, "save", killed_while_saving)
+    assert main(args) == 130
+    monkeypatch.undo()
+    folder = out / "ppo-identity"
+    assert [x["steps"] for x in _lines(folder / "progress.jsonl")] == [128, 256]
+    assert main(args) == 0
+    capsys.readouterr()
+    assert sb3.PPO.load(folder / "final.zip").num_timesteps == 256
+
+
+@pytest.mark.skipif(not __import__("os").path.isdir("/proc/self/fd"), reason="needs /proc")
+def test_a_checkpoint_is_on_disk_before_it_is_published_and_before_the_last_is_pruned(
+    tmp_path, capsys, monkeypatch
+):
+    # A power loss keeps only what was fsynced, and a rename may reach the disk before the
+    # data it names: each file of a checkpoint (SAC's replay buffer, step_<n>.json, the zip)
+    # and final.zip must be fsynced before the rename that publishes it, and its directory
+    # fsynced before the next one is published or the previous replay buffer deleted, else
+    # the disk could hold an empty step_<n>.zip, or step_128.zip without its buffer.
+    # Durability is not observable without pulling the power, so this watches os.fsync,
+    # os.replace and os.unlink.
+    import os
+    import re
+    import stat
+    from pathlib import Path
+
+    published = re.compile(r"step_\d+(\.zip|\.json|_replay\.pkl)|final\.zip")
+    events = []
+    real_fsync, real_replace, real_unlink = os.fsync, os.replace, os.unlink
+
+    def fsync(fd):
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            events.append(("dir", set(os.listdir(os.readlink(f"/proc/self/fd/{fd}")))))
+        else:
+            events.append(("file", (st.st_ino, st.st_size)))
+        real_fsync(fd)
+
+    def replace(src, dst, **k):
+        if published.fullmatch(Path(dst).name):
+            st = os.stat(src)
+            events.append(("replace", Path(dst).name, (st.st_ino, st.st_size)))
+        real_replace(src, dst, **k)
+
+    def unlink(path, **k):
+        if Path(path).name.endswith("_replay.pkl"):
+            events.append(("unlink", Path(path).name))
+        real_unlink(path, **k)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    monkeypatch.setattr(os, "unlink", unlink)
+    out = tmp_path / "bl"
+    assert main(["baselines", ENV, "--algo", "sac", "--out", str(out), *SMALL, "--no-mpc"]) == 0
+    monkeypatch.undo()
+    capsys.readouterr()
+    renames = [i for i, e in enumerate(events) if e[0] == "replace"]
+    for i in renames:
+        _, name, data = events[i]
+        assert ("file", data) in events[:i], f"{name} was not fsynced before its rename"
+        later = [j for j, e in enumerate(events) if j > i and e[0] != "file"]
+        assert later and events[later[0]][0] == "dir" and name in events[later[0]][1], (
+            f"the directory was not fsynced after {name} was published"
+        )
+    assert {events[i][1] for i in renames} == {
+        "step_128_replay.pkl", "step_128.json", "step_128.zip", "step_256_replay.pkl",
+        "step_256.json", "step_256.zip", "final.zip"}  # fmt: skip
+    pruned = events.index(("unlink", "step_128_replay.pkl"))
+    assert any(e[0] == "dir" and "step_256.zip" in e[1] for e in events[:pruned]), (
+        "step_128's replay buffer was deleted before step_256.zip was on disk"
+    )

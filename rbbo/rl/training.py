@@ -12,13 +12,36 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
+from pathlib import Path
 
-from ..store import _atomic_write
+from ..store import _atomic_write, _fsync_dir
 from .algorithms import require_sb3
 from .envs import _make_env
 from .evaluation import evaluate_policy
 from .progress import _read_progress, _wall_at_checkpoint
 from .table import _row
+
+
+def _save_durably(save: Callable[[Path], object], tmp: Path, path: Path) -> None:
+    """Write ``path`` with ``save`` atomically and durably.
+
+    Parameters
+    ----------
+    save : callable
+        Writes its argument in place and unsynced (SB3's ``save``, ``save_replay_buffer``).
+    tmp : Path
+        The temporary name, in ``path``'s folder, that ``save`` writes to.
+    path : Path
+        The name the file is published under once it is complete and on disk.
+    """
+    save(tmp)
+    # a rename can reach the disk before the data it names: without this fsync a power
+    # loss could leave ``path`` empty or torn
+    with open(tmp, "rb") as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
 
 
 def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluation, seed,
@@ -88,18 +111,21 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
     def checkpoint(m, save: bool = True) -> None:
         n = m.num_timesteps
         wall = clock["offset"] + time.perf_counter() - clock["start"] - clock["eval"]
-        # written under temporary names and renamed, replay buffer first: a step_<n>.zip
-        # that exists is complete and so is its replay buffer, whenever the run was killed
+        # written durably under temporary names and renamed, replay buffer first: a
+        # step_<n>.zip that exists is complete and so is its replay buffer, whenever the run
+        # was killed or the power lost
         if save and algo == "sac":
-            m.save_replay_buffer(ckpts / "tmp_replay.pkl")
-            os.replace(ckpts / "tmp_replay.pkl", ckpts / f"step_{n}_replay.pkl")
+            _save_durably(m.save_replay_buffer, ckpts / "tmp_replay.pkl",
+                          ckpts / f"step_{n}_replay.pkl")  # fmt: skip
         if save:
             # its training wall time beside it, for a resume whose log lost the row
             _atomic_write(ckpts / f"step_{n}.json", json.dumps({"wall_s": wall}).encode())
-            m.save(ckpts / "tmp_step.zip")
-            os.replace(ckpts / "tmp_step.zip", ckpts / f"step_{n}.zip")
+            _save_durably(m.save, ckpts / "tmp_step.zip", ckpts / f"step_{n}.zip")
             clock["saved"] = n
-            for old in ckpts.glob("step_*_replay.pkl"):  # only the latest is ever resumed
+            # only the latest is ever resumed; the previous one goes only now that the new
+            # checkpoint is on disk, else a power loss could leave the previous zip without
+            # its buffer (and SAC would resume with an empty one)
+            for old in ckpts.glob("step_*_replay.pkl"):
                 if old.name != f"step_{n}_replay.pkl":
                     old.unlink()
         t0 = time.perf_counter()
@@ -159,7 +185,9 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
     elif not any(x["steps"] == n and {k: x[k] for k in key} == key for x in lines):
         checkpoint(model, save=False)  # evaluated before with other seeds or seconds
     if trained or not (folder / "final.zip").is_file():
-        model.save(folder / "final.zip")
+        # SB3 writes in place: a kill mid-save would leave a torn final.zip that the
+        # is_file() above then keeps for good
+        _save_durably(model.save, folder / "tmp_final.zip", folder / "final.zip")
     train_env.close()
     eval_env.close()
     return rows_up_to(n)
