@@ -699,7 +699,7 @@ def test_a_proposal_on_an_evaluated_basis_gives_way_to_the_next_optimum_then_a_r
     monkeypatch,
 ):
     # Under common random numbers a repeat returns the same R: it must not be proposed.
-    import rbbo.optimizer as optimizer_module
+    import rbbo.proposing as proposing_module
     from rbbo.acquisition import AcquisitionResult
 
     m, c = 6, 2
@@ -720,7 +720,7 @@ def test_a_proposal_on_an_evaluated_basis_gives_way_to_the_next_optimum_then_a_r
     def lands_on_a_repeat(*args, **kwargs):
         return AcquisitionResult(repeat, 2.0, "lrbfgs", results=list(optima))
 
-    monkeypatch.setattr(optimizer_module, "maximize_on_grassmann", lands_on_a_repeat)
+    monkeypatch.setattr(proposing_module, "maximize_on_grassmann", lands_on_a_repeat)
     p = opt.ask()
     assert p.kind == "acquisition" and p.info["duplicates_skipped"] == 1
     assert p.info["acq_value"] == 1.0  # the next-best optimum's

@@ -53,7 +53,7 @@ class Evaluation:
         starts its next fit from them, as the uninterrupted run did.
     duplicates_skipped : int
         Acquisition optima passed over because their basis had been evaluated (or was in
-        flight) at the same T (:data:`rbbo.optimizer.DUPLICATE_DISTANCE`); in the JSON only
+        flight) at the same T (:data:`rbbo.proposing.DUPLICATE_DISTANCE`); in the JSON only
         when not 0.
     """
 

@@ -1,0 +1,222 @@
+"""Driving an :class:`~rbbo.optimizer.RBBO` through an executor (:meth:`RBBO.run` and
+:meth:`RBBO.confirm_again`): the search loop that keeps every worker busy with a proposal
+until the limits are reached (or tells results in proposal order with ``deterministic``),
+stops when every evaluation of a stretch fails, measures R_init and R* on fresh seeds at the
+end, and records each session's start and end in DIR/sessions.jsonl and its result in
+summary.json and best_basis.npy.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import warnings
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, wait
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .config import CONFIRM_KINDS, Proposal, RBBOResult, _positive_int, _real
+from .executors import Executor, ProcessExecutor, SerialExecutor
+from .grassmann import identity_basis
+from .run_result import final_recommendation, record_result
+from .store import Evaluation
+
+if TYPE_CHECKING:
+    from .optimizer import RBBO
+
+__all__ = ["MAX_CONSECUTIVE_FAILURES", "EvaluationsFailing", "confirm_again", "run"]
+
+MAX_CONSECUTIVE_FAILURES = 10
+
+
+class EvaluationsFailing(RuntimeError):
+    """Every evaluation of the last stretch of a run failed, so :meth:`RBBO.run` stopped."""
+
+
+class _Session:
+    """One call of :meth:`RBBO.run` or :meth:`RBBO.confirm_again` as DIR/sessions.jsonl
+    records it: its start with its first submission (a call that evaluates nothing, such as a
+    finished run run again, leaves no record) and its end when the call is left."""
+
+    def __init__(self, opt: RBBO, command: str, settings: dict[str, Any]):
+        self._opt = opt
+        self._start: tuple[str, dict[str, Any]] | None = (command, settings)
+        self._started: str | None = None  # its start's stamp, once recorded
+
+    def submit(self, executor: Executor, proposal: Proposal) -> Future:
+        """Submit ``proposal``, first appending this session's code and machine to
+        DIR/sessions.jsonl if nothing was submitted in it yet."""
+        store = self._opt.store
+        if self._start is not None and store is not None:
+            from .provenance import session_record
+
+            command, settings = self._start
+            limits = {k: (None if v == math.inf else v) for k, v in settings.items()}
+            record = {**session_record(command), **limits}
+            store.append_session(record)
+            self._started = record["started"]
+        self._start = None
+        return executor.submit(proposal.task())
+
+    @contextlib.contextmanager
+    def ending(self) -> Iterator[None]:
+        """Append the end of the session whose start :meth:`submit` recorded (a call that
+        evaluated nothing recorded neither) to DIR/sessions.jsonl when the block is left:
+        when, and how (finished, interrupted by Ctrl-C or SIGTERM, or an error, named)."""
+        status, error = "error", None
+        try:
+            yield
+            status = "finished"
+        except KeyboardInterrupt:
+            status = "interrupted"
+            raise
+        except BaseException as exc:
+            error = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]  # one line of it
+            raise
+        finally:
+            started, self._started = self._started, None
+            store = self._opt.store
+            if started is not None and store is not None:
+                from .provenance import session_end_record
+
+                try:
+                    store.append_session(session_end_record(started, status, error))
+                except OSError as exc:
+                    # (a full disk): the session's evaluations are recorded; what is raised
+                    # already, or the result, matters more than its end's line. stacklevel 4
+                    # names the RBBO.run or confirm_again call that holds the session.
+                    warnings.warn(f"{store.path}: the end of this session was not "
+                                  f"recorded in sessions.jsonl: {exc}", RuntimeWarning,
+                                  stacklevel=4)  # fmt: skip
+
+
+def run(
+    opt: RBBO,
+    objective: Callable | None = None,
+    *,
+    executor: Executor | None = None,
+    workers: int = 1,
+    timeout_s: float | None = None,
+    max_evaluations: int | None = None,
+    budget_s: float | None = None,
+    confirm: bool = True,
+    callback: Callable[[Evaluation], None] | None = None,
+    deterministic: bool = False,
+) -> RBBOResult:
+    """Optimise until ``max_evaluations`` or ``budget_s`` (see :meth:`RBBO.run`, which calls
+    this with its own arguments)."""
+    cfg = opt.config
+    max_evaluations = cfg.max_evaluations if max_evaluations is None else max_evaluations
+    budget_s = cfg.budget_s if budget_s is None else budget_s
+    if max_evaluations is None and budget_s is None:
+        raise ValueError("give max_evaluations or budget_s (here or in the config)")
+    # (math.inf stands for "no limit of this kind", as the command line passes it)
+    if max_evaluations is not None and max_evaluations != math.inf:
+        _positive_int("max_evaluations", max_evaluations)
+    if budget_s is not None and not _real("budget_s", budget_s) > 0:
+        raise ValueError(f"budget_s must be > 0 seconds, got {budget_s!r}")
+    own = executor is None
+    if executor is None:
+        if objective is None:
+            raise ValueError("give an objective or an executor")
+        if not callable(objective):
+            raise TypeError(f"objective must be callable as objective(B_c, T, seed), got "
+                            f"{type(objective).__name__}")  # fmt: skip
+        executor = (
+            SerialExecutor(objective)
+            if workers == 1 and timeout_s is None
+            else ProcessExecutor(objective, workers, timeout_s)
+        )
+    # A run whose every evaluation fails (a broken objective or executor) stops instead of
+    # spending its budget on failures; one failure among successes is only recorded.
+    session = _Session(opt, "search", {"max_evaluations": max_evaluations, "budget_s": budget_s,
+                                       "workers": executor.workers})  # fmt: skip
+    failure_limit = max(MAX_CONSECUTIVE_FAILURES, 2 * executor.workers)
+    failed_in_a_row, last_error = 0, None
+    ok = False
+    with session.ending():
+        try:
+            in_flight: dict[Future, Proposal] = {}
+            while True:
+                while (
+                    len(in_flight) < executor.workers
+                    and failed_in_a_row < failure_limit
+                    and opt.can_submit(max_evaluations, budget_s)
+                ):
+                    proposal = opt.ask()
+                    in_flight[session.submit(executor, proposal)] = proposal
+                if not in_flight:
+                    break
+                # in_flight keeps submission order: its first entry is the oldest proposal
+                waiting = [next(iter(in_flight))] if deterministic else list(in_flight)
+                done, _ = wait(waiting, timeout=1.0, return_when=FIRST_COMPLETED)
+                for future in done:
+                    proposal = in_flight.pop(future)
+                    evaluation = _tell_outcome(opt, proposal, future.result(), callback)
+                    failed = evaluation.status == "failed"
+                    failed_in_a_row = failed_in_a_row + 1 if failed else 0
+                    last_error = evaluation.error
+            if failed_in_a_row >= failure_limit:
+                record_result(opt)
+                raise EvaluationsFailing(
+                    f"the last {failed_in_a_row} evaluations all failed, the last with: "
+                    f"{last_error}; the run stopped (its record is kept"
+                    + (f"; resume it with: rbbo resume {opt.store.path}" if opt.store else "")
+                    + ")"
+                )
+            if confirm:
+                _confirm(opt, session, executor, callback)
+            ok = True
+        finally:
+            if own:
+                executor.shutdown(wait=ok)
+        return record_result(opt)
+
+
+def confirm_again(
+    opt: RBBO, executor: Executor, callback: Callable[[Evaluation], None] | None = None
+) -> RBBOResult:
+    """Measure R_init and R* again on the run's fresh seeds (see :meth:`RBBO.confirm_again`,
+    which calls this)."""
+    if final_recommendation(opt) is None:
+        raise ValueError("the run has no evaluation to confirm yet")
+    if opt.config.n_confirm == 0:
+        raise ValueError("the run was made with no confirmation seeds (n_confirm = 0)")
+    session = _Session(opt, "confirm", {"workers": executor.workers})
+    with session.ending():
+        _confirm(opt, session, executor, callback, again=True)
+        return record_result(opt)
+
+
+def _tell_outcome(opt: RBBO, proposal: Proposal, outcome, callback) -> Evaluation:
+    evaluation = opt.tell(proposal.index, outcome.R, status=outcome.status,
+                          wall_s=outcome.wall_s, worker=outcome.worker,
+                          R_seeds=outcome.R_seeds, error=outcome.error)  # fmt: skip
+    if callback is not None:
+        callback(evaluation)
+    return evaluation
+
+
+def _confirm(opt: RBBO, session: _Session, executor: Executor, callback,
+             again: bool = False) -> None:  # fmt: skip
+    """Evaluate the identity and the recommendation on fresh seeds at T_max (``again``:
+    even where the same basis was measured before)."""
+    cfg = opt.config
+    best = final_recommendation(opt)
+    if best is None or cfg.n_confirm == 0:
+        return
+    wanted = {"confirm-init": identity_basis(cfg.sim_dim, cfg.control_dim),
+              "confirm-best": best.basis}  # fmt: skip
+    done = {e.kind: e for e in opt.history if e.kind in CONFIRM_KINDS and e.status == "ok"}
+    futures = {}
+    for kind, basis in wanted.items():
+        if not again and kind in done and np.array_equal(done[kind].basis, basis):
+            continue  # already measured (a resumed, finished run)
+        proposal = Proposal(opt._next_index, basis, cfg.t_max, cfg.fresh_seeds, kind)
+        opt.pending[proposal.index] = proposal
+        opt._next_index += 1
+        futures[session.submit(executor, proposal)] = proposal
+    for future in futures:
+        _tell_outcome(opt, futures[future], future.result(), callback)
