@@ -1,9 +1,13 @@
 """``rbbo baselines``: PPO and SAC beside the MPC, checkpointed, resumable, evaluated."""
 
 import csv
+import itertools
 import json
 import math
+import os
+import stat
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +24,49 @@ SMALL = ["--steps", "256", "--checkpoint-every", "128", "--eval-seeds", "2", "--
 
 def _lines(path):
     return [json.loads(x) for x in path.read_text().splitlines()]
+
+
+def _watch_writes(monkeypatch):
+    """Record each os.fsync, as ``("file", (inode, size))`` or ``("dir", path, names)``, and
+    each os.replace, as ``("replace", name, (inode, size) of the source)``, in order: a power
+    loss keeps only what was fsynced, and that is not observable without pulling the power."""
+    events = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd):
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            path = os.readlink(f"/proc/self/fd/{fd}")
+            events.append(("dir", path, set(os.listdir(path))))
+        else:
+            events.append(("file", (st.st_ino, st.st_size)))
+        real_fsync(fd)
+
+    def replace(src, dst, **k):
+        st = os.stat(src)
+        events.append(("replace", Path(dst).name, (st.st_ino, st.st_size)))
+        real_replace(src, dst, **k)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    return events
+
+
+def _assert_published_durably(events, folder, name):
+    """``folder/name`` was written under another name, fsynced, renamed, and ``folder``
+    fsynced after the rename: a kill leaves the old file or the new, and so does a power
+    loss."""
+    renames = [i for i, e in enumerate(events) if e[:2] == ("replace", name)]
+    assert renames, f"{name} was not written under a temporary name and renamed"
+    for i in renames:
+        assert ("file", events[i][2]) in events[:i], f"{name} was not fsynced before its rename"
+        later = [e for e in events[i + 1 :] if e[0] != "file"]
+        assert later and later[0][:2] == ("dir", os.path.realpath(folder)), (
+            f"{folder} was not fsynced after {name} was renamed into it"
+        )
+
+
+needs_proc = pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="needs /proc")
 
 
 def test_train_evaluate_and_resume(tmp_path, capsys, monkeypatch):
@@ -517,3 +564,41 @@ def test_a_checkpoint_is_on_disk_before_it_is_published_and_before_the_last_is_p
     assert any(e[0] == "dir" and "step_256.zip" in e[1] for e in events[:pruned]), (
         "step_128's replay buffer was deleted before step_256.zip was on disk"
     )
+
+
+@needs_proc
+def test_every_progress_row_is_on_disk_before_training_goes_on(tmp_path, capsys, monkeypatch):
+    # A resume evaluates again only the latest checkpoint: the row of an earlier one that a
+    # power loss took from progress.jsonl would be lost for good. Each row must be fsynced
+    # as it is appended, and the new file's name made durable (its folder fsynced) before
+    # the next checkpoint's row.
+    out = tmp_path / "bl"
+    events = _watch_writes(monkeypatch)
+    assert main(["baselines", ENV, "--algo", "ppo", "--out", str(out), *SMALL, "--no-mpc"]) == 0
+    monkeypatch.undo()
+    capsys.readouterr()
+    folder = out / "ppo-identity"
+    log = folder / "progress.jsonl"
+    ino = log.stat().st_ino
+    ends = list(itertools.accumulate(len(x) + 1 for x in log.read_bytes().splitlines()))
+    assert len(ends) == 2
+    for n, size in enumerate(ends):
+        assert ("file", (ino, size)) in events, f"row {n} of {log} was not fsynced"
+    first, second = (events.index(("file", (ino, size))) for size in ends)
+    named = [e for e in events[first:second] if e[0] == "dir" and log.name in e[2]]
+    assert any(e[1] == os.path.realpath(folder) for e in named), (
+        f"{folder} was not fsynced holding {log.name} before the next row"
+    )
+
+
+@needs_proc
+def test_a_mended_progress_log_is_on_disk_before_it_replaces_the_torn_one(tmp_path, monkeypatch):
+    # The mend rewrites rows already on disk: renamed over the torn log unsynced, a power
+    # loss could leave progress.jsonl empty, every row of the job's earlier checkpoints lost.
+    log = tmp_path / "progress.jsonl"
+    log.write_text('{"steps": 64}\n{"steps": 128}\n{"steps": 19')
+    events = _watch_writes(monkeypatch)
+    assert rl._read_progress(log) == [{"steps": 64}, {"steps": 128}]
+    monkeypatch.undo()
+    assert log.read_text() == '{"steps": 64}\n{"steps": 128}\n'
+    _assert_published_durably(events, tmp_path, log.name)

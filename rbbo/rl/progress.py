@@ -8,8 +8,9 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
+
+from ..store import _atomic_write
 
 
 def _claim(folder: Path, meta: dict) -> None:
@@ -41,9 +42,9 @@ def _read_progress(log: Path, mend: bool = True) -> list[dict]:
         except json.JSONDecodeError:
             torn = torn or bool(line.strip())
     if mend and (torn or (text and not text.endswith("\n"))):
-        tmp = log.with_name(log.name + ".tmp")
-        tmp.write_text("".join(json.dumps(r) + "\n" for r in rows), encoding="utf-8")
-        os.replace(tmp, log)
+        # the rows kept are rows already on disk: the mended file must not lose them to a
+        # power loss after the rename
+        _atomic_write(log, "".join(json.dumps(r) + "\n" for r in rows).encode())
     return rows
 
 

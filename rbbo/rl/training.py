@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ..store import _atomic_write, _fsync_dir
+from ..store import _append_line, _atomic_write, _fsync_dir
 from .algorithms import require_sb3
 from .envs import _make_env
 from .evaluation import evaluate_policy
@@ -134,8 +134,12 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
         wall = wall if save else wall_at.get(n, wall)
         line = {"steps": n, "physics_steps": n * frame_skip, "wall_s": wall, **key,
                 "distance": dist}  # fmt: skip
-        with open(log, "a", encoding="utf-8") as f:
-            f.write(json.dumps(line) + "\n")
+        # fsynced: a resume evaluates again only the latest checkpoint, so a row lost to a
+        # power loss would be lost for good
+        new = not log.exists()
+        _append_line(log, json.dumps(line))
+        if new:  # the file's fsync does not make its name durable
+            _fsync_dir(folder)
         lines.append(line)
 
     if done and not any(x["steps"] == model.num_timesteps and {k: x[k] for k in key} == key
