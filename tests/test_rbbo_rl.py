@@ -602,3 +602,29 @@ def test_a_mended_progress_log_is_on_disk_before_it_replaces_the_torn_one(tmp_pa
     monkeypatch.undo()
     assert log.read_text() == '{"steps": 64}\n{"steps": 128}\n'
     _assert_published_durably(events, tmp_path, log.name)
+
+
+@needs_proc
+def test_the_mpc_row_is_cached_atomically_and_a_torn_cache_is_made_again(tmp_path, monkeypatch):
+    # A kill mid-write of episodes.json left a torn file that every re-run then failed on
+    # (JSONDecodeError): the cache must be written under another name, fsynced and renamed,
+    # and one torn by an older version made again, with a warning naming it.
+    import re
+
+    from rbbo.rl import _mpc
+
+    folder = tmp_path / "m"
+    cache = folder / "episodes.json"
+    args = ("softrom_gym/SoftRobot-v0", "identity", np.eye(6)[:, :2], folder,
+            {"robot": "beam", "task": "walk"}, ([0, 1], 0.1, 0.05), False)  # fmt: skip
+    events = _watch_writes(monkeypatch)
+    row = _mpc(*args)
+    monkeypatch.undo()
+    _assert_published_durably(events, folder, cache.name)
+    whole = cache.read_text()
+    cache.write_text(whole[: len(whole) // 2])
+    with pytest.warns(RuntimeWarning, match=f"MPC cache {re.escape(str(cache))} .*made again"):
+        again = _mpc(*args)
+    assert {k: v for k, v in again.items() if k != "wall_s"} == {
+        k: v for k, v in row.items() if k != "wall_s"}  # fmt: skip
+    assert json.loads(cache.read_text())["row"] == json.loads(json.dumps(again))

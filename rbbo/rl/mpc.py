@@ -2,16 +2,19 @@
 
 :func:`_mpc` runs the planner for one episode per evaluation seed, counting the physics steps
 of its planning rollouts, and keeps the row in ``OUT/mppi-<basis>/episodes.json``, reused
-while the env, basis, evaluation and planner are the same.
+while the env, basis, evaluation and planner are the same (an unreadable one is made again,
+with a warning).
 """
 
 from __future__ import annotations
 
 import json
 import time
+import warnings
 
 import numpy as np
 
+from ..store import _atomic_write
 from .envs import _make_env
 from .table import _row
 
@@ -38,9 +41,16 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
     meta = json.loads(json.dumps(meta))  # as stored: tuples are lists
     cache = folder / "episodes.json"
     if cache.is_file():
-        old = json.loads(cache.read_text())
-        if old["meta"] == meta:  # (rows from before the planner was keyed are made again)
-            return old["row"]
+        try:
+            old = json.loads(cache.read_text())
+            if old["meta"] == meta:  # (rows from before the planner was keyed are made again)
+                return old["row"]
+        except (ValueError, KeyError, TypeError) as exc:
+            # torn by a kill mid-write (before it was written atomically): the row is only
+            # a cache of episodes that can be run again
+            warnings.warn(f"rbbo: ignoring the unreadable MPC cache {cache} "
+                          f"({type(exc).__name__}: {exc}); its row is made again",
+                          RuntimeWarning, stacklevel=2)  # fmt: skip
 
     class CountRollouts(gym.Wrapper):
         """Counts the physics steps of the planner's rollouts (it finds rollout here)."""
@@ -71,5 +81,5 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
                float(env.get_wrapper_attr("body_length")))  # fmt: skip
     env.close()
     folder.mkdir(parents=True, exist_ok=True)
-    cache.write_text(json.dumps({"meta": meta, "row": row}) + "\n")
+    _atomic_write(cache, (json.dumps({"meta": meta, "row": row}) + "\n").encode())
     return row
