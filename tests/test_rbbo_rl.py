@@ -628,3 +628,27 @@ def test_the_mpc_row_is_cached_atomically_and_a_torn_cache_is_made_again(tmp_pat
     assert {k: v for k, v in again.items() if k != "wall_s"} == {
         k: v for k, v in row.items() if k != "wall_s"}  # fmt: skip
     assert json.loads(cache.read_text())["row"] == json.loads(json.dumps(again))
+
+
+@needs_proc
+def test_a_claim_is_written_atomically_and_a_torn_one_is_a_usage_error(
+    tmp_path, capsys, monkeypatch
+):
+    # run.json written in place could be torn by a kill or power loss, and every re-run then
+    # failed on it with a JSONDecodeError's traceback. It must be published whole by a
+    # rename; a torn one (left by an older version) refused in one line that names it.
+    folder = tmp_path / "bl" / "ppo-identity"
+    meta = {"env_id": ENV, "env_kwargs": {}, "algo": "ppo", "seed": 0,
+            "basis": np.eye(8)[:, :2].tolist()}  # fmt: skip
+    events = _watch_writes(monkeypatch)
+    rl._claim(folder, meta)
+    monkeypatch.undo()
+    _assert_published_durably(events, folder, "run.json")
+    assert json.loads((folder / "run.json").read_text()) == meta
+    rl._claim(folder, meta)  # the same run: continued
+    (folder / "run.json").write_text('{"env_id": "softrom_gym/Cro')
+    args = ["baselines", ENV, "--algo", "ppo", "--out", str(tmp_path / "bl"), *SMALL, "--no-mpc"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("rbbo: error:") and not any("Traceback" in x for x in err)
+    assert f"{folder / 'run.json'} is unreadable, torn by a kill" in err[-1]

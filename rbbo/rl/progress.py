@@ -14,15 +14,40 @@ from ..store import _atomic_write
 
 
 def _claim(folder: Path, meta: dict) -> None:
-    """Refuse to continue a folder that trained something else."""
+    """Claim ``folder`` for the run ``meta`` describes, or refuse it.
+
+    Parameters
+    ----------
+    folder : Path
+        The job's folder (made if missing); its ``run.json`` is the claim, written atomically.
+    meta : dict
+        What the job trains: env, env keyword arguments, algorithm, seed and basis.
+
+    Raises
+    ------
+    RunDirectoryError
+        ``run.json`` is another run's, or unreadable (torn by a kill or a power loss while an
+        older version wrote it in place).
+    """
     from ..store import RunDirectoryError
 
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "run.json"
     text = json.dumps(meta)  # floats round-trip exactly: the basis compares bit for bit
     if not path.is_file():
-        path.write_text(text + "\n")
-    elif json.loads(path.read_text()) != json.loads(text):
+        _atomic_write(path, (text + "\n").encode())
+        return
+    try:
+        claimed = json.loads(path.read_text())
+    except ValueError as exc:
+        # written in place before it was written atomically, so a kill or power loss could
+        # tear it: which run the folder's checkpoints are of is then the user's to say
+        raise RunDirectoryError(
+            f"{path} is unreadable, torn by a kill or power loss while it was written "
+            f"({type(exc).__name__}: {exc}); if {folder} trained this env, basis and seed, "
+            f"delete {path.name} to continue it, else choose another --out"
+        ) from exc
+    if claimed != json.loads(text):
         raise RunDirectoryError(f"{folder} holds another run (env, basis or seed); choose "
                                 "another --out")  # fmt: skip
 
