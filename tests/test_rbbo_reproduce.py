@@ -523,6 +523,38 @@ def test_status_counts_no_offsets_of_a_replaced_base_basis(reproduction, tmp_pat
     assert lines[-1].endswith("plus the perturbation study")
 
 
+def test_the_report_shows_only_the_offsets_of_the_base_basis_the_status_counts(
+    reproduction, tmp_path, capsys
+):
+    # The direction-0 run searched on (its B_c replaced) and the perturbation stage, killed
+    # part-way, measured two offsets of the new B_c: until the stage runs again,
+    # perturbation.csv holds both B_c's rows. The report, like the status, must show the
+    # new B_c's only, not the old one's as if they were current.
+    import shutil
+
+    from rbbo.reproduce.csv_rows import _append_row
+    from rbbo.reproduce.tables import basis_digest, read_rows
+
+    out = tmp_path / "copy"
+    shutil.copytree(reproduction, out)
+    base = out / "runs" / "CrossSwim-v0-dir000"
+    old = read_rows(out / "perturbation.csv")
+    assert {r["basis_digest"] for r in old} == {basis_digest(np.load(base / "best_basis.npy"))}
+    np.save(base / "best_basis.npy", -np.load(base / "best_basis.npy"))
+    digest = basis_digest(np.load(base / "best_basis.npy"))
+    for offset, r_mean in ((0.0, 2.0), (-10.0, 1.5)):
+        _append_row(out / "perturbation.csv", {**old[0], "offset_deg": offset,
+                    "direction_deg": offset, "R_mean": r_mean, "basis_digest": digest})  # fmt: skip
+    assert main(["reproduce", "--out", str(out), "--status"]) == 0
+    assert any(x.startswith("perturbation") and "2 of 3 offsets" in x
+               for x in capsys.readouterr().out.splitlines())  # fmt: skip
+    assert main(["reproduce", "--out", str(out), "--report-only"]) == 0
+    section = (out / "REPORT.md").read_text().split("## Direction perturbation")[1]
+    section = section.split("\n## ")[0]
+    offsets = [x for x in section.splitlines() if re.match(r"\| [+-]\d", x)]
+    assert offsets == ["| -10 | 1.5 | 0.75 |", "| +0 | 2 | 1.00 |"], section
+
+
 def test_a_row_with_new_columns_widens_the_csv_and_keeps_the_old_rows(tmp_path):
     from rbbo.reproduce.runner import _append_row
     from rbbo.reproduce.tables import read_rows

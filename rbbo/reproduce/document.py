@@ -184,7 +184,7 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                       f"paper: {PAPER_DIRECTIONS['min_improvement_pct']:+.2f} % to "
                       f"{PAPER_DIRECTIONS['max_improvement_pct']:+.2f} %)."]  # fmt: skip
         lines.append("")
-    perturbation = _perturbation(out)
+    perturbation = _perturbation(out, plan)
     if perturbation:
         path = plot_perturbation(perturbation, out / "perturbation.png")
         written["figures"].append(path)

@@ -2,8 +2,8 @@
 
 :func:`_runs` finds a run directory of the record; :func:`_directions` reads the walking
 directions' runs (and plots each one's convergence), :func:`_perturbation` the perturbation
-study's rows with each offset's fraction of the unperturbed R, and :func:`_rl_trained` which RL
-methods a baselines.csv holds and how far each was trained.
+study's rows of the B_c it walks now, with each offset's fraction of the unperturbed R, and
+:func:`_rl_trained` which RL methods a baselines.csv holds and how far each was trained.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from .plan import ReproducePlan
+from .status import _current_offsets
 from .tables import read_rows, table_row
 
 
@@ -38,11 +39,13 @@ def _directions(out: Path, plan: ReproducePlan) -> list[dict[str, Any]]:
     return rows
 
 
-def _perturbation(out: Path) -> list[dict[str, Any]]:
+def _perturbation(out: Path, plan: ReproducePlan) -> list[dict[str, Any]]:
+    # the rows the status counts: those of a B_c the base run no longer recommends stay in
+    # perturbation.csv until the stage runs again, and are not its curve
     rows: list[dict[str, Any]] = [
         {"offset_deg": float(r["offset_deg"]), "R_mean": float(r["R_mean"]),
          "run": Path(r.get("run") or "").name}
-        for r in read_rows(out / "perturbation.csv")
+        for r in _current_offsets(out, plan)
     ]  # fmt: skip
     base = [r["R_mean"] for r in rows if r["offset_deg"] == 0.0]
     for r in rows:

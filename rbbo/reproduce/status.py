@@ -127,8 +127,9 @@ def _rl_jobs_done(out: Path, plan: ReproducePlan, bench: str) -> bool:
 
 
 def _current_offsets(out: Path, plan: ReproducePlan) -> list[dict[str, str]]:
-    """perturbation.csv's rows of the B_c the stage walks now: rows of a B_c its run no
-    longer recommends (it searched on since) are measured again, so they are not done."""
+    """perturbation.csv's rows of the B_c the stage walks now, which the status counts and
+    the report shows: rows of a B_c its run no longer recommends (it searched on since) are
+    measured again, so they are not done."""
     from ..store import RunDirectoryError
     from .runner import _perturbation_base
 
