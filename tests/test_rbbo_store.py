@@ -274,6 +274,34 @@ def test_an_atomic_write_killed_before_its_rename_leaves_the_old_file(tmp_path, 
 
 
 @pytest.mark.skipif(not __import__("os").path.isdir("/proc/self/fd"), reason="needs /proc")
+def test_a_new_run_directory_is_an_entry_on_disk_before_anything_is_recorded(tmp_path, monkeypatch):
+    """Fsyncing the files inside a new directory does not make the directory's own name
+    durable: each directory ``create`` makes (``--out a/b/run`` makes three) must be listed by
+    an fsync of its parent, else a power loss could drop the run with every record in it."""
+    import os
+    import stat
+
+    listed = []
+    real_fsync = os.fsync
+
+    def spy(fd):
+        if stat.S_ISDIR(os.fstat(fd).st_mode):
+            where = os.readlink(f"/proc/self/fd/{fd}")
+            listed.append((where, set(os.listdir(where))))
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", spy)
+    RunStore.create(tmp_path / "a" / "b" / "run", {"x": 1}).close()
+    for parent, child in ((tmp_path, "a"), (tmp_path / "a", "b"), (tmp_path / "a" / "b", "run")):
+        assert any(w == str(parent) and child in names for w, names in listed), (
+            f"{parent} was not fsynced after {child} was made in it"
+        )
+    listed.clear()
+    RunStore.create(tmp_path / "a" / "other", {"x": 1}).close()  # only "other" is new
+    assert [w for w, _ in listed if w != str(tmp_path / "a" / "other")] == [str(tmp_path / "a")]
+
+
+@pytest.mark.skipif(not __import__("os").path.isdir("/proc/self/fd"), reason="needs /proc")
 def test_every_write_is_fsynced_with_its_data_before_it_returns(tmp_path, monkeypatch):
     # Durability is not observable without pulling the power, so this watches os.fsync (the
     # os module that rbbo.store.files and rbbo.store.run_store call it through): each write

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..store import _atomic_write, _fsync_dir
+from ..store import _atomic_write, _fsync_dir, _make_dirs
 from .tables import read_rows
 
 
@@ -21,7 +21,7 @@ def _append_row(path: Path, row: dict[str, Any]) -> None:
     """Append one CSV row and fsync it (a finished measurement is never lost). A row with
     columns the file lacks (written by an older version) rewrites the file with the wider
     header first, the old rows' new cells left empty."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_dirs(path.parent)
     new = not path.exists()
     if not new:
         with open(path, newline="") as f:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..store import _atomic_write
+from ..store import _atomic_write, _make_dirs
 
 
 def _claim(folder: Path, meta: dict) -> None:
@@ -31,7 +31,7 @@ def _claim(folder: Path, meta: dict) -> None:
     """
     from ..store import RunDirectoryError
 
-    folder.mkdir(parents=True, exist_ok=True)
+    _make_dirs(folder)
     path = folder / "run.json"
     text = json.dumps(meta)  # floats round-trip exactly: the basis compares bit for bit
     if not path.is_file():

@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ..store import _append_line, _atomic_write, _fsync_dir
+from ..store import _append_line, _atomic_write, _fsync_dir, _make_dirs
 from .algorithms import require_sb3
 from .envs import _make_env
 from .evaluation import evaluate_policy
@@ -64,7 +64,7 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
     frame_skip = int(train_env.get_wrapper_attr("frame_skip"))
     body = float(train_env.get_wrapper_attr("body_length"))
     ckpts, log = folder / "checkpoints", folder / "progress.jsonl"
-    ckpts.mkdir(parents=True, exist_ok=True)
+    _make_dirs(ckpts)
     lines = _read_progress(log)
     done = sorted(int(p.stem[5:]) for p in ckpts.glob("step_*.zip") if p.stem[5:].isdigit())
     key = {"seeds": list(seeds), "seconds": seconds, "settle_time": settle}

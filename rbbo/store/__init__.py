@@ -48,6 +48,7 @@ from .files import _UMASK as _UMASK
 from .files import _append_line as _append_line
 from .files import _atomic_write as _atomic_write
 from .files import _fsync_dir as _fsync_dir
+from .files import _make_dirs as _make_dirs
 from .lock import _HELD_LOCKS as _HELD_LOCKS
 from .lock import LOCK as LOCK
 from .lock import _acquire_lock as _acquire_lock

@@ -3,7 +3,8 @@
 :func:`_append_line` appends a line, flushed and fsynced (ending a torn last line first when
 asked); :func:`_atomic_write` writes a file under a temporary name, fsyncs it and renames it
 over the old one, so a kill leaves the old file or the new; :func:`_fsync_dir` makes a
-directory's entries (a rename, a new file) durable.
+directory's entries (a rename, a new file) durable, and :func:`_make_dirs` makes a directory
+and the names of those it creates.
 """
 
 from __future__ import annotations
@@ -22,6 +23,23 @@ def _fsync_dir(path: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def _make_dirs(path: Path) -> None:
+    """``path.mkdir(parents=True, exist_ok=True)``, each directory it creates made durable.
+
+    A new directory's name is an entry of its parent, which fsyncing the files inside it does
+    not reach: without the parent's fsync a power loss could drop a new run directory with
+    every record fsynced in it.
+    """
+    created = []
+    p = path
+    while not p.exists() and p.parent != p:
+        created.append(p)
+        p = p.parent
+    path.mkdir(parents=True, exist_ok=True)
+    for d in created:
+        _fsync_dir(d.parent)
 
 
 def _append_line(path: Path, line: str, end_partial: bool = False) -> None:

@@ -18,7 +18,7 @@ import numpy as np
 
 from .errors import RunDirectoryError, TruncatedHistoryWarning
 from .evaluation import Evaluation
-from .files import _append_line, _atomic_write, _fsync_dir
+from .files import _append_line, _atomic_write, _fsync_dir, _make_dirs
 from .lock import _acquire_lock, _release_lock
 
 CONFIG = "config.json"
@@ -88,7 +88,7 @@ class RunStore:
         except (TypeError, ValueError) as exc:
             raise ValueError(f"config is not JSON-serialisable: {exc}") from exc
         try:
-            path.mkdir(parents=True, exist_ok=True)
+            _make_dirs(path)
         except OSError as exc:
             raise RunDirectoryError(f"cannot create the run directory {path}: {exc}") from exc
         store = cls(path, config)
