@@ -29,7 +29,7 @@ from sklearn.gaussian_process.kernels import ConstantKernel, WhiteKernel
 from threadpoolctl import threadpool_limits
 
 from .grassmann import _check_dims, flatten, projectors, validate_basis
-from .kernels import FidelityKernel, GrassmannKernel
+from .kernels import FidelityKernel, GrassmannKernel, _check_bounds
 
 __all__ = ["GPHyperparameters", "GrassmannGP", "single_threaded_blas"]
 
@@ -96,7 +96,8 @@ class GrassmannGP:
         Extra random restarts of the marginal-likelihood optimiser (the previous fit is
         always the first start).
     length_scale_bounds, fidelity_length_scale_bounds, noise_bounds, signal_bounds
-        Hyperparameter bounds on the standardised scale.
+        Hyperparameter bounds on the standardised scale: (low, high) with
+        0 < low < high < inf, or "fixed" (held at its start); a ValueError names a bad one.
     random_state : int or None
         Seeds the restarts.
     """
@@ -115,6 +116,11 @@ class GrassmannGP:
         random_state: int | None = None,
     ):
         self.sim_dim, self.control_dim = _check_dims(sim_dim, control_dim)
+        # named here: scikit-learn's kernels take them unchecked and fail the fit unhelpfully
+        _check_bounds("length_scale_bounds", length_scale_bounds)
+        _check_bounds("fidelity_length_scale_bounds", fidelity_length_scale_bounds)
+        _check_bounds("noise_bounds", noise_bounds)
+        _check_bounds("signal_bounds", signal_bounds)
         self.fidelity = bool(fidelity)
         self.n_restarts = int(n_restarts)
         self.length_scale_bounds = length_scale_bounds

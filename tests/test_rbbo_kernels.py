@@ -182,3 +182,26 @@ def test_gp_rejects_bad_data(rng):
     for call in (lambda b: gp.predict(b), lambda b: GrassmannGP(M, C).fit(b, np.zeros(4))):
         with pytest.raises(TypeError, match="bases must be real, got a complex128 array"):
             call(bases + 1e-3j)
+
+
+@pytest.mark.parametrize(
+    "name", ["length_scale_bounds", "fidelity_length_scale_bounds", "noise_bounds",
+             "signal_bounds"],
+)  # fmt: skip
+def test_gp_names_bad_hyperparameter_bounds_when_made(name):
+    """They reached scikit-learn's kernels unchecked: a reversed pair failed the fit with "An
+    upper bound is less than the corresponding lower bound" (which one, not said), "free" with
+    numpy's "ufunc 'log' not supported", and a zero low bound with a divide-by-zero."""
+    for bounds, match in (
+        ((1.0, 0.5), r"must satisfy 0 < low < high < inf, got \(1.0, 0.5\)"),
+        ((0.0, 1.0), r"must satisfy 0 < low < high < inf, got \(0.0, 1.0\)"),
+        ("free", r"must be a \(low, high\) pair or 'fixed', got 'free'"),
+    ):
+        with pytest.raises(ValueError, match=f"{name} {match}"):
+            GrassmannGP(M, C, fidelity=True, **{name: bounds})
+    # "fixed" holds the hyperparameter at its start, as scikit-learn's kernels take it
+    bases = gr.random_points(M, C, 6, np.random.default_rng(0))
+    gp = GrassmannGP(M, C, fidelity=True, random_state=0, **{name: "fixed"})
+    gp.fit(bases, np.arange(6.0), z=np.linspace(0.0, 1.0, 6))
+    if name == "length_scale_bounds":
+        assert gp.hyperparameters.length_scale == 1.0
