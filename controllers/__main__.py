@@ -103,6 +103,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seconds must be a positive number, got {args.seconds}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
+    # before gym.make, which builds a new robot's B_r and cubature (minutes) first
+    if args.replan_every is not None and args.replan_every < 1:
+        parser.error(f"--replan-every must be >= 1, got {args.replan_every}")
     if args.video is not None:
         from .episode import _check_video_path
 
@@ -149,8 +152,6 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, TypeError, FileNotFoundError, gym.error.Error) as exc:
         parser.error(str(exc))
     if args.replan_every is not None:
-        if args.replan_every < 1:
-            parser.error(f"--replan-every must be >= 1, got {args.replan_every}")
         replan_every = args.replan_every
     start = time.perf_counter()
     try:

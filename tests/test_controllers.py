@@ -919,3 +919,16 @@ def test_the_command_line_takes_a_control_basis_file(tmp_path, capsys, monkeypat
     with pytest.raises(SystemExit):
         cli_main(["BeamWalk-v0", "--control-basis", str(tmp_path / "t.npy")])
     assert "B_c is M x C with M >= C" in capsys.readouterr().err
+
+
+def test_a_bad_replan_interval_is_named_before_the_env_is_built(capsys, monkeypatch):
+    """--replan-every 0 was refused only after gym.make: for a robot of your own, after minutes
+    of building its B_r and cubature, or not at all when the env failed first."""
+    monkeypatch.setattr(gym, "make", lambda *a, **k: pytest.fail("the env was built"))
+    for bad in ("0", "-2"):
+        with pytest.raises(SystemExit) as exc:
+            cli_main(["SoftRobot-v0", "--env-kwarg", "robot=missing.stl", "--replan-every", bad])
+        assert exc.value.code == 2
+        assert capsys.readouterr().err.splitlines()[-1] == (
+            f"python -m controllers: error: --replan-every must be >= 1, got {bad}"
+        )
