@@ -23,11 +23,15 @@ from .episode import run_episode
 __all__ = ["gn_cost_against_c", "reward_against_c"]
 
 
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
 def _check_cs(cs: Iterable[int]) -> list[int]:
-    out = [int(c) for c in cs]
-    if not out or any(c < 1 for c in out):
-        raise ValueError(f"control dimensions must be integers >= 1, got {list(cs)!r}")
-    return out
+    given = list(cs)  # (once: a generator is empty after it is read)
+    if not given or not all(_is_int(c) and c >= 1 for c in given):
+        raise ValueError(f"control dimensions must be integers >= 1, got {given!r}")
+    return [int(c) for c in given]
 
 
 def gn_cost_against_c(
@@ -51,7 +55,7 @@ def gn_cost_against_c(
 
     import softrom_gym  # noqa: F401  (registers the envs)
 
-    if not isinstance(repeats, int) or repeats < 1:
+    if not _is_int(repeats) or repeats < 1:
         raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
     changes = {"threads": threads, "iterations": 1, "gait_seed": False,
                **(planner_changes or {})}  # fmt: skip
@@ -100,10 +104,12 @@ def reward_against_c(
 
     import softrom_gym  # noqa: F401  (registers the envs)
 
-    if not (np.isfinite(seconds) and seconds > 0):
-        raise ValueError(f"seconds must be > 0, got {seconds!r}")
-    if not 0 <= start < seconds:
-        raise ValueError(f"start must lie in [0, seconds = {seconds}), got {start!r}")
+    # (isinstance first: np.isfinite of a str or None is numpy's TypeError, naming nothing)
+    number = (int, float, np.integer, np.floating)
+    if isinstance(seconds, bool) or not isinstance(seconds, number) or not 0 < seconds < np.inf:
+        raise ValueError(f"seconds must be a positive number, got {seconds!r}")
+    if isinstance(start, bool) or not isinstance(start, number) or not 0 <= start < seconds:
+        raise ValueError(f"start must lie in [0, seconds = {seconds}) s, got {start!r}")
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("give at least one seed")

@@ -932,3 +932,31 @@ def test_a_bad_replan_interval_is_named_before_the_env_is_built(capsys, monkeypa
         assert capsys.readouterr().err.splitlines()[-1] == (
             f"python -m controllers: error: --replan-every must be >= 1, got {bad}"
         )
+
+
+def test_the_studies_name_bad_arguments_before_building_an_env(monkeypatch):
+    """A generator of C's was reported as "got []" (the check had consumed it), C = 1.5 was
+    studied as C = 1, repeats=True ran once, and seconds="10" failed in numpy's isfinite."""
+    from controllers.studies import gn_cost_against_c, reward_against_c
+
+    monkeypatch.setattr(gym, "make", lambda *a, **k: pytest.fail("an env was built"))
+    for cs, shown in (((c for c in (2, 0)), r"\[2, 0\]"), ([1.5], r"\[1.5\]"), ([], r"\[\]"),
+                      ([True], r"\[True\]")):  # fmt: skip
+        with pytest.raises(ValueError, match=f"control dimensions must be integers >= 1, got "
+                           f"{shown}"):  # fmt: skip
+            gn_cost_against_c(cs=cs)
+        with pytest.raises(ValueError, match="control dimensions must be integers"):
+            reward_against_c(cs=cs if isinstance(cs, list) else [2, 0])
+    for repeats in (0, True, 2.0):
+        with pytest.raises(ValueError, match=f"repeats must be an integer >= 1, got {repeats!r}"):
+            gn_cost_against_c(cs=[1], repeats=repeats)
+    for seconds in (0, float("inf"), "10", None):
+        with pytest.raises(ValueError, match=f"seconds must be a positive number, got "
+                           f"{seconds!r}"):  # fmt: skip
+            reward_against_c(seconds=seconds)
+    for start in (-1, 10.0, "2"):
+        with pytest.raises(ValueError, match=rf"start must lie in \[0, seconds = 10.0\) s, got "
+                           f"{start!r}"):  # fmt: skip
+            reward_against_c(seconds=10.0, start=start)
+    with pytest.raises(ValueError, match="give at least one seed"):
+        reward_against_c(seeds=[])
