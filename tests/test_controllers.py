@@ -472,8 +472,17 @@ def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
         (GaussNewtonSettings, {"line_search": ()}, r"line_search must be positive numbers"),
         (GaussNewtonSettings, {"line_search": [1, "x"]}, r"line_search must be a sequence of"),
         (PlannerSettings, {"seed_amplitudes": "ab"}, "seed_amplitudes must be a sequence of"),
+        (PlannerSettings, {"seed_amplitudes": (0.5, -1)}, r"seed_amplitudes must be positive "
+                                                          r"numbers, got \(0.5, -1.0\)"),
+        (PlannerSettings, {"seed_amplitudes": ()}, r"positive numbers, got \(\)"),
+        (PlannerSettings, {"kind": "quintic"}, r"kind must be one of \['cubic', 'linear'\], got "
+                                               "'quintic'"),
+        (GaussNewtonSettings, {"fd_step": 0.6}, r"fd_step must be <= 0.5 \(units of the bound\), "
+                                                "got 0.6"),
+        (CostWeights, {"lateral": "1"}, "weight lateral must be a number, got '1'"),
+        (CostWeights, {"effort": True}, "weight effort must be a number, got True"),
     ],
-)
+)  # fmt: skip
 def test_invalid_settings_raise_value_errors_naming_the_value(cls, kwargs, message):
     with pytest.raises(ValueError, match=message):
         cls(**kwargs)
@@ -960,3 +969,85 @@ def test_the_studies_name_bad_arguments_before_building_an_env(monkeypatch):
             reward_against_c(seconds=10.0, start=start)
     with pytest.raises(ValueError, match="give at least one seed"):
         reward_against_c(seeds=[])
+
+
+def test_cli_names_more_bad_arguments_and_takes_an_unversioned_id_and_replan_interval(capsys):
+    for argv, message in (
+        (["--seed", "-1"], "--seed must be >= 0, got -1"),
+        (["--window", "x"], "argument --window: expected a number of env steps or 'all', got 'x'"),
+        (["--planner", "gn", "--samples", "4"], "--samples applies to --planner mppi only"),
+    ):  # fmt: skip
+        with pytest.raises(SystemExit) as exc:
+            cli_main(["BeamWalk-v0", *argv])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert err.splitlines()[-1] == f"python -m controllers: error: {message}"
+    # "BeamWalk" is its latest version, as gym.make reads it; --replan-every is the episode's
+    assert cli_main(["BeamWalk", "--seconds", "0.1", "--horizon", "4", "--window", "4",
+                     "--replan-every", "2", "--no-progress"]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert out.startswith("BeamWalk-v0 mppi: 0.1 s") and "2 replans" in out
+
+
+def test_run_episode_names_bad_arguments(walker, tmp_path):
+    from controllers.planner import EnvAPI
+
+    with pytest.raises(TypeError, match="planner must be a controllers.Planner, got str"):
+        run_episode(walker, "mppi", 1.0)
+    for seconds in (0, float("nan"), "1"):
+        with pytest.raises(ValueError, match=f"seconds must be a positive number, got "
+                           f"{seconds!r}"):  # fmt: skip
+            run_episode(walker, MPPI(), seconds)
+    with pytest.raises(ValueError, match="video needs an env made with render_mode='rgb_array'"):
+        run_episode(walker, MPPI(), 1.0, video=tmp_path / "a.mp4")
+    assert not any(tmp_path.iterdir())
+    with pytest.raises(TypeError, match="env must be a gymnasium Env, got object"):
+        EnvAPI(object())
+    with pytest.raises(TypeError, match="settings must be GaussNewtonSettings, got MPPISettings"):
+        GaussNewtonShooting(MPPISettings())
+    with pytest.raises(TypeError, match="env_id must be a str .*, got 3"):
+        default_settings(3, "mppi")
+    with pytest.raises(ValueError, match=r"unknown planner 'ilqr'; valid: \['gn', 'mppi'\]"):
+        default_settings("CrossWalk-v0", "ilqr")
+
+
+@pytest.mark.filterwarnings("ignore:.*a tetrahedron is inverted")
+def test_an_episode_that_diverges_stops_there_and_says_so():
+    class FullThrottle(MPPI):
+        def action(self, env):
+            return np.full(3, env.get_wrapper_attr("action_bound"), dtype=np.float32)
+
+    env = gym.make("softrom_gym/SoftRobot-v0", robot="beam", action_scale=1e9)
+    result = run_episode(env, FullThrottle(MPPISettings(horizon=4, knots=2, samples=2)), 1.0,
+                         seed=0, progress=False)  # fmt: skip
+    assert result.stop_reason == "diverged"
+    assert result.rewards.shape == (1,) and result.seconds == pytest.approx(0.025)
+    assert np.isfinite(result.R) and "(stopped: diverged)" in result.summary()
+
+
+def test_gaits_beyond_four_modes_and_their_controls():
+    from controllers import SinusoidGait, phase_orders
+
+    # beyond C = 4 the (C - 1)! orders are too many: the two directions and all in phase
+    five = 2 * np.pi * np.arange(5) / 5
+    orders = phase_orders(5)
+    assert len(orders) == 3
+    np.testing.assert_allclose(orders[0], five)
+    np.testing.assert_allclose(orders[1], -five % (2 * np.pi))
+    assert orders[2] == (0.0,) * 5
+    assert len(gait_grid(5, (2.0,), (0.5, 1.0))) == 6
+    for bad, error, message in ((True, TypeError, "control_dim must be an int, got True"),
+                                (2.0, TypeError, "control_dim must be an int, got 2.0"),
+                                (0, ValueError, "control_dim must be >= 1, got 0")):  # fmt: skip
+        with pytest.raises(error, match=message):
+            phase_orders(bad)
+    for frequencies, amplitudes, name in (((), (1.0,), "frequencies"),
+                                          ((2.0,), (-1.0,), "amplitudes")):  # fmt: skip
+        with pytest.raises(ValueError, match=f"{name} must be a non-empty list of positive"):
+            gait_grid(2, frequencies, amplitudes)
+    gait = SinusoidGait(2.0, 0.5, (0.0, np.pi / 2))
+    u = gait.controls(3, 0.125, 4.0, t0=0.25)
+    t = 0.25 + 0.125 * np.arange(3)
+    expected = 0.5 * 4.0 * np.sin(2 * np.pi * 2.0 * t[:, None] + np.array([0.0, np.pi / 2]))
+    np.testing.assert_allclose(u, expected, atol=1e-15)
+    assert gait.label() == "2Hz A=0.5 phases=0/90"

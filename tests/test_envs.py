@@ -472,3 +472,111 @@ def test_a_control_basis_from_a_npy_path_steps_as_the_array_and_keeps_the_spec_j
     np.save(tmp_path / "flat.npy", basis.ravel())
     with pytest.raises(ValueError, match=r"control_basis has shape \(60,\)"):
         gym.make("softrom_gym/BeamWalk-v0", control_basis=tmp_path / "flat.npy")
+
+
+def test_more_bad_env_arguments_are_named_before_anything_is_built():
+    basis = np.eye(20)[:, :3].copy()
+    basis[4, 1] = np.inf
+    for kwargs, message in (
+        ({"control_dim": 8, "sim_dim": 6}, "control_dim = 8 exceeds sim_dim = 6"),
+        ({"action_scale": 0.0}, "action_scale must be > 0, got 0.0"),
+        ({"action_scale": float("nan")}, "action_scale must be > 0, got nan"),
+        ({"direction": float("inf")}, "direction angle must be finite, got inf"),
+        ({"direction": [0.0, 0.0]}, r"a non-zero 2-vector, got \[0.0, 0.0\]"),
+        ({"direction": [1.0, 0.0, 0.0]}, r"a non-zero 2-vector, got \[1.0, 0.0, 0.0\]"),
+        ({"control_basis": basis}, r"control_basis contains non-finite values, e.g. inf at "
+                                   r"\(4, 1\)"),
+        ({"material": {"youngs": 1e5}}, r"unknown material parameter\(s\) \['youngs'\]"),
+    ):  # fmt: skip
+        with pytest.raises(ValueError, match=message):
+            gym.make("softrom_gym/BeamWalk-v0", **kwargs)
+    # a 0-d array is its number, as an array read from a file or a config is
+    half = gym.make("softrom_gym/BeamWalk-v0", action_scale=np.array(0.5)).unwrapped
+    assert half.action_bound == 0.5 * gym.make("softrom_gym/BeamWalk-v0").unwrapped.action_bound
+
+
+def test_bad_reset_options_and_rollout_controls_are_named():
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    for options in ("state", [("state", None)]):
+        with pytest.raises(TypeError, match=f"options must be a dict or None, got "
+                           f"{type(options).__name__}"):  # fmt: skip
+            env.reset(options=options)
+    state, controls = env.unwrapped.get_state(), np.zeros((2, 4, 3))
+    controls[1, 2, 0] = np.nan
+    with pytest.raises(ValueError, match="controls contains non-finite values"):
+        env.unwrapped.rollout(state, controls)
+    with pytest.raises(ValueError, match=r"controls has shape \(0, 4, 3\), expected \(B, H, 3\) "
+                       "with B, H >= 1"):  # fmt: skip
+        env.unwrapped.rollout(state, controls[:0])
+
+
+def test_render_without_a_render_mode_warns_and_draws_nothing():
+    """Gymnasium's convention: a warning and None, not an exception mid-episode."""
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    with pytest.warns(UserWarning, match="render\\(\\) called without a render_mode; pass "
+                      "render_mode='rgb_array'"):  # fmt: skip
+        assert env.unwrapped.render() is None
+    from softrom_gym.rendering import SoftwareRenderer
+
+    with pytest.raises(ValueError, match="image must be at least 8 x 8 pixels, got 4 x 100"):
+        SoftwareRenderer(width=4, height=100)
+
+
+def test_a_material_given_with_a_meshed_robot_is_the_envs_and_leaves_the_robot_alone():
+    """make(robot=Robot, material=...) replaces the material of the env's copy (the path was
+    never run: only robot names and meshes were given a material)."""
+    from softrom_gym.robots import beam
+
+    robot = beam(resolution=6)
+    env = gym.make("softrom_gym/SoftRobot-v0", robot=robot, sim_dim=6,
+                   material={"youngs_modulus": 2e5, "density": 800.0})  # fmt: skip
+    mine = env.unwrapped.robot
+    assert (mine.youngs_modulus, mine.density, mine.poisson_ratio) == (
+        2e5, 800.0, robot.poisson_ratio)  # fmt: skip
+    assert (robot.youngs_modulus, robot.density) == (beam().youngs_modulus, beam().density)
+    np.testing.assert_array_equal(mine.nodes, robot.nodes)
+    # the model is built from it: the mass is the new density's
+    assert env.unwrapped.model.total_mass == pytest.approx(800.0 * robot.volume)
+
+
+def test_vector_env_names_bad_counts_seeds_and_actions_and_stays_usable():
+    for num_envs in (0, True, 1.5, "2"):
+        with pytest.raises(ValueError, match=f"num_envs must be a positive integer, got "
+                           f"{num_envs!r}"):  # fmt: skip
+            gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=num_envs,
+                         vectorization_mode="vector_entry_point")  # fmt: skip
+    venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                        vectorization_mode="vector_entry_point")  # fmt: skip
+    with pytest.raises(ValueError, match="seed list has 3 entries, expected 2"):
+        venv.reset(seed=[1, 2, 3])
+    venv.reset(seed=0)
+    with pytest.raises(ValueError, match=r"actions has shape \(3, 3\), expected \(2, 3\)"):
+        venv.step(np.zeros((3, 3)))
+    bad = np.zeros((2, 3))
+    bad[1, 2] = np.nan
+    with pytest.raises(ValueError, match=r"actions contains non-finite values \(env indices "
+                       r"\[1\]\)"):  # fmt: skip
+        venv.step(bad)
+    # a refused step changed nothing: the next one is each env's first step
+    obs, *_ = venv.step(np.zeros((2, 3), dtype=np.float32))
+    single = gym.make("softrom_gym/BeamWalk-v0")
+    single.reset(seed=1)
+    np.testing.assert_array_equal(obs[1], single.step(np.zeros(3, dtype=np.float32))[0])
+    venv.close()
+
+
+def test_export_names_frames_it_cannot_map(tmp_path):
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    robot, state = env.unwrapped.robot, env.unwrapped.get_state()
+    with pytest.raises(ValueError, match="ReducedState frames need env= to map them to positions"):
+        softrom_gym.export_trajectory([state], tmp_path / "a.ply", robot=robot)
+    frames = [robot.nodes, robot.nodes[:5]]
+    with pytest.raises(ValueError, match=rf"frame 1 has shape \(5, 3\), expected "
+                       rf"\({robot.num_nodes}, 3\)"):  # fmt: skip
+        softrom_gym.export_trajectory(frames, tmp_path / "b.ply", robot=robot)
+    assert not any(tmp_path.iterdir())
+    # positions need only the robot
+    assert len(softrom_gym.export_trajectory(frames[:1], tmp_path / "c.stl", robot=robot)) == 1

@@ -111,3 +111,52 @@ def test_bad_input_is_named(bar):
     )
     with pytest.raises(ValueError, match="the model has 16 nodes and the robot 20"):
         FullSpaceModel.matching(walk, other, np.zeros((60, sub.M + 6)))
+
+
+def test_rollout_is_its_steps_and_names_controls_of_another_shape(bar):
+    """rollout (H, C) is the public many-step call; no test ran it."""
+    sub = full_basis(bar)
+    walk = build_reduced_model(bar, forces="exact", subspace=sub, friction=0.5,
+                               control_basis=np.eye(sub.M)[:, :2])  # fmt: skip
+    model = FullSpaceModel.matching(walk, bar, sub.basis)
+    controls = 0.3 * np.sqrt(walk.total_mass) * G * np.array([[1.0, 0.0], [0.5, -1.0],
+                                                              [0.0, 1.0]])  # fmt: skip
+    out = model.rollout(model.rest_state(), controls)
+    state = model.rest_state()
+    for t, fc in enumerate(controls):
+        state, info = model.step(state, fc)
+        np.testing.assert_array_equal(out["com"][t], model.com(state.x))
+        assert out["converged"][t] == info["converged"]
+        assert out["contact_converged"][t] == info["contact_converged"]
+    np.testing.assert_array_equal(out["state"].x, state.x)
+    np.testing.assert_array_equal(out["state"].v, state.v)
+    assert out["converged"].all()
+    with pytest.raises(ValueError, match=r"controls must be \(H, C\), got shape \(2,\)"):
+        model.rollout(model.rest_state(), controls[0])
+    with pytest.raises(ValueError, match=r"controls must be finite with shape \(2,\), got \(3,\)"):
+        model.rollout(model.rest_state(), np.zeros((1, 3)))
+    # a model without actuation takes H steps of no controls as (H, 0)
+    unactuated = FullSpaceModel(bar)
+    free = unactuated.rollout(unactuated.rest_state(), np.zeros((2, 0)))
+    state = unactuated.step(unactuated.step(unactuated.rest_state())[0])[0]
+    np.testing.assert_array_equal(free["state"].x, state.x)
+
+
+def test_settings_and_models_without_a_full_space_counterpart_are_named(bar):
+    for bad, match in (({"dt": 0.0}, "dt must be > 0, got 0.0"),
+                       ({"newton_tolerance": -1e-6}, "newton_tolerance must be > 0, got -1e-06"),
+                       ({"stabilization": 1.5}, r"stabilization must be in \[0, 1\], got 1.5"),
+                       ):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            FullSpaceModel(bar, **bad)
+    sub = full_basis(bar)
+    # staggered contact with a fluid: the full-space model has no drag
+    wet = build_reduced_model(bar, forces="exact", subspace=sub, fluid_density=500.0,
+                              control_basis=np.eye(sub.M)[:, :2])  # fmt: skip
+    with pytest.raises(ValueError, match=r"no drag: the model swims \(fluid_density = 500"):
+        FullSpaceModel.matching(wet, bar, sub.basis)
+    walk = build_reduced_model(bar, forces="exact", subspace=sub,
+                               control_basis=np.eye(sub.M)[:, :2])  # fmt: skip
+    with pytest.raises(ValueError, match=rf"basis has shape \(48, {sub.M + 5}\), expected "
+                       rf"\(48, {sub.M + 6}\) for this model"):  # fmt: skip
+        FullSpaceModel.matching(walk, bar, sub.basis[:, :-1])

@@ -193,3 +193,23 @@ def test_incumbents_of_another_shape_or_off_the_manifold_are_refused(rng):
         maximize_on_grassmann(f, M, C, incumbents=2 * gr.identity_basis(M, C), rng=0)
     result = maximize_on_grassmann(f, M, C, incumbents=gr.identity_basis(M, C), rng=0, n_random=0)
     gr.validate_basis(result.basis, M, C)  # one (M, C) incumbent is a stack of one
+
+
+@pytest.mark.parametrize("failure", ["raises", "non-finite"])
+def test_a_failing_lrbfgs_run_is_redone_with_conjugate_gradient(rng, monkeypatch, failure):
+    """The documented fallback: a start whose L-RBFGS run fails still yields its optimum."""
+
+    def failing(self, problem, *, initial_point=None):
+        if failure == "raises":
+            raise np.linalg.LinAlgError("singular")
+        return type("Result", (), {"cost": np.nan, "point": initial_point})()
+
+    monkeypatch.setattr(LRBFGS, "run", failing)
+    a = _symmetric(rng)
+    result = maximize_on_grassmann(TraceQuadratic(a), M, C, rng=rng, n_random=16, n_starts=2,
+                                   max_iterations=500)  # fmt: skip
+    assert result.fallback_used and result.optimizer == "lrbfgs"
+    assert len(result.results) == 2
+    assert result.value == pytest.approx(np.linalg.eigvalsh(a)[-C:].sum(), rel=1e-8)
+    with pytest.raises(ValueError, match="no starts: give incumbents or n_random > 0"):
+        maximize_on_grassmann(TraceQuadratic(a), M, C, n_random=0)

@@ -154,6 +154,9 @@ def test_bad_fidelity_ranges():
         ({"max_cost_ratio": 0}, "max_cost_ratio must be > 0, got 0"),
         ({"target_fraction": (0.5,)}, r"target_fraction must be a \(low, high\) pair"),
         ({"window": 3}, "floor_after = 4 exceeds window = 3: the floor could never apply"),
+        ({"kappa": 0.0}, "kappa must be > 0, got 0.0"),
+        ({"target_fraction": (0.8, 0.2)}, r"0 <= lo <= hi <= 1, got \(0.8, 0.2\)"),
+        ({"target_fraction": (-0.1, 0.5)}, r"0 <= lo <= hi <= 1, got \(-0.1, 0.5\)"),
     ],
 )
 def test_bad_settings_are_named_when_made(kwargs, match):

@@ -229,6 +229,12 @@ def _error(capsys, argv):
         (["baselines", "CrossSwim-v0", "--seed", "-1"], "--seed: expected an integer >= 0"),
         (["rollout", "run", "--seed", "-1"], "--seed: expected an integer >= 0"),
         (["report"], "the following arguments are required: DIR"),
+        (["optimize", "CrossWalk-v0", "--t-max=2", "--settle-time=2"], "--t-max 2.0 must exceed"),
+        (
+            ["optimize", "CrossWalk-v0", "--fidelity=boca", "--t-min=1", "--settle-time=2"],
+            "--t-min 1.0 must exceed --settle-time 2.0",
+        ),
+        (["report", "a", "b", "--png", "p.png"], "--png names one plot: give one DIR"),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(capsys, argv, match):
@@ -588,3 +594,60 @@ def test_r_is_measured_from_the_first_env_step_after_the_settle_time():
     assert _measured_from(objective(0.51)) == pytest.approx(0.525)
     assert _measured_from(objective(2.0)) == pytest.approx(2.0)
     assert _measured_from(objective(0.51, frame_skip=10)) == pytest.approx(0.55)
+
+
+def test_evaluations_that_keep_failing_exit_1_with_one_line(tmp_path, capsys, monkeypatch):
+    """Status 1 (not 2, not a traceback) is how a script tells a broken objective from bad
+    input; the record stays for a resume once the cause is fixed."""
+    from rbbo.objective import SyntheticObjective
+
+    def broken(self, basis, T, seed):
+        raise OSError("simulator library missing")
+
+    monkeypatch.setattr(SyntheticObjective, "__call__", broken)
+    run = tmp_path / "run"
+    code = main(["optimize", "synthetic", *TINY, "--iterations", "30", "--executor", "serial",
+                 "--out", str(run)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 1
+    assert err == ("rbbo: error: the last 10 evaluations all failed, the last with: OSError: "
+                   "simulator library missing; the run stopped (its record is kept; resume it "
+                   f"with: rbbo resume {run})\n")  # fmt: skip
+    assert len(_history(run)) == 10
+    monkeypatch.undo()
+    assert main(["resume", str(run), "--no-progress"]) == 0
+
+
+@pytest.mark.parametrize(("limit", "shown"), [(["--iterations", "5"], "5/5"),
+                                              (["--budget", "1s"], "0m00s left")])  # fmt: skip
+def test_the_default_progress_bar_shows_evaluations_best_r_and_time_left(tmp_path, capsys, limit,
+                                                                        shown):  # fmt: skip
+    """Every test ran with --no-progress, so the bar users see by default never ran."""
+    argv = [a for a in TINY if a != "--no-progress"]
+    assert main(["optimize", "synthetic", *argv, *limit, "--executor", "serial",
+                 "--out", str(tmp_path / "run")]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    assert shown in err and "best R 0." in err and "rbbo (confirming R_init, R*)" in err
+
+
+def test_runs_that_cannot_do_what_is_asked_are_usage_errors(tmp_path, capsys):
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+
+    spec = SyntheticObjective(6, 2).spec()
+    RBBO.create(tmp_path / "new", RBBOConfig(6, 2, n_init=3), objective_spec=spec).store.close()
+    err = _error(capsys, ["rollout", str(tmp_path / "new")])
+    assert f"{tmp_path / 'new'} has no successful evaluation at T_max yet: no recommendation" in err
+    RBBO.create(tmp_path / "bare", RBBOConfig(6, 2, n_init=3)).store.close()
+    err = _error(capsys, ["resume", str(tmp_path / "bare")])
+    assert f"{tmp_path / 'bare'}/config.json does not say what the objective is" in err
+    run = tmp_path / "run"
+    main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+          "--out", str(run)])  # fmt: skip
+    capsys.readouterr()
+    # the run's executor is serial: an address alone (without --executor ray) is refused
+    assert "--address is for --executor ray" in _error(capsys, ["resume", str(run), "--address",
+                                                                "auto"])  # fmt: skip
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    err = _error(capsys, ["report", str(run), "--png", str(blocker / "sub" / "p.png")])
+    assert f"cannot write --png {blocker / 'sub' / 'p.png'}: " in err

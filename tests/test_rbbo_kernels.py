@@ -205,3 +205,16 @@ def test_gp_names_bad_hyperparameter_bounds_when_made(name):
     gp.fit(bases, np.arange(6.0), z=np.linspace(0.0, 1.0, 6))
     if name == "length_scale_bounds":
         assert gp.hyperparameters.length_scale == 1.0
+
+
+def test_information_gap_is_zero_at_the_target_and_grows_as_z_over_h():
+    """BOCA's xi(z) = sqrt(1 - k(z, 1)^2), a public method no test evaluated."""
+    kernel = FidelityKernel(length_scale=0.5)
+    z = np.array([1.0, 0.999, 0.5, 0.0])
+    xi = kernel.information_gap(z)
+    k = np.exp(-0.5 * (z - 1.0) ** 2 / 0.25)
+    np.testing.assert_allclose(xi, np.sqrt(1.0 - k**2), rtol=1e-12)
+    assert xi[0] == 0.0
+    assert xi[1] == pytest.approx(0.001 / 0.5, rel=1e-3)  # |z - 1| / h near the target
+    assert np.all(np.diff(xi) > 0)
+    assert kernel.information_gap(0.5, z_target=0.5) == 0.0

@@ -120,6 +120,8 @@ def test_env_objective_pickles_without_its_env(controllers):
 def test_env_objective_rejects_bad_input():
     with pytest.raises(ValueError, match=r"unknown controller 'ilqr'; valid: \['mppi', 'gn'\]"):
         EnvObjective("x", 20, 3, controller="ilqr")
+    with pytest.raises(ValueError, match="settle_time must be >= 0, got -1"):
+        EnvObjective("x", 20, 3, settle_time=-1)
     objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, settle_time=2.0)
     with pytest.raises(ValueError, match="T = 1.5 s must exceed the settle time 2.0 s"):
         objective(np.eye(20)[:, :3], 1.5, 0)
@@ -188,6 +190,11 @@ def test_bad_objective_specs():
             make_objective(parse_objective_spec(f"synthetic:{option}"), 4, 2)
     with pytest.raises(ValueError, match="the synthetic seed must be an integer >= 0, got -1"):
         make_objective(parse_objective_spec("synthetic:seed=-1"), 4, 2)
+    for env_id in ("", None):
+        with pytest.raises(ValueError, match=f"ENV_ID must be a non-empty string, got {env_id!r}"):
+            parse_objective_spec(env_id)
+    with pytest.raises(ValueError, match="t_max must be finite and > 0, got 0"):
+        SyntheticObjective(4, 2, t_max=0)
 
 
 def test_a_run_is_never_replayed_in_another_simulation_space():

@@ -411,6 +411,8 @@ def test_resume_rejects_bad_settings(tmp_path):
         ({"control_dim": 6}, r"control_dim = 6 must be below sim_dim = 6: Gr\(M, M\) is one"),
         ({"t_max": "10"}, "t_max must be a number, got '10'"),
         ({"budget_s": "10"}, "budget_s must be a number, got '10'"),
+        ({"t_max": 0}, "t_max must be a positive number of seconds, got 0.0"),
+        ({"t_max": float("nan")}, "t_max must be a positive number of seconds, got nan"),
     ],
 )
 def test_config_validation(kwargs, match):
@@ -756,3 +758,38 @@ def test_a_resumed_run_goes_on_from_the_time_it_had_spent(tmp_path):
     assert not resumed.can_submit(None, 500.0)  # its budget was spent in the first session
     q = resumed.ask()
     assert resumed.tell(q.index, 0.4).elapsed_s >= 1000.0
+
+
+def test_a_corrupted_summary_does_not_keep_a_run_from_being_read_or_finished(tmp_path):
+    """summary.json is what marks an unconfirmed run (n_confirm = 0) finished: a torn one is
+    passed over (the GP's recommendation, the run unfinished), and a resume that has nothing
+    left to search writes it anew."""
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=2, max_evaluations=5, n_confirm=0, seed=0, **FAST)
+    done = RBBO.create(tmp_path / "run", config).run(objective)
+    (tmp_path / "run" / "summary.json").write_text('{"evaluations": 5, "best_')
+    reader = RBBO.resume(tmp_path / "run", read_only=True)
+    assert not reader.finished
+    assert reader.result().best_index == done.best_index
+    again = RBBO.resume(tmp_path / "run")
+    assert again.run(objective).best_index == done.best_index
+    assert again.finished and len(again.evaluations) == 5
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["best_index"] == done.best_index
+
+
+def test_calls_that_have_nothing_to_work_on_are_named(tmp_path):
+    opt = RBBO(RBBOConfig(4, 2, n_init=2, max_evaluations=3, **FAST))
+    with pytest.raises(ValueError, match="give an objective or an executor"):
+        opt.run()
+    with pytest.raises(ValueError, match="the run has no evaluation to confirm yet"):
+        opt.confirm_again(SyntheticObjective(4, 2))
+    with pytest.raises(ValueError, match="give max_evaluations or budget_s"):
+        opt.set_limits(None, None)
+    unconfirmed = RBBO(RBBOConfig(4, 2, n_init=2, max_evaluations=3, n_confirm=0, **FAST))
+    unconfirmed.run(SyntheticObjective(4, 2))
+    with pytest.raises(ValueError, match=r"made with no confirmation seeds \(n_confirm = 0\)"):
+        unconfirmed.confirm_again(SyntheticObjective(4, 2))
+    (tmp_path / "config.json").write_text(json.dumps({"objective": {"kind": "synthetic"}}))
+    with pytest.raises(RunDirectoryError, match="config.json has no 'rbbo' settings"):
+        RBBO.resume(tmp_path)

@@ -342,6 +342,11 @@ def test_other_settings_on_an_existing_directory_are_refused(reproduction, capsy
         (["--repeats", "0"], "repeats must be an integer >= 1, got 0"),
         (["--repeats", "two"], "'two'"),
         (["--stages", "studies", "--repeats", "3"], "--repeats 3 runs Table I's RBBO runs"),
+        (["--perturbations", "5,x"], "expected numbers like 5,10,20, got '5,x'"),
+        (["--perturbations", "5,nan"], "expected finite numbers, got '5,nan'"),
+        (["--cost-cs", ","], "expected at least one integer, got ','"),
+        (["--reward-cs", "0-3"], "reward_cs must be integers in 1..20, got [0, 1, 2, 3]"),
+        (["--control-dim", "30"], "control_dim 30 exceeds sim_dim 20"),
     ],
 )
 def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys):
@@ -351,15 +356,16 @@ def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys)
     assert not (tmp_path / "x").exists()
 
 
-@pytest.mark.parametrize("flag", ["--status", "--report-only"])
+@pytest.mark.parametrize("flag", ["--status", "--report-only", "--no-progress"])
 @pytest.mark.parametrize("text", ['{"plan": {"newthing": 1}, "sessions": []}', "{"])
-def test_an_unreadable_record_is_a_usage_error_for_status_and_report_only(
+def test_an_unreadable_record_is_a_usage_error_for_status_report_only_and_a_rerun(
     flag, text, tmp_path, capsys
 ):
     (tmp_path / "reproduce.json").write_text(text)
     assert main(["reproduce", "--out", str(tmp_path), flag]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is not a reproduce plan" in err[0]
+    assert (tmp_path / "reproduce.json").read_text() == text  # kept for its owner to mend
 
 
 def test_confidence_interval_is_the_t_interval():
@@ -410,6 +416,34 @@ def test_plan_validates_and_round_trips():
         ReproducePlan(rl_steps={"ppo": 500_000})
     with pytest.raises(ValueError, match="steps of sac must be a positive integer, got 0"):
         ReproducePlan(rl_steps={"ppo": 5, "sac": 0})
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"benchmarks": []}, r"unknown benchmark\(s\) \[\]; valid: CrossSwim-v0"),
+        ({"benchmarks": ["Nope-v0"]}, r"unknown benchmark\(s\) \['Nope-v0'\]"),
+        ({"rl_benchmarks": ["Nope-v0"]}, r"unknown RL benchmark\(s\) \['Nope-v0'\]"),
+        ({"rl_algos": ["dqn"]}, r"unknown RL algorithm\(s\) \['dqn'\]; valid: ppo, sac"),
+        ({"rl_algos": []}, r"unknown RL algorithm\(s\) \[\]"),
+        ({"direction_env": "Nope-v0"}, "unknown direction_env 'Nope-v0'"),
+        ({"stages": ["table", "dance"]}, r"unknown stage\(s\) \['dance'\]; valid: table, bo"),
+        ({"budget_s": 0.0}, "budget_s must be a positive number, got 0.0"),
+        ({"study_seconds": "10"}, "study_seconds must be a positive number, got '10'"),
+        ({"iterations": 0}, "iterations must be an integer >= 1, got 0"),
+        ({"control_dim": 21}, "control_dim 21 exceeds sim_dim 20"),
+        ({"cost_cs": [0, 1]}, r"cost_cs must be integers in 1..20, got \[0, 1\]"),
+        ({"reward_cs": []}, r"reward_cs must be integers in 1..20, got \[\]"),
+        ({"controller": "ilqr"}, "controller must be 'mppi' or 'gn', got 'ilqr'"),
+        ({"executor": "dask"}, "unknown executor 'dask'"),
+    ],
+)  # fmt: skip
+def test_a_plan_names_each_bad_setting(kwargs, match):
+    """Hand-edited reproduce.json files are read through these checks too (from_dict)."""
+    with pytest.raises(ValueError, match=match):
+        ReproducePlan(**kwargs)
+    with pytest.raises(ValueError, match=match):
+        ReproducePlan.from_dict({**ReproducePlan().to_dict(), **kwargs})
 
 
 def test_deterministic_reaches_each_optimisation_run_its_record_and_the_report(

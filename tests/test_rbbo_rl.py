@@ -652,3 +652,32 @@ def test_a_claim_is_written_atomically_and_a_torn_one_is_a_usage_error(
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("rbbo: error:") and not any("Traceback" in x for x in err)
     assert f"{folder / 'run.json'} is unreadable, torn by a kill" in err[-1]
+
+
+def test_control_basis_files_the_env_could_not_use_are_named_before_any_work(tmp_path):
+    from rbbo.store import RunDirectoryError
+
+    basis = np.linalg.qr(np.random.default_rng(0).standard_normal((8, 2)))[0]
+    (tmp_path / "text.npy").write_text("not an array")
+    np.save(tmp_path / "flat.npy", basis.ravel())
+    np.save(tmp_path / "wide.npy", basis.T)
+    nan = basis.copy()
+    nan[3, 1] = np.nan
+    np.save(tmp_path / "nan.npy", nan)
+    for name, match in (("text", "cannot read control basis .*text.npy: "),
+                        ("flat", r"flat.npy has shape \(16,\), expected \(M, C\)"),
+                        ("wide", r"wide.npy has shape \(2, 8\), expected \(M, C\)"),
+                        ("nan", "nan.npy contains non-finite values")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            rl.resolve_bases([str(tmp_path / f"{name}.npy")], ENV)
+    # two files of one name would share a row label (and a training folder)
+    (tmp_path / "other").mkdir()
+    for folder in (tmp_path, tmp_path / "other"):
+        np.save(folder / "mine.npy", basis)
+    with pytest.raises(ValueError, match="two control bases are named 'mine'"):
+        rl.resolve_bases([str(tmp_path / "mine.npy"), str(tmp_path / "other" / "mine.npy")], ENV)
+    # a run directory whose config lost its dimensions
+    lost = {"rbbo": {}, "objective": {"kind": "env", "env_id": ENV}}
+    RunStore.create(tmp_path / "run", lost).close()
+    with pytest.raises(RunDirectoryError, match="config.json has no sim_dim/control_dim"):
+        rl.resolve_bases(["identity"], ENV, tmp_path / "run")

@@ -367,3 +367,40 @@ def test_every_write_is_fsynced_with_its_data_before_it_returns(tmp_path, monkey
         RunStore.open(run).close()
     check("history.jsonl")
     assert [e.index for e in RunStore.open(run, repair=False).history()] == [0, 1]
+
+
+def test_more_corrupted_run_files_are_named(tmp_path):
+    store = RunStore.create(tmp_path / "run", {})
+    store.append(_evaluation(0))
+    store.save_best(np.eye(4)[:, :2])
+    store.close()
+    history = tmp_path / "run" / "history.jsonl"
+    good = history.read_bytes()
+    for tail, match in ((b"[1, 2]\n", r"line 2 is corrupted \(expected a JSON object, got list\)"),
+                        (b'{"index": 1}\n', r"line 2 is corrupted \(missing keys \['R', 'T', "
+                                            r"'basis'\]\)"),
+                        (b"\xff\xfe\n", "history.jsonl is not UTF-8 text")):  # fmt: skip
+        history.write_bytes(good + tail)
+        with pytest.raises(RunDirectoryError, match=match):
+            RunStore.open(tmp_path / "run", repair=False).history()
+    history.write_bytes(good)
+    (tmp_path / "run" / "best_basis.npy").write_bytes(b"not an array")
+    with pytest.raises(RunDirectoryError, match="best_basis.npy is corrupted"):
+        RunStore.open(tmp_path / "run", repair=False).best_basis()
+    (tmp_path / "run" / "summary.json").write_text("{oops")
+    with pytest.raises(RunDirectoryError, match="summary.json is corrupted"):
+        RunStore.open(tmp_path / "run", repair=False).summary()
+    assert RunStore.open(tmp_path / "run", repair=False).sessions() == []  # none recorded
+    with pytest.raises(ValueError, match=r"basis must be an \(M, C\) array, got shape \(3,\)"):
+        Evaluation(0, np.ones(3), 1.0, 1.0)
+
+
+def test_a_run_directory_that_cannot_be_created_leaves_nothing_behind(tmp_path):
+    (tmp_path / "file").write_text("")
+    with pytest.raises(RunDirectoryError, match="file exists and is not a directory"):
+        RunStore.create(tmp_path / "file", {})
+    for config, match in (({"x": float("nan")}, "Out of range float values"),
+                          ({"x": object()}, "Object of type object")):  # fmt: skip
+        with pytest.raises(ValueError, match=f"config is not JSON-serialisable: {match}"):
+            RunStore.create(tmp_path / "run", config)
+    assert [p.name for p in tmp_path.iterdir()] == ["file"]

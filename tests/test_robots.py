@@ -188,3 +188,31 @@ def test_from_mesh_names_a_flat_mesh_and_non_finite_vertices():
     ring = trimesh.creation.annulus(r_min=0.9, r_max=1.0, height=1.0)  # centres in the hole
     with pytest.raises(ValueError, match="resolution 2 is too coarse"):  # still said where true
         from_mesh(ring, 2)
+
+
+def test_robot_and_from_mesh_name_bad_shapes_resolutions_and_scales(tmp_path):
+    nodes, tets = np.eye(4, 3), np.array([[0, 1, 2, 3]])
+    with pytest.raises(ValueError, match=r"nodes has shape \(4, 2\), expected \(N, 3\)"):
+        Robot("x", nodes[:, :2], tets)
+    with pytest.raises(ValueError, match=r"tets has shape \(1, 3\), expected \(T, 4\)"):
+        Robot("x", nodes, tets[:, :3])
+    robot = ROBOTS["beam"](resolution=6)
+    with pytest.raises(ValueError, match=rf"positions has shape \(3, 3\), expected "
+                       rf"\({robot.num_nodes}, 3\)"):  # fmt: skip
+        robot.surface(np.zeros((3, 3)))
+    with pytest.raises(TypeError, match=r"unknown material parameter\(s\) \['E'\]"):
+        robot.fem_model(E=1e5)
+    box = trimesh.creation.box((0.2, 0.1, 0.1))
+    with pytest.raises(ValueError, match="resolution must be >= 2 voxels along the longest side, "
+                       "got 1"):  # fmt: skip
+        from_mesh(box, 1)
+    for bad in (2.5, True):
+        with pytest.raises(TypeError, match=f"resolution must be an integer, got {bad}"):
+            from_mesh(box, bad)
+    for scale in (0.0, -1.0, float("inf")):
+        with pytest.raises(ValueError, match=f"scale must be > 0, got {scale}"):
+            from_mesh(box, 4, scale=scale)
+    cloud = tmp_path / "points.ply"
+    trimesh.PointCloud(np.random.default_rng(0).random((10, 3))).export(cloud)
+    with pytest.raises(ValueError, match="points.ply' holds no triangle mesh"):
+        from_mesh(cloud, 4)

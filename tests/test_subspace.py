@@ -302,3 +302,90 @@ def test_the_cubature_cap_is_honoured_and_checked():
             train_cubature(small, sub, max_elements=cap, cache=False)
     with pytest.raises(TypeError, match="max_elements must be an integer, got 2.5"):
         train_cubature(small, sub, max_elements=2.5, cache=False)
+
+
+def test_mapping_names_bad_dimensions_and_takes_an_env(robot, subspace):
+    """The argument checks of map_control_basis beyond its shape and orthonormality, and the
+    two shortcuts a user takes: an env for its robot, and the same M (a copy, not a view)."""
+    import gymnasium as gym
+
+    from softrom_gym import map_control_basis
+
+    b_c = np.eye(20)[:, :3]
+    for source, target, name, value in ((0, 40, "source_dim", "0"), (20, True, "target_dim",
+                                         "True"), (20, 24.0, "target_dim", "24.0")):  # fmt: skip
+        with pytest.raises(ValueError, match=f"{name} must be a positive integer, got {value}"):
+            map_control_basis(b_c, robot, source, target)
+    bad = b_c.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="control_basis contains non-finite values"):
+        map_control_basis(bad, robot, 20, 40)
+    with pytest.raises(ValueError, match="control_basis has C = 3 columns, more than "
+                       "target_dim = 2"):  # fmt: skip
+        map_control_basis(b_c, robot, 20, 2)
+    same = map_control_basis(b_c, robot, 20, 20)
+    np.testing.assert_array_equal(same, b_c)
+    assert not np.shares_memory(same, b_c)
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    np.testing.assert_array_equal(map_control_basis(b_c, env, 20, 40),
+                                  map_control_basis(b_c, robot, 20, 40))  # fmt: skip
+
+
+def test_an_unwritable_cache_costs_only_speed(tmp_path):
+    """save_entry's OSError path: a cache folder that cannot be made (a file in its way)."""
+    small = beam(resolution=6)
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    sub = build_subspace(small, 6, cache=blocked / "cache")
+    rule = train_cubature(small, sub, num_poses=8, cache=blocked / "cache")
+    np.testing.assert_array_equal(sub.basis, build_subspace(small, 6, cache=False).basis)
+    assert len(rule) >= 1
+    assert [p.name for p in tmp_path.iterdir()] == ["file"]  # no temporary left behind
+
+
+def test_cache_entries_missing_arrays_or_with_bad_weights_are_rebuilt(tmp_path):
+    small = beam(resolution=6)
+    sub = build_subspace(small, 6, cache=tmp_path)
+    rule = train_cubature(small, sub, num_poses=8, cache=tmp_path)
+    entry = next(tmp_path.glob("subspace-*.npz"))
+    entry.write_bytes(_saved(np.savez, basis=sub.basis, num_modes=sub.num_modes))
+    with pytest.warns(RuntimeWarning, match="no 'frequencies' array"):
+        np.testing.assert_array_equal(build_subspace(small, 6, cache=tmp_path).basis, sub.basis)
+    cub = next(tmp_path.glob("cubature-*.npz"))
+    for arrays, problem in (
+        ({"elements": rule.elements, "weights": rule.weights}, "missing arrays"),
+        ({"elements": rule.elements.astype(float), "weights": rule.weights,
+          "training_error": 0.0}, "not matching index and weight vectors"),
+        ({"elements": rule.elements, "weights": -rule.weights, "training_error": 0.0},
+         "a negative or non-finite weight"),
+    ):  # fmt: skip
+        cub.write_bytes(_saved(np.savez, **arrays))
+        with pytest.warns(RuntimeWarning, match=f"corrupt cache entry .*{problem}"):
+            again = train_cubature(small, sub, num_poses=8, cache=tmp_path)
+        np.testing.assert_array_equal(again.weights, rule.weights)
+
+
+def test_cache_dir_defaults_to_the_users_cache(monkeypatch, tmp_path):
+    import sys
+
+    monkeypatch.delenv("SOFTROM_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    if sys.platform == "darwin":
+        assert cache_dir().parts[-3:] == ("Library", "Caches", "softrom")
+    else:
+        assert cache_dir() == tmp_path / "softrom"
+
+
+def test_model_and_cubature_arguments_are_named(robot, subspace):
+    from softrom_gym.robots import quadruped
+    from softrom_gym.rom import build_reduced_model
+
+    with pytest.raises(ValueError, match="forces must be 'cubature' or 'exact', got 'fast'"):
+        build_reduced_model(robot, 20, subspace=subspace, forces="fast")
+    with pytest.raises(ValueError, match=r"subspace basis has \d+ rows, robot has 3N = \d+"):
+        build_reduced_model(quadruped(), 20, subspace=subspace)
+    with pytest.raises(ValueError, match="num_poses must be >= 1, got 0"):
+        train_cubature(robot, subspace, num_poses=0)
+    for tolerance in (0.0, 1.0):
+        with pytest.raises(ValueError, match=rf"tolerance must be in \(0, 1\), got {tolerance}"):
+            train_cubature(robot, subspace, tolerance=tolerance)
