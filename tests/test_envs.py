@@ -504,7 +504,8 @@ def test_bad_reset_options_and_rollout_controls_are_named():
             env.reset(options=options)
     state, controls = env.unwrapped.get_state(), np.zeros((2, 4, 3))
     controls[1, 2, 0] = np.nan
-    with pytest.raises(ValueError, match="controls contains non-finite values"):
+    with pytest.raises(ValueError, match=r"controls contains non-finite values, e.g. nan at "
+                       r"\(rollout, step, dimension\) = \(1, 2, 0\)"):  # fmt: skip
         env.unwrapped.rollout(state, controls)
     with pytest.raises(ValueError, match=r"controls has shape \(0, 4, 3\), expected \(B, H, 3\) "
                        "with B, H >= 1"):  # fmt: skip

@@ -466,7 +466,9 @@ class SoftRobotEnv(gym.Env):
             raise ValueError(f"controls has shape {u.shape}, expected (B, H, "
                              f"{self.action_space.shape[0]}) with B, H >= 1")  # fmt: skip
         if not np.all(np.isfinite(u)):
-            raise ValueError("controls contains non-finite values")
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(u))[0])
+            raise ValueError(f"controls contains non-finite values, e.g. {u[bad]} at "
+                             f"(rollout, step, dimension) = {bad}")  # fmt: skip
         # The same rounding as a float32 action through step(): a plan replays bit for bit.
         u = np.clip(u, -self.action_bound, self.action_bound).astype(np.float32).astype(float)
         b, h, _ = u.shape
