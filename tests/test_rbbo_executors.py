@@ -1,5 +1,7 @@
 """Executors (rbbo.executors): crashes and hangs fail one evaluation, the run goes on."""
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -37,6 +39,33 @@ def test_process_pool_survives_crash_hang_and_exceptions(pool):
 def test_process_pool_averages_over_seeds(pool):
     outcome = pool.submit(_task(0, 1, seeds=(0, 1, 2))).result(timeout=30)
     assert outcome.R == pytest.approx(2.0) and outcome.R_seeds == (1.0, 2.0, 3.0)
+
+
+class _Unloadable:
+    """An objective no worker can load: unpickling it exits the process with code 3, as a
+    script without the ``__main__`` guard, or an objective that does not unpickle, does."""
+
+    def __reduce__(self):
+        return (sys.exit, (3,))
+
+    def __call__(self, basis, T, seed):  # pragma: no cover - never reached in a worker
+        return 0.0
+
+
+def test_a_pool_whose_workers_cannot_start_fails_each_evaluation_saying_why():
+    """Three failed starts in a row break the pool: what was queued, and what is submitted
+    after, fails at once with the reason (instead of the pool restarting workers forever)."""
+    pool = ProcessExecutor(_Unloadable(), workers=1)
+    try:
+        queued = [pool.submit(_task(i, 1)) for i in range(2)]
+        outcomes = [f.result(timeout=120) for f in queued]
+        outcomes.append(pool.submit(_task(2, 1)).result(timeout=5))
+    finally:
+        pool.shutdown()
+    assert [o.status for o in outcomes] == ["failed"] * 3
+    for o in outcomes:
+        assert "worker process could not start (exit code 3;" in o.error
+        assert "under `if __name__ == '__main__':`" in o.error and "must pickle" in o.error
 
 
 def test_serial_and_process_pool_give_the_same_history_for_one_worker():
