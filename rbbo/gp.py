@@ -97,7 +97,8 @@ class GrassmannGP:
         always the first start).
     length_scale_bounds, fidelity_length_scale_bounds, noise_bounds, signal_bounds
         Hyperparameter bounds on the standardised scale: (low, high) with
-        0 < low < high < inf, or "fixed" (held at its start); a ValueError names a bad one.
+        0 < low < high < inf (low = high allowed for the noise and the signal, pinning it),
+        or "fixed" (held at its start); a ValueError names a bad one.
     random_state : int or None
         Seeds the restarts.
     """
@@ -119,8 +120,9 @@ class GrassmannGP:
         # named here: scikit-learn's kernels take them unchecked and fail the fit unhelpfully
         _check_bounds("length_scale_bounds", length_scale_bounds)
         _check_bounds("fidelity_length_scale_bounds", fidelity_length_scale_bounds)
-        _check_bounds("noise_bounds", noise_bounds)
-        _check_bounds("signal_bounds", signal_bounds)
+        # (equal bounds pin the noise or the signal, as scikit-learn's own kernels allow)
+        _check_bounds("noise_bounds", noise_bounds, allow_equal=True)
+        _check_bounds("signal_bounds", signal_bounds, allow_equal=True)
         self.fidelity = bool(fidelity)
         self.n_restarts = int(n_restarts)
         self.length_scale_bounds = length_scale_bounds

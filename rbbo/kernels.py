@@ -32,14 +32,20 @@ def _check_length_scale(value: float) -> None:
         raise ValueError(f"length_scale must be a positive finite scalar, got {value!r}")
 
 
-def _check_bounds(name: str, bounds) -> None:
+def _check_bounds(name: str, bounds, allow_equal: bool = False) -> None:
+    """``bounds`` is "fixed" or (low, high) with 0 < low < high < inf (low <= high with
+    ``allow_equal``: equal bounds pin a hyperparameter at that value), else a ValueError
+    naming ``name``."""
     if isinstance(bounds, str):
         if bounds != "fixed":
             raise ValueError(f"{name} must be a (low, high) pair or 'fixed', got {bounds!r}")
         return
     b = np.asarray(bounds, dtype=float)
-    if b.shape != (2,) or not (0 < b[0] < b[1] < np.inf):
-        raise ValueError(f"{name} must satisfy 0 < low < high < inf, got {bounds!r}")
+    ordered = b.shape == (2,) and 0 < b[0] and b[1] < np.inf
+    ordered = ordered and (b[0] <= b[1] if allow_equal else b[0] < b[1])
+    if not ordered:
+        relation = "<=" if allow_equal else "<"
+        raise ValueError(f"{name} must satisfy 0 < low {relation} high < inf, got {bounds!r}")
 
 
 class GrassmannKernel(NormalizedKernelMixin, Kernel):

@@ -192,9 +192,11 @@ def test_gp_names_bad_hyperparameter_bounds_when_made(name):
     """They reached scikit-learn's kernels unchecked: a reversed pair failed the fit with "An
     upper bound is less than the corresponding lower bound" (which one, not said), "free" with
     numpy's "ufunc 'log' not supported", and a zero low bound with a divide-by-zero."""
+    pins = name in ("noise_bounds", "signal_bounds")  # (low = high pins those two)
+    relation = "<=" if pins else "<"
     for bounds, match in (
-        ((1.0, 0.5), r"must satisfy 0 < low < high < inf, got \(1.0, 0.5\)"),
-        ((0.0, 1.0), r"must satisfy 0 < low < high < inf, got \(0.0, 1.0\)"),
+        ((1.0, 0.5), rf"must satisfy 0 < low {relation} high < inf, got \(1.0, 0.5\)"),
+        ((0.0, 1.0), rf"must satisfy 0 < low {relation} high < inf, got \(0.0, 1.0\)"),
         ("free", r"must be a \(low, high\) pair or 'fixed', got 'free'"),
     ):
         with pytest.raises(ValueError, match=f"{name} {match}"):
@@ -205,6 +207,15 @@ def test_gp_names_bad_hyperparameter_bounds_when_made(name):
     gp.fit(bases, np.arange(6.0), z=np.linspace(0.0, 1.0, 6))
     if name == "length_scale_bounds":
         assert gp.hyperparameters.length_scale == 1.0
+    if pins:  # equal bounds fit with the hyperparameter held at that value
+        gp = GrassmannGP(M, C, fidelity=True, random_state=0, **{name: (0.25, 0.25)})
+        gp.fit(bases, np.arange(6.0), z=np.linspace(0.0, 1.0, 6))
+        fitted = gp.hyperparameters
+        value = fitted.noise_variance if name == "noise_bounds" else fitted.signal_variance
+        assert value == pytest.approx(0.25)
+    else:
+        with pytest.raises(ValueError, match=rf"{name} must satisfy 0 < low < high < inf"):
+            GrassmannGP(M, C, fidelity=True, **{name: (0.25, 0.25)})
 
 
 def test_information_gap_is_zero_at_the_target_and_grows_as_z_over_h():
