@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from ..provenance import machine_description, source_version
-from ..store import RunDirectoryError, _atomic_write
+from ..store import RunDirectoryError, _atomic_write, _make_dirs
 from .csv_rows import _append_row as _append_row
 from .csv_rows import _supersede as _supersede
 from .optimisation_runs import _objective, optimise
@@ -80,7 +80,7 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
     from .document import write_report
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    _make_dirs(out)  # (the runs and tables in it are fsynced; so must its name be)
     log = _tee(log, out / "reproduce.log")
     document = _load_plan(out, plan)
     session: dict[str, Any] = {

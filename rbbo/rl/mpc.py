@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 
-from ..store import _atomic_write
+from ..store import _atomic_write, _make_dirs
 from .envs import _make_env
 from .table import _row
 
@@ -80,6 +80,6 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
     row = _row(env_id, "mppi", name, True, 0, float(np.mean(physics)), float(np.mean(wall)), dist,
                float(env.get_wrapper_attr("body_length")))  # fmt: skip
     env.close()
-    folder.mkdir(parents=True, exist_ok=True)
+    _make_dirs(folder)
     _atomic_write(cache, (json.dumps({"meta": meta, "row": row}) + "\n").encode())
     return row
