@@ -1182,3 +1182,21 @@ def test_rl_stage_trains_the_identity_once_and_says_why_it_is_alone(tmp_path, mo
     bases, why = rl_bases(tmp_path, plan, "CrossSwim-v0")
     assert list(bases) == ["identity", f"rbbo-{basis_digest(other)}"] and why == ""
     np.testing.assert_array_equal(bases[f"rbbo-{basis_digest(other)}"], other)
+
+
+def test_a_corrupted_base_basis_is_named_by_the_status_and_the_report(
+    reproduction, tmp_path, capsys
+):
+    # The perturbation rows are told apart by the digest of the direction-0 run's B_c: an
+    # unreadable best_basis.npy ended --status and --report-only in np.load's traceback.
+    import shutil
+
+    out = tmp_path / "copy"
+    shutil.copytree(reproduction, out)
+    best = out / "runs" / "CrossSwim-v0-dir000" / "best_basis.npy"
+    best.write_bytes(b"not an array")
+    for flag in ("--status", "--report-only"):
+        assert main(["reproduce", "--out", str(out), flag]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith(f"rbbo: error: {best} is corrupted: "), err
+        assert not any("Traceback" in x for x in err)

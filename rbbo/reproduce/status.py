@@ -138,7 +138,11 @@ def _current_offsets(out: Path, plan: ReproducePlan) -> list[dict[str, str]]:
         base = _perturbation_base(out, plan)
     except RunDirectoryError:
         return rows
-    digest = basis_digest(np.load(base / "best_basis.npy"))
+    try:  # (np.load's own errors would end --status and --report-only in a traceback)
+        best = np.load(base / "best_basis.npy", allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise RunDirectoryError(f"{base / 'best_basis.npy'} is corrupted: {exc}") from exc
+    digest = basis_digest(best)
     return [r for r in rows if Path(r["run"]).name == base.name
             and r.get("basis_digest", "") in ("", digest)]  # fmt: skip
 
