@@ -115,9 +115,9 @@ def orthonormalize(a: np.ndarray) -> np.ndarray:
 
 
 # A row of B_c whose part outside the span of the earlier pivot rows is shorter than this is
-# not a pivot. Rows of an orthonormal B_c have length <= 1, so this is a relative threshold;
-# it keeps rounding (~1e-16) from making a pivot of a row that lies in that span, while the
-# normalised pivot direction loses at most ~1e-16 / 1e-8 of accuracy.
+# not a pivot. An absolute length: rows of an orthonormal B_c are at most 1 long. It keeps
+# rounding (~1e-16) from making a pivot of a row that lies in that span; the price is that a
+# pivot whose residual is just above it is normalised with a relative error up to ~1e-8.
 _PIVOT_TOLERANCE = 1e-8
 
 
@@ -130,11 +130,17 @@ def canonical(b_c: np.ndarray) -> np.ndarray:
     rows, the representative is B_c Q: row p_k is zero after column k and has q_k's positive
     length at column k. Replacing B_c by B_c U (U orthogonal) rotates every row by U^T, which
     keeps the residual lengths (so the pivots) and turns Q into U^T Q, so B_c U U^T Q = B_c Q:
-    the result depends on span(B_c) only, for every subspace (up to rounding, and up to a
-    row whose residual length is within rounding of the threshold). When the first C rows
-    are pivots (almost every subspace) it is the lower-trapezoidal representative with a
+    the result depends on span(B_c) only, for every subspace, the singular cases included.
+
+    In floating point, for an orthonormal B_c, B_c and B_c U give results within about
+    1e-16 / rho of each other, rho the shortest residual of a pivot other than the last
+    (~1e-15 where the pivots' residuals are of order 1; up to ~1e-8 where one is near the
+    threshold, and a residual within rounding of it can pick another pivot). A B_c that
+    :func:`validate_basis` accepts with an orthonormality error e gives results within about
+    e of those of its exact span, and as orthonormal as B_c is. When the first C rows are the
+    pivots (almost every subspace) this is the lower-trapezoidal representative with a
     positive diagonal. The identity basis (the first C modes) is its own representative, and
-    so is any selection of C modes, e.g. the columns e_4, e_5, e_6 of I_M.
+    so is any selection of C modes in ascending order, e.g. the columns e_4, e_5, e_6 of I_M.
     """
     b = validate_basis(b_c)
     m, c = b.shape

@@ -274,7 +274,7 @@ def test_an_atomic_write_killed_before_its_rename_leaves_the_old_file(tmp_path, 
 
 
 @pytest.mark.skipif(not __import__("os").path.isdir("/proc/self/fd"), reason="needs /proc")
-def test_a_new_run_directory_is_an_entry_on_disk_before_anything_is_recorded(tmp_path, monkeypatch):
+def test_each_directory_a_new_run_creates_is_fsynced_in_its_parent(tmp_path, monkeypatch):
     """Fsyncing the files inside a new directory does not make the directory's own name
     durable: each directory ``create`` makes (``--out a/b/run`` makes three) must be listed by
     an fsync of its parent, else a power loss could drop the run with every record in it."""

@@ -30,7 +30,7 @@ def _command_lines() -> list[list[str]]:
 
 
 PYTHON_BLOCKS = _blocks("python")
-# The MPC episode example runs 10 s of a quadruped (about 25 s of wall time on 2 cores).
+# The MPC episode example runs a 10-s quadruped episode (10-25 s of wall time on 2 cores).
 SLOW_BLOCK = "run_episode("
 
 
