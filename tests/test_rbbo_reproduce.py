@@ -347,6 +347,8 @@ def test_other_settings_on_an_existing_directory_are_refused(reproduction, capsy
         (["--cost-cs", ","], "expected at least one integer, got ','"),
         (["--reward-cs", "0-3"], "reward_cs must be integers in 1..20, got [0, 1, 2, 3]"),
         (["--control-dim", "30"], "control_dim 30 exceeds sim_dim 20"),
+        # C = M passed the plan, wrote reproduce.json, then RBBOConfig's traceback
+        (["--control-dim", "20"], "control_dim 20 must be below sim_dim 20 for the RBBO runs"),
     ],
 )
 def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys):
@@ -399,6 +401,8 @@ def test_plan_validates_and_round_trips():
         ValueError, match="transfer_sim_dim must be an integer > sim_dim = 20, got 20"
     ):
         ReproducePlan(transfer_sim_dim=20)
+    # C = M leaves RBBO nothing to search, but the studies and RL need no search
+    assert ReproducePlan(control_dim=20, stages=["studies", "rl"]).control_dim == 20
     assert "transfer_sim_dim" in plan.differences(ReproducePlan(benchmarks=["BeamWalk-v0"],
                                                                 transfer_sim_dim=60))  # fmt: skip
     # more Table I runs sit beside run 0 in folders of their own: a later session may add some
@@ -432,6 +436,8 @@ def test_plan_validates_and_round_trips():
         ({"study_seconds": "10"}, "study_seconds must be a positive number, got '10'"),
         ({"iterations": 0}, "iterations must be an integer >= 1, got 0"),
         ({"control_dim": 21}, "control_dim 21 exceeds sim_dim 20"),
+        ({"control_dim": 20, "stages": ["studies", "directions"]},
+         "control_dim 20 must be below sim_dim 20 for the RBBO runs of stage\\(s\\) directions"),
         ({"cost_cs": [0, 1]}, r"cost_cs must be integers in 1..20, got \[0, 1\]"),
         ({"reward_cs": []}, r"reward_cs must be integers in 1..20, got \[\]"),
         ({"controller": "ilqr"}, "controller must be 'mppi' or 'gn', got 'ilqr'"),

@@ -193,6 +193,13 @@ class ReproducePlan:
             )
         if self.control_dim > self.sim_dim:
             raise ValueError(f"control_dim {self.control_dim} exceeds sim_dim {self.sim_dim}")
+        # (RBBOConfig refuses C = M too, but only when a run starts: after reproduce.json)
+        searching = [s for s in ("table", "bo", "directions") if s in self.stages]
+        if self.control_dim == self.sim_dim and searching:
+            raise ValueError(f"control_dim {self.control_dim} must be below sim_dim "
+                             f"{self.sim_dim} for the RBBO runs of stage(s) "
+                             f"{', '.join(searching)}: Gr(M, M) is one point, nothing to "
+                             "search")  # fmt: skip
         if any(not (math.isfinite(p) and 0 < p < 180) for p in self.perturbations_deg):
             raise ValueError(f"perturbations must lie in (0, 180) degrees, got "
                              f"{self.perturbations_deg}")  # fmt: skip
