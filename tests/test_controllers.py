@@ -475,6 +475,7 @@ def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
         (PlannerSettings, {"seed_amplitudes": (0.5, -1)}, r"seed_amplitudes must be positive "
                                                           r"numbers, got \(0.5, -1.0\)"),
         (PlannerSettings, {"seed_amplitudes": ()}, r"positive numbers, got \(\)"),
+        (PlannerSettings, {"seed_amplitudes": (1.0, 0.0)}, r"positive numbers, got \(1.0, 0.0\)"),
         (PlannerSettings, {"kind": "quintic"}, r"kind must be one of \['cubic', 'linear'\], got "
                                                "'quintic'"),
         (GaussNewtonSettings, {"fd_step": 0.6}, r"fd_step must be <= 0.5 \(units of the bound\), "
@@ -486,6 +487,11 @@ def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
 def test_invalid_settings_raise_value_errors_naming_the_value(cls, kwargs, message):
     with pytest.raises(ValueError, match=message):
         cls(**kwargs)
+
+
+def test_settings_take_their_boundary_values():
+    """The refusals above stop at their bounds: fd_step <= 0.5 includes 0.5."""
+    assert GaussNewtonSettings(fd_step=0.5).fd_step == 0.5
 
 
 def test_invalid_weights_and_inputs_raise_clear_errors(walker):
@@ -971,7 +977,9 @@ def test_the_studies_name_bad_arguments_before_building_an_env(monkeypatch):
         reward_against_c(seeds=[])
 
 
-def test_cli_names_more_bad_arguments_and_takes_an_unversioned_id_and_replan_interval(capsys):
+def test_cli_names_more_bad_arguments_and_takes_an_unversioned_id_and_replan_interval(
+    capsys, monkeypatch
+):
     for argv, message in (
         (["--seed", "-1"], "--seed must be >= 0, got -1"),
         (["--window", "x"], "argument --window: expected a number of env steps or 'all', got 'x'"),
@@ -987,6 +995,13 @@ def test_cli_names_more_bad_arguments_and_takes_an_unversioned_id_and_replan_int
                      "--replan-every", "2", "--no-progress"]) == 0  # fmt: skip
     out = capsys.readouterr().out
     assert out.startswith("BeamWalk-v0 mppi: 0.1 s") and "2 replans" in out
+    # with several versions, the latest is the highest number (v10 after v2, not by spelling)
+    from controllers.__main__ import _registered
+
+    for version in ("v2", "v10"):
+        monkeypatch.setitem(gym.registry, f"softrom_gym/BeamWalk-{version}",
+                            gym.spec("softrom_gym/BeamWalk-v0"))  # fmt: skip
+    assert _registered("softrom_gym/BeamWalk", "BeamWalk") == "softrom_gym/BeamWalk-v10"
 
 
 def test_run_episode_names_bad_arguments(walker, tmp_path):
@@ -1042,7 +1057,8 @@ def test_gaits_beyond_four_modes_and_their_controls():
         with pytest.raises(error, match=message):
             phase_orders(bad)
     for frequencies, amplitudes, name in (((), (1.0,), "frequencies"),
-                                          ((2.0,), (-1.0,), "amplitudes")):  # fmt: skip
+                                          ((2.0,), (-1.0,), "amplitudes"),
+                                          ((2.0,), (1.0, 0.0), "amplitudes")):  # fmt: skip
         with pytest.raises(ValueError, match=f"{name} must be a non-empty list of positive"):
             gait_grid(2, frequencies, amplitudes)
     gait = SinusoidGait(2.0, 0.5, (0.0, np.pi / 2))

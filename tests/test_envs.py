@@ -474,13 +474,21 @@ def test_a_control_basis_from_a_npy_path_steps_as_the_array_and_keeps_the_spec_j
         gym.make("softrom_gym/BeamWalk-v0", control_basis=tmp_path / "flat.npy")
 
 
-def test_more_bad_env_arguments_are_named_before_anything_is_built():
+def test_more_bad_env_arguments_are_named_before_anything_is_built(monkeypatch):
+    from softrom_gym.envs import soft_robot_env
+
+    def never(*args, **kwargs):
+        raise AssertionError("built B_r or the model before naming a bad argument")
+
     basis = np.eye(20)[:, :3].copy()
     basis[4, 1] = np.inf
+    monkeypatch.setattr(soft_robot_env, "build_subspace", never)
+    monkeypatch.setattr(soft_robot_env, "build_reduced_model", never)
     for kwargs, message in (
-        ({"control_dim": 8, "sim_dim": 6}, "control_dim = 8 exceeds sim_dim = 6"),
+        ({"control_dim": 7, "sim_dim": 6}, "control_dim = 7 exceeds sim_dim = 6"),
         ({"action_scale": 0.0}, "action_scale must be > 0, got 0.0"),
         ({"action_scale": float("nan")}, "action_scale must be > 0, got nan"),
+        ({"action_scale": float("inf")}, "action_scale must be > 0, got inf"),
         ({"direction": float("inf")}, "direction angle must be finite, got inf"),
         ({"direction": [0.0, 0.0]}, r"a non-zero 2-vector, got \[0.0, 0.0\]"),
         ({"direction": [1.0, 0.0, 0.0]}, r"a non-zero 2-vector, got \[1.0, 0.0, 0.0\]"),
@@ -490,6 +498,7 @@ def test_more_bad_env_arguments_are_named_before_anything_is_built():
     ):  # fmt: skip
         with pytest.raises(ValueError, match=message):
             gym.make("softrom_gym/BeamWalk-v0", **kwargs)
+    monkeypatch.undo()
     # a 0-d array is its number, as an array read from a file or a config is
     half = gym.make("softrom_gym/BeamWalk-v0", action_scale=np.array(0.5)).unwrapped
     assert half.action_bound == 0.5 * gym.make("softrom_gym/BeamWalk-v0").unwrapped.action_bound
@@ -523,6 +532,8 @@ def test_render_without_a_render_mode_warns_and_draws_nothing():
 
     with pytest.raises(ValueError, match="image must be at least 8 x 8 pixels, got 4 x 100"):
         SoftwareRenderer(width=4, height=100)
+    with pytest.raises(ValueError, match="image must be at least 8 x 8 pixels, got 100 x 7"):
+        SoftwareRenderer(width=100, height=7)
 
 
 def test_a_material_given_with_a_meshed_robot_is_the_envs_and_leaves_the_robot_alone():
@@ -560,11 +571,13 @@ def test_vector_env_names_bad_counts_seeds_and_actions_and_stays_usable():
     with pytest.raises(ValueError, match=r"actions contains non-finite values \(env indices "
                        r"\[1\]\)"):  # fmt: skip
         venv.step(bad)
-    # a refused step changed nothing: the next one is each env's first step
+    # a refused step changed nothing, for the env with the bad action or the other: the next
+    # one is each env's first step
     obs, *_ = venv.step(np.zeros((2, 3), dtype=np.float32))
     single = gym.make("softrom_gym/BeamWalk-v0")
-    single.reset(seed=1)
-    np.testing.assert_array_equal(obs[1], single.step(np.zeros(3, dtype=np.float32))[0])
+    for i in range(2):
+        single.reset(seed=i)
+        np.testing.assert_array_equal(obs[i], single.step(np.zeros(3, dtype=np.float32))[0])
     venv.close()
 
 

@@ -113,7 +113,7 @@ def test_bad_input_is_named(bar):
         FullSpaceModel.matching(walk, other, np.zeros((60, sub.M + 6)))
 
 
-def test_rollout_is_its_steps_and_names_controls_of_another_shape(bar):
+def test_rollout_is_its_steps_and_names_controls_of_another_shape(bar, monkeypatch):
     """rollout (H, C) is the public many-step call; no test ran it."""
     sub = full_basis(bar)
     walk = build_reduced_model(bar, forces="exact", subspace=sub, friction=0.5,
@@ -135,6 +135,21 @@ def test_rollout_is_its_steps_and_names_controls_of_another_shape(bar):
         model.rollout(model.rest_state(), controls[0])
     with pytest.raises(ValueError, match=r"controls must be finite with shape \(2,\), got \(3,\)"):
         model.rollout(model.rest_state(), np.zeros((1, 3)))
+    # (H, 0) means "no controls" only to a model without actuation
+    with pytest.raises(ValueError, match=r"controls must be finite with shape \(2,\), got \(0,\)"):
+        model.rollout(model.rest_state(), np.zeros((1, 0)))
+    # each step's two flags land in their own arrays (every step above converged both ways)
+    step, flags = model.step, iter([(True, False), (False, True)])
+
+    def flagged(state, fc=None):
+        state, info = step(state, fc)
+        info["converged"], info["contact_converged"] = next(flags)
+        return state, info
+
+    monkeypatch.setattr(model, "step", flagged)
+    out = model.rollout(model.rest_state(), controls[:2])
+    assert out["converged"].tolist() == [True, False]
+    assert out["contact_converged"].tolist() == [False, True]
     # a model without actuation takes H steps of no controls as (H, 0)
     unactuated = FullSpaceModel(bar)
     free = unactuated.rollout(unactuated.rest_state(), np.zeros((2, 0)))

@@ -157,6 +157,7 @@ def test_bad_fidelity_ranges():
         ({"kappa": 0.0}, "kappa must be > 0, got 0.0"),
         ({"target_fraction": (0.8, 0.2)}, r"0 <= lo <= hi <= 1, got \(0.8, 0.2\)"),
         ({"target_fraction": (-0.1, 0.5)}, r"0 <= lo <= hi <= 1, got \(-0.1, 0.5\)"),
+        ({"target_fraction": (0.5, 1.5)}, r"0 <= lo <= hi <= 1, got \(0.5, 1.5\)"),
     ],
 )
 def test_bad_settings_are_named_when_made(kwargs, match):
@@ -165,6 +166,12 @@ def test_bad_settings_are_named_when_made(kwargs, match):
     # adaptation backwards (kappa_step < 1)
     with pytest.raises(ValueError, match=match):
         BOCAFidelity(**{"t_min": 1.0, "t_max": 3.0, **kwargs})
+
+
+def test_target_fraction_takes_its_bounds():
+    """0 <= lo <= hi <= 1 is inclusive: one fraction (lo = hi) and the whole range are valid."""
+    for pair in ((0.3, 0.3), (0.0, 1.0)):
+        assert BOCAFidelity(t_min=1.0, t_max=3.0, target_fraction=pair).target_fraction == pair
 
 
 def test_boca_needs_a_fidelity_gp(problem):

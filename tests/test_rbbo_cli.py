@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -231,9 +232,11 @@ def _error(capsys, argv):
         (["report"], "the following arguments are required: DIR"),
         (["optimize", "CrossWalk-v0", "--t-max=2", "--settle-time=2"], "--t-max 2.0 must exceed"),
         (
-            ["optimize", "CrossWalk-v0", "--fidelity=boca", "--t-min=1", "--settle-time=2"],
-            "--t-min 1.0 must exceed --settle-time 2.0",
+            ["optimize", "CrossWalk-v0", "--fidelity=boca", "--t-min=2", "--settle-time=2"],
+            "--t-min 2.0 must exceed --settle-time 2.0",
         ),
+        # without BOCA, --t-min is unused and not checked: the next check speaks
+        (["optimize", "Nope-v0", "--t-min=1", "--settle-time=2"], "unknown ENV_ID 'Nope-v0'"),
         (["report", "a", "b", "--png", "p.png"], "--png names one plot: give one DIR"),
     ],
 )
@@ -628,6 +631,16 @@ def test_the_default_progress_bar_shows_evaluations_best_r_and_time_left(tmp_pat
                  "--out", str(tmp_path / "run")]) == 0  # fmt: skip
     err = capsys.readouterr().err
     assert shown in err and "best R 0." in err and "rbbo (confirming R_init, R*)" in err
+    if "5/5" in shown:
+        # each search evaluation moves the bar one step and shows the best R so far; the
+        # confirmations move it no further
+        kinds = ("initial", "acquisition")
+        search = [h["R"] for h in _history(tmp_path / "run") if h["kind"] in kinds]
+        shown_best = dict(re.findall(r"(\d+)/5 \[[^]]*best R ([-\d.e]+)\]", err))
+        running = [f"{max(search[: k + 1]):.4g}" for k in range(len(search))]
+        assert list(shown_best) == [str(k) for k in range(1, 6)]
+        assert list(shown_best.values()) == running
+        assert re.search(r"\b5/5 \[", err.split("\r")[-1])  # (past its total: "7eval [")
 
 
 def test_runs_that_cannot_do_what_is_asked_are_usage_errors(tmp_path, capsys):
@@ -640,6 +653,11 @@ def test_runs_that_cannot_do_what_is_asked_are_usage_errors(tmp_path, capsys):
     RBBO.create(tmp_path / "bare", RBBOConfig(6, 2, n_init=3)).store.close()
     err = _error(capsys, ["resume", str(tmp_path / "bare")])
     assert f"{tmp_path / 'bare'}/config.json does not say what the objective is" in err
+    # an objective record without its kind (a hand edit) says the same, not KeyError: 'kind'
+    RBBO.create(tmp_path / "kindless", RBBOConfig(6, 2, n_init=3),
+                objective_spec={"env_id": "CrossWalk-v0"}).store.close()  # fmt: skip
+    err = _error(capsys, ["resume", str(tmp_path / "kindless")])
+    assert f"{tmp_path / 'kindless'}/config.json does not say what the objective is" in err
     run = tmp_path / "run"
     main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
           "--out", str(run)])  # fmt: skip

@@ -63,6 +63,8 @@ def test_a_pool_whose_workers_cannot_start_fails_each_evaluation_saying_why():
     finally:
         pool.shutdown()
     assert [o.status for o in outcomes] == ["failed"] * 3
+    # the queued ones failed on the slot's third start (two restarts), the later one at once
+    assert [o.worker for o in outcomes] == ["process-0.2", "process-0.2", ""]
     for o in outcomes:
         assert "worker process could not start (exit code 3;" in o.error
         assert "under `if __name__ == '__main__':`" in o.error and "must pickle" in o.error

@@ -122,6 +122,7 @@ def test_env_objective_rejects_bad_input():
         EnvObjective("x", 20, 3, controller="ilqr")
     with pytest.raises(ValueError, match="settle_time must be >= 0, got -1"):
         EnvObjective("x", 20, 3, settle_time=-1)
+    assert EnvObjective("x", 20, 3, settle_time=0).settle_time == 0  # R from the first step
     objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, settle_time=2.0)
     with pytest.raises(ValueError, match="T = 1.5 s must exceed the settle time 2.0 s"):
         objective(np.eye(20)[:, :3], 1.5, 0)
@@ -193,8 +194,9 @@ def test_bad_objective_specs():
     for env_id in ("", None):
         with pytest.raises(ValueError, match=f"ENV_ID must be a non-empty string, got {env_id!r}"):
             parse_objective_spec(env_id)
-    with pytest.raises(ValueError, match="t_max must be finite and > 0, got 0"):
-        SyntheticObjective(4, 2, t_max=0)
+    for t_max in (0, float("inf")):
+        with pytest.raises(ValueError, match=f"t_max must be finite and > 0, got {t_max}"):
+            SyntheticObjective(4, 2, t_max=t_max)
 
 
 def test_a_run_is_never_replayed_in_another_simulation_space():

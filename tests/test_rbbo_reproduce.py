@@ -439,6 +439,7 @@ def test_plan_validates_and_round_trips():
         ({"control_dim": 20, "stages": ["studies", "directions"]},
          "control_dim 20 must be below sim_dim 20 for the RBBO runs of stage\\(s\\) directions"),
         ({"cost_cs": [0, 1]}, r"cost_cs must be integers in 1..20, got \[0, 1\]"),
+        ({"cost_cs": [1, 21]}, r"cost_cs must be integers in 1..20, got \[1, 21\]"),
         ({"reward_cs": []}, r"reward_cs must be integers in 1..20, got \[\]"),
         ({"controller": "ilqr"}, "controller must be 'mppi' or 'gn', got 'ilqr'"),
         ({"executor": "dask"}, "unknown executor 'dask'"),

@@ -331,8 +331,9 @@ def test_mapping_names_bad_dimensions_and_takes_an_env(robot, subspace):
                                   map_control_basis(b_c, robot, 20, 40))  # fmt: skip
 
 
-def test_an_unwritable_cache_costs_only_speed(tmp_path):
-    """save_entry's OSError path: a cache folder that cannot be made (a file in its way)."""
+def test_an_unwritable_cache_costs_only_speed(tmp_path, monkeypatch):
+    """save_entry's OSError path: a cache folder that cannot be made (a file in its way), and
+    a write that fails after its temporary file was made (a full disk)."""
     small = beam(resolution=6)
     blocked = tmp_path / "file"
     blocked.write_text("")
@@ -341,6 +342,15 @@ def test_an_unwritable_cache_costs_only_speed(tmp_path):
     np.testing.assert_array_equal(sub.basis, build_subspace(small, 6, cache=False).basis)
     assert len(rule) >= 1
     assert [p.name for p in tmp_path.iterdir()] == ["file"]  # no temporary left behind
+    from softrom_gym.rom import cache
+
+    def full_disk(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(cache.os, "replace", full_disk)
+    np.testing.assert_array_equal(build_subspace(small, 6, cache=tmp_path / "full").basis,
+                                  sub.basis)  # fmt: skip
+    assert list((tmp_path / "full").iterdir()) == []  # its temporary was removed
 
 
 def test_cache_entries_missing_arrays_or_with_bad_weights_are_rebuilt(tmp_path):
@@ -368,12 +378,15 @@ def test_cache_entries_missing_arrays_or_with_bad_weights_are_rebuilt(tmp_path):
 def test_cache_dir_defaults_to_the_users_cache(monkeypatch, tmp_path):
     import sys
 
-    monkeypatch.delenv("SOFTROM_CACHE_DIR")
+    monkeypatch.setenv("SOFTROM_CACHE_DIR", "")  # set but empty: as if unset (not the cwd)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     if sys.platform == "darwin":
         assert cache_dir().parts[-3:] == ("Library", "Caches", "softrom")
     else:
         assert cache_dir() == tmp_path / "softrom"
+        monkeypatch.delenv("XDG_CACHE_HOME")  # the XDG default, ~/.cache
+        monkeypatch.setenv("HOME", str(tmp_path))
+        assert cache_dir() == tmp_path / ".cache" / "softrom"
 
 
 def test_model_and_cubature_arguments_are_named(robot, subspace):
