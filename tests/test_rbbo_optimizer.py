@@ -355,6 +355,10 @@ def test_a_run_whose_evaluations_all_fail_stops_with_the_reason(tmp_path):
                        "with: OSError: simulator library missing"):  # fmt: skip
         opt.run(broken)
     assert len(opt.evaluations) == 10  # not 50: it stopped
+    # and says so in its summary (what `rbbo report` reads), with no best basis to save
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["evaluations"] == 10 and summary["failed"] == 10
+    assert not (tmp_path / "run" / "best_basis.npy").exists()
     # one failure among successes is recorded and the run goes on: the count of failures in
     # a row starts again at each success (12 failures in all pass the limit of 10 in a row)
     calls = []
