@@ -136,10 +136,7 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
                 "distance": dist}  # fmt: skip
         # fsynced: a resume evaluates again only the latest checkpoint, so a row lost to a
         # power loss would be lost for good
-        new = not log.exists()
         _append_line(log, json.dumps(line))
-        if new:  # the file's fsync does not make its name durable
-            _fsync_dir(folder)
         lines.append(line)
 
     if done and not any(x["steps"] == model.num_timesteps and {k: x[k] for k in key} == key

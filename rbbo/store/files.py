@@ -43,8 +43,10 @@ def _make_dirs(path: Path) -> None:
 
 
 def _append_line(path: Path, line: str, end_partial: bool = False) -> None:
-    """Append ``line`` and a newline durably (written, flushed and fsynced); with
+    """Append ``line`` and a newline durably (written, flushed and fsynced; a file it creates
+    has its directory fsynced too, which the file's fsync does not reach); with
     ``end_partial``, after a newline if the file ends inside a line."""
+    new = not path.exists()
     with open(path, "a+b") as f:
         data = line.encode() + b"\n"
         if end_partial and f.seek(0, os.SEEK_END) > 0:
@@ -54,6 +56,8 @@ def _append_line(path: Path, line: str, end_partial: bool = False) -> None:
         f.write(data)
         f.flush()
         os.fsync(f.fileno())
+    if new:
+        _fsync_dir(path.parent)
 
 
 # read once, at import (single-threaded): os.umask can only be read by setting it
