@@ -444,6 +444,23 @@ def test_run_baselines_refuses_bad_counts_before_claiming_any_folder(tmp_path, b
     assert not (tmp_path / "out").exists()
 
 
+def _kill_ppo_saves(monkeypatch, when) -> None:
+    """PPO.save killed mid-write wherever ``when(model, path)``: the start of a zip is
+    written to ``path`` and KeyboardInterrupt raised, as a Ctrl-C or kill would leave it."""
+    import stable_baselines3 as sb3
+
+    real_save = sb3.PPO.save
+
+    def killed_while_saving(self, path, *a, **k):
+        if when(self, path):
+            with open(path, "wb") as f:
+                f.write(b"PK\x03\x04 torn")  # the start of a zip, and no more
+            raise KeyboardInterrupt
+        return real_save(self, path, *a, **k)
+
+    monkeypatch.setattr(sb3.PPO, "save", killed_while_saving)
+
+
 def test_a_checkpoint_torn_by_a_kill_while_saving_is_never_resumed_from(
     tmp_path, capsys, monkeypatch
 ):
@@ -454,16 +471,8 @@ def test_a_checkpoint_torn_by_a_kill_while_saving_is_never_resumed_from(
 
     out = tmp_path / "bl"
     args = ["baselines", ENV, "--algo", "ppo", "--out", str(out), *SMALL, "--no-mpc"]
-    real_save = sb3.PPO.save
-
-    def killed_while_saving(self, path, *a, **k):
-        if self.num_timesteps == 256 and "final" not in str(path):
-            with open(path, "wb") as f:
-                f.write(b"PK\x03\x04 torn")  # the start of a zip, and no more
-            raise KeyboardInterrupt
-        return real_save(self, path, *a, **k)
-
-    monkeypatch.setattr(sb3.PPO, "save", killed_while_saving)
+    _kill_ppo_saves(monkeypatch, lambda m, path: m.num_timesteps == 256
+                    and "final" not in str(path))  # fmt: skip
     assert main(args) == 130
     monkeypatch.undo()
     folder = out / "ppo-identity"
@@ -484,16 +493,7 @@ def test_a_final_model_torn_by_a_kill_is_written_again_on_resume(tmp_path, capsy
 
     out = tmp_path / "bl"
     args = ["baselines", ENV, "--algo", "ppo", "--out", str(out), *SMALL, "--no-mpc"]
-    real_save = sb3.PPO.save
-
-    def killed_while_saving(self, path, *a, **k):
-        if "final" in Path(path).name:
-            with open(path, "wb") as f:
-                f.write(b"PK\x03\x04 torn")  # the start of a zip, and no more
-            raise KeyboardInterrupt
-        return real_save(self, path, *a, **k)
-
-    monkeypatch.setattr(sb3.PPO, "save", killed_while_saving)
+    _kill_ppo_saves(monkeypatch, lambda m, path: "final" in Path(path).name)
     assert main(args) == 130
     monkeypatch.undo()
     folder = out / "ppo-identity"
