@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ._caller import outside_stacklevel
 from .config import CONFIRM_KINDS, Proposal, RBBOResult, _positive_int, _real
 from .executors import Executor, ProcessExecutor, SerialExecutor
 from .grassmann import identity_basis
@@ -85,11 +86,11 @@ class _Session:
                     store.append_session(session_end_record(started, status, error))
                 except OSError as exc:
                     # (a full disk): the session's evaluations are recorded; what is raised
-                    # already, or the result, matters more than its end's line. stacklevel 4
-                    # names the RBBO.run or confirm_again call that holds the session.
+                    # already, or the result, matters more than its end's line; it names the
+                    # caller's RBBO.run or confirm_again call that holds the session.
                     warnings.warn(f"{store.path}: the end of this session was not "
                                   f"recorded in sessions.jsonl: {exc}", RuntimeWarning,
-                                  stacklevel=4)  # fmt: skip
+                                  stacklevel=outside_stacklevel())  # fmt: skip
 
 
 def run(

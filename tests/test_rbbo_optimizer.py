@@ -648,6 +648,28 @@ def test_each_session_records_when_and_how_it_ended(tmp_path):
     assert lines[0] == old and [x.get("event") for x in lines[1:]] == [None, "end"] * 3
 
 
+def test_rbbo_warnings_name_the_callers_line(tmp_path, monkeypatch):
+    # Counted stacklevels named a line inside rbbo once the optimizer was split into modules
+    # (rbbo/restore.py for a torn history); both warnings must name this file.
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=3, n_confirm=0, **FAST)
+    RBBO.create(tmp_path / "run", config, objective_spec=objective.spec()).run(objective)
+    with open(tmp_path / "run" / "history.jsonl", "a") as f:
+        f.write('{"index": 3, "R"')  # torn by a kill
+    with pytest.warns(UserWarning, match="truncated last line") as caught:
+        opt = RBBO.resume(tmp_path / "run")
+    assert [w.filename for w in caught] == [__file__]
+
+    def full_disk(record):
+        if record.get("event") == "end":
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(opt.store, "append_session", full_disk)
+    with pytest.warns(RuntimeWarning, match="end of this session was not recorded") as caught:
+        opt.run(objective, max_evaluations=4)
+    assert [w.filename for w in caught] == [__file__]
+
+
 def test_a_reloaded_run_keeps_the_recommendation_its_session_ended_with(tmp_path, monkeypatch):
     # without confirmation seeds there is no confirmed answer: the summary's is kept (a GP
     # refitted in another process may rank near-equal bases otherwise)

@@ -1207,3 +1207,39 @@ def test_a_corrupted_base_basis_is_named_by_the_status_and_the_report(
         err = capsys.readouterr().err.strip().splitlines()
         assert err[-1].startswith(f"rbbo: error: {best} is corrupted: "), err
         assert not any("Traceback" in x for x in err)
+
+
+def test_rl_status_counts_an_mpc_job_done_only_when_its_row_reads(tmp_path):
+    # A torn episodes.json (a kill while an older version wrote it in place) was shown as
+    # done, though the next run makes that row again.
+    from rbbo.reproduce.status import _rl_state
+
+    whole, torn = tmp_path / "mppi-identity", tmp_path / "mppi-best"
+    for folder in (whole, torn):
+        folder.mkdir()
+    text = json.dumps({"meta": {}, "row": {"algo": "mppi"}})
+    (whole / "episodes.json").write_text(text)
+    (torn / "episodes.json").write_text(text[:20])
+    assert _rl_state(tmp_path, ReproducePlan()) == "mppi-best -, mppi-identity done"
+
+
+def test_a_table_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
+    # write_csv wrote Table I and the transfer table in place: a kill mid-write left half a
+    # table where the last whole one had been.
+    import os
+
+    from rbbo.reproduce.tables import read_rows, write_csv
+
+    path = tmp_path / "new" / "table1.csv"
+    write_csv([{"benchmark": "a", "R": 1.5}, {"benchmark": "b", "R": 2.5}], path)
+    before = path.read_bytes()
+
+    def killed(src, dst):
+        raise OSError("killed before the rename")
+
+    monkeypatch.setattr(os, "replace", killed)
+    with pytest.raises(OSError, match="killed before the rename"):
+        write_csv([{"benchmark": "c", "R": 0.5}], path)
+    monkeypatch.undo()
+    assert path.read_bytes() == before and os.listdir(path.parent) == ["table1.csv"]
+    assert read_rows(path) == [{"benchmark": "a", "R": "1.5"}, {"benchmark": "b", "R": "2.5"}]

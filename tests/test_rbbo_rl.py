@@ -623,8 +623,11 @@ def test_the_mpc_row_is_cached_atomically_and_a_torn_cache_is_made_again(tmp_pat
     _assert_published_durably(events, folder, cache.name)
     whole = cache.read_text()
     cache.write_text(whole[: len(whole) // 2])
-    with pytest.warns(RuntimeWarning, match=f"MPC cache {re.escape(str(cache))} .*made again"):
+    with pytest.warns(
+        RuntimeWarning, match=f"MPC cache {re.escape(str(cache))} .*made again"
+    ) as caught:
         again = _mpc(*args)
+    assert [w.filename for w in caught] == [__file__]  # the caller's line, not rbbo's
     assert {k: v for k, v in again.items() if k != "wall_s"} == {
         k: v for k, v in row.items() if k != "wall_s"}  # fmt: skip
     assert json.loads(cache.read_text())["row"] == json.loads(json.dumps(again))

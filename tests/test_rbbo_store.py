@@ -36,8 +36,11 @@ def test_truncated_last_line_is_dropped_with_a_warning(tmp_path):
         store.append(_evaluation(i))
     with open(store.history_path, "a") as f:
         f.write(_evaluation(3).to_json()[:40])  # a write cut short by kill -9
-    with pytest.warns(TruncatedHistoryWarning, match="dropped a truncated last line"):
+    with pytest.warns(TruncatedHistoryWarning, match="dropped a truncated last line") as caught:
         reopened = RunStore.open(tmp_path)
+    # it names the caller's line, not one inside rbbo (it named rbbo/restore.py's after the
+    # optimizer was split, from a counted stacklevel)
+    assert [w.filename for w in caught] == [__file__]
     assert [e.index for e in reopened.history()] == [0, 1, 2]
     assert (tmp_path / "history.jsonl.truncated").read_text().startswith('{"index": 3')
     reopened.append(_evaluation(4))  # appends land on a clean line

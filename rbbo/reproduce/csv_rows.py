@@ -1,5 +1,6 @@
-"""The record's CSV files (perturbation.csv, transfer.csv, the studies), row by row.
+"""The record's CSV files (perturbation.csv, transfer.csv, the studies, the tables).
 
+:func:`read_rows` reads one, :func:`write_csv` writes a whole table atomically,
 :func:`_append_row` appends and fsyncs one row (widening an older file's header first),
 :func:`_rewrite_csv` replaces a file atomically and :func:`_supersede` moves the rows of a B_c
 that its run has since replaced to ``<stem>-superseded.csv``.
@@ -14,7 +15,23 @@ from pathlib import Path
 from typing import Any
 
 from ..store import _atomic_write, _fsync_dir, _make_dirs
-from .tables import read_rows
+
+
+def read_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a CSV file written by :func:`write_csv` or appended row by row (none if
+    it does not exist yet)."""
+    if not path.exists():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:
+    """Write ``rows`` (their keys, in the first row's order, are the header) to ``path``
+    atomically: a kill mid-write leaves the table written before, never half of it."""
+    _make_dirs(path.parent)
+    _rewrite_csv(path, rows, list(rows[0]))
+    return path
 
 
 def _append_row(path: Path, row: dict[str, Any]) -> None:

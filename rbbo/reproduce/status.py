@@ -180,6 +180,7 @@ def stage_progress(out: Path, plan: ReproducePlan) -> dict[str, tuple[int, int]]
 
 def _rl_state(folder: Path, plan: ReproducePlan) -> str:
     from ..rl import _read_progress, steps_per_algo
+    from ..rl.mpc import _mpc_row_recorded
 
     if not folder.exists():
         return "not started"
@@ -188,7 +189,7 @@ def _rl_state(folder: Path, plan: ReproducePlan) -> str:
     for run in sorted(p for p in folder.iterdir() if p.is_dir()):
         algo = run.name.split("-")[0]
         if algo == "mppi":
-            parts.append(f"{run.name} {'done' if (run / 'episodes.json').exists() else '-'}")
+            parts.append(f"{run.name} {'done' if _mpc_row_recorded(run) else '-'}")
             continue
         steps = max(
             (x["steps"] for x in _read_progress(run / "progress.jsonl", mend=False)), default=0

@@ -15,7 +15,6 @@ deviation (n - 1) and range, over the runs confirmed so far; Table I's rows stay
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import json
 import math
@@ -27,6 +26,8 @@ import numpy as np
 
 from ..intervals import confidence_interval
 from ..report import _duration
+from .csv_rows import read_rows as read_rows
+from .csv_rows import write_csv as write_csv
 from .plan import PAPER_TABLE1
 
 __all__ = ["across_runs", "basis_digest", "confidence_interval", "format_markdown",
@@ -127,24 +128,6 @@ def basis_digest(basis: np.ndarray) -> str:
     being reported with the older one's numbers."""
     data = np.ascontiguousarray(basis, dtype=np.float64).tobytes()
     return hashlib.blake2b(data, digest_size=4).hexdigest()
-
-
-def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    return path
-
-
-def read_rows(path: Path) -> list[dict[str, str]]:
-    """The rows of a CSV file written by :func:`write_csv` or appended row by row (none if
-    it does not exist yet)."""
-    if not path.exists():
-        return []
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def _num(value: float, spec: str = ".4g") -> str:

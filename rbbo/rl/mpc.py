@@ -11,12 +11,25 @@ from __future__ import annotations
 import json
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
+from .._caller import outside_stacklevel
 from ..store import _atomic_write, _make_dirs
 from .envs import _make_env
 from .table import _row
+
+CACHE = "episodes.json"
+
+
+def _mpc_row_recorded(folder: Path) -> bool:
+    """Whether ``folder`` holds a readable MPC row (what ``--status`` counts as done; a torn
+    cache is made again by the next run, so it is not)."""
+    try:
+        return isinstance(json.loads((folder / CACHE).read_text()).get("row"), dict)
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
@@ -39,7 +52,7 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
             "seeds": list(seeds), "seconds": seconds, "settle_time": settle,
             "planner": planner_record(planner, every)}  # fmt: skip
     meta = json.loads(json.dumps(meta))  # as stored: tuples are lists
-    cache = folder / "episodes.json"
+    cache = folder / CACHE
     if cache.is_file():
         try:
             old = json.loads(cache.read_text())
@@ -50,7 +63,7 @@ def _mpc(env_id, name, basis, folder, env_kwargs, evaluation, progress,
             # a cache of episodes that can be run again
             warnings.warn(f"rbbo: ignoring the unreadable MPC cache {cache} "
                           f"({type(exc).__name__}: {exc}); its row is made again",
-                          RuntimeWarning, stacklevel=2)  # fmt: skip
+                          RuntimeWarning, stacklevel=outside_stacklevel())  # fmt: skip
 
     class CountRollouts(gym.Wrapper):
         """Counts the physics steps of the planner's rollouts (it finds rollout here)."""

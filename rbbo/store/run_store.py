@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from .._caller import outside_stacklevel
 from .errors import RunDirectoryError, TruncatedHistoryWarning
 from .evaluation import Evaluation
 from .files import _append_line, _atomic_write, _fsync_dir, _make_dirs
@@ -153,7 +154,7 @@ class RunStore:
             f"{hist}: dropped a truncated last line ({len(tail)} bytes, an evaluation that "
             f"was being written when the run stopped); kept in {HISTORY}.truncated",
             TruncatedHistoryWarning,
-            stacklevel=3,
+            stacklevel=outside_stacklevel(),
         )
         with open(self.path / f"{HISTORY}.truncated", "ab") as f:
             f.write(tail + b"\n")

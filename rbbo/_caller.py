@@ -1,0 +1,32 @@
+"""Where a warning raised inside :mod:`rbbo` should point: the caller's code.
+
+``warnings.warn(stacklevel=n)`` with a counted ``n`` names the right line only while the call
+chain above it stays the same; a module split moves it into rbbo's own files, where a user
+cannot act on it (and where the default filter shows it once per rbbo line, not per call site
+of theirs). :func:`outside_stacklevel` counts the frames instead.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+
+__all__ = ["outside_stacklevel"]
+
+# rbbo's files, and contextlib's: a session's end is recorded in a context manager's exit
+_SKIPPED = (os.path.dirname(os.path.abspath(__file__)) + os.sep, contextlib.__file__)
+
+
+def outside_stacklevel() -> int:
+    """The ``stacklevel`` that makes a ``warnings.warn`` in the calling function name the
+    first frame outside the rbbo package (the caller's own code, or the ``rbbo`` script),
+    passing over the context managers rbbo enters for it."""
+    level = 1
+    frame = sys._getframe(1)  # the function that will call warnings.warn: stacklevel 1
+    while frame.f_back is not None and os.path.abspath(frame.f_code.co_filename).startswith(
+        _SKIPPED
+    ):
+        frame = frame.f_back
+        level += 1
+    return level
