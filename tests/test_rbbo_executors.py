@@ -131,6 +131,36 @@ def test_ray_executor_matches_the_process_pool():
     assert crashed.status == "failed"
 
 
+@pytest.mark.slow
+def test_ray_executor_survives_crash_hang_and_exceptions():
+    # The failure paths of the supervisor thread: an actor that hangs is killed at its
+    # timeout and one that dies is replaced, each failing only its own task; a shutdown that
+    # does not wait fails what is running and queued, saying so.
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        executor = make_executor("ray", FaultyObjective(hang_s=60), workers=2, timeout_s=5)
+        futures = [executor.submit(_task(i, t)) for i, t in enumerate([1, 2, 3, 4, 5, 1, 1])]
+        outcomes = [f.result(timeout=120) for f in futures]
+        hung = [executor.submit(_task(7 + i, 2)) for i in range(3)]
+        executor.shutdown(wait=False)
+        cancelled = [f.result(timeout=60) for f in hung]
+    finally:
+        ray.shutdown()
+    assert [o.status for o in outcomes] == ["ok", "failed", "failed", "failed", "failed", "ok",
+                                            "ok"]  # fmt: skip
+    assert outcomes[0].R == 1.0 and outcomes[5].R == 1.0
+    assert "timed out after 5 s" in outcomes[1].error
+    assert "worker failed" in outcomes[2].error
+    assert "RuntimeError: MPC diverged" in outcomes[3].error
+    assert "non-finite R" in outcomes[4].error
+    assert [o.index for o in outcomes] == list(range(7))
+    # each replaced actor works under a new name (ray-<slot>.<restarts>)
+    assert any("." in o.worker for o in outcomes[5:])
+    assert [o.status for o in cancelled] == ["failed"] * 3
+    assert all("cancelled at shutdown" in o.error for o in cancelled)
+
+
 def test_executor_arguments_are_checked():
     with pytest.raises(ValueError, match="workers must be a positive integer, got 0"):
         ProcessExecutor(FaultyObjective(), workers=0)
