@@ -97,3 +97,29 @@ def test_every_benchmark_script_named_exists():
     assert len(scripts) >= 15
     missing = [s for s in scripts if not (README.parent / s).is_file()]
     assert not missing, f"the README names benchmark scripts that do not exist: {missing}"
+
+
+def test_every_file_the_readme_cites_exists():
+    # A prose reference (`tests/...py`, `docs/...md`) is not a command, so no other test
+    # sees it go stale when a file is renamed or removed.
+    cited = set(re.findall(r"`((?:benchmarks|tests|docs|rbbo|softrom_gym|controllers|cpp_sim)"
+                           r"/[\w./-]+\.(?:py|pyi|md|cpp|h|npy|json|csv|png))`",
+                           README.read_text()))  # fmt: skip
+    assert len(cited) >= 15
+    missing = sorted(p for p in cited if not (README.parent / p).exists())
+    assert not missing, f"the README cites files that do not exist: {missing}"
+
+
+def test_the_scripts_said_to_take_json_do_and_the_other_checks_do_not():
+    text = README.read_text()
+    paragraph = next(p for p in text.split("\n\n") if "take `--json` for one JSON" in p)
+    said = set(re.findall(r"`(\w+\.py)`", paragraph))
+    assert len(said) >= 10
+
+    def takes_json(name: str) -> bool:
+        return '"--json"' in (README.parent / "benchmarks" / name).read_text()
+
+    assert sorted(s for s in said if not takes_json(s)) == []
+    # "the other checks and studies print text only"
+    named = set(re.findall(r"`(?:benchmarks/)?((?:check|study)_\w+\.py)`", text))
+    assert sorted(s for s in named - said if takes_json(s)) == []
