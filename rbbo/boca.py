@@ -110,6 +110,12 @@ class BOCAFidelity:
         Factor by which kappa is adapted.
     floor_after : int
         Recorded choices before the floor (rule 4) applies.
+
+    Attributes
+    ----------
+    recent : collections.deque of bool
+        Whether each of the latest ``window`` recorded choices was T_max (what the
+        adaptation and the floor count).
     """
 
     t_min: float
@@ -122,7 +128,8 @@ class BOCAFidelity:
     window: int = 20
     kappa_step: float = 1.1
     floor_after: int = 4
-    recent: deque = field(default_factory=deque, repr=False)
+    # state, not a setting: whether each of the latest ``window`` choices was T_max
+    recent: deque = field(default_factory=deque, init=False, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("t_min", "t_max", "kappa", "cost_exponent", "max_cost_ratio", "kappa_step"):
@@ -152,7 +159,7 @@ class BOCAFidelity:
         lo, hi = self.target_fraction
         if not 0 <= lo <= hi <= 1:
             raise ValueError(f"target_fraction must satisfy 0 <= lo <= hi <= 1, got {lo, hi}")
-        self.recent = deque(self.recent, maxlen=self.window)
+        self.recent = deque(maxlen=self.window)
 
     @overload
     def z(self, t: float) -> float: ...

@@ -180,3 +180,12 @@ def test_boca_needs_a_fidelity_gp(problem):
     gp = GrassmannGP(M, C).fit(bases, np.arange(3.0))
     with pytest.raises(ValueError, match="BOCA needs a GP with a fidelity kernel"):
         _boca().choose(gp, bases[0])
+
+
+def test_the_choice_history_is_state_not_a_setting():
+    # ``recent`` was an undocumented constructor argument: a list passed there became the
+    # starting history of the adaptation.
+    with pytest.raises(TypeError, match="recent"):
+        BOCAFidelity(T_MIN, T_MAX, recent=[True] * 5)
+    boca = BOCAFidelity(T_MIN, T_MAX, window=5)
+    assert list(boca.recent) == [] and boca.recent.maxlen == 5
