@@ -382,6 +382,27 @@ def test_console_entry_point_exit_status():
         "e.g. 30m, 2h, 1h30m, 45s"  # fmt: skip
 
 
+def test_the_console_script_says_a_warning_in_one_line(tmp_path, capsys):
+    # Python's own display named the script's line and echoed it ("sys.exit(main())"); the
+    # command says a warning as it says an error.
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic:noise=0.01", *TINY, "--iterations", "4",
+                 "--executor", "serial", "--out", str(run), "--no-progress"]) == 0  # fmt: skip
+    capsys.readouterr()
+    with open(run / "history.jsonl", "a") as f:
+        f.write('{"index": 9, "R')  # torn by a kill
+    proc = subprocess.run([sys.executable, "-m", "rbbo", "resume", str(run), "--no-progress"],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert [x for x in lines if "warning" in x.lower()] == [
+        f"rbbo: warning: {run}/history.jsonl: dropped a truncated last line (15 bytes, an "
+        "evaluation that was being written when the run stopped); kept in "
+        "history.jsonl.truncated (TruncatedHistoryWarning)"
+    ]
+    assert not any("sys.exit" in x for x in lines)
+
+
 @pytest.mark.parametrize(
     ("text", "seconds"), [("30m", 1800), ("2h", 7200), ("1h30m", 5400), ("45s", 45), ("90", 90)]
 )

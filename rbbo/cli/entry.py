@@ -3,12 +3,15 @@ the subcommand, and turn its errors into one-line messages and exit statuses.
 
 Exit status 2: bad input (a usage error, a run directory that cannot be used, a simulation
 space that does not match the run's); 1: evaluations kept failing; 130: interrupted (Ctrl-C
-or SIGTERM), with what was recorded kept.
+or SIGTERM), with what was recorded kept. Run as the console script (or ``python -m rbbo``),
+warnings are printed as ``rbbo: warning: ...`` lines, as its errors are, without Python's
+source location.
 """
 
 from __future__ import annotations
 
 import sys
+import warnings
 
 from .baselines import cmd_baselines
 from .errors import UsageError
@@ -31,12 +34,25 @@ COMMANDS = {"optimize": cmd_optimize, "resume": cmd_resume, "confirm": cmd_confi
             "reproduce": cmd_reproduce}  # fmt: skip
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as a command-line tool says it: on stderr, named by its category, without
+    the file and line of the package's code (or the script's) that a user cannot act on."""
+    print(f"rbbo: warning: {message} ({category.__name__})", file=file or sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``rbbo`` console script; returns the exit status."""
+    """Entry point of the ``rbbo`` console script; returns the exit status.
+
+    With ``argv=None`` (the command line of this process: the console script, ``python -m
+    rbbo``) it also prints the warnings of the process as ``rbbo: warning:`` lines; a call
+    with an argument list leaves the caller's warning display alone.
+    """
     from ..objective import SimulationSpaceMismatch
     from ..optimizer import EvaluationsFailing
     from ..store import RunDirectoryError
 
+    if argv is None:
+        warnings.showwarning = _show_warning
     try:
         args = _parser().parse_args(argv)
         args.argv = list(sys.argv[1:] if argv is None else argv)
