@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._caller import outside_stacklevel
+from ._warn import outside_stacklevel
 from .config import CONFIRM_KINDS, Proposal, RBBOResult, _positive_int, _real
 from .executors import Executor, ProcessExecutor, SerialExecutor
 from .grassmann import identity_basis

@@ -36,6 +36,16 @@ def test_process_pool_survives_crash_hang_and_exceptions(pool):
     assert [o.index for o in outcomes] == list(range(7))
 
 
+def test_a_workers_warning_is_one_line_naming_the_worker(capfd):
+    # A worker's warning was Python's display: a path inside the package, its line and its
+    # source, from a process the user never started.
+    with ProcessExecutor(FaultyObjective(), workers=1) as executor:
+        outcome = executor.submit(_task(0, FaultyObjective.WARN)).result(timeout=60)
+    assert outcome.status == "ok" and outcome.R == 1.0
+    err = capfd.readouterr().err.splitlines()
+    assert err == ["rbbo process-0: warning: the episode diverged once (RuntimeWarning)"]
+
+
 def test_process_pool_averages_over_seeds(pool):
     outcome = pool.submit(_task(0, 1, seeds=(0, 1, 2))).result(timeout=30)
     assert outcome.R == pytest.approx(2.0) and outcome.R_seeds == (1.0, 2.0, 3.0)

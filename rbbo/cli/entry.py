@@ -11,8 +11,8 @@ source location.
 from __future__ import annotations
 
 import sys
-import warnings
 
+from .._warn import say_warnings_as
 from .baselines import cmd_baselines
 from .errors import UsageError
 from .optimize import cmd_confirm, cmd_optimize, cmd_resume
@@ -34,12 +34,6 @@ COMMANDS = {"optimize": cmd_optimize, "resume": cmd_resume, "confirm": cmd_confi
             "reproduce": cmd_reproduce}  # fmt: skip
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """A warning as a command-line tool says it: on stderr, named by its category, without
-    the file and line of the package's code (or the script's) that a user cannot act on."""
-    print(f"rbbo: warning: {message} ({category.__name__})", file=file or sys.stderr)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``rbbo`` console script; returns the exit status.
 
@@ -52,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     from ..store import RunDirectoryError
 
     if argv is None:
-        warnings.showwarning = _show_warning
+        say_warnings_as("rbbo")
     try:
         args = _parser().parse_args(argv)
         args.argv = list(sys.argv[1:] if argv is None else argv)

@@ -21,6 +21,7 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 
+from .._warn import say_warnings_as
 from .base import EvaluationTask, Executor, evaluate_task, failed
 
 __all__ = ["ProcessExecutor"]
@@ -32,6 +33,7 @@ def _worker_main(conn, objective, name: str) -> None:
     # means (it kills the workers at shutdown), so a worker must not die of it first and
     # have its task recorded as a crash, nor print a traceback of its own.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    say_warnings_as(f"rbbo {name}")  # (an env's warning in an evaluation, say)
     try:
         conn.send("ready")  # imports and the objective are loaded: the timeout clock may start
     except OSError:  # the pool shut down while this worker was starting

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._caller import outside_stacklevel
+from .._warn import outside_stacklevel
 from ..store import _atomic_write, _make_dirs
 from .envs import _make_env
 from .table import _row

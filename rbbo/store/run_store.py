@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .._caller import outside_stacklevel
+from .._warn import outside_stacklevel
 from .errors import RunDirectoryError, TruncatedHistoryWarning
 from .evaluation import Evaluation
 from .files import _append_line, _atomic_write, _fsync_dir, _make_dirs

@@ -1,9 +1,14 @@
-"""Where a warning raised inside :mod:`rbbo` should point: the caller's code.
+"""How rbbo's warnings reach a user: where they point, and how rbbo's own processes say them.
 
-``warnings.warn(stacklevel=n)`` with a counted ``n`` names the right line only while the call
+Where: ``warnings.warn(stacklevel=n)`` with a counted ``n`` names the right line only while the call
 chain above it stays the same; a module split moves it into rbbo's own files, where a user
 cannot act on it (and where the default filter shows it once per rbbo line, not per call site
 of theirs). :func:`outside_stacklevel` counts the frames instead.
+
+How: in the ``rbbo`` command and in the process pool's workers, nothing of the user's code is
+on the stack, and Python's display (a file and line of the package, and its source) says
+nothing a user can act on; :func:`say_warnings_as` prints ``<who>: warning: <message>
+(<category>)`` lines instead, as the command prints its errors.
 """
 
 from __future__ import annotations
@@ -11,8 +16,9 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import warnings
 
-__all__ = ["outside_stacklevel"]
+__all__ = ["outside_stacklevel", "say_warnings_as"]
 
 # rbbo's files, and contextlib's: a session's end is recorded in a context manager's exit
 _SKIPPED = (os.path.dirname(os.path.abspath(__file__)) + os.sep, contextlib.__file__)
@@ -30,3 +36,13 @@ def outside_stacklevel() -> int:
         frame = frame.f_back
         level += 1
     return level
+
+
+def say_warnings_as(who: str) -> None:
+    """From now on, this process prints each warning it shows as one ``<who>: warning:`` line
+    on stderr (for a process that is rbbo's: the command line, a pool worker)."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f"{who}: warning: {message} ({category.__name__})", file=file or sys.stderr)
+
+    warnings.showwarning = show
