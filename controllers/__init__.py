@@ -4,7 +4,8 @@ One planner interface (:class:`Planner`: ``reset``, ``plan``, ``action``), two p
 (:class:`MPPI`, :class:`GaussNewtonShooting`) over a shared :class:`SplinePlan`
 (F_c = S F~_c), the objective R - Λ (:mod:`controllers.cost`), an episode runner
 (:func:`run_episode`) and per-benchmark defaults (:func:`default_planner`).
-Planners use only the env's public MPC API (``get_state``, ``rollout``, ``action_bound``).
+Planners use only the env's public MPC API (``get_state``, ``rollout``, ``action_bound``,
+``dt``, ``direction``, ``center_of_mass``) and its action space.
 
     python -m controllers CrossWalk-v0 --planner mppi --seconds 10
 """

@@ -3,7 +3,8 @@ the plan's expected course). Their shared settings are :mod:`controllers.setting
 
 A planner owns a :class:`SplinePlan` of normalised knots (units of the action bound a) and
 reaches the env only through its public MPC API (``get_state``, ``rollout``,
-``action_bound``, ``dt``, found with ``env.get_wrapper_attr`` through any wrappers).
+``action_bound``, ``dt``, ``direction``, ``center_of_mass``, found with
+``env.get_wrapper_attr`` through any wrappers) and its action space.
 
 Receding-horizon use::
 

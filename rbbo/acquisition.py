@@ -201,8 +201,8 @@ def maximize_on_grassmann(
 
     Candidate starts are the incumbents, ``n_perturbations`` random perturbations of each,
     and ``n_random`` Haar-random points; the ``n_starts`` best by value are refined with the
-    chosen optimiser (a failing run is redone with ConjugateGradient) and the best local
-    optimum is returned.
+    chosen optimiser (a failing run is redone with ConjugateGradient) and the best point
+    found is returned (a start, where no local run improves on it).
     """
     m, c = _check_dims(sim_dim, control_dim)
     if optimizer not in OPTIMIZERS:

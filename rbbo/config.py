@@ -60,7 +60,8 @@ class RBBOConfig:
         Acquisition maximiser, "lrbfgs" or "cg".
     gp_restarts, acq_random, acq_starts, acq_max_iterations, boca_candidates
         GP fit restarts; random candidate starts, refined starts and iterations of the
-        acquisition maximiser; number of candidate T for BOCA.
+        acquisition maximiser; points of BOCA's grid of T over [T_min, T_max], whose all but
+        T_max are its candidates (:class:`rbbo.boca.BOCAFidelity`'s ``n_candidates``).
     """
 
     sim_dim: int

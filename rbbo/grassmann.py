@@ -7,9 +7,11 @@ Frobenius distance of their orthogonal projectors,
 
     d(B_i, B_j) = ||B_i B_i^T - B_j B_j^T||_F,   d^2 = 2 C - 2 ||B_i^T B_j||_F^2,
 
-which is invariant under B -> B Q for any orthogonal C x C matrix Q and is computed without
-forming the M x M projectors. Bases travel through scikit-learn as flat rows of M * C numbers
-(row-major, :func:`flatten`), because scikit-learn needs a 2-D ``X``.
+which is invariant under B -> B Q for any orthogonal C x C matrix Q. All pairs' distances are
+one matrix product of the flattened projectors vec(B B^T) (:func:`projection_sq_distances`);
+:func:`projection_distance` forms the two projectors themselves. Bases travel through
+scikit-learn as flat rows of M * C numbers (row-major, :func:`flatten`), because scikit-learn
+needs a 2-D ``X``.
 """
 
 from __future__ import annotations

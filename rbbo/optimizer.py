@@ -336,8 +336,10 @@ class RBBO:
         objective : callable
             ``objective(B_c, T, seed) -> float`` (not needed when ``executor`` is given).
         executor : Executor, optional
-            Where evaluations run; default: in this process for one worker, a
-            :class:`ProcessExecutor` otherwise. An executor passed in is not shut down.
+            Where evaluations run; default: in this process for one worker without
+            ``timeout_s``, a :class:`rbbo.executors.ProcessExecutor` otherwise (spawned
+            workers: the objective must pickle, and a script needs the ``if __name__ ==
+            "__main__":`` guard). An executor passed in is not shut down.
         workers, timeout_s
             For the default executor.
         max_evaluations : int, optional

@@ -11,7 +11,10 @@ Layout of ``OUT`` (every part resumable: rerunning the same command continues it
     perturbation.csv          the direction-0 B_c evaluated off its direction
     *-superseded.csv          rows of a B_c that its run has since replaced (kept, not used)
     studies/                  cost_vs_c.csv, reward_vs_c.csv
-    table1.csv, table1.md, *.png, REPORT.md
+    rl/<bench>/               the RL baselines (PPO, SAC) and MPPI on Table I's bases
+                              (``rbbo baselines``' layout)
+    reproduce.log             what each session printed
+    table1.csv, table1_runs.csv, table1.md, transfer_table.csv, *.png, REPORT.md
 
 Every optimisation run is an ordinary RBBO run directory (``rbbo report`` reads it); a
 session killed at any moment loses at most the evaluations in flight.

@@ -13,11 +13,15 @@
                           run evaluates the proposals that were in flight when it stopped
                           instead of proposing others in their place
     DIR/best_basis.npy    the recommended B_c, R*'s basis (replaced atomically when a session
-                          of the run ends: a run interrupted before its first end has none)
+                          of the run finishes, or stops because its evaluations keep failing;
+                          one interrupted or ended by an error writes none, so a run that
+                          never finished a session has none)
     DIR/summary.json      R_init, R* and the rest of the report (written with it)
     DIR/sessions.jsonl    one JSON object when a session of the run (search or confirmation)
-                          starts: when, the code (version, git commit) and the machine (CPU,
-                          kernel set, numpy/scipy) it runs on; and one when it ends
+                          submits its first evaluation (a session that evaluates nothing
+                          records nothing): when, the code (version, git commit) and the
+                          machine (CPU, kernel set, numpy/scipy) it runs on; and one when it
+                          ends
                           (``"event": "end"``): when, and its status, "finished",
                           "interrupted" or "error" (a session killed outright has none);
                           append-only

@@ -278,11 +278,12 @@ class RunStore:
         _atomic_write(self.path / BEST, buf.getvalue())
 
     def best_basis(self) -> np.ndarray:
-        """The recommendation written when a session of the run last ended."""
+        """The recommendation written when a session of the run last finished (see
+        :mod:`rbbo.store`: an interrupted session writes none)."""
         path = self.path / BEST
         if not path.is_file():
             raise RunDirectoryError(f"{self.path} has no {BEST} yet: no session of the run has "
-                                    "ended (resume it with rbbo resume)")  # fmt: skip
+                                    "finished (resume it with rbbo resume)")  # fmt: skip
         try:
             return np.load(path, allow_pickle=False)
         except (ValueError, OSError) as exc:

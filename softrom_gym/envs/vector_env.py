@@ -29,7 +29,8 @@ class SoftRobotVectorEnv(VectorEnv):
     autoreset later starts it at rest, as a plain reset does).
 
     Create it with ``gym.make_vec(id, num_envs=n, vectorization_mode="vector_entry_point")``;
-    every other keyword is passed to :class:`SoftRobotEnv`.
+    ``max_episode_steps`` (default 400) and ``threads`` are the vector env's own, and every
+    other keyword is passed to :class:`SoftRobotEnv`.
     """
 
     # Not a ClassVar: gymnasium's VectorEnv declares it per instance.

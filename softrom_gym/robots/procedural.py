@@ -1,6 +1,7 @@
 """The four benchmark robots of the paper's Table I, generated procedurally.
 
-Each shape is a union of axis-aligned boxes in metres, sampled on a voxel grid whose pitch is
+Each shape is a union of axis-aligned boxes in metres (the tripod's body a triangular slab on
+three boxes), sampled on a voxel grid whose pitch is
 ``longest side / resolution`` and tetrahedralised by :func:`voxels_to_tets`. Default
 resolutions give node counts within 11% of Table I (cross 555 vs 623, beam 460 vs 426,
 quadruped 1412 vs 1315, tripod 1434 vs 1417). Every robot rests on z = 0, centred on the z axis.

@@ -199,8 +199,8 @@ def build_subspace(
     M : int
         Deformation coordinates (>= 1). The basis has ``M + 6`` columns.
     num_derivatives : int, optional
-        How many of the M columns are modal derivatives (default ``M // 3``); the rest are
-        the lowest linear vibration modes.
+        How many of the M columns are modal derivatives (default ``M // 3`` for M >= 6,
+        else 0); the rest are the lowest linear vibration modes.
     cache : bool or path
         ``True`` caches under :func:`cache_dir`, a path caches there, ``False`` never caches.
     verbose : bool
