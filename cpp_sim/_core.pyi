@@ -221,7 +221,7 @@ class ReducedModel:
         """
     def step(self, state: ReducedState, f_c: typing.Any = None) -> tuple[ReducedState, dict]:
         """
-        One implicit step; returns (new_state, info). A diverged step returns the input state and info['diverged'] = True; it never raises.
+        One implicit step; returns (new_state, info). A diverged step returns the input state and info['diverged'] = True and does not raise (a state or f_c of the wrong size raises ValueError).
         """
     @property
     def C(self) -> int:
@@ -629,7 +629,7 @@ def _least_distance_sequence(e: typing.Annotated[numpy.typing.NDArray[numpy.floa
     """
 def kernel_instruction_set() -> str:
     """
-    The instruction set of the fast solver's dense kernels (cubature force and stiffness, contact products) in this process: 'x86-64-v3' (AVX2 + FMA, on an x86-64 CPU that has it, in GCC builds) or 'baseline'. Set the environment variable SOFTROM_KERNELS=baseline before the first step to use the baseline: the two round differently (fused multiply-adds), so chaotic trajectories computed with the two part at round-off level.
+    The instruction set of the fast solver's dense kernels (cubature force and stiffness, contact products) in this process: 'x86-64-v3' (AVX2 + FMA, on an x86-64 CPU that has it, in builds by GCC 12 or later) or 'baseline'. The set is chosen once per process, at the kernels' first use (building a model, or a call of this function); set the environment variable SOFTROM_KERNELS=baseline before that to use the baseline: the two round differently (fused multiply-adds), so chaotic trajectories computed with the two part at round-off level.
     """
 def reduced_element_forces(fem: FEMModel, basis: typing.Any, poses: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
     """

@@ -339,7 +339,8 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           },
           py::arg("state"), py::arg("f_c") = py::none(),
           "One implicit step; returns (new_state, info). A diverged step returns the input "
-          "state and info['diverged'] = True; it never raises.")
+          "state and info['diverged'] = True and does not raise (a state or f_c of the wrong "
+          "size raises ValueError).")
       .def(
           "rollout",
           [](const ReducedModel& r, py::handle state, py::handle controls, py::object threads,
@@ -527,9 +528,11 @@ KeyboardInterrupt.)doc")
       "kernel_instruction_set", [] { return std::string(kernels::instruction_set()); },
       "The instruction set of the fast solver's dense kernels (cubature force and stiffness, "
       "contact products) in this process: 'x86-64-v3' (AVX2 + FMA, on an x86-64 CPU that has "
-      "it, in GCC builds) or 'baseline'. Set the environment variable SOFTROM_KERNELS=baseline "
-      "before the first step to use the baseline: the two round differently (fused "
-      "multiply-adds), so chaotic trajectories computed with the two part at round-off level.");
+      "it, in builds by GCC 12 or later) or 'baseline'. The set is chosen once per process, "
+      "at the kernels' first use (building a model, or a call of this function); set the "
+      "environment variable SOFTROM_KERNELS=baseline before that to use the baseline: the two "
+      "round differently (fused multiply-adds), so chaotic trajectories computed with the two "
+      "part at round-off level.");
 
   m.def(
       "_kernel_cols_times",
