@@ -13,10 +13,12 @@ import softrom_gym
 from controllers import (
     MPPI,
     CostWeights,
+    EpisodeResult,
     GaussNewtonSettings,
     GaussNewtonShooting,
     MPPISettings,
     PlannerSettings,
+    SplinePlan,
     default_planner,
     default_settings,
     gait_grid,
@@ -134,6 +136,8 @@ def test_gauss_newton_iterations_never_lower_the_objective(walker):
     assert all(e >= s for s, e in history)
     assert starts[1:] == ends[:-1]  # the next iteration starts where the last one ended
     assert ends[-1] > starts[0]  # and the plan did improve
+    # the record: J of the warm start and of the plan adopted after the last iteration
+    assert gn.last_["objective_start"] == starts[0] and gn.last_["objective_best"] == ends[-1]
     state = walker.get_wrapper_attr("get_state")()
     again = gn._evaluate(state, gn.plan_.knots[None])
     assert again.objective[0] == ends[-1]
@@ -185,6 +189,49 @@ def test_gauss_newton_exploration_competes_under_the_same_acceptance_rule(walker
         GaussNewtonSettings(explore=-1)
     with pytest.raises(ValueError, match="explore_noise must be a finite number > 0, got 0"):
         GaussNewtonSettings(explore_noise=0)
+
+
+def test_gauss_newton_takes_no_step_that_only_ties_the_objective(walker):
+    # At a damping where the step is below the knots' round-off every trial is the plan
+    # itself and scores exactly its J: no improvement, so the iteration is rejected and mu
+    # grows (accepting the tie, >= for >, would record a "step" that changed nothing and cut
+    # mu tenfold where a rejection raises it a thousandfold).
+    gn = GaussNewtonShooting(GaussNewtonSettings(horizon=6, knots=2))
+    gn.reset(walker, seed=0)
+    gn.plan_.knots[:] = 0.5
+    gn.damping_ = 1e140
+    gn.plan(walker)
+    assert gn.last_["accepted"] == ["none"]
+    assert gn.last_["objectives"][0][0] == gn.last_["objectives"][0][1]
+    assert gn.damping_ == pytest.approx(1e140 * 100.0 * 10.0)
+    np.testing.assert_array_equal(gn.plan_.knots, 0.5)
+
+
+def test_gauss_newton_trust_region_scales_a_step_to_its_largest_knot_move(walker):
+    # max_step bounds the move of each knot (the largest |dx_i|): a longer step is scaled until
+    # that move is max_step itself (scaled by its Euclidean norm instead, every step would come
+    # out shorter than the region, by up to sqrt(K C)).
+    gn = GaussNewtonShooting(GaussNewtonSettings(horizon=8, knots=3, damping=1e-4,
+                                                 max_step=0.05))  # fmt: skip
+    gn.reset(walker, seed=0)
+    (_, _), (trials, _) = _plan_recording_rollouts(gn, walker)
+    moves = np.abs(trials.reshape(len(trials), -1)).max(axis=1)  # (the plan was all zeros)
+    assert np.all(moves <= 0.05 + 1e-15)
+    assert moves[0] == pytest.approx(0.05, rel=1e-12)  # the least damped step, scaled down
+
+
+def test_gauss_newton_exploration_candidates_are_seeded_noise_clipped_to_the_bound(walker):
+    # The candidates after the line search's steps are the plan plus explore_noise times
+    # standard normal draws of the planner's seeded stream, clipped to the bound (unscaled
+    # draws would ignore explore_noise; unclipped ones would leave knots outside [-1, 1]).
+    gn = GaussNewtonShooting(GaussNewtonSettings(horizon=6, knots=2, explore=5,
+                                                 explore_noise=0.6))  # fmt: skip
+    gn.reset(walker, seed=3)
+    (_, _), (trials, _) = _plan_recording_rollouts(gn, walker)
+    noise = 0.6 * np.random.default_rng(3).standard_normal((5, 6))  # around knots at zero
+    assert np.abs(noise).max() > 1.0  # some are clipped
+    np.testing.assert_array_equal(trials[4:].reshape(5, 6), np.clip(noise, -1.0, 1.0))
+    assert np.abs(gn.plan_.knots).max() <= 1.0
 
 
 def test_mppi_with_zero_noise_returns_its_warm_start(walker):
@@ -304,6 +351,51 @@ def test_mppi_beats_zero_control_on_a_short_horizon(walker):
     assert ev.objective[0] > ev.objective[1] + 1e-3
 
 
+def test_mppi_samples_are_the_plan_plus_seeded_noise_clipped_to_the_bound(walker):
+    # Sample 0 is the plan; the others the plan plus noise times standard normal draws of the
+    # stream reset(seed) starts, clipped to the bound (unclipped samples would leave the knots
+    # outside [-1, 1]; a stream that ignored the seed would sample every seed alike).
+    knots = np.random.default_rng(5).uniform(-0.5, 0.5, (3, 3))
+    mppi = MPPI(MPPISettings(horizon=6, knots=3, samples=8, noise=0.8))
+    mppi.reset(walker, seed=7)
+    mppi.plan_.knots = knots.copy()
+    ((samples, _),) = _plan_recording_rollouts(mppi, walker)
+    eps = 0.8 * np.random.default_rng(7).standard_normal((8, 3, 3))
+    eps[0] = 0.0
+    assert np.abs(knots + eps).max() > 1.0  # some are clipped
+    np.testing.assert_array_equal(samples, np.clip(knots + eps, -1.0, 1.0))
+    assert np.abs(mppi.plan_.knots).max() <= 1.0
+
+
+def test_mppi_at_a_cold_temperature_takes_its_best_sample(walker):
+    # exp((J - max J) / (temperature spread)) -> 1 for the best sample, 0 for the others: the
+    # exponents stay <= 0 (measured from min J instead, they would overflow: NaN knots)
+    mppi = MPPI(MPPISettings(horizon=6, knots=3, samples=8, noise=0.3, temperature=1e-4))
+    mppi.reset(walker, seed=0)
+    ((samples, j),) = _plan_recording_rollouts(mppi, walker)
+    np.testing.assert_allclose(mppi.plan_.knots, samples[np.argmax(j)], rtol=0, atol=1e-12)
+    assert mppi.last_["effective_samples"] == pytest.approx(1.0, rel=1e-12)
+
+
+def test_mppi_objective_best_is_the_best_sample_of_all_rounds(walker, monkeypatch):
+    # With later rounds scoring worse, the best sample is in the first: objective_best is the
+    # best of every round's (the last round's best would understate it)
+    mppi = MPPI(MPPISettings(horizon=6, knots=3, samples=4, iterations=3))
+    mppi.reset(walker, seed=0)
+    evaluate = mppi._evaluate
+    bests = []
+
+    def later_rounds_worse(state, knots, horizon=None):
+        ev = evaluate(state, knots, horizon)
+        ev = dataclasses.replace(ev, objective=ev.objective - 10.0 * len(bests))
+        bests.append(float(ev.objective.max()))
+        return ev
+
+    monkeypatch.setattr(mppi, "_evaluate", later_rounds_worse)
+    mppi.plan(walker)
+    assert len(bests) == 3 and mppi.last_["objective_best"] == bests[0] > bests[-1]
+
+
 @pytest.mark.parametrize("planner", ["mppi", "gn"])
 def test_same_seed_same_episode_whatever_the_thread_count(planner):
     results = []
@@ -352,6 +444,68 @@ def test_episode_result_records_the_episode(walker, tmp_path):
         with pytest.raises(ValueError, match=r"must lie in \[0, 0.1\] s, in order"):
             res.distance_between(*times)
     assert res.distance_between(0.0, 0.1) == pytest.approx(res.distance[-1])
+
+
+def _made_up_episode(body_length=0.5, planner="mppi"):
+    """8 steps of 0.025 s, the COM at 0.01 t^2 along x (t in steps), replans at steps 0 and 4."""
+    n = 8
+    com = np.zeros((n + 1, 3))
+    com[:, 0] = 0.01 * np.arange(n + 1) ** 2
+    return EpisodeResult(planner=planner, dt=0.025, body_length=body_length,
+                         rewards=np.diff(com[:, 0]), orientation=np.zeros(n),
+                         lateral=np.zeros(n), effort=np.zeros(n), actions=np.zeros((n, 3)),
+                         com=com, distance=com[:, 0], states=[None] * (n + 1),
+                         replan_steps=np.array([0, 4]),
+                         replan_wall_s=np.array([0.1, 0.3]))  # fmt: skip
+
+
+def test_episode_result_arithmetic_on_a_made_up_episode():
+    # 0.15 s / 0.025 s is 5.999...: distance_between reads step 6, the nearest (int() would
+    # read step 5); the real-time factor is the simulated seconds between replans per wall second
+    # of one (not one step's); a start at the episode's end summarises the whole episode, as
+    # one past it does, not the empty window at its end.
+    res = _made_up_episode()
+    com = res.com
+    assert res.distance_between(0.15) == pytest.approx(com[8, 0] - com[6, 0], rel=1e-12)
+    assert res.distance_between(0.05, 0.15) == pytest.approx(com[6, 0] - com[2, 0], rel=1e-12)
+    assert res.realtime_factor(4) == pytest.approx(4 * 0.025 / 0.2, rel=1e-12)
+    assert "distance t=0..0.2 s +0.640 m (+1.28 body lengths)" in res.summary(start=0.2)
+    assert "distance t=0.1..0.2 s +0.480 m" in res.summary(start=0.1)
+
+
+def test_an_episode_lasts_the_nearest_whole_number_of_steps():
+    # 0.15 s of 0.025 s steps is 5.999... steps: six are run (int() would run five)
+    env = small_env("walk")
+    res = run_episode(env, MPPI(MPPISettings(horizon=4, knots=2, samples=2)), 0.15,
+                      replan_every=10, seed=0, progress=False)  # fmt: skip
+    assert res.rewards.size == 6 and res.seconds == pytest.approx(0.15)
+
+
+class _StartFrom(gym.Wrapper):
+    """Resets the env to a given state (as ``options={"state": ...}`` does)."""
+
+    def __init__(self, env, state):
+        super().__init__(env)
+        self.state = state
+
+    def reset(self, *, seed=None, options=None):
+        return self.env.reset(seed=seed, options={"state": self.state})
+
+
+def test_an_episode_from_a_state_away_from_the_origin_counts_its_distance_from_there():
+    # distance is along d since the episode's first state, wherever it is (measured from the
+    # origin, R of an episode reset to a state mid-walk would include the walk before it; the
+    # benchmarks reset to the origin, where the two agree)
+    env = small_env("walk")
+    env.reset(seed=0)
+    for _ in range(10):
+        env.step(np.full(3, 0.5 * env.get_wrapper_attr("action_bound"), dtype=np.float32))
+    start = _StartFrom(env, env.get_wrapper_attr("get_state")())
+    res = run_episode(start, MPPI(MPPISettings(horizon=4, knots=2, samples=2)), 0.1,
+                      seed=0, progress=False)  # fmt: skip
+    assert abs(res.com[0] @ env.get_wrapper_attr("direction")) > 1e-5  # away from the origin
+    assert res.distance[0] == 0.0
+    assert res.R == pytest.approx(res.rewards.sum(), abs=1e-12)
 
 
 def test_a_video_without_imageio_fails_before_the_episode(tmp_path, monkeypatch):
@@ -449,6 +603,41 @@ def test_gait_seed_picks_a_sinusoid_and_plans_carry_it(walker):
     np.testing.assert_allclose(p.plan_.controls()[:7], u[1:], atol=1e-14)
 
 
+def test_the_gait_seed_knots_sample_the_chosen_sinusoid_scored_over_seed_horizon(walker):
+    # The seed's knots are the chosen gait, A sin(2 pi f t_k + phi) clipped to the bound, at the
+    # knot times t_k = k P / K of the chosen cycle P (in seconds: times dt) and f = 1 / (P dt);
+    # each candidate is scored over seed_horizon steps. (Without dt the knots would sample
+    # another frequency; with the settings' period for every cycle's f, a seed_periods cycle
+    # would be sampled at the wrong one; with the plan's horizon, seed_horizon ignored.) K = 4:
+    # at 40 Hz control a knot time in steps, not seconds, gives the same phases for K = 3.
+    settings = MPPISettings(horizon=12, knots=4, period=6, gait_seed=True, seed_horizon=10,
+                            seed_periods=(4,), seed_amplitudes=(0.5, 1.5), samples=2,
+                            threads=1)  # fmt: skip
+    planner = MPPI(settings)
+    scored = []
+    real = planner._evaluate_controls
+
+    def favour_last(state, u, horizon):
+        ev = real(state, u, horizon)
+        scored.append(u.copy())
+        objective = np.zeros(u.shape[0])
+        objective[-1] = 1.0  # the 4-step cycle's last gait (A = 1.5: clipped knots)
+        return dataclasses.replace(ev, objective=objective)
+
+    planner._evaluate_controls = favour_last
+    planner.reset(walker, seed=0)
+    dt = walker.get_wrapper_attr("dt")
+    gait = gait_grid(3, (1.0 / (4 * dt),), settings.seed_amplitudes)[-1]
+    knots = np.clip(gait.controls(4, dt, 1.0), -1.0, 1.0)  # t_k = k (4 / 4) dt
+    assert np.abs(gait.controls(4, dt, 1.0)).max() > 1.0  # (some clipped)
+    assert planner.plan_.period == 4 and planner.seed_["gait"] == gait.label()
+    np.testing.assert_allclose(planner.plan_.knots, knots, rtol=0, atol=1e-12)
+    (u,) = scored  # one batched rollout
+    assert u.shape == (2 * len(gait_grid(3, (1.0,), (0.5, 1.5))), 10, 3)
+    trial = SplinePlan(10, 4, 3, period=4)
+    np.testing.assert_allclose(u[-1], np.clip(trial.controls(knots), -1, 1), rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize(
     ("cls", "kwargs", "message"),
     [
@@ -535,6 +724,8 @@ def test_invalid_weights_and_inputs_raise_clear_errors(walker):
     assert (
         default_planner("CrossSwim-v0", "mppi", horizon=10, window=None)[0].settings.window is None
     )
+    # a horizon as long as the window is not shorter than it: accepted
+    assert default_planner("CrossSwim-v0", "mppi", horizon=20)[0].settings.window == 20
 
 
 def test_evaluate_checks_what_it_is_given(walker):
@@ -549,8 +740,10 @@ def test_evaluate_checks_what_it_is_given(walker):
         evaluate(out, np.zeros((2, 3, 3)), *args)
     with pytest.raises(ValueError, match="units of the action bound, within"):
         evaluate(out, np.full((2, 4, 3), bound), *args)
-    with pytest.raises(ValueError, match="window must be an integer >= 1 or None, got -3"):
-        evaluate(out, np.zeros((2, 4, 3)), *args, window=-3)
+    for window in (-3, 0):  # (0 would score every plan 0: R over no steps)
+        with pytest.raises(ValueError, match=f"window must be an integer >= 1 or None, got "
+                           f"{window}"):  # fmt: skip
+            evaluate(out, np.zeros((2, 4, 3)), *args, window=window)
 
 
 def test_evaluate_is_r_minus_lambda_of_the_module_docstring():
@@ -671,6 +864,10 @@ def test_defaults_keep_their_seconds_at_another_control_period():
     # a cycle of fewer steps than knots: one knot a step; changes are in the env's steps
     quad = planner_for("softrom_gym/QuadrupedWalk-v0", "mppi", dt=0.05)[0].settings
     assert (quad.period, quad.knots) == (5.0, 5)
+    # a cycle of 3.33 steps (the tripod's 3 Hz at 0.1 s) takes 3 knots, the whole steps in it
+    # (rounded up to 4, more knots than steps in the cycle, the settings would refuse it)
+    tripod = planner_for("softrom_gym/TripodWalk-v0", "gn", dt=0.1)[0].settings
+    assert tripod.period == pytest.approx(10 / 3) and tripod.knots == 3
     own = planner_for("softrom_gym/SoftRobot-v0", "mppi", dt=0.0125, horizon=100)[0].settings
     assert (own.period, own.horizon, own.window) == (40.0, 100, 40)
     with pytest.raises(ValueError, match=r"default gait cycle \(0.25 s\) is 1.25 env steps"):
@@ -886,6 +1083,12 @@ def test_predict_is_what_the_plan_then_does_and_changes_nothing():
     h = planner.settings.horizon
     assert predicted["controls"].shape == (h, 3) and predicted["com"].shape == (h, 3)
     assert planner.last_ == last and np.array_equal(planner.plan_.knots, knots)
+    # its objective is R - Λ over the settings' window, as a replan scores the plan (with R
+    # over the whole horizon it would be another number than the one the planner maximises)
+    state = env.get_wrapper_attr("get_state")()
+    assert planner.settings.window < h
+    scored = planner._evaluate(state, planner.plan_.knots[None]).objective[0]
+    assert predicted["objective"] == pytest.approx(scored, rel=1e-9, abs=1e-12)
     # the plan played out step by step is the prediction, to the bit (one simulator)
     for t in range(3):
         action = planner.action(env)
@@ -977,6 +1180,27 @@ def test_the_studies_name_bad_arguments_before_building_an_env(monkeypatch):
         reward_against_c(seeds=[])
 
 
+def test_reward_against_c_rows_are_each_episodes_distances(monkeypatch):
+    # One row per (C, seed), an episode on the robot with C modes: R_m the distance from
+    # ``start`` to the end, R_bl the same in body lengths (not R_m again), R_total_m the
+    # whole episode's. The episode is made up: the rows' arithmetic is what is checked.
+    import controllers.studies as studies
+
+    seen = []
+
+    def made_up(env, planner, seconds, **kwargs):
+        seen.append((env.action_space.shape[0], kwargs["seed"], seconds))
+        return _made_up_episode(body_length=0.8, planner=planner.name)
+
+    monkeypatch.setattr(studies, "run_episode", made_up)
+    rows = studies.reward_against_c("softrom_gym/BeamWalk-v0", cs=[2], seeds=[4], seconds=0.2,
+                                    start=0.05)  # fmt: skip
+    assert seen == [(2, 4, 0.2)]
+    assert rows == [{"C": 2, "seed": 4, "R_m": pytest.approx(0.60), "R_bl": pytest.approx(0.75),
+                     "R_total_m": pytest.approx(0.64), "planner": "mppi",
+                     "seconds": pytest.approx(0.2), "start": 0.05}]  # fmt: skip
+
+
 def test_cli_names_more_bad_arguments_and_takes_an_unversioned_id_and_replan_interval(
     capsys, monkeypatch
 ):
@@ -1051,6 +1275,9 @@ def test_gaits_beyond_four_modes_and_their_controls():
     np.testing.assert_allclose(orders[1], -five % (2 * np.pi))
     assert orders[2] == (0.0,) * 5
     assert len(gait_grid(5, (2.0,), (0.5, 1.0))) == 6
+    # up to C = 4 every order: (C - 1)! travelling and 2^(C - 1) standing waves, less those
+    # that are both (C = 1, 2); at C = 4 not only the two directions and all in phase
+    assert [len(phase_orders(c)) for c in (1, 2, 3, 4)] == [1, 2, 6, 14]
     for bad, error, message in ((True, TypeError, "control_dim must be an int, got True"),
                                 (2.0, TypeError, "control_dim must be an int, got 2.0"),
                                 (0, ValueError, "control_dim must be >= 1, got 0")):  # fmt: skip

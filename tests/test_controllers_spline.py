@@ -91,6 +91,38 @@ def test_an_open_plan_stepped_one_step_at_a_time_sends_the_controls_it_was_score
     np.testing.assert_allclose(again.controls()[[0, 39]], before[[3, 39]], atol=1e-14)
 
 
+def test_a_periodic_cubic_is_catmull_rom_in_every_segment_including_the_wrap():
+    # Midway between knots j and j + 1 the Catmull-Rom spline is (-p_{j-1} + 9 p_j + 9 p_{j+1}
+    # - p_{j+2}) / 16, indices modulo K. Guards the last segment, from knot K - 1 to the next
+    # cycle's knot 0: evaluated by the segment before it (extrapolated), it would still pass
+    # through the knots but not between them.
+    rng = np.random.default_rng(3)
+    plan = SplinePlan(horizon=16, knots=4, control_dim=2, period=8)  # a knot every 2 steps
+    plan.knots = p = rng.uniform(-1, 1, (4, 2))
+    mid = (-np.roll(p, 1, 0) + 9 * p + 9 * np.roll(p, -1, 0) - np.roll(p, -2, 0)) / 16
+    u = plan.controls()
+    np.testing.assert_allclose(u[0:8:2], p, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(u[1:8:2], mid, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(u[8:], u[:8], rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("period", [None, 7.5])
+def test_value_reads_the_plan_any_steps_ahead_and_a_zero_shift_keeps_it(period):
+    # value(step) is the control ``step`` env steps after the clock, controls()[step] (the
+    # planners read value(0) only, so one that ignored step passed every other test); shift(0),
+    # a finite number >= 0, changes nothing
+    rng = np.random.default_rng(4)
+    plan = SplinePlan(horizon=12, knots=4, control_dim=2, period=period)
+    plan.knots = rng.uniform(-1, 1, (4, 2))
+    plan.shift(3)
+    u = plan.controls()
+    for step in (0, 1, 5, 11):
+        np.testing.assert_allclose(plan.value(step), u[step], rtol=0, atol=1e-15)
+    plan.shift(0)
+    assert plan.offset == 3.0
+    np.testing.assert_array_equal(plan.controls(), u)
+
+
 def test_bad_plans_raise_errors_naming_the_value():
     with pytest.raises(ValueError, match="horizon must be a positive integer, got 0"):
         SplinePlan(0, 2, 3)
