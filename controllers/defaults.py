@@ -230,6 +230,12 @@ def _changed(settings: PlannerSettings, changes: dict[str, Any]) -> PlannerSetti
                          "window too (window=None for the whole horizon; on a command "
                          "line --mpc window=none, or python -m controllers --window "
                          "all)")  # fmt: skip
+    knots = changes.get("knots")
+    if "seed_periods" not in changes and isinstance(knots, int) and settings.seed_periods:
+        # the defaults' other gait cycles shorter than the knots asked for cannot be planned:
+        # dropped, as at another control period (not an error naming a setting not given)
+        kept = tuple(p for p in settings.seed_periods if p >= knots)
+        changes = {**changes, "seed_periods": kept}
     return settings.replace(**changes) if changes else settings
 
 

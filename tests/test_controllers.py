@@ -850,6 +850,19 @@ def test_planner_for_uses_tuned_defaults_only_where_they_exist():
             planner_for(env_id, "mppi", bogus=3)
 
 
+def test_more_knots_on_a_robot_of_ones_own_drop_the_shared_cycles_too_short_for_them():
+    # The shared defaults' gait seed also tries cycles of 13.3 and 10 steps; knots=12 was
+    # refused with "seed_periods must be ... >= knots", a setting the caller never gave.
+    # Cycles too short for the knots asked for are dropped, as at another control period.
+    for knots, kept in ((6, (40 / 3, 10.0)), (12, (40 / 3,)), (14, ())):
+        settings = planner_for("softrom_gym/SoftRobot-v0", "mppi", knots=knots)[0].settings
+        assert settings.knots == knots and settings.seed_periods == pytest.approx(kept)
+        assert settings.gait_seed and settings.period == 20
+    # cycles the caller gives are the caller's: still refused when too short
+    with pytest.raises(ValueError, match=r"seed_periods must be .* >= knots = 12, got \(10.0,\)"):
+        planner_for("softrom_gym/SoftRobot-v0", "mppi", knots=12, seed_periods=(10,))
+
+
 def test_defaults_keep_their_seconds_at_another_control_period():
     # Tuned in env steps of 0.025 s; at frame_skip = 10 (0.05 s) the same seconds are half
     # the steps, and the benchmark's own period passes through unchanged.
