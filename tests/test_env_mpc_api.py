@@ -55,6 +55,11 @@ def test_per_step_terms_have_their_documented_shapes_and_meaning():
     com0 = env.unwrapped.model.com(state.q)
     advance = np.diff(np.concatenate([np.broadcast_to(com0, (3, 1, 3)), out["com"]], 1), axis=1)
     np.testing.assert_allclose(out["rewards"], advance[..., 0], rtol=1e-9, atol=1e-12)
+    # lateral: the ground-plane motion orthogonal to d (here y); effort: |f_c / a|^2 (guards
+    # against the full planar motion, or |f_c / a|_1, reported instead)
+    np.testing.assert_allclose(out["lateral"], np.abs(advance[..., 1]), rtol=1e-9, atol=1e-15)
+    assert np.all(out["lateral"] > 0)
+    np.testing.assert_allclose(out["effort"], 3 * 0.5**2, rtol=1e-6)
     assert out["observed"].shape == (3, 5, 2)
     np.testing.assert_array_equal(out["observed"][:, -1], out["q"][:, :2])
     assert not out["lost"].any()

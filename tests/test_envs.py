@@ -72,6 +72,36 @@ def test_orientation_slots_read_the_rotation_and_turning_shows_up():
     env.close()
 
 
+def test_height_velocity_and_orientation_slots_against_their_definitions():
+    # Guards: obs[0] forgetting the ground height, obs[1:4] the 1 / sqrt(m) of B_r's
+    # translation columns, and the orientation fit losing its mass weighting (with it, pure
+    # deformation, mass-orthogonal to the rotation columns, reads as no turn at all).
+    base = gym.make("softrom_gym/BeamWalk-v0").unwrapped
+    base.reset(seed=0)
+    basis, mass = base.subspace.basis, base.robot.fem_model().mass
+    rng = np.random.default_rng(0)
+    q = np.zeros(basis.shape[1])
+    q[6:] = 1e-3 * rng.normal(size=basis.shape[1] - 6)
+    qdot = 1e-2 * rng.normal(size=basis.shape[1])
+    base.set_state(cpp_sim.ReducedState(q, qdot, base.get_state().impulses))
+    obs = base._obs(base.get_state())
+    velocity = mass @ (basis @ qdot).reshape(-1, 3) / mass.sum()
+    np.testing.assert_allclose(obs[1:4], velocity, rtol=1e-5)
+    np.testing.assert_allclose(obs[4:7], 0.0, atol=1e-9)
+    base.model.ground_height = 0.05
+    height = base.model.com(q)[2] - 0.05
+    assert base._obs(base.get_state())[0] == pytest.approx(height, rel=1e-6)
+
+
+def test_a_diverging_step_terminates_and_does_not_truncate():
+    # Guards: step() swapping terminated and truncated (only rollout's divergence was tested).
+    env = gym.make("softrom_gym/SoftRobot-v0", robot="beam", action_scale=1e9)
+    env.reset(seed=0)
+    action = np.full(3, env.get_wrapper_attr("action_bound"), dtype=np.float32)
+    _, _, terminated, truncated, info = env.step(action)
+    assert terminated and not truncated and info["diverged"]
+
+
 def test_seeded_determinism(env):
     def trajectory(seed):
         obs, _ = env.reset(seed=seed)
@@ -306,6 +336,40 @@ def test_vector_env_autoresets_on_the_next_step():
     obs, rewards, term, trunc, _ = venv.step(zero)  # the autoreset step
     assert not trunc.any() and not term.any() and np.all(rewards == 0)
     assert obs.shape == first.shape
+    # Guards: reset() leaving the pending autoreset armed (the step after it would reset again
+    # and pay 0 instead of stepping): after a truncation and a reset, the next step is a step.
+    venv.step(zero)
+    _, _, _, trunc, _ = venv.step(zero)
+    assert trunc.all()
+    venv.reset(seed=1)
+    _, rewards, _, trunc, _ = venv.step(zero)
+    assert not trunc.any() and np.all(rewards != 0)
+
+
+def test_vector_env_distance_counts_from_each_robot_s_own_start():
+    # Guards: a step not measuring robot i's info["distance"] from robot i's own start (the
+    # shared env keeps the start of the robot reset last, here one autoreset at rest after a
+    # divergence, while the other goes on from a state given to reset).
+    kwargs = {"robot": "beam", "action_scale": 1e9}
+    single = gym.make("softrom_gym/SoftRobot-v0", **kwargs)
+    single.reset(seed=0)
+    bound = single.get_wrapper_attr("action_bound")
+    gait = np.array([0.5, -0.5, 0.5]) * bound * 1e-9  # half a body weight of modal force
+    for _ in range(10):
+        single.step(gait)
+    mid = single.get_wrapper_attr("get_state")()
+    start = single.get_wrapper_attr("center_of_mass")(mid)
+    venv = gym.make_vec("softrom_gym/SoftRobot-v0", num_envs=2,
+                        vectorization_mode="vector_entry_point", **kwargs)  # fmt: skip
+    venv.reset(seed=0, options={"state": mid})
+    _, _, term, _, _ = venv.step(np.stack([np.full(3, bound), gait]))
+    assert term.tolist() == [True, False]
+    _, _, _, _, info = venv.step(np.stack([gait, gait]))  # robot 0 autoresets at rest
+    assert info["distance"][0] == 0.0
+    assert info["distance"][1] == pytest.approx(info["com"][1][0] - start[0], rel=1e-12)
+    model = single.unwrapped.model
+    assert abs(start[0] - model.com(model.rest_state().q)[0]) > 1e-6  # two starts, told apart
+    venv.close()
 
 
 def test_export_trajectory_writes_one_mesh_per_frame(tmp_path):
@@ -390,6 +454,23 @@ def test_a_mesh_of_your_own_by_path_trimesh_or_scale(tmp_path):
         gym.make("softrom_gym/SoftRobot-v0", robot=str(tmp_path / "noext"))
     with pytest.raises(ValueError, match="is a directory, not a mesh file"):
         gym.make("softrom_gym/SoftRobot-v0", robot=str(tmp_path))
+
+
+def test_boundary_arguments_a_square_control_basis_and_no_reset_noise_are_accepted():
+    # Guards: `control_dim > sim_dim` becoming `>=`, and a square B_c (C = M) taken for a
+    # transposed one; reset_noise_scale = 0 (a documented ">= 0") refused or still noisy.
+    env = gym.make("softrom_gym/BeamWalk-v0", control_basis=np.eye(20), reset_noise_scale=0.0)
+    assert env.action_space.shape == (20,)
+    env.reset(seed=0)
+    np.testing.assert_array_equal(env.get_wrapper_attr("get_state")().qdot, 0.0)
+    # Guards: orthonormalize losing the sign fix of the QR (whose R has negative diagonal
+    # entries here): each column keeps its sense. Within 1e-8 of orthonormal is accepted.
+    gym.make("softrom_gym/BeamWalk-v0", control_basis=np.eye(20)[:, :3] * (1 + 1e-10))
+    raw = np.random.default_rng(0).normal(size=(20, 3))
+    fixed = gym.make("softrom_gym/BeamWalk-v0", control_basis=raw, orthonormalize=True)
+    b_c = fixed.unwrapped.control_basis
+    np.testing.assert_allclose(b_c.T @ b_c, np.eye(3), atol=1e-12)
+    assert np.all(np.diag(b_c.T @ raw) > 0)
 
 
 def test_reset_noise_is_a_fraction_of_a_small_robot_s_length():
@@ -495,6 +576,9 @@ def test_more_bad_env_arguments_are_named_before_anything_is_built(monkeypatch):
         ({"control_basis": basis}, r"control_basis contains non-finite values, e.g. inf at "
                                    r"\(4, 1\)"),
         ({"material": {"youngs": 1e5}}, r"unknown material parameter\(s\) \['youngs'\]"),
+        # 2e-6 off orthonormal, over the 1e-8 tolerance (guards a looser Python check, which
+        # the core's own check would catch only after B_r and the cubature are built)
+        ({"control_basis": np.eye(20)[:, :3] * (1 + 1e-6)}, "control_basis is not orthonormal"),
     ):  # fmt: skip
         with pytest.raises(ValueError, match=message):
             gym.make("softrom_gym/BeamWalk-v0", **kwargs)

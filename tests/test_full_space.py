@@ -164,6 +164,8 @@ def test_settings_and_models_without_a_full_space_counterpart_are_named(bar):
                        ):  # fmt: skip
         with pytest.raises(ValueError, match=match):
             FullSpaceModel(bar, **bad)
+    for edge in (0.0, 1.0):  # [0, 1] is closed: guards `<= 1` becoming `< 1`
+        assert FullSpaceModel(bar, stabilization=edge).stabilization == edge
     sub = full_basis(bar)
     # staggered contact with a fluid: the full-space model has no drag
     wet = build_reduced_model(bar, forces="exact", subspace=sub, fluid_density=500.0,

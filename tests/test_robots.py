@@ -123,6 +123,8 @@ def test_from_mesh_bad_arguments(tmp_path):
     for material, error, message in (
         ({"youngs_modulus": -1.0}, ValueError, "youngs_modulus must be a finite number > 0"),
         ({"poisson_ratio": 0.7}, ValueError, r"poisson_ratio must lie in \(-1, 0.5\), got 0.7"),
+        # (the open bound itself: guards `< 0.5` becoming `<= 0.5`)
+        ({"poisson_ratio": 0.5}, ValueError, r"poisson_ratio must lie in \(-1, 0.5\), got 0.5"),
         ({"density": float("nan")}, ValueError, "density must be a finite number > 0, got nan"),
         ({"youngs_modulus": "5e4"}, TypeError, "youngs_modulus must be a real number, got '5e4'"),
     ):
@@ -131,6 +133,7 @@ def test_from_mesh_bad_arguments(tmp_path):
     # near incompressibility linear tetrahedra lock: allowed, with a warning that says so
     with pytest.warns(UserWarning, match="poisson_ratio = 0.49: linear tetrahedra lock"):
         from_mesh(box, 4, poisson_ratio=0.49)
+    from_mesh(box, 4, poisson_ratio=0.45)  # the advised nu <= 0.45 is silent (warnings fail)
 
 
 def test_from_mesh_refuses_overlapping_shells():
@@ -164,6 +167,9 @@ def test_from_mesh_warns_of_separate_bodies_and_of_units():
         from_mesh(millimetres, 4)
     robot = from_mesh(millimetres, 4, scale=0.001)
     assert np.ptp(robot.nodes, axis=0).max() == pytest.approx(0.2)
+    # 5 mm and 5 m themselves are in range, silently (guards `<=` becoming `<`)
+    for length in (0.005, 5.0):
+        from_mesh(trimesh.creation.box((length, length / 2, length / 2)), 2)
 
 
 def test_degenerate_faces_do_not_make_a_mesh_open():

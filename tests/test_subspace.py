@@ -127,6 +127,26 @@ def test_a_control_basis_maps_to_the_same_actuation_in_a_larger_space(robot, sub
             map_control_basis(outside, robot, 40, 20, atol=atol)
 
 
+def test_the_mapping_s_residual_is_the_mass_norm_share_the_target_cannot_hold(robot, subspace):
+    # Guards: the residual's denominator |B B_c|_M taken without the mass (sqrt(C) exactly,
+    # B being mass-orthonormal), and C == target_dim refused as "more than target_dim".
+    import re
+
+    from softrom_gym import map_control_basis
+
+    b_c = np.linalg.qr(np.random.default_rng(4).normal(size=(20, 3)))[0]
+    small = build_subspace(robot, 8).deformation
+    m3 = np.repeat(robot.fem_model().mass, 3)
+    field = subspace.deformation @ b_c
+    lost = field - small @ (small.T @ (m3[:, None] * field))
+    expected = np.sqrt(np.sum(m3[:, None] * lost**2)) / np.sqrt(3)
+    with pytest.raises(ValueError, match="relative residual") as error:
+        map_control_basis(b_c, robot, 20, 8)
+    reported = float(re.search(r"relative residual (\S+) >", str(error.value)).group(1))
+    assert reported == pytest.approx(expected, rel=2e-3)
+    np.testing.assert_array_equal(map_control_basis(np.eye(3), robot, 3, 3), np.eye(3))
+
+
 def test_subspace_is_cached_on_disk(robot, subspace, monkeypatch):
     files = list(cache_dir().glob("subspace-*.npz"))
     assert files, "no cache file written"
@@ -242,6 +262,20 @@ def test_the_largest_simulation_space_of_a_small_mesh_is_all_its_vibration_modes
     np.testing.assert_allclose(gram, np.eye(largest + 6), atol=1e-9)
 
 
+def test_a_small_mesh_s_modes_from_the_dense_solver_solve_the_eigenproblem():
+    # Guards: dense_eigh (3N <= 600, every small mesh) returning the eigenvectors of
+    # M^-1/2 K M^-1/2 without mapping them back by M^-1/2 (the benchmark robots take ARPACK).
+    small = from_mesh(trimesh.creation.box((0.2, 0.1, 0.1)), 3)
+    assert 3 * small.num_nodes <= 600
+    sub = build_subspace(small, 6, num_derivatives=0, cache=False)
+    fem = small.fem_model()
+    k, m3 = fem.stiffness(small.nodes), np.repeat(fem.mass, 3)
+    for j in range(6):
+        u = sub.deformation[:, j]
+        residual = k @ u - sub.frequencies[j] ** 2 * m3 * u
+        assert np.linalg.norm(residual) < 1e-6 * np.linalg.norm(k @ u)
+
+
 def _cubature_errors(robot, subspace, rule, poses):
     """Each pose's relative error of the rule's reduced elastic force."""
     g = cpp_sim.reduced_element_forces(robot.fem_model(), subspace.elastic, poses)
@@ -266,6 +300,15 @@ def test_cubature_matches_exact_forces_on_held_out_poses(robot, subspace):
     poses = sample_poses(robot, subspace, 30, np.random.default_rng(2024))  # unseen seed
     rel = _cubature_errors(robot, subspace, rule, poses)
     assert rel.max() < 0.03, rel.max()
+
+
+def test_training_poses_scale_each_deformation_column_by_its_inverse_frequency(robot, subspace):
+    # Guards: sample_poses multiplying by omega_j instead of dividing (stiff columns would
+    # dominate the training poses). Every pose's coefficients share one scale factor, so
+    # |c_j| omega_j has the same distribution for every column j.
+    poses = sample_poses(robot, subspace, 400, np.random.default_rng(0))
+    spread = np.median(np.abs(poses[:, 3:]), axis=0) * subspace.frequencies
+    assert spread.max() < 1.4 * spread.min()
 
 
 def test_reduced_element_forces_sum_to_projected_full_forces(robot, subspace):
