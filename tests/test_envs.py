@@ -63,6 +63,10 @@ def test_orientation_slots_read_the_rotation_and_turning_shows_up():
     obs = base._obs(base.get_state())
     np.testing.assert_allclose(obs[4:7], theta, rtol=1e-5)
     np.testing.assert_allclose(obs[7:10], omega, rtol=1e-5)
+    # reset's info reads the orientation of the state, not of its angular velocity (the bug
+    # guarded against: |theta| computed from q_dot where step's comes from rollout)
+    _, info = base.reset(options={"state": base.get_state()})
+    assert info["orientation"] == pytest.approx(np.linalg.norm(theta), rel=1e-5)
     # Walking with random actuation turns the body a little (friction torques).
     env.reset(seed=1)
     env.action_space.seed(1)
@@ -488,6 +492,7 @@ def test_reset_noise_is_a_fraction_of_a_small_robot_s_length():
     np.testing.assert_allclose(noise(0.5)[0], big[0], rtol=1e-12)
     np.testing.assert_allclose(small[0], big[0] * small[1] / 0.1, rtol=1e-12)
     assert 0.005 < np.abs(big[0]).max() <= 0.01
+    assert big[0].min() < 0 < big[0].max()  # in +-: guards a one-sided uniform(0, noise)
 
 
 def test_a_first_build_says_what_it_computes_and_a_cached_one_is_silent(

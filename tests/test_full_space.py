@@ -20,6 +20,17 @@ def bar():
     return Robot("bar", nodes, tets, youngs_modulus=2e4)
 
 
+def test_the_centre_of_mass_is_mass_weighted(bar):
+    # Guards: com() as the plain mean of the nodes. The deformation columns are mass-orthogonal
+    # to the translations, so no deformation moves the (mass-weighted) centre of mass.
+    sub = full_basis(bar)
+    model = FullSpaceModel(bar)
+    rest = model.com(bar.nodes)
+    for j in range(sub.M):
+        moved = model.com(bar.nodes + 0.01 * sub.deformation[:, j].reshape(-1, 3))
+        np.testing.assert_allclose(moved, rest, rtol=0, atol=1e-12)
+
+
 def test_is_the_reduced_step_with_a_full_basis(bar):
     """Dropped 1 cm onto a frictional ground and actuated in two shapes, the full-space model
     follows the reduced reference solver whose B_r spans all 3N directions: the same implicit
