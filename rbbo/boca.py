@@ -30,7 +30,7 @@ and its reference implementation):
    In a 51-dimensional B_c space tau stays near its prior value for tens of proposals, so
    rule 3 alone chose T below T_max for the first 29-59 search proposals of three of the
    45-minute reproduction's five Table I runs (the beam, the swimmer, the quadruped; the
-   cross walker and the tripod reached T_max within three), and a short run evaluated none of
+   cross walker and the tripod chose T_max after three and one), and a short run evaluated none of
    the GP's proposals at T_max; the recommendation
    and its confirmation need some. On the synthetic objective (M = 20, C = 3, T in [2, 4] s,
    8 seeds; ``benchmarks/study_boca_recommendation.py`` with and without ``--no-floor``) the
