@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from softrom_gym._console import say_warnings_as
 from softrom_gym.registration import control_period, parse_env_kwarg
 
 from .defaults import DEFAULTS, PLANNERS, parse_changes, planner_for
@@ -97,6 +98,14 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m controllers``; returns the exit status.
+
+    With ``argv=None`` (this process's command line) it also prints the process's warnings (an
+    env's, say) as ``python -m controllers: warning:`` lines; a call with an argument list
+    leaves the caller's warning display alone.
+    """
+    if argv is None:
+        say_warnings_as("python -m controllers")
     parser = _parser()
     args = parser.parse_args(argv)
     if not (math.isfinite(args.seconds) and args.seconds > 0):

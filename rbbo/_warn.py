@@ -7,8 +7,9 @@ of theirs). :func:`outside_stacklevel` counts the frames instead.
 
 How: in the ``rbbo`` command and in the process pool's workers, nothing of the user's code is
 on the stack, and Python's display (a file and line of the package, and its source) says
-nothing a user can act on; :func:`say_warnings_as` prints ``<who>: warning: <message>
-(<category>)`` lines instead, as the command prints its errors.
+nothing a user can act on; :func:`say_warnings_as` (``softrom_gym._console``'s, which the
+``python -m controllers`` command shares) prints ``<who>: warning: <message> (<category>)``
+lines instead, as the command prints its errors.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-import warnings
+
+from softrom_gym._console import say_warnings_as
 
 __all__ = ["outside_stacklevel", "say_warnings_as"]
 
@@ -36,13 +38,3 @@ def outside_stacklevel() -> int:
         frame = frame.f_back
         level += 1
     return level
-
-
-def say_warnings_as(who: str) -> None:
-    """From now on, this process prints each warning it shows as one ``<who>: warning:`` line
-    on stderr (for a process that is rbbo's: the command line, a pool worker)."""
-
-    def show(message, category, filename, lineno, file=None, line=None) -> None:
-        print(f"{who}: warning: {message} ({category.__name__})", file=file or sys.stderr)
-
-    warnings.showwarning = show

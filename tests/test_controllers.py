@@ -1307,3 +1307,25 @@ def test_gaits_beyond_four_modes_and_their_controls():
     expected = 0.5 * 4.0 * np.sin(2 * np.pi * 2.0 * t[:, None] + np.array([0.0, np.pi / 2]))
     np.testing.assert_allclose(u, expected, atol=1e-15)
     assert gait.label() == "2Hz A=0.5 phases=0/90"
+
+
+def test_the_command_says_a_warning_in_one_line(monkeypatch, capsys):
+    # Python's display named a line inside the package and echoed its source; the command says
+    # a warning as its parser says an error. (An argument list leaves the display alone.)
+    import warnings
+
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # restored after
+    before = warnings.showwarning
+    with pytest.raises(SystemExit):
+        cli_main(["BeamWalk-v0", "--seconds", "-1"])
+    assert warnings.showwarning is before
+    monkeypatch.setattr(sys, "argv", ["controllers", "BeamWalk-v0", "--seconds", "-1"])
+    with pytest.raises(SystemExit):
+        cli_main()
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.warn("the gait diverged", RuntimeWarning, stacklevel=1)
+    assert capsys.readouterr().err.splitlines() == [
+        "python -m controllers: warning: the gait diverged (RuntimeWarning)"
+    ]

@@ -193,3 +193,21 @@ def test_missing_ray_names_the_extra(monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_ray)
     with pytest.raises(ImportError, match=r"pip install 'softrom\[ray\]'"):
         make_executor("ray", FaultyObjective())
+
+
+def test_a_ray_actors_warning_is_one_line_naming_the_worker(monkeypatch, capsys):
+    # The actor's body, in this process (Ray runs it in a process of its own): as a pool
+    # worker, it says an evaluation's warning in one line naming the worker.
+    import warnings
+
+    from rbbo.executors.ray_executor import _Worker
+
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # restored after
+    worker = _Worker(FaultyObjective(), "ray-1")
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        outcome = worker.evaluate(_task(0, FaultyObjective.WARN))
+    assert outcome.status == "ok" and outcome.R == 1.0
+    assert capsys.readouterr().err.splitlines() == [
+        "rbbo ray-1: warning: the episode diverged once (RuntimeWarning)"
+    ]

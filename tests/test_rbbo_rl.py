@@ -684,3 +684,25 @@ def test_control_basis_files_the_env_could_not_use_are_named_before_any_work(tmp
     RunStore.create(tmp_path / "run", lost).close()
     with pytest.raises(RunDirectoryError, match="config.json has no sim_dim/control_dim"):
         rl.resolve_bases(["identity"], ENV, tmp_path / "run")
+
+
+def _warning_job(progress):
+    import warnings
+
+    warnings.warn("the policy's reward is NaN", RuntimeWarning, stacklevel=1)
+    return {"ok": True}
+
+
+def test_a_worker_jobs_warning_is_one_line_naming_the_job(monkeypatch, capsys):
+    # In a worker process of the parallel baselines a warning was Python's display: a line
+    # inside the package, from a process the user never started. (In-process here: the
+    # worker runs this same function, with its label.)
+    import warnings
+
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # restored after
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        assert rl.jobs._job((_warning_job,), False, 1, "ppo identity") == {"ok": True}
+    assert capsys.readouterr().err.splitlines() == [
+        "rbbo baselines (ppo identity): warning: the policy's reward is NaN (RuntimeWarning)"
+    ]

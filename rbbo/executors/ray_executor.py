@@ -16,6 +16,7 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
+from .._warn import say_warnings_as
 from .base import EvaluationTask, Executor, evaluate_task, failed
 
 __all__ = ["RayExecutor", "import_ray"]
@@ -38,6 +39,9 @@ class _Worker:
     def __init__(self, objective, name: str):
         self.objective = objective
         self.name = name
+        # an actor owns its worker process, as a pool worker does (an env's warning in an
+        # evaluation: one line naming the worker, after Ray's own prefix)
+        say_warnings_as(f"rbbo {name}")
 
     def evaluate(self, task: EvaluationTask):
         return evaluate_task(self.objective, task, self.name)

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from .._warn import say_warnings_as
 from .algorithms import ALGOS, DEFAULT_STEPS, require_sb3, steps_per_algo
 from .evaluation import EVAL_SEED0
 from .mpc import _mpc
@@ -136,8 +137,11 @@ def _torch_threads(n: int) -> int:
     return old
 
 
-def _job(call: tuple, progress: bool, threads: int | None):
-    """Run one job (``_mpc`` or ``_train`` and its arguments) with one torch thread."""
+def _job(call: tuple, progress: bool, threads: int | None, label: str | None = None):
+    """Run one job (``_mpc`` or ``_train`` and its arguments) with one torch thread; ``label``
+    (in a worker process of :func:`_run_jobs`) names the job in its warnings' lines."""
+    if label is not None:
+        say_warnings_as(f"rbbo baselines ({label})")
     fn, *args = call
     old = _torch_threads(1)
     try:
@@ -163,7 +167,7 @@ def _run_jobs(jobs: list[tuple[str, tuple]], workers: int, progress: bool) -> li
     before = set(mp.active_children())
     pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx)
     try:
-        futures = {pool.submit(_job, call, False, 1): (i, label)
+        futures = {pool.submit(_job, call, False, 1, label): (i, label)
                    for i, (label, call) in enumerate(jobs)}  # fmt: skip
         for future in as_completed(futures):
             i, label = futures[future]
