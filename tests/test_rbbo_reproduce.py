@@ -1243,3 +1243,33 @@ def test_a_table_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
     monkeypatch.undo()
     assert path.read_bytes() == before and os.listdir(path.parent) == ["table1.csv"]
     assert read_rows(path) == [{"benchmark": "a", "R": "1.5"}, {"benchmark": "b", "R": "2.5"}]
+
+
+@pytest.mark.parametrize("name", ["table1.md", "REPORT.md", "copy"])
+def test_the_report_and_its_copy_are_replaced_whole_or_not_at_all(
+    name, reproduction, tmp_path, monkeypatch
+):
+    # table1.md, REPORT.md and its copy (docs/REPORT.md in a repository) were rewritten in
+    # place: a kill mid-write left half a report where the last whole one had been.
+    import os
+    import shutil
+
+    out, copy = tmp_path / "out", tmp_path / "docs" / "REPORT.md"
+    shutil.copytree(reproduction, out)
+    argv = ["reproduce", "--out", str(out), "--report-only", "--report", str(copy)]
+    target = copy if name == "copy" else out / name
+    target.parent.mkdir(exist_ok=True)
+    target.write_bytes(b"the last whole report")
+    real_replace = os.replace
+
+    def killed(src, dst):
+        if Path(dst) == target:
+            raise OSError("killed before the rename")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", killed)
+    with pytest.raises(OSError, match="killed before the rename"):
+        main(argv)
+    monkeypatch.undo()
+    assert target.read_bytes() == b"the last whole report"
+    assert not [p for p in os.listdir(target.parent) if p.startswith(f".{target.name}.")]

@@ -706,3 +706,32 @@ def test_a_worker_jobs_warning_is_one_line_naming_the_job(monkeypatch, capsys):
     assert capsys.readouterr().err.splitlines() == [
         "rbbo baselines (ppo identity): warning: the policy's reward is NaN (RuntimeWarning)"
     ]
+
+
+@needs_proc
+def test_the_tables_are_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
+    # baselines.csv marks the RL stage done (`rbbo reproduce --status`); it was rewritten in
+    # place, so an error in the Markdown table after it, or a kill mid-write, left a new or
+    # torn baselines.csv beside an old baselines.md
+    from rbbo.rl.table import _row
+
+    out, basis = tmp_path / "out", {"identity": np.eye(8)[:, :2]}
+    out.mkdir()  # (as the jobs' folders make it)
+    rows = [_row(ENV, "mppi", "identity", True, 0, 600, 1.5, [0.1, 0.2], 0.3)]
+    monkeypatch.setattr(rl.jobs, "_run_jobs", lambda jobs, workers, progress: rows)
+    events = _watch_writes(monkeypatch)
+    rl.run_baselines(ENV, basis, out, algos=(), progress=False)
+    for name in ("baselines.csv", "baselines.md"):
+        _assert_published_durably(events, out, name)
+    before = {p: (out / p).read_bytes() for p in ("baselines.csv", "baselines.md")}
+    assert before["baselines.csv"].decode().splitlines()[0] == ",".join(rl.table._COLUMNS)
+
+    rows = [_row(ENV, "mppi", "identity", True, 0, 600, 1.5, [0.5, 0.6], 0.3)]
+
+    def fails(*a, **k):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(rl.jobs, "format_table", fails)
+    with pytest.raises(RuntimeError, match="disk full"):
+        rl.run_baselines(ENV, basis, out, algos=(), progress=False)
+    assert {p: (out / p).read_bytes() for p in before} == before

@@ -18,6 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from ..store import _atomic_write, _make_dirs
 from .figures import plot_directions, plot_perturbation
 from .plan import PAPER_DIRECTIONS, ReproducePlan
 from .report_inputs import _directions, _perturbation, _rl_trained, _runs
@@ -101,8 +102,8 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
     if table:
         write_csv(table, out / "table1.csv")
         markdown = format_markdown(table)
-        (out / "table1.md").write_text(markdown + "\n" + (f"\n{runs_markdown}\n" if per_run
-                                                           else ""))  # fmt: skip
+        _atomic_write(out / "table1.md", (markdown + "\n" + (f"\n{runs_markdown}\n" if per_run
+                                                              else "")).encode())  # fmt: skip
         written["table"] = table
         lines += ["## Table I", "", "R is the distance travelled along d per second from the "
                   "settle time (m/s); the paper's R is its own distance measure, so only the "
@@ -275,10 +276,12 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
               "full-space robot's distances"
               + (f" (the section at M = {plan.transfer_sim_dim} above says how much of each "
                  "gain a richer model keeps)." if transfer else "."), ""]  # fmt: skip
-    (out / "REPORT.md").write_text("\n".join(lines))
+    # replaced whole (as the tables): a kill while the report is written, or while the copy
+    # below is, leaves the last report readable
+    _atomic_write(out / "REPORT.md", "\n".join(lines).encode())
     written["report"] = out / "REPORT.md"
     if copy_to is not None:
-        copy_to.parent.mkdir(parents=True, exist_ok=True)
-        copy_to.write_text("\n".join(_relink(lines, out, copy_to.parent)))
+        _make_dirs(copy_to.parent)
+        _atomic_write(copy_to, "\n".join(_relink(lines, out, copy_to.parent)).encode())
         written["copy"] = copy_to
     return written

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import io
 import sys
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from .._warn import say_warnings_as
+from ..store import _atomic_write, _make_dirs
 from .algorithms import ALGOS, DEFAULT_STEPS, require_sb3, steps_per_algo
 from .evaluation import EVAL_SEED0
 from .mpc import _mpc
@@ -119,11 +121,17 @@ def run_baselines(
     rows: list[dict] = []
     for result in _run_jobs(jobs, workers, progress):
         rows += result if isinstance(result, list) else [result]
-    with open(out / "baselines.csv", "w", newline="", encoding="utf-8") as f:
-        writer = csv.DictWriter(f, fieldnames=_COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
-    (out / "baselines.md").write_text(format_table(rows, markdown=True) + "\n")
+    # both tables formatted before either is replaced, each replaced atomically: baselines.csv
+    # says which jobs finished (`rbbo reproduce --status`), so a kill or an error while
+    # writing must leave the last whole table, never a torn one
+    table = io.StringIO(newline="")
+    writer = csv.DictWriter(table, fieldnames=_COLUMNS)
+    writer.writeheader()
+    writer.writerows(rows)
+    markdown = format_table(rows, markdown=True) + "\n"
+    _make_dirs(out)  # (a call with no RL job claims no folder in it)
+    _atomic_write(out / "baselines.csv", table.getvalue().encode("utf-8"))
+    _atomic_write(out / "baselines.md", markdown.encode("utf-8"))
     return rows
 
 
