@@ -123,3 +123,39 @@ def test_the_scripts_said_to_take_json_do_and_the_other_checks_do_not():
     # "the other checks and studies print text only"
     named = set(re.findall(r"`(?:benchmarks/)?((?:check|study)_\w+\.py)`", text))
     assert sorted(s for s in named - said if takes_json(s)) == []
+
+
+def test_every_name_the_benchmark_scripts_import_from_the_package_exists(monkeypatch):
+    # The scripts are run by hand, for minutes each, and most import inside the function that
+    # needs a name: a module split that moves a name breaks them silently until someone runs
+    # the one measurement that imports it. Every import of theirs, lazy ones too, must
+    # resolve.
+    import ast
+    import importlib
+
+    folder = README.parent / "benchmarks"
+    monkeypatch.syspath_prepend(str(folder))  # (their shared helpers: _actuation, _runs, ...)
+    ours = {"rbbo", "softrom_gym", "controllers", "cpp_sim"} | {
+        p.stem for p in folder.glob("_*.py")
+    }
+    missing, checked = [], 0
+    for script in sorted(folder.glob("*.py")):
+        for node in ast.walk(ast.parse(script.read_text())):
+            if isinstance(node, ast.Import):
+                imports = [(a.name, None) for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                imports = [(node.module, a.name) for a in node.names]
+            else:
+                continue
+            for module, name in imports:
+                if module.split(".")[0] not in ours:
+                    continue
+                checked += 1
+                try:
+                    imported = importlib.import_module(module)
+                    if name is not None and not hasattr(imported, name):
+                        importlib.import_module(f"{module}.{name}")  # (a submodule)
+                except ImportError:
+                    missing.append(f"{script.name}: {module}" + (f".{name}" if name else ""))
+    assert checked > 100
+    assert not missing, f"benchmark scripts import names that do not exist: {missing}"
