@@ -1,8 +1,12 @@
 """GP-UCB gradients and its maximisation on Gr(M, C) (rbbo.acquisition, rbbo.optimizers)."""
 
+import subprocess
+import sys
+
 import numpy as np
+import pymanopt
 import pytest
-from pymanopt.manifolds import Grassmann
+from pymanopt.manifolds import Euclidean, Grassmann
 from pymanopt.optimizers import ConjugateGradient
 
 from rbbo import grassmann as gr
@@ -10,10 +14,12 @@ from rbbo.acquisition import (
     UCBAcquisition,
     make_problem,
     maximize_on_grassmann,
+    perturb,
     ucb_beta,
 )
 from rbbo.gp import GrassmannGP
 from rbbo.optimizers import LRBFGS
+from rbbo.optimizers.lrbfgs import _Metric
 
 M, C = 8, 3
 
@@ -213,3 +219,248 @@ def test_a_failing_lrbfgs_run_is_redone_with_conjugate_gradient(rng, monkeypatch
     assert result.value == pytest.approx(np.linalg.eigvalsh(a)[-C:].sum(), rel=1e-8)
     with pytest.raises(ValueError, match="no starts: give incumbents or n_random > 0"):
         maximize_on_grassmann(TraceQuadratic(a), M, C, n_random=0)
+
+
+@pytest.mark.parametrize("beta", [0.0, 4.0])
+def test_ucb_is_the_posterior_mean_plus_root_beta_times_its_sd(gp, rng, beta):
+    """gamma = mu + beta^(1/2) sigma with mu, sigma the GP's latent posterior at z (the tests
+    above compare the acquisition with itself: values, gradient, maximiser); beta = 0, pure
+    exploitation, is a valid weight."""
+    acq = UCBAcquisition(gp, beta=beta, z=0.6)
+    bases = gr.random_points(M, C, 5, rng)
+    mu, sd = gp.predict_standardized(bases, 0.6)
+    np.testing.assert_allclose(acq.values(bases), mu + np.sqrt(beta) * sd, rtol=1e-12)
+    for b, mu_b, sd_b in zip(bases, mu, sd, strict=True):
+        _, _, mu_1, sd_1 = gp.ucb_and_gradient(b, np.sqrt(beta), 0.6)
+        assert (mu_1, sd_1) == pytest.approx((mu_b, sd_b), rel=1e-10)
+        value = acq.value_and_gradient(b)[0]
+        assert value == pytest.approx(mu_b + np.sqrt(beta) * sd_b, rel=1e-10)
+
+
+def test_beta_schedule_names_a_dimension_or_delta_out_of_range():
+    with pytest.raises(ValueError, match="dim must be >= 1, got 0"):
+        ucb_beta(5, 0)
+    for delta in (0.0, 1.0):
+        with pytest.raises(ValueError, match=rf"delta must be in \(0, 1\), got {delta}"):
+            ucb_beta(5, 3, delta=delta)
+
+
+def test_perturb_moves_the_subspace_by_the_tangent_step_it_is_given(rng):
+    """A tangent step of norm s moves span(B) by sqrt(2) s to first order; a step with a part
+    inside span(B) (not projected out) would move it less."""
+    b = gr.random_points(M, C, rng=rng)
+    for scale in (1e-4, 1e-3):
+        moved = perturb(b, scale, rng)
+        gr.validate_basis(moved, M, C, tol=1e-12)
+        assert gr.projection_distance(b, moved) == pytest.approx(np.sqrt(2.0) * scale, rel=1e-5)
+
+
+class _Counting(TraceQuadratic):
+    def __init__(self, a):
+        super().__init__(a)
+        self.batches = []
+
+    def values(self, bases):
+        self.batches.append(len(bases))
+        return super().values(bases)
+
+
+def test_starts_are_the_random_points_the_incumbents_and_their_perturbations(rng):
+    """n_random Haar points, each incumbent and n_perturbations perturbations of each: the
+    first batch the function rates holds exactly those; an incumbent is a start itself."""
+    a = _symmetric(rng)
+    top = np.linalg.eigh(a)[1][:, -C:]
+    incumbents = np.stack([top, gr.random_points(M, C, rng=rng)])
+    for n_random, n_perturbations, expected in ((1, 3, 1 + 2 * 4), (0, 0, 2), (5, 1, 5 + 2 * 2)):
+        f = _Counting(a)
+        result = maximize_on_grassmann(
+            f, M, C, incumbents=incumbents, rng=rng, n_random=n_random,
+            n_perturbations=n_perturbations, max_iterations=0,
+        )  # fmt: skip
+        assert f.batches[0] == expected
+        assert result.value >= f.values(top[None])[0] - 1e-12  # (the top eigenspace is kept)
+
+
+def test_pymanopt_loads_without_the_autodiff_backends_and_leaves_them_importable():
+    """rbbo._pymanopt hides torch, tensorflow, jax and autograd while pymanopt loads (torch
+    alone costs seconds) and unhides them: none is loaded, and none is left as the None entry
+    of sys.modules that makes its import fail. (A fresh interpreter: here pymanopt is loaded.)"""
+    code = ("import sys, rbbo.acquisition; names = ('torch', 'tensorflow', 'jax', 'autograd'); "
+            "print('pymanopt' in sys.modules, [n in sys.modules for n in names])")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["True", "[False,", "False,", "False,", "False]"]
+
+
+def _quadratic_problem(a, b):
+    """f(x) = x^T A x / 2 - b^T x on R^n."""
+    manifold = Euclidean(len(b))
+
+    @pymanopt.function.numpy(manifold)
+    def cost(x):
+        return float(0.5 * x @ a @ x - b @ x)
+
+    @pymanopt.function.numpy(manifold)
+    def gradient(x):
+        return a @ x - b
+
+    return pymanopt.Problem(manifold, cost, euclidean_gradient=gradient)
+
+
+def _with_metric(manifold, **kwargs):
+    """An LRBFGS whose private steps can be called outside run() (which sets the metric)."""
+    opt = LRBFGS(**kwargs)
+    opt._inner = _Metric(manifold)
+    return opt
+
+
+def test_lrbfgs_direction_is_minus_the_bfgs_inverse_hessian_times_the_gradient(rng):
+    """The two-loop recursion against the BFGS update it stands for, on R^n:
+    H <- V^T H V + rho s s^T with V = I - rho y s^T over the pairs, oldest first, from
+    H_0 = <s, y> / <y, y> I of the newest pair."""
+    n = 6
+    manifold = Euclidean(n)
+    opt = _with_metric(manifold)
+    a = rng.standard_normal((n, n))
+    a = a @ a.T + n * np.eye(n)
+    pairs = []
+    for _ in range(3):
+        s = rng.standard_normal(n)
+        pairs.append((s, a @ s, 1.0 / (s @ a @ s)))
+    grad = rng.standard_normal(n)
+    s, y, _ = pairs[-1]
+    h = (s @ y) / (y @ y) * np.eye(n)
+    for s, y, rho in pairs:
+        v = np.eye(n) - rho * np.outer(y, s)
+        h = v.T @ h @ v + rho * np.outer(s, s)
+    x = np.zeros(n)
+    np.testing.assert_allclose(opt._direction(manifold, x, grad, pairs), -h @ grad, rtol=1e-10)
+    np.testing.assert_array_equal(opt._direction(manifold, x, grad, []), -grad)
+
+
+def test_lrbfgs_line_search_returns_a_weak_wolfe_step():
+    """f(x) = x^2 from x = 1 along d = -1.99999 (df0 = -3.99998): t = 1 lowers f, but not by
+    c1 t |df0|, and overshoots; the search halves to t = 1/2, which meets both conditions."""
+    problem = _quadratic_problem(np.array([[2.0]]), np.array([0.0]))
+    opt = _with_metric(problem.manifold)
+    x, d = np.array([1.0]), np.array([-1.99999])
+    df0 = float(2.0 * x @ d)
+    t, new_x, new_cost, new_grad, evaluations = opt._line_search(problem, x, 1.0, d, df0, 1.0, 12)
+    assert new_cost <= 1.0 + 1e-4 * t * df0  # Armijo
+    assert float(new_grad @ d) >= 0.9 * df0  # curvature
+    assert t == 0.5 and evaluations == 2
+    np.testing.assert_allclose(new_x, x + t * d)
+
+
+def test_lrbfgs_line_search_keeps_an_armijo_point_when_curvature_is_out_of_reach():
+    """On f(x) = -x the slope never rises: after its trials (t = 1, 2, 4) the search keeps the
+    last point that met the Armijo condition rather than failing."""
+    manifold = Euclidean(1)
+
+    @pymanopt.function.numpy(manifold)
+    def cost(x):
+        return float(-x[0])
+
+    @pymanopt.function.numpy(manifold)
+    def gradient(x):
+        return -np.ones(1)
+
+    problem = pymanopt.Problem(manifold, cost, euclidean_gradient=gradient)
+    t, new_x, _, new_grad, evaluations = _with_metric(manifold)._line_search(
+        problem, np.zeros(1), 0.0, np.ones(1), -1.0, 1.0, 3
+    )
+    assert (t, evaluations) == (4.0, 3) and new_grad is not None
+    np.testing.assert_array_equal(new_x, [4.0])
+
+
+def test_lrbfgs_reports_the_length_of_its_last_step(rng):
+    """step_size (pymanopt's min_step_size criterion reads it) is the length t ||d|| of the
+    last step: on R^n the distance between the last two iterates."""
+    n = 5
+    a = rng.standard_normal((n, n))
+    problem = _quadratic_problem(a @ a.T + np.eye(n), rng.standard_normal(n))
+    x0 = rng.standard_normal(n)
+    one = LRBFGS(max_iterations=1).run(problem, initial_point=x0)
+    two = LRBFGS(max_iterations=2).run(problem, initial_point=x0)
+    assert one.step_size == pytest.approx(np.linalg.norm(one.point - x0), rel=1e-12)
+    assert two.step_size == pytest.approx(np.linalg.norm(two.point - one.point), rel=1e-12)
+
+
+def test_lrbfgs_solves_an_ill_conditioned_quadratic_as_l_bfgs_does(rng):
+    """Condition number 100 on R^20: scipy's L-BFGS-B (memory 10) took 71 iterations on
+    such a problem, this one 74; steepest descent needs hundreds."""
+    n = 20
+    q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    a = q @ np.diag(np.logspace(0, 2, n)) @ q.T
+    b = rng.standard_normal(n)
+    result = LRBFGS(max_iterations=300, min_gradient_norm=1e-8).run(
+        _quadratic_problem(a, b), initial_point=np.zeros(n)
+    )
+    np.testing.assert_allclose(result.point, np.linalg.solve(a, b), rtol=1e-6)
+    assert result.iterations < 100
+
+
+def _recording_pairs(opt):
+    """Wrap opt._direction to record (x, pairs) at each call."""
+    seen = []
+    direction = opt._direction
+
+    def recording(manifold, x, grad, pairs):
+        seen.append((np.array(x), [(np.array(s), np.array(y), rho) for s, y, rho in pairs]))
+        return direction(manifold, x, grad, pairs)
+
+    opt._direction = recording
+    return seen
+
+
+def test_lrbfgs_pairs_are_steps_and_gradient_changes(rng):
+    """s_k = t d_k (the step taken, not the direction) and y_k the change of gradient: on a
+    quadratic y = A s for every stored pair, with rho = 1 / <s, y>."""
+    n = 8
+    a = rng.standard_normal((n, n))
+    a = a @ a.T + np.eye(n)
+    problem = _quadratic_problem(a, rng.standard_normal(n))
+    opt = LRBFGS(max_iterations=6, memory=4)
+    seen = _recording_pairs(opt)
+    opt.run(problem, initial_point=rng.standard_normal(n))
+    assert max(len(pairs) for _, pairs in seen) == 4
+    for _, pairs in seen:
+        for s, y, rho in pairs:
+            np.testing.assert_allclose(y, a @ s, rtol=1e-9, atol=1e-12)
+            assert rho == pytest.approx(1.0 / (s @ y), rel=1e-12)
+
+
+def test_lrbfgs_pairs_live_in_the_tangent_space_of_the_current_point(rng):
+    """On Gr(M, C) (tangent vectors V: X^T V = 0) every pair the two-loop recursion uses was
+    transported to x_k, the gradient change y_k = grad f(x_k) - T(grad f(x_k-1)) included."""
+    m, c = 10, 3
+    problem = make_problem(TraceQuadratic(_symmetric(rng, m)), m, c)
+    opt = LRBFGS(max_iterations=8)
+    seen = _recording_pairs(opt)
+    opt.run(problem, initial_point=gr.random_points(m, c, rng=rng))
+    assert sum(len(pairs) for _, pairs in seen) > 10
+    for x, pairs in seen:
+        for s, y, rho in pairs:
+            assert np.abs(x.T @ s).max() < 1e-12 and np.abs(x.T @ y).max() < 1e-12
+            assert rho > 0
+
+
+def test_lrbfgs_drops_a_pair_whose_curvature_the_transport_turns_negative():
+    """Grassmann's transport is a projection: <s, y> > 0 at x can be <= 0 at the new point,
+    and such a pair would make H indefinite."""
+    manifold = Grassmann(3, 1)
+    x, new_x = np.eye(3)[:, :1], np.eye(3)[:, 1:2]
+    s = np.array([[0.0], [1.0], [1.0]])
+    ys = (np.array([[0.0], [1.0], [2.0]]), np.array([[0.0], [3.0], [-1.0]]))
+    pairs = [(s, y, 1.0 / float(np.vdot(s, y))) for y in ys]
+    assert all(rho > 0 for _, _, rho in pairs)
+    moved = _with_metric(manifold)._transport_pairs(manifold, x, new_x, pairs)
+    assert len(moved) == 1
+    ts, ty, rho = moved[0]
+    np.testing.assert_array_equal(ts, [[0.0], [0.0], [1.0]])
+    np.testing.assert_array_equal(ty, [[0.0], [0.0], [2.0]])
+    assert rho == 0.5
+
+
+def test_lrbfgs_needs_c1_strictly_below_c2():
+    with pytest.raises(ValueError, match="need 0 < c1 < c2 < 1, got c1 = 0.5, c2 = 0.5"):
+        LRBFGS(c1=0.5, c2=0.5)

@@ -189,3 +189,63 @@ def test_the_choice_history_is_state_not_a_setting():
         BOCAFidelity(T_MIN, T_MAX, recent=[True] * 5)
     boca = BOCAFidelity(T_MIN, T_MAX, window=5)
     assert list(boca.recent) == [] and boca.recent.maxlen == 5
+
+
+def _small_gp(problem):
+    u, v, rng = problem
+    bases = gr.random_points(M, C, 4, rng)
+    z = np.array([0.0, 0.0, 1.0, 1.0])
+    return GrassmannGP(M, C, fidelity=True, random_state=0).fit(
+        bases, two_fidelity(bases, z, u, v), z
+    )
+
+
+def test_a_candidate_costing_exactly_the_cap_is_considered():
+    """'at most max_cost_ratio': T = 8 of T_max = 10 is a candidate under a cap of 0.8."""
+    boca = BOCAFidelity(2.0, 10.0, n_candidates=5, max_cost_ratio=0.8)
+    np.testing.assert_array_equal(boca.candidates, [2.0, 4.0, 6.0, 8.0])
+
+
+def test_no_candidate_under_the_cap_means_full_length(problem):
+    """A cap below T_min / T_max leaves nothing to choose from: T_max, with empty records."""
+    boca = BOCAFidelity(T_MIN, T_MAX, max_cost_ratio=0.3)
+    assert len(boca.candidates) == 0
+    choice = boca.choose(_small_gp(problem), gr.random_points(M, C, rng=problem[2]))
+    assert (choice.T, choice.candidates, choice.tau, choice.gamma) == (T_MAX, (), (), ())
+    assert not choice.floor
+
+
+def test_the_floor_flag_marks_only_a_choice_the_floor_changed(problem):
+    """Below the floor, a T_max the threshold chose by itself (kappa so high that no tau
+    exceeds gamma) is not the floor's doing."""
+    boca = BOCAFidelity(T_MIN, T_MAX, n_candidates=2, kappa=1e6, window=10**6)
+    for _ in range(5):
+        boca.record(T_MIN)
+    assert boca.below_floor()
+    choice = boca.choose(_small_gp(problem), gr.random_points(M, C, rng=problem[2]))
+    assert choice.T == T_MAX and not choice.floor
+
+
+def test_the_floor_counts_from_floor_after_choices_and_over_the_window_only():
+    boca = BOCAFidelity(T_MIN, T_MAX, window=4, floor_after=4)
+    for _ in range(3):
+        boca.record(T_MIN)
+    assert not boca.below_floor()  # three choices: too few to judge
+    boca.record(T_MIN)
+    assert boca.below_floor()  # floor_after = 4 of them, none at T_max
+    boca = BOCAFidelity(T_MIN, T_MAX, window=4, floor_after=4)
+    for t in (T_MAX, T_MAX, T_MIN, T_MIN):
+        boca.record(t)
+    assert not boca.below_floor()  # 2 of 4
+    # two T_min proposals in flight: the window's last four are all T_min (2 of all 6 are
+    # T_max, which would be above the floor)
+    assert boca.below_floor(pending=[T_MIN, T_MIN])
+    assert not boca.below_floor(pending=[T_MIN, T_MAX])
+
+
+def test_kappa_step_one_and_cost_exponent_zero_are_valid_settings():
+    """kappa_step = 1 switches the adaptation off, cost_exponent = 0 drops the cost factor."""
+    boca = BOCAFidelity(T_MIN, T_MAX, window=4, kappa=0.7, kappa_step=1.0, cost_exponent=0.0)
+    for _ in range(8):
+        boca.record(T_MAX)
+    assert boca.kappa == 0.7

@@ -133,3 +133,67 @@ def test_bad_dims_and_rank():
         gr.validate_basis(np.eye(4)[:, :2] + 1e-3j)
     with pytest.raises(TypeError, match="B_i must be real, got a complex64 array"):
         gr.projection_distance(np.eye(4, 2, dtype=np.complex64), np.eye(4)[:, :2])
+
+
+def test_validate_basis_refuses_unit_columns_that_are_not_orthogonal():
+    """Unit columns 60 degrees apart: each column norm is 1, B^T B is not I."""
+    b = np.zeros((4, 2))
+    b[0, 0] = 1.0
+    b[:2, 1] = [0.5, np.sqrt(0.75)]
+    with pytest.raises(ValueError, match=r"not orthonormal: max \|B_c\^T B_c - I\| = 0.5"):
+        gr.validate_basis(b)
+
+
+def test_a_full_grassmannian_gr_m_m_is_a_point():
+    """C = M is allowed (one subspace, dimension 0); only C > M is refused."""
+    assert gr.dimension(4, 4) == 0
+    gr.validate_basis(np.eye(4))
+    assert gr.projection_distance(np.eye(4), ortho_group.rvs(4, random_state=0)) < 1e-14
+
+
+def test_orthonormalize_takes_a_square_matrix_and_gives_a_positive_diagonal_r(rng):
+    """The documented QR with R_ii > 0, so the result is a function of the matrix (LAPACK's
+    sign convention is not part of it), square matrices included."""
+    for shape in ((6, 2), (4, 4)):
+        a = rng.standard_normal(shape)
+        q = gr.orthonormalize(a)
+        r = q.T @ a
+        np.testing.assert_allclose(q @ r, a, atol=1e-12)
+        np.testing.assert_allclose(np.tril(r, -1), 0.0, atol=1e-12)
+        assert np.all(np.diag(r) > 0)
+
+
+def test_random_points_are_haar_on_the_stiefel_manifold_not_only_their_spans(rng):
+    """The documented sign fix: without it LAPACK's QR gives every first column a negative
+    first entry (Q = G R^-1 with R_11 = -sign(g_11) |g_1|)."""
+    pts = gr.random_points(6, 2, 400, rng)
+    for entry in (pts[:, 0, 0], pts[:, 1, 1]):
+        assert 0.4 < np.mean(entry > 0) < 0.6
+
+
+def test_projection_sq_distances_are_clipped_at_zero(rng):
+    """2 C - 2 ||B_i^T B_j||_F^2 rounds to about -4e-15 on the diagonal; the documented clip
+    keeps every squared distance a square (its sqrt no NaN)."""
+    sq = gr.projection_sq_distances(gr.random_points(7, 2, 40, rng))
+    assert sq.min() >= 0.0
+    assert np.all(np.isfinite(np.sqrt(sq)))
+
+
+def test_projection_distance_names_bases_of_different_shapes(rng):
+    a = gr.random_points(6, 2, rng=rng)
+    with pytest.raises(ValueError, match=r"B_j has shape \(6, 3\), expected \(sim_dim, "
+                                         r"control_dim\) = \(6, 2\)"):  # fmt: skip
+        gr.projection_distance(a, gr.random_points(6, 3, rng=rng))
+
+
+def test_canonical_does_not_take_a_row_in_the_span_of_earlier_ones_for_a_pivot():
+    """Rows 0 and 1 parallel: after B -> B U row 1's residual against row 0 is round-off, not
+    zero; a pivot made of it points anywhere, and the representative with it."""
+    b = np.zeros((5, 2))
+    b[:2, 0] = np.array([1.0, 3.0]) / np.sqrt(10.0)
+    b[3, 1] = 1.0
+    expected = gr.canonical(b)
+    np.testing.assert_allclose(expected @ expected.T, b @ b.T, atol=1e-15)
+    for seed in range(20):
+        q = ortho_group.rvs(2, random_state=seed)
+        np.testing.assert_allclose(gr.canonical(b @ q), expected, atol=1e-12)

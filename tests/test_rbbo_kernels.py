@@ -229,3 +229,113 @@ def test_information_gap_is_zero_at_the_target_and_grows_as_z_over_h():
     assert xi[1] == pytest.approx(0.001 / 0.5, rel=1e-3)  # |z - 1| / h near the target
     assert np.all(np.diff(xi) > 0)
     assert kernel.information_gap(0.5, z_target=0.5) == 0.0
+
+
+def test_gram_matrix_diagonal_is_exactly_one(rng):
+    """k(B, B) = 1 to the bit, as ``diag`` says, though 2 C - 2 ||B^T B||_F^2 rounds to a few
+    1e-15 (without the exact diagonal about a third of these entries are 1 - 1e-15)."""
+    x = _x(rng, n=40)
+    k = GrassmannKernel(M, C, 0.3)(x)
+    np.testing.assert_array_equal(np.diag(k), np.ones(len(x)))
+
+
+def test_kernels_name_bad_length_scales_and_bounds(rng):
+    """Each was checked for neither kernel: l = 0 divides by zero, an infinite upper bound
+    reaches scikit-learn's log, a triple is read as its first two numbers."""
+    x = _x(rng, fidelity=True)
+    for make in (lambda ls: GrassmannKernel(M, C, ls), FidelityKernel):
+        with pytest.raises(ValueError, match="length_scale must be a positive finite scalar, "
+                                             "got 0.0"):  # fmt: skip
+            make(0.0)(x)
+    for bounds in ((0.1, np.inf), (0.1, 1.0, 2.0), (0.0, 1.0)):
+        for kernel in (GrassmannKernel(M, C, 1.0, bounds), FidelityKernel(1.0, bounds)):
+            with pytest.raises(ValueError, match=r"length_scale_bounds must satisfy 0 < low < "
+                                                 r"high < inf"):  # fmt: skip
+                kernel(x)
+    with pytest.raises(ValueError, match="length_scale_bounds must satisfy"):
+        GrassmannGP(M, C, length_scale_bounds=(0.1, np.inf))
+
+
+def test_fidelity_column_takes_every_index_of_x_and_names_one_past_it():
+    """Python's range for a column of X, -n_columns .. n_columns - 1; one past it is named
+    (not numpy's IndexError)."""
+    x = np.array([[0.0, 1.0, 0.2], [1.0, 0.0, 0.7]])
+    np.testing.assert_array_equal(
+        FidelityKernel(0.5, column=-3)(x), FidelityKernel(0.5, column=0)(x)
+    )
+    np.testing.assert_array_equal(FidelityKernel(0.5, column=2)(x), FidelityKernel(0.5)(x))
+    for column in (3, -4):
+        with pytest.raises(ValueError, match=rf"column {column} is out of range for X of shape "
+                                             r"\(2, 3\)"):  # fmt: skip
+            FidelityKernel(column=column)(x)
+
+
+def test_fidelity_kernel_gradient_only_on_x_and_none_when_fixed(rng):
+    """As scikit-learn's kernels: no gradient of k(X, Y), an (n, n, 0) one for a fixed h."""
+    x = _x(rng, n=5, fidelity=True)
+    with pytest.raises(ValueError, match="Gradient can only be evaluated when Y is None"):
+        FidelityKernel(0.5)(x, x[:3], eval_gradient=True)
+    k, grad = FidelityKernel(0.5, "fixed")(x, eval_gradient=True)
+    np.testing.assert_array_equal(k, FidelityKernel(0.5)(x))
+    assert grad.shape == (5, 5, 0)
+
+
+def test_gp_fantasy_with_fidelity_matches_sklearn_on_all_the_data(rng):
+    """Kriging-believer fantasies under BOCA: conditioned_on appends bases, z and y in the same
+    order, so the posterior is the fitted kernel's on the old and the new data together (the
+    fantasy test above has no fidelity, where z's order cannot show)."""
+    bases = gr.random_points(M, C, 10, rng)
+    z = rng.uniform(size=10)
+    y = np.sum(bases[:, :C, :] ** 2, axis=(1, 2)) + 0.3 * z + 0.01 * rng.standard_normal(10)
+    gp = GrassmannGP(M, C, fidelity=True, random_state=0).fit(bases, y, z)
+    new, z_new, y_new = gr.random_points(M, C, 3, rng), np.array([0.0, 0.5, 1.0]), y[:3] + 1.0
+    fantasy = gp.conditioned_on(new, y_new, z_new)
+    x = np.column_stack([gr.flatten(np.concatenate([bases, new])), np.concatenate([z, z_new])])
+    ys = (np.concatenate([y, y_new]) - gp.y_mean_) / gp.y_std_
+    ref = GaussianProcessRegressor(gp.kernel_, optimizer=None, alpha=1e-10).fit(x, ys)
+    query = np.concatenate([new, gr.random_points(M, C, 3, rng)])
+    mu_ref, sd_ref = ref.predict(np.column_stack([gr.flatten(query), np.full(6, 0.7)]), True)
+    mu, sd = fantasy.predict_standardized(query, 0.7)
+    np.testing.assert_allclose(mu, mu_ref, atol=1e-7)
+    np.testing.assert_allclose(sd**2 + gp.hyperparameters.noise_variance, sd_ref**2, atol=1e-7)
+
+
+def test_gp_log_marginal_likelihood_is_that_of_the_model_it_predicts_with(rng):
+    """The fit's marginal likelihood is the kernel's with the 1e-10 jitter the posterior adds
+    (a larger alpha in the fit would choose the noise of another model)."""
+    bases = gr.random_points(M, C, 12, rng)
+    y = np.sum(bases[:, :C, :] ** 2, axis=(1, 2)) + 0.01 * rng.standard_normal(12)
+    gp = GrassmannGP(M, C, random_state=0).fit(bases, y)
+    ys = (y - gp.y_mean_) / gp.y_std_
+    ref = GaussianProcessRegressor(gp.kernel_, optimizer=None, alpha=1e-10)
+    ref.fit(gr.flatten(bases), ys)
+    assert gp.log_marginal_likelihood_ == pytest.approx(ref.log_marginal_likelihood_value_,
+                                                        rel=1e-9)  # fmt: skip
+
+
+def test_gp_of_constant_observations_predicts_that_constant(rng):
+    """y without spread keeps y_std = 1 (dividing by its zero std would give NaN everywhere)."""
+    bases = gr.random_points(M, C, 5, rng)
+    gp = GrassmannGP(M, C, random_state=0).fit(bases, np.full(5, 3.0))
+    assert gp.y_std_ == 1.0
+    mu, sd = gp.predict(gr.random_points(M, C, 4, rng))
+    np.testing.assert_allclose(mu, 3.0, atol=1e-6)
+    assert np.all(np.isfinite(sd))
+
+
+def test_gp_names_bad_data_wherever_it_is(rng):
+    """Every basis is validated (not only the first), z's length too; an unfitted GP says so
+    when conditioned and counts no observations."""
+    bases = gr.random_points(M, C, 4, rng)
+    bad = bases.copy()
+    bad[2] *= 2.0
+    with pytest.raises(ValueError, match=r"bases\[2\] is not orthonormal"):
+        GrassmannGP(M, C).fit(bad, np.zeros(4))
+    with pytest.raises(ValueError, match="z must hold 4 finite values"):
+        GrassmannGP(M, C, fidelity=True).fit(bases, np.zeros(4), np.zeros(3))
+    gp = GrassmannGP(M, C)
+    assert gp.n_observations == 0
+    with pytest.raises(RuntimeError, match="fit the GP before conditioning it on more data"):
+        gp.conditioned_on(bases, np.zeros(4))
+    gp.fit(bases, np.arange(4.0))
+    assert gp.n_observations == 4

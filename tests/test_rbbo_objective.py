@@ -17,6 +17,7 @@ from rbbo.objective import (
     make_objective,
     parse_objective_spec,
     settled_reward_rate,
+    settled_step,
 )
 
 STEP = 0.025  # seconds per env step (dt = 1/200 s, frame_skip = 5), as the softrom envs
@@ -141,6 +142,52 @@ def test_settled_reward_is_per_second_simulated_when_t_is_off_the_step_grid():
     # on the grid, the time asked for (the arithmetic of recorded runs, to the bit)
     result = EpisodeResult(np.full(160, 0.1))
     assert settled_reward_rate(result, 0.025, 1.0, 4.0) == np.full(120, 0.1).sum() / (4.0 - 1.0)
+
+
+def test_settled_step_is_the_step_starting_at_the_settle_time_despite_round_off():
+    """k dt / dt rounds above k for some k (0.07 / 0.01 = 7.000000000000001): still step k,
+    not k + 1; a settle time between steps starts at the next one."""
+    for dt in (0.025, 0.01, 0.005):
+        assert [settled_step(dt, k * dt) for k in range(200)] == list(range(200))
+    assert settled_step(0.01, 0.07) == 7
+    assert settled_step(STEP, 1.01) == 41
+
+
+def test_settled_reward_divides_by_the_time_from_the_first_counted_step():
+    """A settle time between steps: R counts steps 41.. (from 1.025 s) and divides by the
+    4 - 1.025 s they cover, not by 4 - 1.01 s."""
+    rate = settled_reward_rate(EpisodeResult(np.full(160, 0.1)), STEP, 1.01, 4.0)
+    assert rate == pytest.approx(0.1 * 119 / (4.0 - 41 * STEP), rel=1e-12)
+
+
+def test_settled_reward_on_the_step_grid_divides_by_the_time_asked_for_to_the_bit():
+    """T = 2.9 s is 116 steps, and 116 * 0.025 rounds to 2.9000000000000004: on the grid R
+    divides by T itself, the arithmetic of recorded runs."""
+    result = EpisodeResult(np.full(116, 0.1))
+    assert settled_reward_rate(result, STEP, 1.0, 2.9) == np.full(76, 0.1).sum() / (2.9 - 1.0)
+
+
+def test_settled_reward_prefers_the_task_term_and_skips_non_finite_steps():
+    """task_rewards (the controllers' R alone) over rewards; a non-finite step (one a diverging
+    simulation ended on) adds nothing instead of making R NaN."""
+
+    @dataclass
+    class WithTask:
+        rewards: np.ndarray
+        task_rewards: np.ndarray
+
+    both = WithTask(np.full(160, 5.0), np.full(160, 0.1))
+    assert settled_reward_rate(both, STEP, 1.0, 4.0) == pytest.approx(0.1 * 120 / 3.0)
+    rewards = np.full(160, 0.1)
+    rewards[100] = np.nan
+    rate = settled_reward_rate(EpisodeResult(rewards), STEP, 1.0, 4.0)
+    assert rate == pytest.approx(0.1 * 119 / 3.0)
+
+
+def test_settled_reward_needs_time_after_the_settle_time():
+    with pytest.raises(ValueError, match="an episode of 2.0 s is not longer than the settle "
+                                         "time 2.0 s"):  # fmt: skip
+        settled_reward_rate(EpisodeResult(np.ones(80)), STEP, 2.0, 2.0)
 
 
 def test_synthetic_objective_is_deterministic_and_rotation_invariant():

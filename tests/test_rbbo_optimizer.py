@@ -8,6 +8,7 @@ import sys
 import textwrap
 import threading
 import time
+import types
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -830,3 +831,82 @@ def test_calls_that_have_nothing_to_work_on_are_named(tmp_path):
     (tmp_path / "config.json").write_text(json.dumps({"objective": {"kind": "synthetic"}}))
     with pytest.raises(RunDirectoryError, match="config.json has no 'rbbo' settings"):
         RBBO.resume(tmp_path)
+
+
+def test_a_duplicate_is_the_same_subspace_at_the_same_t():
+    """Within DUPLICATE_DISTANCE (a projection distance, compared as its square) at the same
+    T; the same basis at another T is another fidelity's evaluation, not a repeat."""
+    from rbbo.acquisition import perturb
+    from rbbo.proposing import DUPLICATE_DISTANCE, _is_duplicate
+
+    rng = np.random.default_rng(0)
+    b = random_points(6, 2, rng=rng)
+    near, far = (perturb(b, f * DUPLICATE_DISTANCE / np.sqrt(2.0), rng) for f in (0.5, 2.0))
+    assert projection_distance(b, near) < DUPLICATE_DISTANCE < projection_distance(b, far)
+    taken = [(random_points(6, 2, rng=rng), 10.0), (b, 10.0)]
+    assert _is_duplicate(near, 10.0, taken) and _is_duplicate(b @ [[0, 1], [1, 0]], 10.0, taken)
+    assert not _is_duplicate(far, 10.0, taken)
+    assert not _is_duplicate(b, 4.0, taken)
+    assert not _is_duplicate(b, 10.0, [])
+
+
+def test_fantasies_under_boca_are_the_posterior_mean_at_their_own_fidelity():
+    """The kriging believer observes a proposal in flight at (B, z(T)) at the posterior mean
+    there, so the mean at that point stays and its sd shrinks; a confirmation in flight is no
+    fantasy."""
+    from rbbo.boca import BOCAFidelity
+    from rbbo.gp import GrassmannGP
+    from rbbo.proposing import _with_fantasies
+
+    rng = np.random.default_rng(4)
+    bases = random_points(6, 2, 8, rng)
+    z = np.tile([0.0, 1.0], 4)
+    y = np.sum(bases[:, :2, :] ** 2, axis=(1, 2)) - 0.5 * (1.0 - z)
+    gp = GrassmannGP(6, 2, fidelity=True, random_state=0).fit(bases, y, z)
+    b = random_points(6, 2, rng=rng)
+    pending = {
+        8: types.SimpleNamespace(kind="acquisition", basis=b, T=4.0),
+        9: types.SimpleNamespace(kind="confirm-best", basis=bases[0], T=10.0),
+    }
+    opt = types.SimpleNamespace(pending=pending, _z=BOCAFidelity(4.0, 10.0).z)  # (what it reads)
+    believer = _with_fantasies(opt, gp)
+    assert believer.n_observations == 9
+    (mu0, sd0), (mu1, sd1) = gp.predict(b, 0.0), believer.predict(b, 0.0)
+    assert abs(mu0[0] - gp.predict(b, 1.0)[0][0]) > 1e-3  # (z matters here)
+    np.testing.assert_allclose(mu1, mu0, atol=1e-8)
+    assert sd1[0] < sd0[0]
+
+
+def test_a_proposal_takes_the_best_other_optimum_orthonormalised_and_the_scheduled_beta(
+    monkeypatch,
+):
+    """A maximiser's point that repeats an evaluation gives way to the best remaining local
+    optimum (not merely another), re-orthonormalised; the acquisition maximised is GP-UCB at
+    z = 1 with beta_t of the number of observations."""
+    import rbbo.proposing as proposing_module
+    from rbbo.acquisition import AcquisitionResult, ucb_beta
+    from rbbo.grassmann import dimension
+
+    m, c = 6, 2
+    objective = SyntheticObjective(m, c, optimum_seed=3)
+    opt = RBBO(RBBOConfig(m, c, n_init=3, seed=1, n_confirm=0, **FAST))
+    for _ in range(4):
+        p = opt.ask()
+        opt.tell(p.index, objective(p.basis, p.T, p.seeds[0]))
+    seen = opt.evaluations[1].basis
+    worse, better = random_points(m, c, 2, rng=5)
+    optima = ((seen, -3.0), (worse, -1.0), (better * (1 + 1e-10), -1.5))  # (point, cost)
+    results = [types.SimpleNamespace(point=point, cost=cost) for point, cost in optima]
+    calls = []
+
+    def lands_on_a_repeat(acquisition, *args, **kwargs):
+        calls.append(acquisition)
+        return AcquisitionResult(seen, 3.0, "lrbfgs", results=results)
+
+    monkeypatch.setattr(proposing_module, "maximize_on_grassmann", lands_on_a_repeat)
+    p = opt.ask()
+    assert p.info["duplicates_skipped"] == 1 and p.info["acq_value"] == 1.5
+    assert projection_distance(p.basis, better) < 1e-12
+    assert np.abs(p.basis.T @ p.basis - np.eye(c)).max() < 1e-14  # (the optimum: 2e-10)
+    (acquisition,) = calls
+    assert acquisition.beta == ucb_beta(4, dimension(m, c)) and acquisition.z == 1.0

@@ -377,6 +377,12 @@ def test_confidence_interval_is_the_t_interval():
     assert math.isnan(confidence_interval([1.0])[1])
 
 
+def test_confidence_interval_of_nothing_is_nan_without_a_warning():
+    """No values: NaN mean and half-width, not numpy's 'mean of empty slice' warning."""
+    mean, half = confidence_interval([])
+    assert math.isnan(mean) and math.isnan(half)
+
+
 def test_plan_validates_and_round_trips():
     plan = ReproducePlan(benchmarks=["softrom_gym/BeamWalk-v0"], budget_s=60.0)
     assert plan.benchmarks == ["BeamWalk-v0"]
