@@ -690,3 +690,88 @@ def test_runs_that_cannot_do_what_is_asked_are_usage_errors(tmp_path, capsys):
     blocker.write_text("")
     err = _error(capsys, ["report", str(run), "--png", str(blocker / "sub" / "p.png")])
     assert f"cannot write --png {blocker / 'sub' / 'p.png'}: " in err
+
+
+def test_optimize_without_a_limit_runs_for_thirty_minutes(tmp_path, capsys, monkeypatch):
+    import rbbo.cli.optimize
+
+    limits = []
+
+    def execute(opt, executor, iterations, budget, *args):
+        executor.shutdown()
+        limits.append((iterations, budget))
+        return 0
+
+    monkeypatch.setattr(rbbo.cli.optimize, "_execute", execute)
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", *TINY, "--executor", "serial", "--out", str(run)]) == 0
+    assert limits == [(None, 1800.0)]
+    settings = json.loads((run / "config.json").read_text())["rbbo"]
+    assert (settings["max_evaluations"], settings["budget_s"]) == (None, 1800.0)
+
+
+def test_optimize_gives_the_run_its_seed_seeds_and_optimizer(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", *TINY, "--iterations", "2", "--seed", "7",
+                 "--seeds", "2", "--optimizer", "cg", "--executor", "serial",
+                 "--out", str(run)]) == 0  # fmt: skip
+    settings = json.loads((run / "config.json").read_text())["rbbo"]
+    assert (settings["seed"], settings["seeds"], settings["optimizer"]) == (7, 2, "cg")
+    search = [h for h in _history(run) if not h["kind"].startswith("confirm")]
+    assert [h["seeds"] for h in search] == [[7, 8], [7, 8]]
+    assert [len(h["R_seeds"]) for h in search] == [2, 2]
+
+
+def test_an_interrupted_confirm_exits_130_and_loses_nothing(tmp_path, capsys, monkeypatch):
+    from rbbo.objective import SyntheticObjective
+    from rbbo.store import RunStore
+
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+                 "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    before = (run / "history.jsonl").read_bytes()
+
+    def interrupted(self, basis, T, seed):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(SyntheticObjective, "__call__", interrupted)
+    assert main(["confirm", str(run)]) == 130
+    assert capsys.readouterr().err == (
+        f"\ninterrupted; nothing is lost: run rbbo confirm {run} again\n"
+    )
+    assert (run / "history.jsonl").read_bytes() == before
+    sessions = RunStore.open(run, repair=False).sessions()
+    assert [(s["command"], s["status"]) for s in sessions][-1] == ("confirm", "interrupted")
+    monkeypatch.undo()
+    assert main(["confirm", str(run)]) == 0
+
+
+def test_confirm_of_a_run_without_confirmation_seeds_says_so(tmp_path, capsys):
+    # (not "resume finishes it and measures R_init and R*": it would measure neither)
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=4, n_confirm=0, acq_random=64,
+                        acq_starts=2, gp_restarts=0)  # fmt: skip
+    opt = RBBO.create(tmp_path / "run", config, objective_spec=objective.spec(),
+                      extra={"execution": {"executor": "serial", "workers": 1,
+                                           "timeout_s": None}})  # fmt: skip
+    opt.run(objective)
+    opt.tell(opt.ask().index, 0.1)  # searched on after its summary: not finished
+    opt.store.close()
+    err = _error(capsys, ["confirm", str(tmp_path / "run")])
+    assert "the run was made with no confirmation seeds (n_confirm = 0)" in err
+
+
+def test_report_reads_a_run_that_is_still_writing_and_changes_nothing(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+                 "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    with open(run / "history.jsonl", "a") as f:
+        f.write('{"index": 9, "R')  # the line the run's process is writing right now
+    before = (run / "history.jsonl").read_bytes()
+    assert main(["report", str(run)]) == 0
+    assert (run / "history.jsonl").read_bytes() == before
+    assert not (run / "history.jsonl.truncated").exists()

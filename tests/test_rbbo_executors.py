@@ -1,6 +1,7 @@
 """Executors (rbbo.executors): crashes and hangs fail one evaluation, the run goes on."""
 
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -30,6 +31,7 @@ def test_process_pool_survives_crash_hang_and_exceptions(pool):
                                             "ok"]  # fmt: skip
     assert outcomes[0].R == 1.0 and outcomes[0].R_seeds == (1.0,)
     assert "timed out after 1.5 s" in outcomes[1].error
+    assert 1.5 <= outcomes[1].wall_s < 2.5  # stopped at its timeout, not some time after
     assert "worker crashed (exit code 7)" in outcomes[2].error
     assert "RuntimeError: MPC diverged" in outcomes[3].error
     assert "non-finite R" in outcomes[4].error
@@ -176,6 +178,8 @@ def test_executor_arguments_are_checked():
         ProcessExecutor(FaultyObjective(), workers=0)
     with pytest.raises(ValueError, match="timeout_s must be > 0 or None, got -1"):
         ProcessExecutor(FaultyObjective(), timeout_s=-1)
+    with pytest.raises(ValueError, match="timeout_s must be > 0 or None, got 0"):
+        ProcessExecutor(FaultyObjective(), timeout_s=0)
     with pytest.raises(ValueError, match=r"unknown executor 'dask'; valid: \['process', 'ray'"):
         make_executor("dask", FaultyObjective())
 
@@ -211,3 +215,61 @@ def test_a_ray_actors_warning_is_one_line_naming_the_worker(monkeypatch, capsys)
     assert capsys.readouterr().err.splitlines() == [
         "rbbo ray-1: warning: the episode diverged once (RuntimeWarning)"
     ]
+
+
+def test_leaving_a_pool_on_an_exception_fails_what_runs_and_what_is_queued_at_once():
+    # Ctrl-C inside ``with ProcessExecutor(...)``: the pool does not wait for the evaluation
+    # in flight (a hung one here), and its future and those still queued resolve as failed,
+    # so that nothing waiting on them hangs; the pool then takes no more tasks.
+    start = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        with ProcessExecutor(FaultyObjective(hang_s=60), workers=1, timeout_s=60) as executor:
+            running = executor.submit(_task(0, FaultyObjective.HANG))
+            queued = executor.submit(_task(1, 1))
+            deadline = time.monotonic() + 60
+            while not running.running() and time.monotonic() < deadline:
+                time.sleep(0.01)  # (until the worker has started and taken the task)
+            assert running.running()
+            raise KeyboardInterrupt
+    outcomes = [running.result(timeout=10), queued.result(timeout=10)]
+    assert time.monotonic() - start < 30
+    assert [(o.index, o.status, o.error) for o in outcomes] == [
+        (0, "failed", "cancelled at shutdown"), (1, "failed", "cancelled at shutdown")]  # fmt: skip
+    with pytest.raises(RuntimeError, match="cannot submit to a ProcessExecutor that was shut"):
+        executor.submit(_task(2, 1))
+
+
+def test_a_timeout_holds_on_one_worker_whichever_way_the_pool_is_made():
+    # (the in-process executor has no timeout: one worker with a timeout needs the pool)
+    hangs = FaultyObjective(hang_s=30)
+    with make_executor("process", hangs, workers=1, timeout_s=1.0) as executor:
+        outcome = executor.submit(_task(0, FaultyObjective.HANG)).result(timeout=25)
+    assert (outcome.status, outcome.error) == ("failed", "timed out after 1 s")
+    config = RBBOConfig(4, 2, t_max=FaultyObjective.HANG, n_init=0, max_evaluations=1,
+                        n_confirm=0, **FAST)  # fmt: skip
+    opt = RBBO(config)
+    result = opt.run(hangs, timeout_s=1.0)
+    assert result.failed == 1 and opt.history[0].error == "timed out after 1 s"
+
+
+def test_ctrl_c_stops_a_run_on_its_own_pool_without_waiting_for_an_evaluation_in_flight(
+    tmp_path,
+):
+    # BOCA's initial design alternates T_max and T_min: the identity (at T_max: hangs here)
+    # is still in flight on one worker when the next point (at T_min) is told, and Ctrl-C
+    # arrives. The run must stop at once, not when the hung evaluation times out.
+    config = RBBOConfig(4, 2, fidelity="boca", t_min=1.0, t_max=FaultyObjective.HANG, n_init=2,
+                        max_evaluations=3, n_confirm=0, **FAST)  # fmt: skip
+    opt = RBBO.create(tmp_path / "run", config)
+
+    def ctrl_c(evaluation):
+        raise KeyboardInterrupt
+
+    start = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        opt.run(FaultyObjective(hang_s=60), workers=2, timeout_s=60, callback=ctrl_c)
+    assert time.monotonic() - start < 30
+    # the told evaluation is recorded; the one in flight is not, and a resume hands it out
+    assert [e.index for e in opt.history] == [1]
+    opt.store.close()
+    assert RBBO.resume(tmp_path / "run").ask().index == 0

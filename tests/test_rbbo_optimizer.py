@@ -16,7 +16,7 @@ import pytest
 
 from rbbo import RBBO, RBBOConfig, SyntheticObjective
 from rbbo.baselines import random_search
-from rbbo.executors import Executor
+from rbbo.executors import Executor, SerialExecutor
 from rbbo.executors.base import evaluate_task
 from rbbo.grassmann import identity_basis, projection_distance, random_points, validate_basis
 from rbbo.store import RunDirectoryError
@@ -420,6 +420,11 @@ def test_resume_rejects_bad_settings(tmp_path):
         ({"t_max": 0}, "t_max must be a positive number of seconds, got 0.0"),
         ({"t_max": float("nan")}, "t_max must be a positive number of seconds, got nan"),
         ({"t_max": float("inf")}, "t_max must be a positive number of seconds, got inf"),
+        ({"fidelity": "boca", "t_min": 0.0}, "need 0 < t_min < t_max for BOCA, got 0.0, 10.0"),
+        ({"max_evaluations": 0}, "max_evaluations must be an integer >= 1, got 0"),
+        ({"budget_s": 0}, "budget_s must be > 0 seconds, got 0.0"),
+        ({"seed": -1}, "seed must be an integer >= 0, got -1"),
+        ({"boca_candidates": 1}, "boca_candidates must be an integer >= 2, got 1"),
     ],
 )
 def test_config_validation(kwargs, match):
@@ -440,7 +445,8 @@ def test_run_validates_its_limits_and_objective():
     opt = RBBO(RBBOConfig(4, 2, **FAST))
     for limits, match in (({"max_evaluations": -5}, "max_evaluations must be an integer >= 1"),
                           ({"max_evaluations": 2.5}, "max_evaluations must be an integer >= 1"),
-                          ({"budget_s": -1.0}, "budget_s must be > 0 seconds")):  # fmt: skip
+                          ({"budget_s": -1.0}, "budget_s must be > 0 seconds"),
+                          ({"budget_s": 0}, "budget_s must be > 0 seconds, got 0")):  # fmt: skip
         with pytest.raises(ValueError, match=match):
             opt.run(SyntheticObjective(4, 2), **limits)
     with pytest.raises(TypeError, match="objective must be callable .* got int"):
@@ -792,6 +798,7 @@ def test_a_resumed_run_goes_on_from_the_time_it_had_spent(tmp_path):
     resumed = RBBO.resume(tmp_path / "run")
     assert resumed.elapsed_s >= 1000.0
     assert not resumed.can_submit(None, 500.0)  # its budget was spent in the first session
+    assert resumed.result().wall_s >= 1000.0  # (the report's wall time: the run's, not a sum)
     q = resumed.ask()
     assert resumed.tell(q.index, 0.4).elapsed_s >= 1000.0
 
@@ -910,3 +917,239 @@ def test_a_proposal_takes_the_best_other_optimum_orthonormalised_and_the_schedul
     assert np.abs(p.basis.T @ p.basis - np.eye(c)).max() < 1e-14  # (the optimum: 2e-10)
     (acquisition,) = calls
     assert acquisition.beta == ucb_beta(4, dimension(m, c)) and acquisition.z == 1.0
+
+
+class _ManyWorkers(SerialExecutor):
+    """Evaluates each task as it is submitted, in this thread, but has ``workers`` workers:
+    the run keeps that many proposals in flight, all told together."""
+
+    def __init__(self, objective, workers):
+        super().__init__(objective)
+        self.workers = workers
+
+
+def test_a_blip_that_fails_every_evaluation_in_flight_on_many_workers_does_not_stop_the_run():
+    # A passing outage (a lost node, a full scratch disk) fails every evaluation in flight
+    # at once: with 12 workers that is 12 failures in a row, which must not stop the run. It
+    # stops after twice its workers (and at least MAX_CONSECUTIVE_FAILURES) in a row.
+    from rbbo.optimizer import EvaluationsFailing
+
+    calls = []
+
+    def blip(basis, T, seed):
+        calls.append(seed)
+        if len(calls) <= 12:
+            raise OSError("node lost")
+        return float(basis[0, 0])
+
+    config = RBBOConfig(6, 2, n_init=11, max_evaluations=14, n_confirm=0, **FAST)
+    result = RBBO(config).run(executor=_ManyWorkers(blip, 12))
+    assert result.evaluations == 14 and result.failed == 12
+
+    def broken(basis, T, seed):
+        raise OSError("node lost")
+
+    config = RBBOConfig(6, 2, n_init=30, max_evaluations=40, n_confirm=0, **FAST)
+    opt = RBBO(config)
+    with pytest.raises(EvaluationsFailing, match="the last 24 evaluations all failed, the last "
+                       "with: OSError: node lost"):  # fmt: skip
+        opt.run(executor=_ManyWorkers(broken, 12))
+    assert len(opt.evaluations) == 24
+
+
+def test_r_init_and_r_star_are_measured_at_t_max_on_fresh_seeds(tmp_path):
+    # (the synthetic objective's R depends on T: its low-fidelity bias)
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, t_min=4.0, t_max=10.0, n_init=3, max_evaluations=6, n_confirm=3,
+                        **FAST)  # fmt: skip
+    opt = RBBO.create(tmp_path / "run", config, objective_spec=objective.spec())
+    result = opt.run(objective)
+    assert not np.array_equal(result.best_basis, identity_basis(6, 2))  # (two bases measured)
+    measured = {e.kind: e for e in opt.history if e.kind.startswith("confirm")}
+    bases = {"confirm-init": identity_basis(6, 2), "confirm-best": result.best_basis}
+    for kind, basis in bases.items():
+        e = measured[kind]
+        np.testing.assert_array_equal(e.basis, basis)
+        assert e.T == 10.0 and len(e.seeds) == 3
+        assert set(e.seeds).isdisjoint(config.crn_seeds)  # none the search's own seeds
+        assert e.R_seeds == [objective(basis, 10.0, s) for s in e.seeds]
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["R_init_seeds"] == measured["confirm-init"].R_seeds
+    assert summary["R_star_seeds"] == measured["confirm-best"].R_seeds
+    assert (summary["R_init"], summary["R_star"]) == (result.R_init, result.R_star)
+    assert result.R_init > 0
+    assert summary["improvement_pct"] == pytest.approx(100 * (result.R_star / result.R_init - 1))
+
+
+def test_the_improvement_is_given_over_a_positive_r_init_only():
+    from rbbo.store import Evaluation
+
+    config = RBBOConfig(6, 2, n_init=0, max_evaluations=1, n_confirm=2, **FAST)
+    best = random_points(6, 2, rng=3)
+    for r_init, improvement in ((0.4, 50.0), (-0.4, None), (0.0, None)):
+        opt = RBBO(config)
+        for evaluation in (
+            Evaluation(0, best, 10.0, 0.5, seeds=[0], kind="acquisition"),
+            Evaluation(1, identity_basis(6, 2), 10.0, r_init, seeds=[10**6, 10**6 + 1],
+                       R_seeds=[r_init - 0.1, r_init + 0.1], kind="confirm-init"),
+            Evaluation(2, best, 10.0, 0.6, seeds=[10**6, 10**6 + 1], R_seeds=[0.5, 0.7],
+                       kind="confirm-best"),
+        ):  # fmt: skip
+            opt._record(evaluation, persist=False)
+        result = opt.result()
+        assert (result.R_init, result.R_star) == (r_init, 0.6)
+        assert result.R_star_seeds == [0.5, 0.7]
+        if improvement is None:  # (R* / R_init - 1 means nothing for R_init <= 0)
+            assert result.improvement_pct is None
+        else:
+            assert result.improvement_pct == pytest.approx(improvement)
+
+
+def test_the_report_shows_the_failures_the_spread_over_seeds_and_the_run_time():
+    from rbbo.report import format_table, report_row
+    from rbbo.store import Evaluation
+
+    opt = RBBO(RBBOConfig(6, 2, n_init=0, max_evaluations=2, n_confirm=2, **FAST))
+    best, fresh = random_points(6, 2, rng=3), [10**6, 10**6 + 1]
+    for evaluation in (
+        Evaluation(0, best, 10.0, 0.5, seeds=[0], kind="acquisition", elapsed_s=10.0),
+        Evaluation(1, random_points(6, 2, rng=4), 10.0, None, status="failed", seeds=[0],
+                   kind="acquisition", elapsed_s=20.0),
+        Evaluation(2, identity_basis(6, 2), 10.0, 0.4, seeds=fresh, R_seeds=[0.3, 0.5],
+                   kind="confirm-init", elapsed_s=5000.0),
+        Evaluation(3, best, 10.0, 0.6, seeds=fresh, R_seeds=[0.5, 0.8], kind="confirm-best",
+                   elapsed_s=5400.0),
+    ):  # fmt: skip
+        opt._record(evaluation, persist=False)
+    row = report_row(opt)
+    assert (row["evaluations"], row["failed"], row["wall_s"]) == (2, 1, 5400.0)
+    # the sample standard deviation over the confirmation seeds
+    assert row["R_init_sd"] == pytest.approx(np.sqrt(0.02))
+    assert row["R_star_sd"] == pytest.approx(np.sqrt(0.045))
+    lines = format_table([row]).splitlines()
+    assert lines[2].split() == ["-", "-", "6", "2", "0.4±0.14", "0.6±0.21", "50.0", "%", "2",
+                                "(1", "failed)", "1h30m00s"]  # fmt: skip
+    assert format_table([{**row, "wall_s": 75.0}]).splitlines()[2].endswith(" 1m15s")
+
+
+def test_an_invalid_limit_changes_nothing_in_the_run(tmp_path):
+    # set_limits refuses before it writes: a limit written first would leave config.json with
+    # settings that no later resume could read
+    opt = RBBO.create(tmp_path / "run", RBBOConfig(4, 2, max_evaluations=5, **FAST))
+    before = (tmp_path / "run" / "config.json").read_bytes()
+    for limits, match in (((0, None), "max_evaluations must be an integer >= 1, got 0"),
+                          ((None, -1.0), "budget_s must be > 0 seconds, got -1.0")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            opt.set_limits(*limits)
+    assert (tmp_path / "run" / "config.json").read_bytes() == before
+    assert (opt.config.max_evaluations, opt.config.budget_s) == (5, None)
+    opt.store.close()
+    assert RBBO.resume(tmp_path / "run").config.max_evaluations == 5
+
+
+def test_a_run_that_searched_on_after_its_confirmation_is_not_finished(tmp_path, monkeypatch):
+    # Confirmed, resumed with a larger limit and stopped after one more search evaluation:
+    # not finished (rollout says so, confirm refuses), its answer the current recommendation,
+    # with no R* until one is measured for it; the identity's R_init stands.
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=6, n_confirm=2, **FAST)
+    path = tmp_path / "run"
+    first = RBBO.create(path, config, objective_spec=objective.spec()).run(objective)
+    opt = RBBO.resume(path)
+    opt.set_limits(8, None)
+
+    def ctrl_c(evaluation):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        opt.run(objective, callback=ctrl_c)
+    opt.store.close()
+    reader = RBBO.resume(path, read_only=True)
+    assert len(reader.evaluations) == 7 and reader.history[-1].kind == "acquisition"
+    assert not reader.finished
+    newest = reader.evaluations[-1]
+    monkeypatch.setattr(RBBO, "recommend", lambda self: newest)
+    result = reader.result()
+    assert result.best_index == newest.index and result.R_star is None
+    assert result.R_init == first.R_init and result.improvement_pct is None
+
+
+def test_a_failed_confirmation_leaves_r_star_unset_and_is_no_failure_of_the_search(tmp_path):
+    objective = SyntheticObjective(6, 2, noise=0.01)
+
+    def diverges_on_fresh_seeds(basis, T, seed):
+        if seed >= 10**6:  # (the confirmation's seeds)
+            raise RuntimeError("episode diverged")
+        return objective(basis, T, seed)
+
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=5, n_confirm=2, **FAST)
+    opt = RBBO.create(tmp_path / "run", config, objective_spec=objective.spec())
+    result = opt.run(diverges_on_fresh_seeds)
+    assert [e.status for e in opt.history if e.kind.startswith("confirm")] == ["failed"] * 2
+    assert (result.evaluations, result.failed) == (5, 0)
+    assert result.R_star is None and result.R_init is None and result.improvement_pct is None
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert (summary["evaluations"], summary["failed"], summary["R_star"]) == (5, 0, None)
+    assert not opt.finished  # a resume measures them again
+
+
+def test_a_run_without_proposal_records_numbers_new_proposals_after_every_recorded_one(tmp_path):
+    # A run made before proposals.jsonl existed (or whose file is gone) may have lost an
+    # evaluation in flight between two recorded ones: a new proposal must not take a
+    # recorded index (the history would then hold it twice, and refuse the next resume).
+    opt = RBBO.create(tmp_path / "run", RBBOConfig(4, 2, n_init=3, **FAST))
+    first, _, third = opt.ask(), opt.ask(), opt.ask()
+    opt.tell(first.index, 0.5)
+    opt.tell(third.index, 0.4)
+    opt.store.close()
+    (tmp_path / "run" / "proposals.jsonl").unlink()
+    resumed = RBBO.resume(tmp_path / "run")
+    proposal = resumed.ask()
+    assert proposal.index == 3
+    resumed.tell(proposal.index, 0.3)
+    resumed.store.close()
+    assert [e.index for e in RBBO.resume(tmp_path / "run").history] == [0, 2, 3]
+
+
+def test_a_proposal_record_without_its_seeds_is_named(tmp_path):
+    opt = RBBO.create(tmp_path / "run", RBBOConfig(4, 2, n_init=3, **FAST))
+    opt.ask()
+    opt.store.close()
+    with open(tmp_path / "run" / "proposals.jsonl", "a") as f:
+        f.write(json.dumps({"index": 9, "basis": np.eye(4)[:, :2].tolist(), "T": 10.0,
+                            "kind": "acquisition"}) + "\n")  # fmt: skip
+    with pytest.raises(RunDirectoryError, match=r"proposals.jsonl: proposal 9 is unreadable: "
+                       r"'seeds'"):  # fmt: skip
+        RBBO.resume(tmp_path / "run")
+
+
+def test_a_gp_record_of_another_version_is_passed_over_on_resume(tmp_path):
+    # hyperparameters this version does not know (a later version's record): the next fit
+    # starts from the defaults, as before the record existed, instead of failing the resume
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=2, max_evaluations=5, n_confirm=0, **FAST)
+    RBBO.create(tmp_path / "run", config, objective_spec=objective.spec()).run(objective)
+    history = tmp_path / "run" / "history.jsonl"
+    records = [json.loads(line) for line in history.read_text().splitlines()]
+    assert records[-1]["gp"] is not None
+    records[-1]["gp"]["warp"] = 0.5
+    history.write_text("".join(json.dumps(r) + "\n" for r in records))
+    opt = RBBO.resume(tmp_path / "run")
+    opt.run(objective, max_evaluations=6)
+    assert len(opt.evaluations) == 6
+
+
+def test_a_run_may_have_no_random_initial_points():
+    # (rbbo optimize --init 0): the identity, then the GP, from a random point while it has
+    # fewer than two observations
+    opt = RBBO(RBBOConfig(6, 2, n_init=0, max_evaluations=3, n_confirm=0, **FAST))
+    opt.run(SyntheticObjective(6, 2))
+    assert [e.kind for e in opt.evaluations] == ["initial", "random", "acquisition"]
+
+
+def test_random_search_starts_from_the_identity_only_when_asked():
+    objective = SyntheticObjective(6, 2)
+    with_identity = random_search(objective, 6, 2, 3, T=10.0, rng=0)
+    without = random_search(objective, 6, 2, 3, T=10.0, rng=0, include_identity=False)
+    np.testing.assert_array_equal(with_identity[0][0], identity_basis(6, 2))
+    assert not any(np.array_equal(b, identity_basis(6, 2)) for b, _, _ in without)

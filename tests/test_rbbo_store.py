@@ -123,6 +123,7 @@ def test_evaluation_validation():
     [
         ("T", "5.0", "T must be a positive number of seconds, got '5.0'"),
         ("T", None, "T must be a positive number of seconds, got None"),
+        ("T", 0, "T must be a positive number of seconds, got 0"),
         ("index", "1", "index must be an integer, got '1'"),
         ("index", 1.5, "index must be an integer, got 1.5"),
         ("basis", [[1.0, None], [0.0, 1.0]], "basis holds non-finite values"),
@@ -190,6 +191,10 @@ def test_update_config_merges_rewrites_and_needs_the_lock(tmp_path):
     with pytest.raises(ValueError, match="not JSON-serialisable"):
         store.update_config({"z": float("nan")})
     assert store.config == expected  # a failed update changes nothing, in memory or on disk
+    with pytest.raises(ValueError, match="not JSON-serialisable"):
+        store.update_config({"rbbo": {"budget_s": float("nan")}})  # (merged into a dict)
+    assert store.config == expected
+    assert json.loads((tmp_path / "run" / "config.json").read_text()) == expected
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [".rbbo.lock", "config.json",
                                                                     "history.jsonl"]  # fmt: skip
     store.close()
@@ -348,10 +353,10 @@ def test_every_write_is_fsynced_with_its_data_before_it_returns(tmp_path, monkey
     check("config.json", entry=True)
     store.append(_evaluation(0))
     check("history.jsonl")
-    store.append_proposal({"index": 1})
-    check("proposals.jsonl")
+    store.append_proposal({"index": 1})  # (the first: a new file, its entry fsynced too)
+    check("proposals.jsonl", entry=True)
     store.append_session({"started": "now"})
-    check("sessions.jsonl")
+    check("sessions.jsonl", entry=True)
     store.update_config({"x": 2})
     check("config.json", entry=True)
     store.save_best(np.eye(3)[:, :1])
@@ -407,3 +412,46 @@ def test_a_run_directory_that_cannot_be_created_leaves_nothing_behind(tmp_path):
         with pytest.raises(ValueError, match=f"config is not JSON-serialisable: {match}"):
             RunStore.create(tmp_path / "run", config)
     assert [p.name for p in tmp_path.iterdir()] == ["file"]
+
+
+def test_a_directory_with_a_history_but_no_config_is_not_made_a_new_run(tmp_path):
+    # (config.json lost, or removed by hand): a new run there would append its evaluations,
+    # numbered from 0 again, to the old ones
+    store = RunStore.create(tmp_path / "run", {"x": 1})
+    store.append(_evaluation(0))
+    store.close()
+    (tmp_path / "run" / "config.json").unlink()
+    before = (tmp_path / "run" / "history.jsonl").read_bytes()
+    with pytest.raises(RunDirectoryError, match="already holds a run; resume it"):
+        RunStore.create(tmp_path / "run", {"x": 2})
+    assert (tmp_path / "run" / "history.jsonl").read_bytes() == before
+    assert not (tmp_path / "run" / "config.json").exists()
+
+
+def test_a_store_opened_read_only_refuses_every_write_and_writes_nothing(tmp_path):
+    # a reader holds no lock: the run may be going on in another process, whose records a
+    # write from here would collide with or replace
+    store = RunStore.create(tmp_path / "run", {"x": 1})
+    store.append(_evaluation(0))
+    before = {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir()}
+    reader = RunStore.open(tmp_path / "run", repair=False)
+    writes = [
+        lambda: reader.append(_evaluation(1)),
+        lambda: reader.append_proposal({"index": 1}),
+        lambda: reader.append_session({"started": "now"}),
+        lambda: reader.save_best(np.eye(4)[:, :2]),
+        lambda: reader.write_summary({"best_index": 0}),
+        lambda: reader.update_config({"x": 2}),
+    ]
+    for write in writes:
+        with pytest.raises(RunDirectoryError, match="run was opened read-only"):
+            write()
+    assert {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir()} == before
+
+
+def test_a_run_no_session_of_which_finished_says_it_has_no_best_basis_yet(tmp_path):
+    store = RunStore.create(tmp_path / "run", {})
+    store.append(_evaluation(0))
+    with pytest.raises(RunDirectoryError, match=r"has no best_basis.npy yet: no session of the "
+                       r"run has finished \(resume it with rbbo resume\)"):  # fmt: skip
+        store.best_basis()
