@@ -775,3 +775,20 @@ def test_report_reads_a_run_that_is_still_writing_and_changes_nothing(tmp_path, 
     assert main(["report", str(run)]) == 0
     assert (run / "history.jsonl").read_bytes() == before
     assert not (run / "history.jsonl.truncated").exists()
+
+
+def test_a_resume_refused_for_its_executor_changes_nothing_in_the_run(tmp_path, capsys):
+    # (found by helper-58's audit) `resume --iterations 4 --executor serial --workers 2` wrote
+    # the new limit to config.json, said so, and only then refused the executor: a refused
+    # command changed the run
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+
+    run = tmp_path / "run"
+    RBBO.create(run, RBBOConfig(6, 2, n_init=3, max_evaluations=2, n_confirm=0),
+                objective_spec=SyntheticObjective(6, 2).spec()).store.close()  # fmt: skip
+    before = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()}
+    err = _error(capsys, ["resume", str(run), "--iterations", "4", "--executor", "serial",
+                          "--workers", "2"])  # fmt: skip
+    assert err == ("rbbo: error: --executor serial runs one evaluation at a time, in this "
+                   "process; --workers 2 needs --executor process (or ray)\n")  # fmt: skip
+    assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()} == before

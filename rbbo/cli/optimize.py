@@ -130,27 +130,33 @@ def cmd_resume(args) -> int:
         if execution["executor"] != "ray":
             raise UsageError("--address is for --executor ray")
         execution["address"] = args.address
-    # A new limit replaces both stored ones: a run that stopped at its budget, resumed with
-    # --iterations, would otherwise stop again at once. It is written to config.json, so a
-    # later plain `rbbo resume` (the hint an interrupted run prints) goes on to it, or, for a
-    # lowered limit that is already reached, stays stopped at it.
-    iterations, budget = args.iterations, args.budget
-    if iterations is None and budget is None:
-        iterations, budget = opt.config.max_evaluations, opt.config.budget_s
-    elif (iterations, budget) != (opt.config.max_evaluations, opt.config.budget_s):
-        old = _limits_text(opt.config.max_evaluations, opt.config.budget_s)
-        with _bad_input():
-            opt.set_limits(iterations, budget)
-        print(f"{store.path}: its limit is now {_limits_text(iterations, budget)} (was "
-              f"{old}), stored in config.json for later resumes", file=sys.stderr)  # fmt: skip
-    if not opt.can_submit(iterations, budget):
-        done = len(opt.evaluations)
-        print(f"{store.path} has reached its limit ({_limits_text(iterations, budget)}; it "
-              f"has {done} evaluations, {_duration_text(opt.elapsed_s)}): nothing more to "
-              "search; give a larger --budget or --iterations to go on",
-              file=sys.stderr)  # fmt: skip
     started = time.monotonic()
+    # built before a new limit is written: a command refused for its executor (--workers 2
+    # with --executor serial, a missing Ray) changes nothing in the run
     executor = _make_executor(objective, execution)
+    try:
+        # A new limit replaces both stored ones: a run that stopped at its budget, resumed with
+        # --iterations, would otherwise stop again at once. It is written to config.json, so a
+        # later plain `rbbo resume` (the hint an interrupted run prints) goes on to it, or, for a
+        # lowered limit that is already reached, stays stopped at it.
+        iterations, budget = args.iterations, args.budget
+        if iterations is None and budget is None:
+            iterations, budget = opt.config.max_evaluations, opt.config.budget_s
+        elif (iterations, budget) != (opt.config.max_evaluations, opt.config.budget_s):
+            old = _limits_text(opt.config.max_evaluations, opt.config.budget_s)
+            with _bad_input():
+                opt.set_limits(iterations, budget)
+            print(f"{store.path}: its limit is now {_limits_text(iterations, budget)} (was "
+                  f"{old}), stored in config.json for later resumes", file=sys.stderr)  # fmt: skip
+        if not opt.can_submit(iterations, budget):
+            done = len(opt.evaluations)
+            print(f"{store.path} has reached its limit ({_limits_text(iterations, budget)}; it "
+                  f"has {done} evaluations, {_duration_text(opt.elapsed_s)}): nothing more to "
+                  "search; give a larger --budget or --iterations to go on",
+                  file=sys.stderr)  # fmt: skip
+    except BaseException:
+        executor.shutdown(wait=False)
+        raise
     code = _execute(opt, executor, iterations, budget, not args.no_progress,
                     bool(execution.get("deterministic", False)))  # fmt: skip
     if code == 0:
