@@ -722,6 +722,31 @@ def test_optimize_gives_the_run_its_seed_seeds_and_optimizer(tmp_path, capsys):
     assert [len(h["R_seeds"]) for h in search] == [2, 2]
 
 
+def test_resume_runs_on_the_workers_and_the_executor_it_is_given(tmp_path, capsys):
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+    from rbbo.store import RunStore
+
+    run = tmp_path / "run"
+    execution = {"executor": "process", "workers": 2, "timeout_s": 600.0, "address": None,
+                 "deterministic": False}  # fmt: skip
+    RBBO.create(run, RBBOConfig(6, 2, n_init=3, max_evaluations=2, n_confirm=0),
+                objective_spec=SyntheticObjective(6, 2).spec(),
+                extra={"execution": execution}).store.close()  # fmt: skip
+    assert main(["resume", str(run), "--workers", "1", "--no-progress"]) == 0
+    # a serial session of a two-worker run: one worker, not a refusal of the stored count
+    assert main(["resume", str(run), "--iterations", "3", "--executor", "serial",
+                 "--no-progress"]) == 0  # fmt: skip
+    sessions = RunStore.open(run, repair=False).sessions()
+    assert [(s["workers"], s["status"]) for s in sessions] == [(1, "finished"), (1, "finished")]
+    assert [h["worker"] for h in _history(run)] == ["process-0", "process-0", "main"]
+    # a count of workers one executor cannot take is refused, not dropped
+    capsys.readouterr()
+    assert main(["resume", str(run), "--executor", "serial", "--workers", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "rbbo: error: --executor serial runs one evaluation at a time, in this process; " \
+        "--workers 2 needs --executor process" in err  # fmt: skip
+
+
 def test_an_interrupted_confirm_exits_130_and_loses_nothing(tmp_path, capsys, monkeypatch):
     from rbbo.objective import SyntheticObjective
     from rbbo.store import RunStore
