@@ -817,3 +817,32 @@ def test_a_resume_refused_for_its_executor_changes_nothing_in_the_run(tmp_path, 
     assert err == ("rbbo: error: --executor serial runs one evaluation at a time, in this "
                    "process; --workers 2 needs --executor process (or ray)\n")  # fmt: skip
     assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()} == before
+
+
+def test_a_confirm_that_fails_stops_its_executor(tmp_path, capsys, monkeypatch):
+    # (helper-58's audit) a confirm whose measurement raised left its executor's workers to
+    # the interpreter's exit; it now stops them as the interrupted confirm does
+    import rbbo.cli.optimize as cli_optimize
+    from rbbo.optimizer import RBBO
+
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+                 "--out", str(run)]) == 0  # fmt: skip
+    made = []
+
+    def recording_executor(objective, execution):
+        made.append(real(objective, execution))
+        stops = made[-1].shutdown
+        made[-1].stopped = []
+        made[-1].shutdown = lambda wait=True: (made[-1].stopped.append(wait), stops(wait=wait))
+        return made[-1]
+
+    def fails(self, executor):
+        raise RuntimeError("a worker failed")
+
+    real = cli_optimize._make_executor
+    monkeypatch.setattr(cli_optimize, "_make_executor", recording_executor)
+    monkeypatch.setattr(RBBO, "confirm_again", fails)
+    with pytest.raises(RuntimeError, match="a worker failed"):
+        main(["confirm", str(run)])
+    assert len(made) == 1 and made[0].stopped == [False]

@@ -194,6 +194,11 @@ def cmd_confirm(args) -> int:
         print(f"\ninterrupted; nothing is lost: run rbbo confirm {store.path} again",
               file=sys.stderr)  # fmt: skip
         return 130
+    except BaseException:
+        # (a usage error from bad stored input, a failed worker: its processes are stopped,
+        # not left to the interpreter's exit)
+        executor.shutdown(wait=False)
+        raise
     executor.shutdown()
 
     def fmt(value: float | None) -> str:
