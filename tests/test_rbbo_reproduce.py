@@ -1279,3 +1279,36 @@ def test_the_report_and_its_copy_are_replaced_whole_or_not_at_all(
     monkeypatch.undo()
     assert target.read_bytes() == b"the last whole report"
     assert not [p for p in os.listdir(target.parent) if p.startswith(f".{target.name}.")]
+
+
+def test_a_checkout_whose_code_differs_from_its_commit_is_named_dirty(tmp_path):
+    # +dirty when tracked code differs from the commit; a changed note, an untracked file or a
+    # changed file outside the code paths (a record, a log) leaves the name clean
+    import importlib.util
+    import shutil
+    import subprocess
+
+    import rbbo.provenance
+
+    def git(*args):
+        subprocess.run(["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t",
+                        *args], check=True, capture_output=True)  # fmt: skip
+
+    (tmp_path / "rbbo").mkdir()
+    shutil.copy(rbbo.provenance.__file__, tmp_path / "rbbo" / "provenance.py")
+    (tmp_path / "pyproject.toml").write_text("[project]\nname = 'x'\n")
+    (tmp_path / "NOTES.md").write_text("a note\n")
+    git("init", "-q")
+    git("add", ".")
+    git("commit", "-q", "-m", "first")
+    spec = importlib.util.spec_from_file_location("provenance_dirty", tmp_path / "rbbo" /
+                                                  "provenance.py")  # fmt: skip
+    copy = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(copy)
+    clean = copy.source_version()
+    assert re.search(r", git [0-9a-f]{10}$", clean), clean
+    (tmp_path / "NOTES.md").write_text("another note\n")
+    (tmp_path / "rbbo" / "untracked.py").write_text("x = 1\n")
+    assert copy.source_version() == clean
+    (tmp_path / "pyproject.toml").write_text("[project]\nname = 'y'\n")
+    assert copy.source_version() == clean + "+dirty"
