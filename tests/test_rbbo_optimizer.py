@@ -705,15 +705,21 @@ class _FarWorse:
         return -100.0
 
 
-def test_a_resumed_run_whose_recommendation_stands_is_finished(tmp_path):
-    # searched on, kept its confirmed recommendation (nothing new to confirm): finished, and
-    # best_basis.npy is still that recommendation
+def _confirmed_then_resumed_to_eight(path):
+    """A 6-evaluation run, confirmed, then resumed with its limit raised to 8."""
     objective = SyntheticObjective(6, 2, noise=0.01)
     config = RBBOConfig(6, 2, n_init=3, max_evaluations=6, n_confirm=2, **FAST)
-    path = tmp_path / "run"
     first = RBBO.create(path, config, objective_spec=objective.spec()).run(objective)
     opt = RBBO.resume(path)
     opt.set_limits(8, None)
+    return objective, first, opt
+
+
+def test_a_resumed_run_whose_recommendation_stands_is_finished(tmp_path):
+    # searched on, kept its confirmed recommendation (nothing new to confirm): finished, and
+    # best_basis.npy is still that recommendation
+    path = tmp_path / "run"
+    _, first, opt = _confirmed_then_resumed_to_eight(path)
     again = opt.run(_FarWorse())
     assert len(opt.evaluations) == 8 and again.best_index == first.best_index
     assert again.R_star == first.R_star
@@ -1051,12 +1057,8 @@ def test_a_run_that_searched_on_after_its_confirmation_is_not_finished(tmp_path,
     # Confirmed, resumed with a larger limit and stopped after one more search evaluation:
     # not finished (rollout says so, confirm refuses), its answer the current recommendation,
     # with no R* until one is measured for it; the identity's R_init stands.
-    objective = SyntheticObjective(6, 2, noise=0.01)
-    config = RBBOConfig(6, 2, n_init=3, max_evaluations=6, n_confirm=2, **FAST)
     path = tmp_path / "run"
-    first = RBBO.create(path, config, objective_spec=objective.spec()).run(objective)
-    opt = RBBO.resume(path)
-    opt.set_limits(8, None)
+    objective, first, opt = _confirmed_then_resumed_to_eight(path)
 
     def ctrl_c(evaluation):
         raise KeyboardInterrupt
