@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from .optimizer import CONFIRM_KINDS, RBBO
-from .store import Evaluation
+from .store import Evaluation, _atomic_savefig
 
 __all__ = ["format_table", "load", "plot_convergence", "report_row"]
 
@@ -134,9 +134,7 @@ def plot_convergence(opt: RBBO, path: str | Path) -> Path:
     problem = (opt.store.config.get("problem") or {}).get("env_id", "") if opt.store else ""
     fig.suptitle(f"RBBO {problem}  Gr({opt.config.sim_dim}, {opt.config.control_dim}), "
                  f"{opt.config.fidelity.upper()}")  # fmt: skip
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    return path
+    return _atomic_savefig(fig, path, dpi=110)
 
 
 def load(path: str | Path) -> RBBO:

@@ -281,6 +281,34 @@ def test_an_atomic_write_killed_before_its_rename_leaves_the_old_file(tmp_path, 
     assert store.config == {"x": 1}  # (and no temporary file is left: the names are the same)
 
 
+def test_a_figure_is_replaced_whole_or_not_at_all(tmp_path):
+    # A figure whose drawing fails part-way (a kill, a full disk) leaves the old image, not a
+    # torn one; a figure drawn whole is written in its suffix's format
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from rbbo.store import _atomic_savefig
+
+    fig = Figure(figsize=(2, 2))
+    FigureCanvasAgg(fig)
+    fig.subplots().plot([0, 1], [1, 0])
+    png, pdf = tmp_path / "convergence.png", tmp_path / "convergence.pdf"
+    assert _atomic_savefig(fig, png, dpi=50) == png
+    assert _atomic_savefig(fig, str(pdf), dpi=50) == pdf
+    assert png.read_bytes().startswith(b"\x89PNG") and pdf.read_bytes().startswith(b"%PDF")
+    before = png.read_bytes()
+
+    class TornFigure:
+        def savefig(self, target, **kwargs):
+            target.write(b"\x89PNG half an ima")
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _atomic_savefig(TornFigure(), png, dpi=50)
+    assert png.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["convergence.pdf", "convergence.png"]
+
+
 @pytest.mark.skipif(not __import__("os").path.isdir("/proc/self/fd"), reason="needs /proc")
 def test_each_directory_a_new_run_creates_is_fsynced_in_its_parent(tmp_path, monkeypatch):
     """Fsyncing the files inside a new directory does not make the directory's own name

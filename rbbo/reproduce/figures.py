@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..store import _atomic_savefig
+
 __all__ = ["plot_bo_vs_boca", "plot_directions", "plot_perturbation", "plot_study"]
 
 
@@ -79,8 +81,7 @@ def plot_bo_vs_boca(panels: dict[str, dict[str, list]], path: Path,
         "BO vs BOCA: reward of each evaluation against "
         + ("wall time" if axis == "wall" else "simulated time evaluated")
     )
-    fig.savefig(path, dpi=110)
-    return path
+    return _atomic_savefig(fig, path, dpi=110)
 
 
 def plot_directions(rows: list[dict], path: Path) -> Path:
@@ -94,8 +95,7 @@ def plot_directions(rows: list[dict], path: Path) -> Path:
         ax.plot(theta, values, "o-", color=color, label=label)
     ax.set_title("cross walking along each direction: R (m/s)", fontsize=10)
     ax.legend(loc="lower right", fontsize=8, bbox_to_anchor=(1.1, -0.1))
-    fig.savefig(path, dpi=110)
-    return path
+    return _atomic_savefig(fig, path, dpi=110)
 
 
 def plot_perturbation(rows: list[dict], path: Path) -> Path:
@@ -110,8 +110,7 @@ def plot_perturbation(rows: list[dict], path: Path) -> Path:
     ax.set_ylabel("R / R(offset 0)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.savefig(path, dpi=110)
-    return path
+    return _atomic_savefig(fig, path, dpi=110)
 
 
 def plot_study(x, y, spread, xlabel: str, ylabel: str, title: str, path: Path) -> Path:
@@ -122,5 +121,4 @@ def plot_study(x, y, spread, xlabel: str, ylabel: str, title: str, path: Path) -
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    fig.savefig(path, dpi=110)
-    return path
+    return _atomic_savefig(fig, path, dpi=110)

@@ -50,6 +50,7 @@ from .evaluation import KINDS as KINDS
 from .evaluation import STATUSES, Evaluation
 from .files import _UMASK as _UMASK
 from .files import _append_line as _append_line
+from .files import _atomic_savefig as _atomic_savefig
 from .files import _atomic_write as _atomic_write
 from .files import _fsync_dir as _fsync_dir
 from .files import _make_dirs as _make_dirs

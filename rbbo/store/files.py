@@ -2,16 +2,19 @@
 
 :func:`_append_line` appends a line, flushed and fsynced (ending a torn last line first when
 asked); :func:`_atomic_write` writes a file under a temporary name, fsyncs it and renames it
-over the old one, so a kill leaves the old file or the new; :func:`_fsync_dir` makes a
+over the old one, so a kill leaves the old file or the new (:func:`_atomic_savefig` so writes
+a matplotlib figure); :func:`_fsync_dir` makes a
 directory's entries (a rename, a new file) durable, and :func:`_make_dirs` makes a directory
 and the names of those it creates.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
 
 
 def _fsync_dir(path: Path) -> None:
@@ -80,3 +83,14 @@ def _atomic_write(path: Path, data: bytes) -> None:
         Path(tmp).unlink(missing_ok=True)
         raise
     _fsync_dir(path.parent)
+
+
+def _atomic_savefig(fig: Any, path: Path | str, dpi: int) -> Path:
+    """Write matplotlib figure ``fig`` to ``path`` as :func:`_atomic_write` writes bytes: a
+    figure a kill interrupts is the old one or the new, never a torn image. The format is
+    the file's suffix (".png" when it has none)."""
+    path = Path(path)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format=path.suffix.lstrip(".").lower() or "png", dpi=dpi)
+    _atomic_write(path, buffer.getvalue())
+    return path
