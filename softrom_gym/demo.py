@@ -15,10 +15,19 @@ import time
 
 import numpy as np
 
+from softrom_gym._console import say_warnings_as
 from softrom_gym.robots import ROBOTS
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Entry point of ``softrom-demo`` (``python -m softrom_gym.demo``).
+
+    With ``argv=None`` (this process's command line) it also prints the process's warnings as
+    ``softrom-demo: warning:`` lines, as ``rbbo`` does; a call with an argument list leaves
+    the caller's warning display alone.
+    """
+    if argv is None:
+        say_warnings_as("softrom-demo")
     parser = argparse.ArgumentParser(
         description="Drop one soft robot and report its motion.", allow_abbrev=False
     )

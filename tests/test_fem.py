@@ -306,3 +306,27 @@ def test_demo_drops_a_robot_and_names_bad_arguments(capsys):
         main(["--robot", "beam", "--dt", "1e-300"])
     assert exc.value.code == 1
     assert "step 1 (t = 1e-300 s, dt = 1e-300 s) failed: implicit Euler" in capsys.readouterr().err
+
+
+def test_the_demo_says_a_warning_in_one_line(monkeypatch, capsys):
+    # as rbbo and python -m controllers do; an argument list leaves the display alone
+    import sys
+    import warnings
+
+    from softrom_gym.demo import main
+
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # restored after
+    before = warnings.showwarning
+    with pytest.raises(SystemExit):
+        main(["--seconds", "-1"])
+    assert warnings.showwarning is before
+    monkeypatch.setattr(sys, "argv", ["softrom-demo", "--seconds", "-1"])
+    with pytest.raises(SystemExit):
+        main()
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.warn("a tetrahedron inverted", RuntimeWarning, stacklevel=1)
+    assert capsys.readouterr().err.splitlines() == [
+        "softrom-demo: warning: a tetrahedron inverted (RuntimeWarning)"
+    ]
