@@ -3,9 +3,8 @@
 :func:`_append_line` appends a line, flushed and fsynced (ending a torn last line first when
 asked); :func:`_atomic_write` writes a file under a temporary name, fsyncs it and renames it
 over the old one, so a kill leaves the old file or the new (:func:`_atomic_savefig` so writes
-a matplotlib figure); :func:`_fsync_dir` makes a
-directory's entries (a rename, a new file) durable, and :func:`_make_dirs` makes a directory
-and the names of those it creates.
+a matplotlib figure); :func:`_fsync_dir` makes a directory's entries (a rename, a new file)
+durable, and :func:`_make_dirs` makes a directory and the names of those it creates.
 """
 
 from __future__ import annotations
