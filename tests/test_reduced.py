@@ -288,6 +288,70 @@ def test_diverging_rollout_is_flagged_and_isolated(walker):
     np.testing.assert_array_equal(after.q, state.q)
 
 
+def test_a_diverged_rollout_earns_no_reward_from_then_on(walker):
+    # (rollout's documented contract.) A rollout moving along the task direction earns
+    # reward until a step diverges; from then on it keeps its last good state and earns
+    # zero, not that state's d . v_com dt again.
+    rest = walker.rest_state()
+    qdot = rest.qdot
+    qdot[0] = 0.4 * np.sqrt(walker.total_mass)
+    start = cpp_sim.ReducedState(rest.q, qdot, rest.impulses)
+    controls = np.zeros((1, 6, 3))
+    controls[0, 2:] = 1e15  # diverges at the third step
+    out = walker.rollout(start, controls, threads=1)
+    assert out["diverged"][0]
+    assert np.all(out["rewards"][0, :2] > 0) and np.all(out["rewards"][0, 2:] == 0.0)
+
+
+def test_rollouts_from_a_sequence_of_states_each_start_from_their_own(walker):
+    # One start state per rollout: rollout b continues from starts[b], as stepping does.
+    rest = walker.rest_state()
+    starts = []
+    for speed in (0.0, 0.4):
+        qdot = rest.qdot
+        qdot[0] = speed * np.sqrt(walker.total_mass)
+        starts.append(cpp_sim.ReducedState(rest.q, qdot, rest.impulses))
+    controls = np.zeros((2, 4, 3))
+    out = walker.rollout(starts, controls, threads=1)
+    for b, start in enumerate(starts):
+        state = start
+        for u in controls[b]:
+            state, _ = walker.step(state, u)
+        np.testing.assert_array_equal(out["q"][b], state.q)
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_a_step_faster_than_max_speed_is_diverged(solver):
+    # max_speed (an RMS node speed) is the divergence test's last line: a finite step that
+    # ends faster is reported diverged and leaves the state as it was; a slower one is not.
+    model = build_reduced_model(beam(), contact="none", gravity=[0, 0, 0], solver=solver)
+    model.max_speed = 1.0  # m/s
+    rest = model.rest_state()
+    for speed, diverged in ((0.5, False), (2.0, True)):
+        qdot = rest.qdot
+        qdot[0] = speed * np.sqrt(model.total_mass)  # a rigid translation at `speed`
+        state = cpp_sim.ReducedState(rest.q, qdot, rest.impulses)
+        after, info = model.step(state)
+        assert info["diverged"] == diverged
+        if diverged:
+            np.testing.assert_array_equal(after.q, state.q)
+            np.testing.assert_array_equal(after.qdot, state.qdot)
+
+
+def test_leaving_the_ground_clears_the_impulses(walker):
+    # A step with no contact candidate has no contact impulses: a body lifted off the ground
+    # must not carry its resting impulses (the next contact's warm start, the contacts count).
+    state = walker.rest_state()
+    for _ in range(5):
+        state, _ = walker.step(state, np.zeros(3))
+    assert state.impulses[2::3].max() > 0
+    q = state.q
+    q[2] += 1.0 * np.sqrt(walker.total_mass)  # 1 m up: no node is a contact candidate
+    after, info = walker.step(cpp_sim.ReducedState(q, state.qdot, state.impulses), np.zeros(3))
+    assert info["active_rows"] == 0 and info["contacts"] == 0
+    np.testing.assert_array_equal(after.impulses, 0.0)
+
+
 def test_rollout_with_no_observables_returns_an_empty_observed(walker):
     out = walker.rollout(
         walker.rest_state(), np.zeros((2, 3, 3)), observe=np.zeros((0, walker.dim))

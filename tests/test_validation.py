@@ -109,6 +109,8 @@ def test_bad_step_arguments(tet):
         fem.step(nodes, v, 0.01, fixed=np.ones(3, dtype=bool))
     with pytest.raises(ValueError, match=r"fixed contains node index 9 out of range \[0, 4\)"):
         fem.step(nodes, v, 0.01, fixed=[9])
+    with pytest.raises(ValueError, match=r"fixed contains node index 4 out of range \[0, 4\)"):
+        fem.step(nodes, v, 0.01, fixed=[4])  # one past the last node
     with pytest.raises(TypeError, match="x must be an array, got None"):
         fem.energy(None)
 
@@ -191,3 +193,22 @@ def test_integer_settings_accept_numpy_integers_and_name_overflow():
         cpp_sim.ReducedConfig(max_newton_iterations=True)
     with pytest.raises(TypeError, match="max_newton_iterations must be an integer, got 2.5"):
         cpp_sim.ReducedConfig(max_newton_iterations=2.5)
+
+
+def test_reduced_settings_refuse_values_outside_their_range():
+    # Each bound of the reduced model's settings table, just past its edge, raises an error
+    # naming the setting and the value; the edges themselves are accepted.
+    for name, value, match in (
+        ("stabilization", 1.5, r"stabilization must lie in \(0, 1\], got 1.5"),
+        ("friction", np.inf, "friction must be a finite number >= 0, got inf"),
+        ("dt", np.inf, "dt must be a finite number > 0, got inf"),
+        ("contact_margin", np.nan, "contact_margin must be a finite number >= 0, got nan"),
+        ("max_stagger_iterations", 0, "max_stagger_iterations must be >= 1, got 0"),
+        ("max_newton_iterations", -3, "max_newton_iterations must be >= 1, got -3"),
+        ("ground_height", np.nan, "ground_height must be finite"),
+        ("direction", [0.0, 0.0, 0.0], "direction must be a non-zero vector"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            cpp_sim.ReducedConfig(**{name: value})
+    edge = cpp_sim.ReducedConfig(stabilization=1.0, max_stagger_iterations=1, friction=0.0)
+    assert (edge.stabilization, edge.max_stagger_iterations, edge.friction) == (1.0, 1, 0.0)
