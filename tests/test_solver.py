@@ -698,3 +698,21 @@ def test_penalty_ground_carries_the_weight_and_converges(box, solver):
     sink = -z[rest <= rest.min() + 1e-9]
     assert sink.size == 81  # the 9 x 9 nodes of the bottom face
     assert 0.8e-3 < sink.mean() and sink.max() <= 1e-3
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_penalty_ground_damps_an_impact(box, solver):
+    # Each penalty spring has a critical damper, 2 sqrt(k m_i): a block dropped from 2 cm
+    # rebounds at under a quarter of its impact speed (measured: 0.17 of it; 0.45 with the
+    # springs alone, whose only damping is implicit Euler's).
+    model = build_reduced_model(box, contact="penalty", solver=solver)
+    sm = np.sqrt(model.total_mass)
+    state = lifted(model, 0.02)
+    vz = []
+    for _ in range(120):
+        state, info = model.step(state)
+        assert info["converged"]
+        vz.append(state.qdot[2] / sm)
+    impact, rebound = -min(vz), max(vz)
+    assert impact > 0.5  # m/s, sqrt(2 g h) = 0.63 at the first touch
+    assert 0.0 < rebound < 0.25 * impact
