@@ -258,9 +258,13 @@ def test_option_prefixes_are_usage_errors(tmp_path, capsys):
 def test_rerun_resumes_without_new_evaluations(reproduction):
     runs = reproduction / "runs"
     before = {p.name: len(_history(p)) for p in runs.iterdir()}
+    measured = ["perturbation.csv", "studies/cost_vs_c.csv", "studies/reward_vs_c.csv"]
+    tables = {name: (reproduction / name).read_text() for name in measured}
     assert main([*TINY, "--out", str(reproduction)]) == 0
     after = {p.name: len(_history(p)) for p in runs.iterdir()}
     assert after == before
+    # nor is a perturbation offset or a point of the studies measured again
+    assert {name: (reproduction / name).read_text() for name in measured} == tables
     assert (reproduction / "transfer.csv").read_text().count("\n") == 1 + 2  # none measured again
     document = json.loads((reproduction / "reproduce.json").read_text())
     assert len(document["sessions"]) == 2
@@ -1312,3 +1316,499 @@ def test_a_checkout_whose_code_differs_from_its_commit_is_named_dirty(tmp_path):
     assert copy.source_version() == clean
     (tmp_path / "pyproject.toml").write_text("[project]\nname = 'y'\n")
     assert copy.source_version() == clean + "+dirty"
+
+
+# --- Table I's numbers, by hand (mutation audit of rbbo/reproduce) -----------------------
+
+_T2 = 4.302652729911275  # t_{0.975, 2}: the 95 % t-quantile of three seeds
+
+
+def test_compare_seeds_gives_the_t_intervals_the_improvement_and_the_paired_gain():
+    # guards Table I's row: each mean ± t_{0.975, n-1} s / sqrt(n), the improvement from the
+    # means, the paired gain R* - R_init per seed (not R_init - R*) and both "apart" tests
+    from scipy import stats
+
+    from rbbo.reproduce.tables import compare_seeds
+
+    assert stats.t.ppf(0.975, 2) == pytest.approx(_T2)
+    init, star = [1.0, 1.2, 0.8], [1.5, 2.1, 1.2]  # gains 0.5, 0.9, 0.4
+    got = compare_seeds(init, star)
+    assert got["R_init"] == pytest.approx(1.0)
+    assert got["R_init_ci95"] == pytest.approx(_T2 * 0.2 / math.sqrt(3))
+    assert got["R_star"] == pytest.approx(1.6)
+    assert got["R_star_ci95"] == pytest.approx(_T2 * math.sqrt(0.21) / math.sqrt(3))
+    assert got["improvement_pct"] == pytest.approx(60.0)
+    assert got["delta"] == pytest.approx(0.6)
+    assert got["delta_ci95"] == pytest.approx(_T2 * math.sqrt(0.07) / math.sqrt(3))
+    # R* = 1.6 lies above R_init's interval (1.0 + 0.50) but its own lower end (0.46) does
+    # not: not apart; the paired gain's interval (0.6 ± 0.66) reaches below 0: nor is it
+    assert (got["apart"], got["paired_apart"]) == (False, False)
+    # a clear gain: both intervals apart, and the paired one
+    got = compare_seeds([1.0, 1.1, 0.9], [3.0, 3.2, 2.9])
+    assert (got["apart"], got["paired_apart"]) == (True, True)
+    # the paired interval alone can tell a gain the unpaired test cannot
+    got = compare_seeds(init, [1.3, 1.6, 1.1])  # gains 0.3, 0.4, 0.3
+    assert got["delta"] == pytest.approx(1 / 3)
+    assert got["delta_ci95"] == pytest.approx(_T2 * math.sqrt(1 / 300) / math.sqrt(3))
+    assert (got["apart"], got["paired_apart"]) == (False, True)
+
+
+def test_compare_seeds_leaves_out_what_the_seeds_cannot_tell():
+    # guards the missing-value branches: no percentage of a mean that is not positive, no
+    # paired gain of seeds that do not pair up, nothing apart before R* is measured
+    from rbbo.reproduce.tables import compare_seeds
+
+    got = compare_seeds([-1.0, -0.5], [0.5, 1.0])
+    assert math.isnan(got["improvement_pct"]) and got["delta"] == pytest.approx(1.5)
+    got = compare_seeds([1.0, 2.0, 3.0], [2.0, 3.0])
+    assert math.isnan(got["delta"]) and math.isnan(got["delta_ci95"])
+    assert got["improvement_pct"] == pytest.approx(25.0) and not got["paired_apart"]
+    got = compare_seeds([1.0, 2.0], [])
+    assert math.isnan(got["R_star"]) and math.isnan(got["improvement_pct"])
+    assert not got["apart"] and not got["paired_apart"]
+
+
+def _table_row(**changes):
+    row = {"robot": "Cross", "task": "Swim", "N": 623, "M": 20, "C": 3, "R_init": 1.0,
+           "R_init_ci95": 0.4968, "R_star": 1.6, "R_star_ci95": 1.138, "improvement_pct": 60.0,
+           "delta": 0.6, "delta_ci95": 0.657, "evaluations": 12, "wall_s": 95.0,
+           "apart": False, "paper_improvement_pct": 142.21}  # fmt: skip
+    return {**row, **changes}
+
+
+def test_table_one_prints_each_row_and_averages_the_confirmed_ones():
+    # guards the cells a reader of REPORT.md compares with the paper: N, the intervals to two
+    # significant digits, the signed improvement, apart, and the average row (the mean of
+    # ours, the paper's over the same benchmarks)
+    from rbbo.reproduce.tables import format_markdown
+
+    rows = [_table_row(), _table_row(task="Walk", R_star=0.8, improvement_pct=-20.0, N=None,
+                                     apart=True, paper_improvement_pct=544.32),
+            _table_row(task="Run", improvement_pct=140.0, paper_improvement_pct=40.66)]  # fmt: skip
+    lines = format_markdown(rows).splitlines()
+    assert lines[2] == ("| Cross | Swim | 623 | 20 | 3 | 1 ± 0.5 | 1.6 ± 1.1 | +60.0 % | "
+                        "0.6 ± 0.66 | 12 | 1m35s | no | +142.2 % |")  # fmt: skip
+    assert lines[3].startswith("| Cross | Walk | - | 20 | 3 | 1 ± 0.5 | 0.8 ± 1.1 | -20.0 % |")
+    assert lines[3].endswith("| yes | +544.3 % |")
+    # the mean of +60, -20 and +140 (not the median, +60), the paper's likewise
+    cells = [c.strip() for c in lines[-1].strip("|").split("|")]
+    assert (cells[7], cells[12]) == ("+60.0 %", f"+{np.mean([142.21, 544.32, 40.66]):.1f} %")
+    rows[2]["improvement_pct"] = 200.0  # mean +80.0, median +60.0
+    cells = [c.strip() for c in format_markdown(rows).splitlines()[-1].strip("|").split("|")]
+    assert cells[7] == "+80.0 %"
+    # nothing confirmed yet: no average of ours, and the paper's over every benchmark
+    nan = math.nan
+    waiting = [{**r, "R_star": nan, "improvement_pct": nan, "delta": nan} for r in rows]
+    cells = [c.strip() for c in format_markdown(waiting).splitlines()[-1].strip("|").split("|")]
+    assert (cells[7], cells[12]) == ("-", f"+{np.mean([142.21, 544.32, 40.66]):.1f} %")
+
+
+def test_a_table_with_negative_distances_reads_back_as_written():
+    # guards parse_markdown (how the report is checked against the runs): a robot that moved
+    # backwards has a negative R and gain, which must not read back as missing
+    from rbbo.reproduce.tables import format_markdown
+
+    row = _table_row(R_init=-0.25, R_init_ci95=0.1, R_star=-0.75, R_star_ci95=0.2,
+                     improvement_pct=math.nan, delta=-0.5, delta_ci95=0.05)  # fmt: skip
+    (back,) = parse_markdown("text before\n\n" + format_markdown([row]) + "\n\ntext after")
+    assert (back["R_init"], back["R_init_ci95"]) == (-0.25, 0.1)
+    assert (back["R_star"], back["R_star_ci95"]) == (-0.75, 0.2)
+    assert (back["delta"], back["delta_ci95"]) == (-0.5, 0.05)
+    assert math.isnan(back["improvement_pct"]) and back["N"] == 623 and not back["apart"]
+
+
+def test_the_runs_table_lists_the_runs_in_their_order_whatever_order_they_come_in():
+    # guards format_runs_markdown: each run's improvement (its seed in brackets) in run order
+    from rbbo.reproduce.tables import format_runs_markdown
+
+    rows = [{"benchmark": "BeamWalk-v0", "repeat": k, "seed": 10 + k, "R_star": 1.0 + k,
+             "improvement_pct": 10.0 * (k + 1)} for k in (2, 0, 1)]  # fmt: skip
+    line = format_runs_markdown(rows, 3).splitlines()[2]
+    assert line.startswith("| BeamWalk-v0 | 3 | +10.0 % (10), +20.0 % (11), +30.0 % (12) | ")
+
+
+def test_a_run_row_names_the_seed_its_run_was_made_with(tmp_path, monkeypatch):
+    # guards table1_runs.csv's seed column: read from the run (seed + k), not the index k
+    from rbbo.reproduce import tables
+
+    monkeypatch.setattr(tables, "table_row", lambda bench, run: {"benchmark": bench, "R_star": 2.0})
+    (tmp_path / "config.json").write_text(json.dumps({"rbbo": {"seed": 7}}))
+    row = tables.run_row("CrossSwim-v0", 2, tmp_path)
+    assert row == {"benchmark": "CrossSwim-v0", "repeat": 2, "seed": 7, "R_star": 2.0}
+
+
+def _write_transfer(out, rows):
+    from rbbo.reproduce.csv_rows import _append_row
+
+    for benchmark, basis, m, seeds, digest in rows:
+        _append_row(out / "transfer.csv", {"benchmark": benchmark, "basis": basis, "M": m,
+                                           "R_mean": float(np.mean(seeds)),
+                                           "R_seeds": " ".join(str(s) for s in seeds),
+                                           "seeds": "7 8 9", "wall_s": 1.0, "run": "r",
+                                           "basis_digest": digest})  # fmt: skip
+
+
+def test_the_transfer_table_compares_the_bases_measured_at_the_larger_m(tmp_path):
+    # guards transfer_rows and its table: R_init and R* at M' from their own rows (those at
+    # another M' left out), the improvement and paired gain there beside Table I's at M,
+    # "apart" as Table I says it (the unpaired test)
+    from rbbo.reproduce.transfer import format_transfer_markdown, transfer_rows
+
+    _write_transfer(tmp_path, [("CrossSwim-v0", "identity", 40, [1.0, 1.2, 0.8], ""),
+                               ("CrossSwim-v0", "best", 40, [1.3, 1.6, 1.1], ""),
+                               ("BeamWalk-v0", "identity", 40, [1.0, 1.0, 1.0], ""),
+                               ("CrossSwim-v0", "best", 30, [9.0, 9.0, 9.0], "")])  # fmt: skip
+    table = [{"benchmark": b, "M": 20, "R_init": 1.0, "R_star": 2.0, "improvement_pct": 100.0}
+             for b in ("CrossSwim-v0", "BeamWalk-v0")]  # fmt: skip
+    (row,) = transfer_rows(tmp_path, table, 40)  # BeamWalk's R* is not measured yet
+    assert (row["benchmark"], row["M_from"], row["M"]) == ("CrossSwim-v0", 20, 40)
+    assert row["R_init"] == pytest.approx(1.0) and row["R_star"] == pytest.approx(4 / 3)
+    assert row["R_init_ci95"] == pytest.approx(_T2 * 0.2 / math.sqrt(3))
+    assert row["improvement_pct"] == pytest.approx(100 / 3)
+    assert row["delta"] == pytest.approx(1 / 3)
+    assert (row["apart"], row["paired_apart"]) == (False, True)
+    lines = format_transfer_markdown([row]).splitlines()
+    assert lines[0] == ("| benchmark | improvement at M = 20 | R_init at M = 40 | R* at M = 40 | "
+                        "improvement at M = 40 | R* - R_init (paired) | apart |")  # fmt: skip
+    assert lines[2] == ("| CrossSwim-v0 | +100.0 % | 1 ± 0.5 | 1.333 ± 0.63 | +33.3 % | "
+                        "0.3333 ± 0.14 | no |")  # fmt: skip
+
+
+def test_transfer_rows_of_the_current_best_basis_count_and_others_do_not(tmp_path):
+    # guards current_rows: a "best" row of a B_c that Table I's run no longer recommends is
+    # left out; the identity's row and rows without a digest (older) are kept
+    from rbbo.reproduce.tables import basis_digest
+    from rbbo.reproduce.transfer import current_rows
+
+    best = np.linalg.qr(np.random.default_rng(1).standard_normal((20, 3)))[0]
+    eye = basis_digest(np.eye(20)[:, :3])
+    _write_transfer(tmp_path, [("CrossSwim-v0", "identity", 40, [1.0], eye),
+                               ("CrossSwim-v0", "best", 40, [2.0], "0badc0de"),
+                               ("BeamWalk-v0", "best", 40, [3.0], "")])  # fmt: skip
+    # Table I's run has not recommended a B_c yet: nothing tells the best row stale
+    assert [r["R_seeds"] for r in current_rows(tmp_path, 40)] == ["1.0", "2.0", "3.0"]
+    run = tmp_path / "runs" / "CrossSwim-v0-boca"
+    run.mkdir(parents=True)
+    np.save(run / "best_basis.npy", best)
+    assert [r["R_seeds"] for r in current_rows(tmp_path, 40)] == ["1.0", "3.0"]
+    _write_transfer(tmp_path, [("CrossSwim-v0", "best", 40, [4.0], basis_digest(best))])
+    assert [r["R_seeds"] for r in current_rows(tmp_path, 40)] == ["1.0", "3.0", "4.0"]
+    assert current_rows(tmp_path, 30) == []
+
+
+def test_a_transfer_row_keeps_its_seeds_to_six_digits(reproduction):
+    # guards transfer.csv: the per-seed R the transfer table's intervals come from are
+    # written to six significant digits, so their mean is R_mean's
+    from rbbo.reproduce.tables import read_rows
+
+    for r in read_rows(reproduction / "transfer.csv"):
+        seeds = [float(v) for v in r["R_seeds"].split()]
+        assert np.mean(seeds) == pytest.approx(float(r["R_mean"]), rel=2e-6, abs=1e-9), r
+
+
+def test_status_counts_each_benchmarks_transfer_and_every_study_seed(tmp_path):
+    # guards the transfer and studies lines of --status and the report's progress: a
+    # benchmark's transfer is done with both bases measured (each benchmark counted apart),
+    # the reward study planned is C values x seeds, and the work left is named
+    from rbbo.reproduce.csv_rows import _append_row
+    from rbbo.reproduce.status import stage_progress, status_lines
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0", "BeamWalk-v0"], stages=["transfer", "studies"],
+                         cost_cs=[1, 2], reward_cs=[1, 2], study_seeds=2)  # fmt: skip
+    _write_transfer(tmp_path, [("CrossSwim-v0", "identity", 40, [1.0], ""),
+                               ("CrossSwim-v0", "best", 40, [2.0], ""),
+                               ("BeamWalk-v0", "identity", 40, [1.0], "")])  # fmt: skip
+    for c in (1, 2):
+        _append_row(tmp_path / "studies" / "cost_vs_c.csv", {"C": c, "iteration_s": 0.1 * c})
+    for c, seed in ((1, 0), (1, 1), (2, 0)):
+        _append_row(tmp_path / "studies" / "reward_vs_c.csv", {"C": c, "seed": seed, "R_m": 0.1})
+    assert status_lines(tmp_path, plan) == [
+        "transfer     CrossSwim-v0         2 of 2 bases measured at M = 40",
+        "transfer     BeamWalk-v0          1 of 2 bases measured at M = 40",
+        "studies      CrossWalk-v0         cost vs C 2 of 2, reward vs C 3 of 4",
+        "optimisation budget left: 0.00 h on 2 workers, plus the transfer and the studies of C",
+    ]
+    progress = stage_progress(tmp_path, plan)
+    assert (progress["transfer"], progress["studies"]) == ((1, 2), (5, 6))
+
+
+def test_status_tells_a_run_confirming_searching_or_past_its_budget(reproduction, tmp_path):
+    # guards _run_state: a run that searched its evaluations but has no confirmation yet is
+    # not done (nor counted so); one budget-bound with budget left counts that budget; one
+    # that ran past its budget and confirmed is done, with no budget (not a negative one) left
+    import shutil
+    from dataclasses import replace
+
+    from rbbo.reproduce.status import stage_progress, status_lines
+
+    plan = ReproducePlan.from_dict(
+        json.loads((reproduction / "reproduce.json").read_text())["plan"]
+    )
+    plan = replace(plan, stages=["table"])
+    run = tmp_path / "runs" / "CrossSwim-v0-boca"
+    shutil.copytree(reproduction / "runs" / "CrossSwim-v0-boca", run)
+    history = (run / "history.jsonl").read_text().splitlines()
+    searched = [x for x in history if not json.loads(x)["kind"].startswith("confirm")]
+    (run / "history.jsonl").write_text("\n".join(searched) + "\n")
+    lines = status_lines(tmp_path, plan)
+    assert lines[0] == "table        CrossSwim-v0         confirming (3 evaluations)"
+    assert lines[1] == "optimisation budget left: 0.00 h on 1 worker, plus the confirmations"
+    assert stage_progress(tmp_path, plan)["table"] == (0, 1)
+    lines = status_lines(tmp_path, replace(plan, iterations=None))  # budget-bound: 45 min
+    assert lines[0].startswith("table        CrossSwim-v0         searching: 3 evaluations, ")
+    assert lines[0].endswith(" of 45 min")
+    assert 0.7 < float(lines[1].split("left: ")[1].split(" h")[0]) <= 0.75
+    (run / "history.jsonl").write_text("\n".join(history) + "\n")
+    lines = status_lines(tmp_path, replace(plan, iterations=None, budget_s=1e-6))
+    assert lines[0].startswith("table        CrossSwim-v0         done: 3 evaluations in ")
+    assert lines[1] == "optimisation budget left: 0.00 h on 1 worker"
+
+
+def test_status_counts_each_directions_own_budget(reproduction, tmp_path):
+    # guards the budget --status adds up for stage directions: each direction's run has the
+    # direction budget (not Table I's), and what it has not spent counts
+    from dataclasses import replace
+
+    from rbbo.reproduce.status import status_lines
+
+    plan = ReproducePlan.from_dict(
+        json.loads((reproduction / "reproduce.json").read_text())["plan"]
+    )
+    plan = replace(plan, stages=["directions"], iterations=None, direction_budget_s=3600.0)
+    (tmp_path / "runs").symlink_to(reproduction / "runs")
+    lines = status_lines(tmp_path, plan)
+    assert [x.split("  ")[0] for x in lines[:2]] == ["directions"] * 2
+    assert all(x.endswith("min; 60.0 min more to search") for x in lines[:2]), lines
+    assert 1.9 < float(lines[2].split("left: ")[1].split(" h")[0]) <= 2.0  # 2 x 1 h, less spent
+
+
+def test_the_rl_stage_is_done_when_every_basis_it_trains_has_its_rows(tmp_path):
+    # guards stage_progress's rl count: a benchmark is done when baselines.csv has rows of
+    # the identity and of Table I's B_c (not the identity's alone), and a benchmark trained
+    # by an earlier session is counted beside the plan's
+    from rbbo.reproduce.csv_rows import _append_row
+    from rbbo.reproduce.status import rl_bases, stage_progress
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], rl_benchmarks=["CrossSwim-v0"],
+                         stages=["rl"])  # fmt: skip
+    run = tmp_path / "runs" / "CrossSwim-v0-boca"
+    run.mkdir(parents=True)
+    np.save(
+        run / "best_basis.npy", np.linalg.qr(np.random.default_rng(2).standard_normal((20, 3)))[0]
+    )
+    table = tmp_path / "rl" / "CrossSwim-v0" / "baselines.csv"
+    _append_row(table, {"env": "CrossSwim-v0", "method": "ppo", "basis": "identity"})
+    assert stage_progress(tmp_path, plan)["rl"] == (0, 1)
+    (other,) = (name for name in rl_bases(tmp_path, plan, "CrossSwim-v0")[0] if name != "identity")
+    _append_row(table, {"env": "CrossSwim-v0", "method": "ppo", "basis": other})
+    assert stage_progress(tmp_path, plan)["rl"] == (1, 1)
+    (tmp_path / "rl" / "BeamWalk-v0").mkdir()  # an earlier session's, not finished
+    assert stage_progress(tmp_path, plan)["rl"] == (1, 2)
+
+
+def test_a_library_calls_command_names_no_stages():
+    # guards recorded_stages: only an `rbbo reproduce` command is read for --stages (a
+    # session started from Python recorded its own sys.argv)
+    from rbbo.reproduce.status import recorded_stages
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], stages=["table"]).to_dict()
+    sessions = [{"command": "python my_script.py --stages rl"},
+                {"command": "rbbo reproduce --stages bo"}]  # fmt: skip
+    assert recorded_stages({"plan": plan, "sessions": sessions}) == ["table", "bo"]
+
+
+def test_status_counts_the_offsets_of_the_base_run_and_older_rows_without_a_digest(tmp_path):
+    # guards _current_offsets: perturbation rows of another run are not the base B_c's
+    # offsets; rows written before rows carried a digest are the base run's own
+    from rbbo.reproduce.csv_rows import _append_row
+    from rbbo.reproduce.status import status_lines
+    from rbbo.reproduce.tables import basis_digest
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], direction_env="CrossSwim-v0",
+                         stages=["perturbation"], perturbations_deg=[10.0])  # fmt: skip
+    base = tmp_path / "runs" / "CrossSwim-v0-dir000"
+    base.mkdir(parents=True)
+    np.save(base / "best_basis.npy", np.eye(20)[:, :3])
+    digest = basis_digest(np.eye(20)[:, :3])
+    for offset, run, row_digest in ((0.0, base, digest), (10.0, base, ""),
+                                    (-10.0, tmp_path / "runs" / "CrossSwim-v0-boca", digest),
+                                    (-10.0, base, "0badc0de")):  # fmt: skip
+        _append_row(tmp_path / "perturbation.csv", {"offset_deg": offset, "run": str(run),
+                                                   "basis_digest": row_digest})  # fmt: skip
+    assert status_lines(tmp_path, plan)[0] == "perturbation CrossSwim-v0         2 of 3 offsets"
+
+
+def test_stage_progress_counts_every_repeated_table_run(repeated):
+    # guards stage_progress's table count: each of the repeats' runs is a part
+    from dataclasses import replace
+
+    from rbbo.reproduce.status import stage_progress
+
+    out, _ = repeated
+    plan = ReproducePlan.from_dict(json.loads((out / "reproduce.json").read_text())["plan"])
+    assert stage_progress(out, replace(plan, repeats=2))["table"] == (2, 2)
+    assert stage_progress(out, replace(plan, repeats=3))["table"] == (2, 3)
+
+
+def test_rl_status_shows_how_far_each_job_has_trained(tmp_path):
+    # guards _rl_state: a job's steps are its latest progress row's, of its algorithm's target
+    from rbbo.reproduce.status import _rl_state
+
+    plan = ReproducePlan(rl_algos=["ppo", "sac"], rl_steps={"ppo": 300, "sac": 100})
+    for job, steps in (("ppo-identity", (100, 200)), ("sac-identity", (50,))):
+        (tmp_path / job).mkdir()
+        (tmp_path / job / "progress.jsonl").write_text(
+            "".join(json.dumps({"steps": n, "wall_s": 1.0}) + "\n" for n in steps)
+        )
+    assert _rl_state(tmp_path, plan) == "ppo-identity 200/300 steps, sac-identity 50/100 steps"
+
+
+def test_the_runs_section_names_the_seeds_of_every_run():
+    # guards _across_runs' text: run k is seeded seed + k, so the runs' seeds span
+    # seed .. seed + repeats - 1, and each run's convergence figure is linked
+    from rbbo.reproduce.report_sections import _across_runs
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], repeats=3, seed=5)
+    per_run = [{"benchmark": "CrossSwim-v0", "repeat": k, "run": f"/x/runs/CrossSwim-v0-boca{s}"}
+               for k, s in ((0, ""), (1, "-run1"), (2, "-run2"))]  # fmt: skip
+    text = "\n".join(_across_runs(per_run, "TABLE", plan))
+    assert "its run 0 (seed 5)" in text and "run k seeded 5 + k (seeds 5-7)" in text
+    assert "- CrossSwim-v0 convergence: [run 0](runs/CrossSwim-v0-boca/convergence.png), " \
+        "[run 1](runs/CrossSwim-v0-boca-run1/convergence.png), " \
+        "[run 2](runs/CrossSwim-v0-boca-run2/convergence.png)" in text  # fmt: skip
+
+
+def _ev(T, R, wall_s, elapsed_s, status="ok"):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(T=T, R=R, wall_s=wall_s, elapsed_s=elapsed_s, seeds=[1], status=status)
+
+
+def test_the_bo_vs_boca_row_is_computed_from_the_evaluations(tmp_path):
+    # guards the BO-vs-BOCA table's numbers: best R over the T_max evaluations that ran, BO's
+    # best within the simulated time BOCA spent (failed evaluations spend time but give no
+    # R), simulated minutes over every evaluation, the median wall time of a T_max one
+    from rbbo.reproduce.report_sections import _bo_vs_boca
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"])  # T_max = 10 s
+    boca = [_ev(4.0, 9.0, 0.4, 1), _ev(10.0, 2.0, 1.0, 2), _ev(10.0, 3.0, 2.0, 3),
+            _ev(10.0, 5.0, 6.0, 4)]  # fmt: skip
+    bo = [_ev(10.0, math.nan, 0.5, 1, "failed"), _ev(10.0, 1.0, 1.0, 2), _ev(10.0, 4.0, 1.0, 3),
+          _ev(10.0, 7.0, 1.0, 4)]  # fmt: skip
+    written = {"figures": []}
+    confirmed = {"CrossSwim-v0": {"boca": (2.5, False), "bo": (None, False)}}
+    lines = _bo_vs_boca({"CrossSwim-v0": {"boca": boca, "bo": bo}}, confirmed, tmp_path, plan,
+                        written)  # fmt: skip
+    row = next(x for x in lines if x.startswith("| CrossSwim-v0 |"))
+    # BOCA spent 34 s (0.57 min): BO's first three evaluations (30 s) fit, one failed
+    assert row == "| CrossSwim-v0 | 5 | 7 | 4 | 0.6 / 0.7 | 2 / 1 | 4 | 4 | 2.5 / - |"
+    assert not any("The BOCA runs of" in x for x in lines)
+    confirmed = {"CrossSwim-v0": {"boca": (2.5, True), "bo": (3.0, False)}}
+    lines = _bo_vs_boca({"CrossSwim-v0": {"boca": boca, "bo": bo}}, confirmed, tmp_path, plan,
+                        written)  # fmt: skip
+    assert any(x.startswith("The BOCA runs of CrossSwim-v0 searched the simulation space")
+               for x in lines)  # fmt: skip
+
+
+def test_the_studies_of_c_report_the_slope_and_each_cs_seeds(tmp_path):
+    # guards the studies' sections: the log-log slope of the cost (and whether it is
+    # superlinear), and per C of the reward study its mean, sd and seeds, C in order
+    from rbbo.reproduce.csv_rows import _append_row
+    from rbbo.reproduce.report_sections import _studies
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"])
+    for c in (1, 2, 4):
+        _append_row(tmp_path / "studies" / "cost_vs_c.csv",
+                    {"C": c, "rollouts": 8, "iteration_s": 0.1 * c**1.5})  # fmt: skip
+    for c, r_m in ((2, 0.5), (1, 0.1), (2, 0.6), (3, 0.2), (1, 0.3), (2, 0.7)):
+        _append_row(tmp_path / "studies" / "reward_vs_c.csv", {"C": c, "seed": 0, "R_m": r_m})
+    text = "\n".join(_studies(tmp_path, plan, {"figures": []}))
+    assert "log-log slope 1.50 (1 = linear in C): superlinear, as the paper's." in text
+    rows = [x for x in text.splitlines() if re.match(r"\| \d \| [+-]", x)]
+    assert rows == ["| 1 | +0.2000 | 0.1000 | 2 |", "| 2 | +0.6000 | 0.0816 | 3 |",
+                    "| 3 | +0.2000 | 0.0000 | 1 |"]  # fmt: skip
+    assert "The mean distance is highest at C = 2;" in text
+    (tmp_path / "studies" / "cost_vs_c.csv").unlink()
+    for c in (1, 4):
+        _append_row(tmp_path / "studies" / "cost_vs_c.csv",
+                    {"C": c, "rollouts": 8, "iteration_s": 0.1 * c**0.5})  # fmt: skip
+    text = "\n".join(_studies(tmp_path, plan, {"figures": []}))
+    assert "log-log slope 0.50 (1 = linear in C): not superlinear, unlike the paper's." in text
+    _append_row(tmp_path / "studies" / "cost_vs_c.csv", {"C": 2, "rollouts": 8, "iteration_s": 0})
+    text = "\n".join(_studies(tmp_path, plan, {"figures": []}))  # a timing of 0: no slope
+    assert "| 2 | 8 | 0.000 |" in text and "log-log slope" not in text
+
+
+def test_the_report_names_each_machine_and_setting_once_in_session_order():
+    # guards REPORT.md's "on <machines>" and budget/workers lines: each distinct value once,
+    # in the order the sessions used it, budgets in minutes, sessions without a machine counted
+    from rbbo.reproduce.report_text import _machine, _session_values
+
+    sessions = [{"machine": "a", "budget_s": 2700.0, "workers": 2},
+                {"machine": "b", "budget_s": 2700.0, "workers": 4},
+                {"machine": "a", "budget_s": 3600.0}]  # fmt: skip
+    assert _machine(sessions) == "a / b"
+    assert _machine([*sessions, {}]) == "a / b (and 1 session whose machine was not recorded)"
+    assert _machine([{}, {}]) == (
+        "a machine not recorded (2 sessions whose machine was not recorded)"
+    )
+    assert _session_values(sessions, "budget_s", 60.0) == "45 / 60"
+    assert _session_values(sessions, "workers", 1) == "2 / 4 / 1"  # the last as now given
+
+
+def test_the_progress_lines_skip_stages_with_nothing_planned_and_relinks_keep_urls(tmp_path):
+    # guards _progress_lines (a stage with no part planned is not "not finished") and
+    # _relink (a report copied elsewhere points at the record; web links stay as they are)
+    from rbbo.reproduce.report_text import _progress_lines, _relink
+
+    assert _progress_lines({"table": (0, 0), "bo": (0, 1), "rl": (1, 1)}) == [
+        "No part finished yet: bo.", ""]  # fmt: skip
+    out = tmp_path / "out"
+    out.mkdir()
+    lines = ["![a](runs/x/convergence.png) and [b](https://example.org/a)"]
+    assert _relink(lines, out, tmp_path / "docs") == [
+        "![a](../out/runs/x/convergence.png) and [b](https://example.org/a)"]  # fmt: skip
+
+
+def test_an_appended_row_without_some_columns_leaves_their_cells_empty(tmp_path):
+    # guards _append_row: a row lacking columns of the file (written by a newer version)
+    # lines its cells up under the file's header, not shifted left
+    from rbbo.reproduce.csv_rows import _append_row
+    from rbbo.reproduce.tables import read_rows
+
+    path = tmp_path / "t.csv"
+    _append_row(path, {"benchmark": "CrossSwim-v0", "basis": "best", "basis_digest": "abc"})
+    _append_row(path, {"benchmark": "BeamWalk-v0", "basis_digest": "def"})
+    assert read_rows(path)[1] == {"benchmark": "BeamWalk-v0", "basis": "", "basis_digest": "def"}
+
+
+def test_the_perturbation_study_walks_the_direction_zero_run_before_table_ones(tmp_path):
+    # guards _perturbation_base: the directions stage's direction-0 run is the base when it
+    # has a B_c, Table I's run of the same robot only without it
+    from rbbo.reproduce.stages import _perturbation_base
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], direction_env="CrossSwim-v0")
+    runs = tmp_path / "runs"
+    for name in ("CrossSwim-v0-boca", "CrossSwim-v0-dir000"):
+        (runs / name).mkdir(parents=True)
+    np.save(runs / "CrossSwim-v0-boca" / "best_basis.npy", np.eye(20)[:, :3])
+    assert _perturbation_base(tmp_path, plan) == runs / "CrossSwim-v0-boca"
+    np.save(runs / "CrossSwim-v0-dir000" / "best_basis.npy", np.eye(20)[:, :3])
+    assert _perturbation_base(tmp_path, plan) == runs / "CrossSwim-v0-dir000"
+
+
+def test_the_rl_stage_evaluates_as_table_one_measures(tmp_path, monkeypatch):
+    # guards rl_baselines' settings: RL and MPC are evaluated on episodes of T_max from the
+    # settle time on the plan's number of fresh seeds, as Table I's R is
+    import rbbo.rl
+    from rbbo.reproduce.runner import rl_baselines
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], rl_benchmarks=["CrossSwim-v0"],
+                         confirm_seeds=4, t_min=3.0, t_max=7.0, settle_time=1.5,
+                         seed=3)  # fmt: skip
+    calls = []
+    monkeypatch.setattr(rbbo.rl, "run_baselines", lambda *a, **k: calls.append(k))
+    rl_baselines(tmp_path, plan, False, lambda message: None)
+    (kwargs,) = calls
+    assert {k: kwargs[k] for k in ("eval_seeds", "seconds", "settle_time", "seed")} == {
+        "eval_seeds": 4, "seconds": 7.0, "settle_time": 1.5, "seed": 3}  # fmt: skip

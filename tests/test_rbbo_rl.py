@@ -735,3 +735,90 @@ def test_the_tables_are_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="disk full"):
         rl.run_baselines(ENV, basis, out, algos=(), progress=False)
     assert {p: (out / p).read_bytes() for p in before} == before
+
+
+def test_the_baselines_table_gives_distances_in_metres_and_body_lengths_and_when_rl_reached_mpc():
+    # guards baselines.md: each row's mean ± t-interval in m and in body lengths (distance /
+    # body length), "-" env steps for the MPC, and per basis the first checkpoint whose
+    # distance matched the MPC's (a tie counts) or the last one tried
+    from rbbo.rl.table import _row, format_table
+
+    body = 0.5
+    rows = [_row(ENV, "ppo", "identity", False, 1000, 5000, 10.0, [0.0, 0.25], body),
+            _row(ENV, "ppo", "identity", True, 2000, 10000, 20.0, [0.25, 0.5, 0.75], body),
+            _row(ENV, "ppo", "best", False, 1000, 5000, 10.0, [0.0, 0.0], body),
+            _row(ENV, "ppo", "best", True, 2000, 10000, 20.0, [0.125], body),
+            _row(ENV, "mppi", "identity", True, 0, 600, 1.5, [0.25, 0.75], body),
+            _row(ENV, "mppi", "best", True, 0, 600, 1.5, [0.25, 0.5], body)]  # fmt: skip
+    half3 = 4.302652729911275 * 0.25 / math.sqrt(3)  # t_{0.975, 2} s / sqrt(3)
+    assert (rows[1]["distance_m"], rows[1]["ci95_m"]) == (0.5, pytest.approx(half3))
+    assert (rows[1]["distance_bl"], rows[1]["ci95_bl"]) == (1.0, pytest.approx(half3 / body))
+    assert rows[1]["seeds"] == 3 and math.isnan(rows[3]["ci95_m"])
+    text = format_table(rows, markdown=True).splitlines()
+    assert text[3] == ("| CrossSwim-v0 | ppo | identity | 2000 | 10,000 | 20.0 s | "
+                       f"+0.500 ± {half3:.3f} | +1.00 ± {half3 / body:.2f} |")  # fmt: skip
+    assert text[5] == "| CrossSwim-v0 | ppo | best | 2000 | 10,000 | 20.0 s | +0.125 | +0.25 |"
+    assert text[6].startswith("| CrossSwim-v0 | mppi | identity | - | 600 | 1.5 s | +0.500 ± ")
+    assert text[-2:] == [
+        "- ppo (identity) reached the MPC's 0.500 m at 2000 env steps",
+        "- ppo (best) did not reach the MPC's 0.375 m within 2000 env steps",
+    ]
+    plain = format_table(rows).splitlines()  # the final rows only
+    assert len(plain) == 2 + 4 + 3 and plain[-2:] == [x[2:] for x in text[-2:]]
+
+
+class _Track:
+    """An env whose robot starts at 5 m and moves ``speed`` m each step of 0.1 s; its episode
+    is truncated after ``limit`` steps."""
+
+    def __init__(self, speed, limit=None):
+        self.speed, self.limit, self.steps = speed, limit, 0
+
+    def get_wrapper_attr(self, name):
+        assert name == "dt"
+        return 0.1
+
+    def reset(self, seed):
+        self.t = 0
+        return np.zeros(3), {"distance": 5.0}
+
+    def step(self, action):
+        self.t += 1
+        self.steps += 1
+        done = self.limit is not None and self.t >= self.limit
+        return np.zeros(3), 0.0, False, done, {"distance": 5.0 + self.speed * self.t}
+
+
+def test_a_policys_distance_is_from_the_settle_time_to_the_end_of_the_episode():
+    # guards evaluate_policy: seconds / dt steps, the distance measured from the step at
+    # the settle time to the last one (signed: backwards is negative), an episode that ends
+    # early keeps its distance so far, one that ends before the settle time scores 0
+    policy = _FullThrottle()
+    env = _Track(0.01)
+    got = rl.evaluate_policy(policy, env, [0, 1], seconds=1.0, settle_time=0.3)
+    assert got == [pytest.approx(0.07), pytest.approx(0.07)] and env.steps == 20
+    assert rl.evaluate_policy(policy, _Track(0.01), [0], 1.0, 0.0) == [pytest.approx(0.1)]
+    assert rl.evaluate_policy(policy, _Track(-0.01), [0], 1.0, 0.3) == [pytest.approx(-0.07)]
+    env = _Track(0.01, limit=6)
+    assert rl.evaluate_policy(policy, env, [0], 1.0, 0.3) == [pytest.approx(0.03)]
+    assert env.steps == 6
+    assert rl.evaluate_policy(policy, _Track(0.01, limit=2), [0], 1.0, 0.3) == [0.0]
+
+
+def test_a_basis_file_named_like_another_or_nearly_rank_deficient_is_refused(tmp_path):
+    # guards resolve_bases: a file named identity.npy would take the identity's row (and its
+    # training folder), a basis whose columns nearly coincide is one the env refuses, and
+    # the identity takes its M and C from the file given
+    basis = np.linalg.qr(np.random.default_rng(0).standard_normal((8, 2)))[0]
+    np.save(tmp_path / "identity.npy", basis)
+    with pytest.raises(ValueError, match="two control bases are named 'identity'"):
+        rl.resolve_bases(["identity", str(tmp_path / "identity.npy")], ENV)
+    # without a run, the identity has the M and C of the first file given (not 20 and 3)
+    np.save(tmp_path / "mine.npy", basis)
+    bases, _ = rl.resolve_bases(["identity", str(tmp_path / "mine.npy")], ENV)
+    assert list(bases) == ["identity", "mine"]
+    np.testing.assert_array_equal(bases["identity"], np.eye(8)[:, :2])
+    near = np.stack([basis[:, 0], basis[:, 0] + 1e-12 * basis[:, 1]], axis=1)
+    np.save(tmp_path / "near.npy", near)
+    with pytest.raises(ValueError, match="near.npy is rank-deficient"):
+        rl.resolve_bases([str(tmp_path / "near.npy")], ENV)
