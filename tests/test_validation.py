@@ -212,3 +212,19 @@ def test_reduced_settings_refuse_values_outside_their_range():
             cpp_sim.ReducedConfig(**{name: value})
     edge = cpp_sim.ReducedConfig(stabilization=1.0, max_stagger_iterations=1, friction=0.0)
     assert (edge.stabilization, edge.max_stagger_iterations, edge.friction) == (1.0, 1, 0.0)
+
+
+def test_real_settings_refuse_numpy_bools(tet):
+    # A real-valued setting is never a bool: numpy's bool_ (no subclass of bool, but it
+    # converts to 1.0 or 0.0) is refused as Python's bool is, as the Python front end refuses
+    # both; numpy's floats are still accepted.
+    bools = r"(np\.)?True_?"
+    for name in ("friction", "dt", "ground_height", "stabilization"):
+        with pytest.raises(TypeError, match=rf"{name} must be a real number, got {bools}$"):
+            cpp_sim.ReducedConfig(**{name: np.True_})
+    fem = make(*tet)
+    with pytest.raises(TypeError, match=rf"newton_tolerance must be a real number, got {bools}$"):
+        fem.newton_tolerance = np.True_
+    assert cpp_sim.ReducedConfig(friction=np.float64(0.3)).friction == 0.3
+    fem.newton_tolerance = np.float32(1e-5)
+    assert fem.newton_tolerance == pytest.approx(1e-5)

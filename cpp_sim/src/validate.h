@@ -93,9 +93,17 @@ inline std::vector<Tet> tet_array(py::handle obj, const char* name) {
   return tets;
 }
 
-// A Python real number (numpy's too) as a double, never a bool, or TypeError naming the setting.
+// True for Python's bool and numpy's (numpy.bool_ is no subclass of bool, but converts to 1.0
+// or 0.0 like one).
+inline bool is_bool(py::handle x) {
+  return py::isinstance<py::bool_>(x) ||
+         py::isinstance(x, py::module_::import("numpy").attr("bool_"));
+}
+
+// A Python real number (numpy's too) as a double, never a bool (Python's or numpy's), or
+// TypeError naming the setting.
 inline double real(py::handle x, const char* name) {
-  if (!py::isinstance<py::bool_>(x)) {
+  if (!is_bool(x)) {
     try {
       return x.cast<double>();
     } catch (const py::cast_error&) {
