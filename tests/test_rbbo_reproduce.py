@@ -1604,6 +1604,10 @@ def test_the_rl_stage_is_done_when_every_basis_it_trains_has_its_rows(tmp_path):
     assert stage_progress(tmp_path, plan)["rl"] == (1, 1)
     (tmp_path / "rl" / "BeamWalk-v0").mkdir()  # an earlier session's, not finished
     assert stage_progress(tmp_path, plan)["rl"] == (1, 2)
+    # finished: its Table I run has no B_c, so the identity's rows are all it trains
+    _append_row(tmp_path / "rl" / "BeamWalk-v0" / "baselines.csv",
+                {"env": "BeamWalk-v0", "method": "ppo", "basis": "identity"})  # fmt: skip
+    assert stage_progress(tmp_path, plan)["rl"] == (2, 2)
 
 
 def test_a_library_calls_command_names_no_stages():
