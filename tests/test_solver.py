@@ -300,9 +300,11 @@ def test_walking_steps_end_every_node_on_or_above_its_bound(beam_robot):
     # candidate ends below its bound (the plane, or 1 - stabilization of a penetration), and
     # staggering stops only once every candidate's normal velocity has settled: along a
     # walking gait an unloaded node ends on or above its bound exactly, and a loaded one
-    # within the stagger tolerance (measured: 8.6e-5 m/s at most, against the 1e-4 default;
-    # 1.6e-4 when the stopping test ignored the normal velocities, 5.9e-4 when the held set
-    # was accepted with a node 1e-3 m/s below its bound).
+    # within about the stagger tolerance (measured: 8.6e-5 m/s at most, against the 1e-4
+    # default; 1.6e-4 when the stopping test ignored the normal velocities, 5.9e-4 when the
+    # held set was accepted with a node 1e-3 m/s below its bound). The stopping test bounds
+    # the last stagger's change, not the violation itself, so the bound is 1.25 tolerances:
+    # room for another install's round-off, and still below both faults.
     model = build_reduced_model(beam_robot, control_basis=np.eye(20)[:, :3])
     state = model.rest_state()
     loaded_steps = 0
@@ -313,7 +315,7 @@ def test_walking_steps_end_every_node_on_or_above_its_bound(beam_robot):
         below = end_gaps(model, state.q) - (1.0 - model.stabilization) * np.minimum(z0, 0.0)
         unloaded = state.impulses[2::3] == 0.0
         assert below[unloaded].min() > -1e-12  # m
-        assert below.min() > -model.contact_tolerance * model.dt
+        assert below.min() > -1.25 * model.contact_tolerance * model.dt
         loaded_steps += info["contacts"] > 0
     assert loaded_steps > 100
 
