@@ -130,7 +130,9 @@ def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[st
         cs = sorted({int(r["C"]) for r in reward})
         stats = [confidence_interval([float(r["R_m"]) for r in reward if int(r["C"]) == c])
                  for c in cs]  # fmt: skip
-        sds = [float(np.std([float(r["R_m"]) for r in reward if int(r["C"]) == c])) for c in cs]
+        # the sample sd (n - 1), as Table I's runs spread has it; "-" for a single seed
+        per_c = [[float(r["R_m"]) for r in reward if int(r["C"]) == c] for c in cs]
+        sds = [float(np.std(v, ddof=1)) if len(v) > 1 else math.nan for v in per_c]
         path = plot_study(cs, [m for m, _ in stats], sds, "control-space dimension C "
                           "(identity basis)", f"distance from t = {plan.settle_time:g} s (m)",
                           f"{plan.controller} on {plan.direction_env}",
@@ -139,9 +141,8 @@ def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[st
         lines += ["## Task reward against C (identity bases)", "",
                   "![reward vs C](studies/reward_vs_c.png)", "",
                   "| C | distance mean (m) | sd | seeds |", "|---|---|---|---|"]  # fmt: skip
-        lines += [f"| {c} | {m:+.4f} | {sd:.4f} | "
-                  f"{sum(int(r['C']) == c for r in reward)} |"
-                  for c, (m, _), sd in zip(cs, stats, sds, strict=True)]  # fmt: skip
+        lines += [f"| {c} | {m:+.4f} | {'-' if math.isnan(sd) else f'{sd:.4f}'} | {len(v)} |"
+                  for c, (m, _), sd, v in zip(cs, stats, sds, per_c, strict=True)]  # fmt: skip
         if len(cs) >= 2:
             best = cs[int(np.argmax([m for m, _ in stats]))]
             lines += ["", f"The mean distance is highest at C = {best}; the paper's levelled "
