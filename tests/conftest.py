@@ -43,3 +43,22 @@ def _interruptible():
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
+
+
+@pytest.fixture
+def say_warning(monkeypatch, capsys):
+    """``warnings.showwarning`` restored after the test; returns ``say(message)``, which shows
+    one RuntimeWarning and returns the stderr lines it printed (a command's one-line display,
+    once the command has installed it)."""
+    import warnings
+
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # restored after
+
+    def say(message: str) -> list[str]:
+        capsys.readouterr()
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")
+            warnings.warn(message, RuntimeWarning, stacklevel=1)
+        return capsys.readouterr().err.splitlines()
+
+    return say

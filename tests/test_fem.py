@@ -308,14 +308,13 @@ def test_demo_drops_a_robot_and_names_bad_arguments(capsys):
     assert "step 1 (t = 1e-300 s, dt = 1e-300 s) failed: implicit Euler" in capsys.readouterr().err
 
 
-def test_the_demo_says_a_warning_in_one_line(monkeypatch, capsys):
+def test_the_demo_says_a_warning_in_one_line(monkeypatch, say_warning):
     # as rbbo and python -m controllers do; an argument list leaves the display alone
     import sys
     import warnings
 
     from softrom_gym.demo import main
 
-    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # restored after
     before = warnings.showwarning
     with pytest.raises(SystemExit):
         main(["--seconds", "-1"])
@@ -323,10 +322,6 @@ def test_the_demo_says_a_warning_in_one_line(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["softrom-demo", "--seconds", "-1"])
     with pytest.raises(SystemExit):
         main()
-    capsys.readouterr()
-    with warnings.catch_warnings():
-        warnings.simplefilter("always")
-        warnings.warn("a tetrahedron inverted", RuntimeWarning, stacklevel=1)
-    assert capsys.readouterr().err.splitlines() == [
+    assert say_warning("a tetrahedron inverted") == [
         "softrom-demo: warning: a tetrahedron inverted (RuntimeWarning)"
     ]

@@ -128,10 +128,9 @@ def _studies(out: Path, plan: ReproducePlan, written: dict[str, Any]) -> list[st
     reward = read_rows(out / "studies" / "reward_vs_c.csv")
     if reward:
         cs = sorted({int(r["C"]) for r in reward})
-        stats = [confidence_interval([float(r["R_m"]) for r in reward if int(r["C"]) == c])
-                 for c in cs]  # fmt: skip
-        # the sample sd (n - 1), as Table I's runs spread has it; "-" for a single seed
         per_c = [[float(r["R_m"]) for r in reward if int(r["C"]) == c] for c in cs]
+        stats = [confidence_interval(v) for v in per_c]
+        # the sample sd (n - 1), as Table I's runs spread has it; "-" for a single seed
         sds = [float(np.std(v, ddof=1)) if len(v) > 1 else math.nan for v in per_c]
         path = plot_study(cs, [m for m, _ in stats], sds, "control-space dimension C "
                           "(identity basis)", f"distance from t = {plan.settle_time:g} s (m)",
