@@ -347,6 +347,35 @@ def test_stagger_extrapolation_lets_staggering_settle():
     assert np.mean(unsettled) < 0.03
 
 
+def test_no_stagger_acceleration_in_the_last_three_staggers():
+    # A step that reaches the stagger cap must end on plain staggers (a friction half from
+    # the last normal impulses), not on an Aitken jump's extrapolated friction impulses or a
+    # held-set Newton root: so neither runs in the last three staggers (the trace's J and W/w
+    # tokens). Measured on this tripod gait with the cap at 6 (285 of 300 steps capped):
+    # friction's power on the surface nodes at a capped step reached 1.2e-3 W with the rule,
+    # and 3.9e-2 W when 95 capped steps jumped late.
+    cap = 6
+    model = build_reduced_model(
+        tripod(), control_basis=np.eye(20)[:, :3], max_stagger_iterations=cap
+    )
+    model.profile = True
+    stagger = re.compile(r"^[NS]\d+")
+    state = model.rest_state()
+    capped = accelerated = 0
+    for u in gait(model, 120, scale=1.0):
+        state, info = model.step(state, u)
+        tokens = info["stagger_trace"].split()
+        staggers = 0
+        for t in tokens:
+            if stagger.match(t):
+                staggers += 1
+            elif t == "J" or t[0] in "Ww":
+                accelerated += 1
+                assert staggers + 3 <= cap, info["stagger_trace"]
+        capped += bool(tokens) and tokens[-1] == "cap"
+    assert capped > 50 and accelerated > 10
+
+
 @pytest.mark.parametrize("solver", ["fast", "reference"])
 def test_stagger_trace_accounts_for_every_stagger(beam_robot, solver):
     # profile=True reports the stagger loop's course (StepInfo's grammar): one N/S token per
@@ -415,6 +444,36 @@ def test_stagger_cap_is_reported_and_normals_still_hold(box, cap):
             assert info["stagger_iterations"] == cap
             assert below.min() > -1e-12  # m
     assert capped > 0
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_an_infeasible_normal_solve_is_never_reported_converged(beam_robot, solver):
+    # contact_converged promises that every candidate ends on or above its bound within the
+    # stagger tolerance. With the ground 100 m to 100 km above the beam (friction off, so one
+    # normal solve settles the staggering; max_speed raised so the step is kept), the
+    # least-distance programme's answer falls short of the 4e3-4e6 m/s it must reach, by
+    # 2e-5 of it at 100 m and by more than all of it at 100 km (cancellation in its last
+    # residual entry): every such step must say so, as the feasibility check after the
+    # solve does. (Along a walking gait the same solve meets its bounds to 1e-14 m/s.)
+    model = build_reduced_model(
+        beam_robot,
+        control_basis=np.eye(20)[:, :3],
+        solver=solver,
+        friction=0.0,
+        max_speed=1e12,
+    )
+    short = []
+    for height in np.geomspace(1e2, 1e5, 4):
+        model.ground_height = height
+        start = model.rest_state()
+        z0 = end_gaps(model, start.q)
+        state, info = model.step(start, np.zeros(3))
+        assert not info["diverged"]
+        below = end_gaps(model, state.q) - (1.0 - model.stabilization) * z0
+        short.append(-below.min() / model.dt)
+        if info["contact_converged"]:
+            assert short[-1] < model.contact_tolerance
+    assert min(short) > 100 * model.contact_tolerance  # the case this test is for
 
 
 def energy(model, subspace, state):
@@ -700,6 +759,24 @@ def test_penalty_ground_carries_the_weight_and_converges(box, solver):
     sink = -z[rest <= rest.min() + 1e-9]
     assert sink.size == 81  # the 9 x 9 nodes of the bottom face
     assert 0.8e-3 < sink.mean() and sink.max() <= 1e-3
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_penalty_walking_steps_converge(solver):
+    # A walking gait on penalty contact: the regularised friction switches sign over a few
+    # mm/s, and Newton's full steps cycle across the switch. The backtracking line search on
+    # the residual keeps it converging (measured: every one of these tripod steps, 5.7
+    # iterations a step on average; with full steps 15 % of them, 27 iterations a step).
+    model = build_reduced_model(
+        tripod(), control_basis=np.eye(20)[:, :3], contact="penalty", solver=solver
+    )
+    state = model.rest_state()
+    converged = []
+    for u in gait(model, 150, scale=1.0):
+        state, info = model.step(state, u)
+        assert not info["diverged"]
+        converged.append(info["converged"])
+    assert np.mean(converged) > 0.9
 
 
 @pytest.mark.parametrize("solver", ["fast", "reference"])
