@@ -329,6 +329,9 @@ def test_sim_dim_sets_m_and_a_run_keeps_its_own(tmp_path, capsys, monkeypatch):
     assert "mine.npy has C = 2 columns, not --control-dim 3" in capsys.readouterr().err
     assert main([*args, "--sim-dim", "4", "--control-dim", "5"]) == 2
     assert "--sim-dim 4 is below C = 5" in capsys.readouterr().err
+    # C = M is accepted: a policy acting on all of B_r, the baseline without a control space
+    assert main([*args, "--sim-dim", "3"]) == 0
+    np.testing.assert_array_equal(seen["identity"], np.eye(3))
 
 
 def test_baselines_do_not_offer_the_synthetic_objective(capsys, tmp_path):

@@ -26,7 +26,9 @@ def resolve_bases(
     M and C of ``identity`` are the run's when ``run_dir`` is given, else the first ``.npy``'s,
     else ``sim_dim`` and ``control_dim`` (``--sim-dim``, ``--control-dim``; default 20 and
     3). A ``sim_dim`` or ``control_dim`` given beside a run or a ``.npy`` of another M or C is
-    refused: their bases belong to those. Returns the bases and the run's ``env_kwargs`` ({}
+    refused: their bases belong to those. C = M is allowed (unlike in ``rbbo optimize``, whose
+    Grassmannian Gr(M, M) is one point): a policy acting on all of B_r is the baseline that
+    shows what the control space costs or buys. Returns the bases and the run's ``env_kwargs`` ({}
     without a run). Raises ValueError (RunDirectoryError for a bad run directory) naming the
     problem.
     """
