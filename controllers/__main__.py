@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from softrom_gym._console import say_warnings_as
+from softrom_gym._console import OneLineArgumentParser, say_warnings_as
 from softrom_gym.registration import control_period, parse_env_kwarg
 
 from .defaults import DEFAULTS, PLANNERS, parse_changes, planner_for
@@ -54,10 +54,8 @@ def _registered(env_id: str, given: str) -> str:
 def _parser() -> argparse.ArgumentParser:
     # options only as spelled, as `rbbo` takes them: a prefix such as --sample would start
     # meaning another option the day one is added, and a script that ran would mean another run
-    p = argparse.ArgumentParser(
-        prog="python -m controllers",
-        description=__doc__.split("\n")[0].replace("``", ""),
-        allow_abbrev=False,
+    p = OneLineArgumentParser(
+        prog="python -m controllers", description=__doc__.split("\n")[0].replace("``", "")
     )
     p.add_argument("env_id", help=f"a benchmark ({', '.join(sorted(DEFAULTS))}: tuned "
                    "defaults) or another softrom env, e.g. SoftRobot-v0 with --env-kwarg "

@@ -1,4 +1,4 @@
-"""How softrom's own processes say a warning: one line, as their command line says its errors.
+"""How softrom's own processes say a warning or a usage error: one line each.
 
 In a command (``rbbo``, ``python -m controllers``) or in a worker process that softrom
 started, nothing of the user's code is on the stack, and Python's display (a file and line of
@@ -8,10 +8,27 @@ command lines, so it lives in the lowest of them.
 
 from __future__ import annotations
 
+import argparse
 import sys
 import warnings
+from typing import NoReturn
 
-__all__ = ["say_warnings_as"]
+__all__ = ["OneLineArgumentParser", "say_warnings_as"]
+
+
+class OneLineArgumentParser(argparse.ArgumentParser):
+    """An ``argparse.ArgumentParser`` whose usage errors are one ``<prog>: error: <message>``
+    line on stderr and exit status 2 (argparse prints its usage block first; ``--help`` still
+    shows it), as ``rbbo``'s are. Options are taken as spelled, never by a unique prefix
+    (``allow_abbrev=False`` unless given): a prefix that works today would start meaning
+    another option the day one is added."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def say_warnings_as(who: str) -> None:

@@ -9,13 +9,12 @@ contact arrives with the reduced model). The printout compares the centre of mas
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
 
 import numpy as np
 
-from softrom_gym._console import say_warnings_as
+from softrom_gym._console import OneLineArgumentParser, say_warnings_as
 from softrom_gym.robots import ROBOTS
 
 
@@ -28,8 +27,8 @@ def main(argv: list[str] | None = None) -> None:
     """
     if argv is None:
         say_warnings_as("softrom-demo")
-    parser = argparse.ArgumentParser(
-        description="Drop one soft robot and report its motion.", allow_abbrev=False
+    parser = OneLineArgumentParser(
+        prog="softrom-demo", description="Drop one soft robot and report its motion."
     )
     parser.add_argument("--robot", default="cross", choices=sorted(ROBOTS))
     parser.add_argument("--seconds", type=float, default=0.5, help="simulated time, s")

@@ -815,11 +815,17 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
         assert exc.value.code == 2
         err = capsys.readouterr().err
         assert f"--seconds must be a positive number, got {float(bad[1])}" in err
-    # options only as spelled, as rbbo takes them
+    # options only as spelled, as rbbo takes them; a usage error is one line, as rbbo's are
     with pytest.raises(SystemExit) as exc:
         cli_main(["BeamWalk-v0", "--second", "1"])
     assert exc.value.code == 2
-    assert "unrecognized arguments: --second 1" in capsys.readouterr().err
+    err = "python -m controllers: error: unrecognized arguments: --second 1\n"
+    assert capsys.readouterr().err == err
+    with pytest.raises(SystemExit) as exc:
+        cli_main([])
+    assert exc.value.code == 2
+    err = "python -m controllers: error: the following arguments are required: env_id\n"
+    assert capsys.readouterr().err == err
 
 
 def test_cli_runs_a_robot_of_your_own(capsys):
