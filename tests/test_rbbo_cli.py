@@ -34,7 +34,9 @@ def test_optimize_report_resume_rollout_on_a_synthetic_objective(tmp_path, capsy
 
     (run / "convergence.png").unlink()
     assert main(["report", str(run)]) == 0
-    table = capsys.readouterr().out.splitlines()
+    out, err = capsys.readouterr()
+    table = out.splitlines()
+    assert err == f"{run}: plot {run / 'convergence.png'}, best basis {run / 'best_basis.npy'}\n"
     assert table[0].split() == ["problem", "N", "M", "C", "R_init", "R*", "improvement",
                                 "evaluations", "wall", "time"]  # fmt: skip
     row = table[2].split()
@@ -797,8 +799,12 @@ def test_report_reads_a_run_that_is_still_writing_and_changes_nothing(tmp_path, 
     with open(run / "history.jsonl", "a") as f:
         f.write('{"index": 9, "R')  # the line the run's process is writing right now
     before = (run / "history.jsonl").read_bytes()
+    (run / "best_basis.npy").unlink()  # as a run whose first session has not finished
     assert main(["report", str(run)]) == 0
     assert (run / "history.jsonl").read_bytes() == before
+    assert not (run / "best_basis.npy").exists()
+    err = f"no best_basis.npy yet (no session has finished: rbbo resume {run})"
+    assert err in capsys.readouterr().err
     assert not (run / "history.jsonl.truncated").exists()
 
 

@@ -1,4 +1,5 @@
-"""``rbbo report``: the table of one or more runs, and each run's convergence plot."""
+"""``rbbo report``: the table of one or more runs, each run's convergence plot, and where its
+best basis is."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from .errors import UsageError
 
 def cmd_report(args) -> int:
     from ..report import format_table, load, plot_convergence, report_row
+    from ..store import BEST
 
     if args.png is not None and len(args.run_dirs) > 1:
         raise UsageError("--png names one plot: give one DIR")
@@ -35,6 +37,10 @@ def cmd_report(args) -> int:
             png = plot_convergence(opt, path)
         except OSError as exc:
             raise UsageError(f"cannot write the plot {path}: {exc}") from exc
-        print(f"{run_dir}: plot {png}", file=sys.stderr)
+        # the recommendation (R*'s B_c) is written when a session finishes, never by a report
+        best = Path(run_dir) / BEST
+        found = (f"best basis {best}" if best.is_file() else
+                 f"no {BEST} yet (no session has finished: rbbo resume {run_dir})")  # fmt: skip
+        print(f"{run_dir}: plot {png}, {found}", file=sys.stderr)
     print(format_table(rows))
     return 0
