@@ -253,6 +253,13 @@ def test_option_prefixes_are_usage_errors(tmp_path, capsys):
     # again (which options a session gave): rbbo takes options only as spelled
     assert main(["reproduce", "--out", str(tmp_path), "--stage", "table", "--status"]) == 2
     assert "unrecognized arguments: --stage table" in capsys.readouterr().err
+    # --budget, rbbo optimize's and DESIGN.md's, names the budgets a reproduction has instead;
+    # nothing is written
+    assert main(["reproduce", "--out", str(tmp_path / "r"), "--budget", "20m"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rbbo: error: rbbo reproduce has no --budget (got 20m): ")
+    assert "--budget-per-benchmark DURATION" in err and "--stages table" in err
+    assert not (tmp_path / "r").exists()
 
 
 def test_rerun_resumes_without_new_evaluations(reproduction):

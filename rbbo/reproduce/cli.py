@@ -74,6 +74,20 @@ def _rl_steps(text: str) -> int | dict[str, int]:
     return rl_steps_arg(text)
 
 
+class _NoBudget(argparse.Action):
+    """``--budget``, which ``rbbo optimize`` takes and a reproduction has several of: a usage
+    error naming them, not argparse's "unrecognized arguments"."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        from ..cli.errors import UsageError
+
+        raise UsageError(
+            f"rbbo reproduce has no --budget (got {values}): --budget-per-benchmark DURATION "
+            "is each benchmark's Table I run (and its BO run in stage bo), --direction-budget "
+            "DURATION each direction's run; --stages table runs Table I alone"
+        )
+
+
 def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.ArgumentParser:
     """Add the ``reproduce`` subcommand to ``sub`` (rbbo.cli.parser's subparsers)."""
     p = sub.add_parser("reproduce", help="the paper's results (Table I, BO vs BOCA, "
@@ -84,6 +98,7 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    help="comma list (default: all five)")  # fmt: skip
     p.add_argument("--budget-per-benchmark", type=parse_duration, default=defaults.budget_s,
                    help="wall time of each benchmark's RBBO run (default 45m)")  # fmt: skip
+    p.add_argument("--budget", action=_NoBudget, help=argparse.SUPPRESS)
     p.add_argument("--repeats", type=int, default=defaults.repeats, metavar="N",
                    help="independent RBBO runs per benchmark in stage table, run k seeded "
                    "--seed + k, each with the full budget (default 1); Table I's row is run "
