@@ -15,3 +15,16 @@ def real(name: str, value: object) -> float:
     ):
         raise TypeError(f"{name} must be a real number, got {value!r}")
     return float(value)
+
+
+def real_array(name: str, value: object) -> np.ndarray:
+    """``value`` as a float64 array. A complex array is refused (casting would drop its
+    imaginary part with a warning only), a boolean one too (True would act as 1.0), and so is
+    anything that is not numbers, each naming ``name`` and what it got."""
+    raw = np.asarray(value) if not isinstance(value, np.ndarray) else value
+    if raw.dtype.kind in "bc":
+        raise ValueError(f"{name} must be real numbers, got a {raw.dtype} array: {raw}")
+    try:
+        return np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be real numbers, got {value!r}") from None

@@ -683,3 +683,27 @@ def test_export_names_frames_it_cannot_map(tmp_path):
     assert not any(tmp_path.iterdir())
     # positions need only the robot
     assert len(softrom_gym.export_trajectory(frames[:1], tmp_path / "c.stl", robot=robot)) == 1
+
+
+def test_complex_or_boolean_actions_are_refused_not_cast():
+    """A complex action lost its imaginary part with a ComplexWarning only, and a boolean one
+    acted as 0 or 1 N kg^-1/2 (found by stepping BeamWalk-v0 with np.array([1 + 1j, 0, 0])):
+    both are refused naming their dtype, in step, the vector env's step and rollout."""
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    for bad in (np.array([1 + 1j, 0, 0]), np.array([True, False, True]), ["a", "b", "c"]):
+        with pytest.raises(ValueError, match="action must be real numbers, got"):
+            env.step(bad)
+    with pytest.raises(ValueError, match="controls must be real numbers, got a complex128"):
+        env.unwrapped.rollout(env.unwrapped.get_state(), np.zeros((1, 2, 3), dtype=complex))
+    venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                        vectorization_mode="vector_entry_point")  # fmt: skip
+    venv.reset(seed=0)
+    with pytest.raises(ValueError, match="actions must be real numbers, got a bool"):
+        venv.step(np.zeros((2, 3), dtype=bool))
+    # integer actions are numbers: accepted, as the float actions they equal
+    env.reset(seed=0)
+    a = env.step(np.array([1, 0, -2]))[0]
+    env.reset(seed=0)
+    np.testing.assert_array_equal(a, env.step(np.array([1.0, 0.0, -2.0], dtype=np.float32))[0])
+    venv.close()

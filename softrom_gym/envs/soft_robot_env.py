@@ -13,7 +13,7 @@ from gymnasium import spaces
 
 import cpp_sim
 
-from .._validate import real
+from .._validate import real, real_array
 from ..robots import Robot
 from ..rom import build_reduced_model, build_subspace
 from .arguments import checked_control_basis, dimensions, make_robot, read_basis, task_direction
@@ -263,7 +263,7 @@ class SoftRobotEnv(gym.Env):
         ).astype(np.float32)
 
     def _check_action(self, action: np.ndarray) -> np.ndarray:
-        a = np.asarray(action, dtype=np.float64)
+        a = real_array("action", action)
         if a.shape != self.action_space.shape:
             raise ValueError(
                 f"action has shape {a.shape}, expected {self.action_space.shape} "
@@ -461,7 +461,7 @@ class SoftRobotEnv(gym.Env):
         if not isinstance(state, (cpp_sim.ReducedState, list, tuple)):
             raise TypeError(f"state must be a ReducedState (env.get_state()) or a list of B "
                             f"of them, got {type(state).__name__}")  # fmt: skip
-        u = np.asarray(controls, dtype=np.float64)
+        u = real_array("controls", controls)
         if u.ndim != 3 or u.shape[2] != self.action_space.shape[0] or 0 in u.shape[:2]:
             raise ValueError(f"controls has shape {u.shape}, expected (B, H, "
                              f"{self.action_space.shape[0]}) with B, H >= 1")  # fmt: skip

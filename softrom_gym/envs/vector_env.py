@@ -12,6 +12,7 @@ from gymnasium.vector.utils import batch_space
 
 import cpp_sim
 
+from .._validate import real_array
 from .soft_robot_env import SoftRobotEnv
 
 __all__ = ["SoftRobotVectorEnv"]
@@ -127,7 +128,7 @@ class SoftRobotVectorEnv(VectorEnv):
         return obs, infos
 
     def step(self, actions: np.ndarray):
-        a = np.asarray(actions, dtype=np.float64)
+        a = real_array("actions", actions)
         if a.shape != self.action_space.shape:
             raise ValueError(f"actions has shape {a.shape}, expected {self.action_space.shape}")
         if not np.all(np.isfinite(a)):
