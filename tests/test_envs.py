@@ -707,3 +707,18 @@ def test_complex_or_boolean_actions_are_refused_not_cast():
     env.reset(seed=0)
     np.testing.assert_array_equal(a, env.step(np.array([1.0, 0.0, -2.0], dtype=np.float32))[0])
     venv.close()
+
+
+def test_a_control_basis_path_under_home_is_read_as_a_robot_path_is(tmp_path, monkeypatch):
+    """control_basis="~/best_basis.npy" was 'does not exist' while robot="~/robot.stl" is read
+    from the home folder (found making BeamWalk-v0 with a run's basis by a ~ path): both
+    expand ~, and the spec keeps the path as given."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    basis = np.linalg.qr(np.random.default_rng(0).standard_normal((20, 3)))[0]
+    np.save(tmp_path / "best_basis.npy", basis)
+    env = gym.make("softrom_gym/BeamWalk-v0", control_basis="~/best_basis.npy")
+    np.testing.assert_array_equal(env.unwrapped.control_basis, basis)
+    assert env.spec.kwargs["control_basis"] == "~/best_basis.npy"
+    env.unwrapped.set_control_basis("~/best_basis.npy")
+    with pytest.raises(FileNotFoundError, match="control_basis file '~/nowhere.npy' does not"):
+        gym.make("softrom_gym/BeamWalk-v0", control_basis="~/nowhere.npy")

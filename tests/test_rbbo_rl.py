@@ -689,6 +689,18 @@ def test_control_basis_files_the_env_could_not_use_are_named_before_any_work(tmp
         rl.resolve_bases(["identity"], ENV, tmp_path / "run")
 
 
+def test_a_control_basis_under_home_is_read_from_a_comma_list(tmp_path, monkeypatch):
+    """--control-basis identity,~/mine.npy: the shell expands no ~ inside a comma list, and
+    resolve_bases said 'cannot read control basis ~/mine.npy' (found by analogy with the
+    env's control_basis="~/..." keyword); ~ is expanded, the row keeps the file's stem."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    basis = np.linalg.qr(np.random.default_rng(0).standard_normal((8, 2)))[0]
+    np.save(tmp_path / "mine.npy", basis)
+    bases, _ = rl.resolve_bases(["identity", "~/mine.npy"], ENV)
+    assert list(bases) == ["identity", "mine"]
+    np.testing.assert_array_equal(bases["mine"], basis)
+
+
 def _warning_job(progress):
     import warnings
 

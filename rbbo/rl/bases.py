@@ -7,6 +7,7 @@ that belongs to another robot, env, M or C, or one the env would refuse.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +68,8 @@ def resolve_bases(
             _expect_run_space(store, env_id, env_kwargs, dims)
         elif spec.endswith(".npy"):
             try:
-                b = np.load(spec, allow_pickle=False)
+                # (no shell expands a ~ inside the comma list of --control-basis)
+                b = np.load(os.path.expanduser(spec), allow_pickle=False)
             except (OSError, ValueError) as exc:
                 raise ValueError(f"cannot read control basis {spec}: {exc}") from None
             if b.ndim != 2 or b.shape[0] < b.shape[1]:

@@ -56,11 +56,12 @@ def task_direction(direction: float | np.ndarray) -> np.ndarray:
 
 def read_basis(b_c: npt.ArrayLike | os.PathLike | None) -> npt.ArrayLike | None:
     """B_c from a ``.npy`` file when given a path (as a str it keeps ``env.spec``
-    JSON-serialisable, which an array does not), else ``b_c`` as given."""
+    JSON-serialisable, which an array does not; ``~`` is the home folder, as in a robot's
+    mesh path), else ``b_c`` as given."""
     if not isinstance(b_c, (str, os.PathLike)):
         return b_c
     try:
-        b = np.load(b_c, allow_pickle=False)
+        b = np.load(os.path.expanduser(os.fspath(b_c)), allow_pickle=False)
     except FileNotFoundError:
         raise FileNotFoundError(f"control_basis file {os.fspath(b_c)!r} does not exist") from None
     except (OSError, ValueError) as exc:
