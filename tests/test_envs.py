@@ -722,3 +722,19 @@ def test_a_control_basis_path_under_home_is_read_as_a_robot_path_is(tmp_path, mo
     env.unwrapped.set_control_basis("~/best_basis.npy")
     with pytest.raises(FileNotFoundError, match="control_basis file '~/nowhere.npy' does not"):
         gym.make("softrom_gym/BeamWalk-v0", control_basis="~/nowhere.npy")
+
+
+def test_vector_env_names_a_bad_thread_count_when_it_is_made():
+    """threads=0 (or 1.5, True) was accepted by make_vec and named only by the first step's
+    rollout, after reset had run (found passing threads=0 to make_vec): it is refused by the
+    constructor, as num_envs and max_episode_steps are."""
+    for threads in (0, -2, 1.5, True, "2"):
+        with pytest.raises(ValueError, match=f"threads must be a positive integer or None, "
+                           f"got {threads!r}"):  # fmt: skip
+            gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                         vectorization_mode="vector_entry_point", threads=threads)  # fmt: skip
+    venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                        vectorization_mode="vector_entry_point", threads=np.int64(2))  # fmt: skip
+    venv.reset(seed=0)
+    venv.step(np.zeros((2, 3), dtype=np.float32))
+    venv.close()

@@ -66,6 +66,11 @@ class SoftRobotVectorEnv(VectorEnv):
             raise ValueError(
                 f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}"
             )
+        # (checked here: the core would name it only at the first step, after reset)
+        if threads is not None and (
+            isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1
+        ):
+            raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
         if env_kwargs.get("render_mode") is not None:
             raise ValueError(
                 f"the vector env does not render (render_mode={env_kwargs['render_mode']!r}); "
@@ -74,7 +79,7 @@ class SoftRobotVectorEnv(VectorEnv):
         self.env = SoftRobotEnv(**env_kwargs)
         self.num_envs = num_envs
         self.max_episode_steps = max_episode_steps
-        self.threads = threads
+        self.threads = None if threads is None else int(threads)
         self.single_observation_space = self.env.observation_space
         self.single_action_space = self.env.action_space
         # (batch_space of a Box is a Box, of shape (num_envs, *shape))
