@@ -738,3 +738,21 @@ def test_vector_env_names_a_bad_thread_count_when_it_is_made():
     venv.reset(seed=0)
     venv.step(np.zeros((2, 3), dtype=np.float32))
     venv.close()
+
+
+def test_vector_env_reset_seeds_its_own_np_random_as_gymnasium_s_vector_envs_do():
+    """venv.reset(seed=5) left venv.np_random unseeded, so venv.np_random_seed was a fresh
+    random number (found comparing make_vec's "sync" and "vector_entry_point" modes): as
+    VectorEnv.reset does, an int seed seeds it, without changing the robots' streams."""
+    draws = []
+    for _ in range(2):
+        venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                            vectorization_mode="vector_entry_point")  # fmt: skip
+        obs, _ = venv.reset(seed=5)
+        assert venv.np_random_seed == 5
+        draws.append(venv.np_random.random())
+        venv.close()
+    assert draws[0] == draws[1]
+    single = gym.make("softrom_gym/BeamWalk-v0")
+    for i in range(2):  # robot i is still a single env reset with seed 5 + i
+        np.testing.assert_array_equal(obs[i], single.reset(seed=5 + i)[0])

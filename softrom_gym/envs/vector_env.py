@@ -121,6 +121,10 @@ class SoftRobotVectorEnv(VectorEnv):
                 f"seed must be None, an int or a list of {self.num_envs} ints, got {seed!r}"
             )
         self.env._reset_start(options)  # (an error before any sub-env is reset)
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            # VectorEnv.reset's own seeding: np_random and np_random_seed are the vector
+            # env's, as Gymnasium's vector envs have them (the robots' streams are their own)
+            super().reset(seed=int(seed))
         infos: dict[str, Any] = {}
         obs = np.zeros(self.observation_space.shape, dtype=np.float32)
         for i, s in enumerate(seeds):
