@@ -820,6 +820,19 @@ def test_a_policys_distance_is_from_the_settle_time_to_the_end_of_the_episode():
     assert rl.evaluate_policy(policy, _Track(0.01, limit=2), [0], 1.0, 0.3) == [0.0]
 
 
+def test_evaluate_policy_names_a_settle_time_outside_the_episode():
+    """rl.evaluate_policy (public) scored every seed 0.0 when settle_time >= seconds, and
+    nothing when seconds <= 0 or nan (found calling it with settle_time=2, seconds=1):
+    run_baselines refused these, the function itself did not. Both are named, no step run."""
+    for seconds, settle in ((1.0, 2.0), (1.0, 1.0), (0.0, 0.0), (-1.0, 0.0), (math.nan, 0.0),
+                            (1.0, -0.1), (1.0, math.nan)):  # fmt: skip
+        env = _Track(0.01)
+        with pytest.raises(ValueError, match=r"seconds must be a finite number > 0, got "
+                           r"|settle time .* s must lie in \[0, "):  # fmt: skip
+            rl.evaluate_policy(_FullThrottle(), env, [0], seconds, settle)
+        assert env.steps == 0
+
+
 def test_a_basis_file_named_like_another_or_nearly_rank_deficient_is_refused(tmp_path):
     # guards resolve_bases: a file named identity.npy would take the identity's row (and its
     # training folder), a basis whose columns nearly coincide is one the env refuses, and

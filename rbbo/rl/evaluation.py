@@ -25,7 +25,13 @@ def evaluate_policy(model, env, seeds, seconds: float, settle_time: float) -> li
     ``model`` has SB3's ``predict``; ``env`` is the [-1, 1]-rescaled env it acts in. An episode
     that diverges keeps its distance so far (the robot stops where it was): one that ends
     before ``settle_time`` scores 0, as R of an MPC episode does (no reward after the end).
+    Raises ValueError unless ``seconds`` > 0 and 0 <= ``settle_time`` < ``seconds``.
     """
+    # (else every seed would silently score 0.0: named here, as run_baselines does)
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"seconds must be a finite number > 0, got {seconds}")
+    if not 0 <= settle_time < seconds:
+        raise ValueError(f"settle time {settle_time} s must lie in [0, {seconds}) s")
     dt = float(env.get_wrapper_attr("dt"))
     steps, settle = max(1, round(seconds / dt)), round(settle_time / dt)
     out = []
