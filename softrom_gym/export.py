@@ -47,6 +47,9 @@ def export_trajectory(
         The files written, in frame order.
     """
     base = getattr(env, "unwrapped", env)
+    if base is not None and not (hasattr(base, "robot") and hasattr(base, "model")):
+        raise TypeError(f"env must be a SoftRobotEnv or a wrapper of one (its robot and model "
+                        f"map the frames to a surface), got {type(base).__name__}")  # fmt: skip
     if robot is None:
         if base is None:
             raise ValueError("export_trajectory needs env= or robot= to know the surface")

@@ -6,6 +6,7 @@ import argparse
 import inspect
 import json
 import math
+import numbers
 from typing import Any
 
 import gymnasium as gym
@@ -72,7 +73,8 @@ def control_period(env_id: str, **kwargs: Any) -> float | None:
             values.append(params[name].default)
         else:
             return None
-    if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
+    # (numbers.Real: numpy's integers and floats, as the env takes them; not a bool)
+    if any(isinstance(v, bool) or not isinstance(v, numbers.Real) for v in values):
         return None
     period = float(values[0]) * float(values[1])
     return period if math.isfinite(period) and period > 0 else None

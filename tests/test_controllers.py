@@ -900,6 +900,11 @@ def test_control_period_is_read_without_building_the_env():
 
     assert control_period("softrom_gym/CrossSwim-v0") == pytest.approx(0.025)
     assert control_period("softrom_gym/CrossSwim-v0", frame_skip=10) == pytest.approx(0.05)
+    # numpy's integers as the env takes them (an np.int64 frame_skip read as None)
+    assert control_period("softrom_gym/CrossSwim-v0", frame_skip=np.int64(10)) == pytest.approx(
+        0.05
+    )
+    assert control_period("softrom_gym/CrossSwim-v0", frame_skip=True) is None
     assert control_period("softrom_gym/SoftRobot-v0", dt=0.002) == pytest.approx(0.01)
     assert control_period("softrom_gym/CrossSwim-v0", dt="x") is None  # the env names it
     assert control_period("CartPole-v1") is None

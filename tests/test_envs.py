@@ -683,6 +683,13 @@ def test_export_names_frames_it_cannot_map(tmp_path):
     assert not any(tmp_path.iterdir())
     # positions need only the robot
     assert len(softrom_gym.export_trajectory(frames[:1], tmp_path / "c.stl", robot=robot)) == 1
+    # a vector env has no single robot state to map (it raised AttributeError: 'robot')
+    venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                        vectorization_mode="vector_entry_point")  # fmt: skip
+    with pytest.raises(TypeError, match="env must be a SoftRobotEnv or a wrapper of one .* got "
+                       "SoftRobotVectorEnv"):  # fmt: skip
+        softrom_gym.export_trajectory([state], tmp_path / "d.ply", env=venv)
+    assert not (tmp_path / "d_0000.ply").exists()
 
 
 def test_complex_or_boolean_actions_are_refused_not_cast():
