@@ -55,7 +55,8 @@ class RBBOConfig:
     max_evaluations : int or None
         Stop proposing after this many evaluations (confirmations not counted).
     budget_s : float or None
-        Stop proposing after this much run time (over all sessions of the run).
+        Stop proposing after this much run time, in seconds (over all sessions of the run);
+        finite, as config.json stores it (None: no time limit).
     optimizer : str
         Acquisition maximiser, "lrbfgs" or "cg".
     gp_restarts, acq_random, acq_starts, acq_max_iterations, boca_candidates
@@ -112,6 +113,13 @@ class RBBOConfig:
             _positive_int("max_evaluations", self.max_evaluations)
         if self.budget_s is not None and not self.budget_s > 0:
             raise ValueError(f"budget_s must be > 0 seconds, got {self.budget_s!r}")
+        # config.json is strict JSON (no inf or nan): refused here by name rather than by
+        # the JSON encoder when RBBO.create or set_limits writes it. No time limit is None.
+        if self.budget_s is not None and not math.isfinite(self.budget_s):
+            raise ValueError(f"budget_s must be a finite number of seconds (None: no time "
+                             f"limit), got {self.budget_s!r}")  # fmt: skip
+        if not math.isfinite(self.t_min):  # (read by BOCA only, but stored all the same)
+            raise ValueError(f"t_min must be a finite number of seconds, got {self.t_min!r}")
         # numpy's integers pass the checks above; config.json stores Python's
         for name in ("n_init", "seeds", "seed", "n_confirm", "gp_restarts", "acq_random",
                      "acq_starts", "acq_max_iterations", "boca_candidates",

@@ -425,6 +425,10 @@ def test_resume_rejects_bad_settings(tmp_path):
         ({"budget_s": 0}, "budget_s must be > 0 seconds, got 0.0"),
         ({"seed": -1}, "seed must be an integer >= 0, got -1"),
         ({"boca_candidates": 1}, "boca_candidates must be an integer >= 2, got 1"),
+        # config.json is strict JSON: these used to pass here and fail RBBO.create with
+        # "config is not JSON-serialisable: Out of range float values"
+        ({"budget_s": float("inf")}, r"budget_s must be a finite number of seconds \(None"),
+        ({"t_min": float("nan")}, "t_min must be a finite number of seconds, got nan"),
     ],
 )
 def test_config_validation(kwargs, match):
@@ -1044,7 +1048,8 @@ def test_an_invalid_limit_changes_nothing_in_the_run(tmp_path):
     opt = RBBO.create(tmp_path / "run", RBBOConfig(4, 2, max_evaluations=5, **FAST))
     before = (tmp_path / "run" / "config.json").read_bytes()
     for limits, match in (((0, None), "max_evaluations must be an integer >= 1, got 0"),
-                          ((None, -1.0), "budget_s must be > 0 seconds, got -1.0")):  # fmt: skip
+                          ((None, -1.0), "budget_s must be > 0 seconds, got -1.0"),
+                          ((None, float("inf")), "budget_s must be a finite number")):  # fmt: skip
         with pytest.raises(ValueError, match=match):
             opt.set_limits(*limits)
     assert (tmp_path / "run" / "config.json").read_bytes() == before
