@@ -106,8 +106,9 @@ def test_env_objective_uses_the_controllers_tuned_defaults(controllers, monkeypa
     objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, controller="gn",
                              planner_kwargs={"samples": 8})  # fmt: skip
     objective(np.eye(20)[:, :3], 4.0, seed=1)
-    # dt None: the stand-in env has no frame_skip (its control period is not known)
-    assert asked == [("rbbo_test/StandIn-v0", "gn", {"dt": None, "samples": 8})]
+    # dt None: the stand-in env has no frame_skip (its control period is not known); asked
+    # once when made (its planner_kwargs checked) and once for the episode
+    assert asked == 2 * [("rbbo_test/StandIn-v0", "gn", {"dt": None, "samples": 8})]
     assert controllers == [(4.0, 1, 10)]
 
 
@@ -124,6 +125,9 @@ def test_env_objective_rejects_bad_input():
     with pytest.raises(ValueError, match="settle_time must be >= 0, got -1"):
         EnvObjective("x", 20, 3, settle_time=-1)
     assert EnvObjective("x", 20, 3, settle_time=0).settle_time == 0  # R from the first step
+    for settle in ("2", float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="settle_time must be"):
+            EnvObjective("x", 20, 3, settle_time=settle)
     objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, settle_time=2.0)
     with pytest.raises(ValueError, match="T = 1.5 s must exceed the settle time 2.0 s"):
         objective(np.eye(20)[:, :3], 1.5, 0)
@@ -290,6 +294,25 @@ def test_a_run_is_never_resumed_with_another_planner():
     slow = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2, env_kwargs={"frame_skip": 10}).spec()
     with pytest.raises(PlannerMismatch, match=r"control period \(0.05 s, not 0.025 s\)"):
         make_objective({k: v for k, v in slow.items() if k != "planner"}, 6, 2)
+
+
+def test_a_bad_planner_setting_is_refused_when_the_objective_is_made():
+    """From Python, as ``rbbo optimize --mpc`` does: an unknown key, a bad value or a noise of
+    another length than C used to pass, and then every evaluation failed in its worker (a
+    2-evaluation RBBO.run returned failed=2 and no R, saying nothing)."""
+    env = "softrom_gym/BeamWalk-v0"
+    with pytest.raises(TypeError, match="unknown MPPISettings setting 'nosie'"):
+        EnvObjective(env, 6, 2, planner_kwargs={"nosie": 0.3})
+    with pytest.raises(ValueError, match="noise must be a finite number >= 0, got -0.3"):
+        EnvObjective(env, 6, 2, planner_kwargs={"noise": -0.3})
+    with pytest.raises(ValueError, match="noise has 3 standard deviations.*C = 2"):
+        EnvObjective(env, 6, 2, planner_kwargs={"noise": (0.3, 0.2, 0.1)})
+    with pytest.raises(TypeError, match="unknown GaussNewtonSettings setting 'samples'"):
+        EnvObjective(env, 6, 2, controller="gn", planner_kwargs={"samples": 8})
+    with pytest.raises(TypeError, match="planner_kwargs must be a dict"):
+        EnvObjective(env, 6, 2, planner_kwargs=[("noise", 0.3)])
+    good = EnvObjective(env, 6, 2, planner_kwargs={"noise": (0.3, 0.2)})
+    assert good.planner()[0].settings.noise == (0.3, 0.2)
 
 
 def test_the_planner_keeps_its_seconds_at_the_envs_control_period():
