@@ -93,8 +93,8 @@ class GrassmannGP:
     fidelity : bool
         Model the fidelity z in [0, 1] with BOCA's product kernel.
     n_restarts : int
-        Extra random restarts of the marginal-likelihood optimiser (the previous fit is
-        always the first start).
+        Extra random restarts (>= 0) of the marginal-likelihood optimiser (the previous fit
+        is always the first start).
     length_scale_bounds, fidelity_length_scale_bounds, noise_bounds, signal_bounds
         Hyperparameter bounds on the standardised scale: (low, high) with
         0 < low < high < inf (low = high allowed for the noise and the signal, pinning it),
@@ -124,6 +124,14 @@ class GrassmannGP:
         _check_bounds("noise_bounds", noise_bounds, allow_equal=True)
         _check_bounds("signal_bounds", signal_bounds, allow_equal=True)
         self.fidelity = bool(fidelity)
+        # (int() took 2.7 as 2 and -1 as far as scikit-learn's fit, which named its own
+        # 'n_restarts_optimizer')
+        if (
+            isinstance(n_restarts, bool)
+            or not isinstance(n_restarts, (int, np.integer))
+            or n_restarts < 0
+        ):
+            raise ValueError(f"n_restarts must be an integer >= 0, got {n_restarts!r}")
         self.n_restarts = int(n_restarts)
         self.length_scale_bounds = length_scale_bounds
         self.fidelity_length_scale_bounds = fidelity_length_scale_bounds

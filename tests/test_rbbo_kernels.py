@@ -1,5 +1,7 @@
 """Grassmann and fidelity kernels (rbbo.kernels) and the GP built on them (rbbo.gp)."""
 
+import re
+
 import numpy as np
 import pytest
 from scipy.stats import ortho_group
@@ -216,6 +218,17 @@ def test_gp_names_bad_hyperparameter_bounds_when_made(name):
     else:
         with pytest.raises(ValueError, match=rf"{name} must satisfy 0 < low < high < inf"):
             GrassmannGP(M, C, fidelity=True, **{name: (0.25, 0.25)})
+
+
+def test_gp_names_a_bad_restart_count_when_made():
+    """n_restarts reached scikit-learn as int(n_restarts): -1 failed the first fit of three or
+    more points with the message of GaussianProcessRegressor's 'n_restarts_optimizer' (and
+    passed a fit of two), 2.7 ran 2 restarts, and 'a' raised int()'s "invalid literal"."""
+    for value in (-1, 2.7, "a", True, None):
+        with pytest.raises(ValueError, match=rf"n_restarts must be an integer >= 0, got "
+                           rf"{re.escape(repr(value))}"):  # fmt: skip
+            GrassmannGP(M, C, n_restarts=value)
+    assert GrassmannGP(M, C, n_restarts=np.int64(0)).n_restarts == 0
 
 
 def test_information_gap_is_zero_at_the_target_and_grows_as_z_over_h():
