@@ -156,11 +156,32 @@ class Proposal:
 
 @dataclass
 class RBBOResult:
-    """Outcome of :meth:`RBBO.run` (also written to summary.json).
+    """Outcome of :meth:`RBBO.run` (also written to summary.json), or of :meth:`RBBO.result`
+    mid-run.
 
-    R_init and R_star are means over the fresh confirmation seeds at T_max (None if the
-    confirmation was skipped or failed); improvement_pct = 100 (R* / R_init - 1) when R_init
-    is positive.
+    Attributes
+    ----------
+    best_basis : (M, C) ndarray or None
+        The recommendation: the evaluated basis with the highest posterior mean of R at
+        T_max (see :meth:`RBBO.recommend`), the one R_star was measured for; None before a
+        successful evaluation.
+    R_star, R_init : float or None
+        Means over the fresh confirmation seeds at T_max of the recommendation and of the
+        identity basis (None if the confirmation was skipped, failed, or, for R_star, was
+        measured for an earlier recommendation).
+    improvement_pct : float or None
+        100 (R* / R_init - 1), when both are measured and R_init is positive.
+    evaluations : int
+        Search evaluations recorded, failed ones included (confirmations not counted).
+    failed : int
+        How many of those failed.
+    wall_s : float
+        Run time in seconds (over all sessions of the run) when the latest evaluation,
+        confirmations included, was recorded.
+    R_star_seeds, R_init_seeds : list of float
+        R on each confirmation seed (R_star and R_init are their means).
+    best_index : int or None
+        The evaluation index of ``best_basis`` in the history.
     """
 
     best_basis: np.ndarray | None

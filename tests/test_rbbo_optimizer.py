@@ -14,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from rbbo import RBBO, RBBOConfig, SyntheticObjective
+from rbbo import RBBO, RBBOConfig, RBBOResult, SyntheticObjective
 from rbbo.baselines import random_search
 from rbbo.executors import Executor, SerialExecutor
 from rbbo.executors.base import evaluate_task
@@ -434,6 +434,19 @@ def test_resume_rejects_bad_settings(tmp_path):
 def test_config_validation(kwargs, match):
     with pytest.raises(ValueError, match=match):
         RBBOConfig(**{"sim_dim": 6, "control_dim": 2, **kwargs})
+
+
+@pytest.mark.parametrize("cls", [RBBOConfig, RBBOResult])
+def test_every_field_of_the_config_and_the_result_is_documented(cls):
+    """RBBOResult's docstring described R_init, R_star and improvement_pct only: what
+    evaluations, failed, wall_s, best_index and the per-seed lists hold was left to the
+    source."""
+    import dataclasses
+    import re
+
+    doc = cls.__doc__
+    for f in dataclasses.fields(cls):
+        assert re.search(rf"^    (\w+, )*{f.name}\b[^\n]*( :|$)", doc, flags=re.M), f.name
 
 
 def test_config_takes_numpy_numbers_and_stores_python_ones(tmp_path):
