@@ -31,6 +31,11 @@ class EnvObjective:
 
         R = sum_{t_k >= t_settle} r_k / (T - t_settle)
 
+    on the env-step grid (:func:`settled_reward_rate`): the episode runs round(T / dt) whole
+    steps, and R divides by the time they cover from the first step starting at or after
+    t_settle (BOCA's T = 2.667 s at dt = 0.025 s is 107 steps, 2.675 s; a t_settle of 1.01 s
+    counts from 1.025 s); a step lost to a divergence counts as zero reward.
+
     Why from a settle time: a robot leaning into a held pose gains about 0.2 body lengths in
     its first second (measured on the walkers), which would dominate short trajectories and
     rank bases by how far they lean rather than how well they walk; measuring from
