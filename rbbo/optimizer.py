@@ -122,7 +122,21 @@ class RBBO:
     @classmethod
     def create(cls, path, config: RBBOConfig, *, objective_spec: dict | None = None,
                extra: dict | None = None) -> RBBO:  # fmt: skip
-        """Start a run in directory ``path`` (config.json written; refuses an existing run)."""
+        """Start a run in directory ``path`` (config.json written; refuses an existing run).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The run directory (created; one that already holds a run is refused).
+        config : RBBOConfig
+        objective_spec : dict, optional
+            What the objective is (an objective's ``spec()``), stored in config.json so that
+            ``rbbo resume``, ``confirm`` and ``rollout`` can rebuild it; None: the run can be
+            resumed from Python only, with the objective passed to :meth:`run`.
+        extra : dict, optional
+            More top-level entries for config.json (``rbbo optimize`` stores its executor
+            settings and the problem there).
+        """
         document = {"version": CONFIG_VERSION, "rbbo": asdict(config),
                     "objective": objective_spec, **(extra or {})}  # fmt: skip
         return cls(config, store=RunStore.create(path, document), objective_spec=objective_spec)
@@ -258,7 +272,31 @@ class RBBO:
 
     def tell(self, index: int, R: float | None, *, status: str = "ok", wall_s: float = 0.0,
              worker: str = "", R_seeds=(), error: str | None = None) -> Evaluation:  # fmt: skip
-        """Record the outcome of proposal ``index`` (persisted before returning)."""
+        """Record the outcome of proposal ``index`` (persisted before returning).
+
+        Parameters
+        ----------
+        index : int
+            The :class:`Proposal`'s ``index`` (it must be pending: asked and not yet told).
+        R : float or None
+            The objective's value, the mean over the proposal's ``seeds``; a non-finite one
+            is recorded as a failure.
+        status : {"ok", "failed"}
+            "failed" records no R (the error says why).
+        wall_s : float
+            Seconds the evaluation took.
+        worker : str
+            Which worker ran it (for the history).
+        R_seeds : sequence of float
+            R on each of the proposal's seeds (a non-finite one fails the evaluation).
+        error : str, optional
+            Why it failed.
+
+        Returns
+        -------
+        Evaluation
+            The record appended to the history (and to DIR/history.jsonl).
+        """
         if index not in self.pending:
             raise ValueError(f"no pending proposal with index {index}")
         if R is not None:
@@ -292,9 +330,10 @@ class RBBO:
 
     # -- driving a whole run ------------------------------------------------------------
     def set_limits(self, max_evaluations: int | None, budget_s: float | None) -> None:
-        """Replace the run's stopping limits (both: a limit not given becomes none), in
-        config.json too when the run has a store, so that a later :meth:`run` without limits,
-        e.g. a plain ``rbbo resume``, goes on to them.
+        """Replace the run's stopping limits ``max_evaluations`` and ``budget_s`` (seconds;
+        both: a limit not given becomes none), in config.json too when the run has a store,
+        so that a later :meth:`run` without limits, e.g. a plain ``rbbo resume``, goes on to
+        them.
 
         Raises ValueError for an invalid limit, as :class:`RBBOConfig` does, before anything
         is written.
@@ -308,7 +347,9 @@ class RBBO:
         self.config = config
 
     def can_submit(self, max_evaluations: int | None, budget_s: float | None) -> bool:
-        """Whether a search evaluation may start under these limits (None: no limit)."""
+        """Whether a search evaluation may start under these limits: fewer than
+        ``max_evaluations`` recorded and in flight, and less than ``budget_s`` seconds of run
+        time spent (either None: no limit of that kind)."""
         started = len(self.evaluations) + sum(
             p.kind not in CONFIRM_KINDS for p in self.pending.values()
         )
@@ -373,6 +414,14 @@ class RBBO:
         For a finished run whose numbers must be checked against the simulator as it is now
         (after an upgrade of softrom, or on another machine): the basis confirmed as R* stays
         the run's answer; the search is not resumed.
+
+        Parameters
+        ----------
+        executor : Executor
+            Where the confirmations run (e.g. ``rbbo.executors.ProcessExecutor(objective,
+            workers)``); it is not shut down.
+        callback : callable, optional
+            Called with each recorded Evaluation.
         """
         return run_loop.confirm_again(self, executor, callback)
 

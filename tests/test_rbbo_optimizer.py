@@ -449,6 +449,22 @@ def test_every_field_of_the_config_and_the_result_is_documented(cls):
         assert re.search(rf"^    (\w+, )*{f.name}\b[^\n]*( :|$)", doc, flags=re.M), f.name
 
 
+def test_every_parameter_of_rbbos_public_methods_is_documented():
+    """tell's docstring named none of R, status, wall_s, worker, R_seeds and error (the ask/tell
+    loop of the module's example uses it), create's neither objective_spec nor extra, and
+    confirm_again's neither executor nor callback."""
+    import inspect
+    import re
+
+    for name, member in vars(RBBO).items():
+        function = getattr(member, "__func__", member)
+        if name.startswith("_") or isinstance(member, property) or not callable(function):
+            continue
+        doc = function.__doc__ or ""
+        for parameter in list(inspect.signature(function).parameters)[1:]:  # (self, cls)
+            assert re.search(rf"\b{parameter}\b", doc), f"{name}: {parameter}"
+
+
 def test_config_takes_numpy_numbers_and_stores_python_ones(tmp_path):
     config = RBBOConfig(np.int64(6), np.int32(2), max_evaluations=np.int64(5), t_max=np.float32(8))
     assert (type(config.sim_dim), type(config.max_evaluations), type(config.t_max)) == (
