@@ -19,18 +19,20 @@ __all__ = ["EpisodeResult", "run_episode"]
 class EpisodeResult:
     """One closed-loop episode.
 
-    Per env step t = 1..T (arrays of length T), as ``env.step`` reported them: ``rewards``
-    (R per step, m, as any reward wrapper left it), ``orientation`` (rad), ``lateral`` (m),
-    ``effort`` (|f_c / a|^2), ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and
-    ``distance`` (T + 1,) along d since reset (m), ``states`` (ReducedState copies). Per
-    replan: ``replan_steps`` (the step it ran at), ``replan_wall_s`` and ``replan_records``
-    (the planner's ``last_`` after it: objectives, rollouts, and the planner's own terms, as
-    :class:`~controllers.planner.Planner` lists them). ``stop_reason`` says
-    why the episode ended: "time" (its seconds ran out), "diverged", "truncated by the time
-    limit" (the env's TimeLimit) or "interrupted" (Ctrl-C: :func:`run_episode` raises the
-    KeyboardInterrupt with the steps recorded so far as its ``result``, and writes the video
-    of them; interrupted in the reset or the planner's set-up, before the first state is
-    recorded, its ``result`` is None).
+    ``planner`` is the planner's name ("mppi" or "gn"), ``dt`` the env's control period (s),
+    ``body_length`` the robot's (m, for distances in body lengths) and ``seed_gait`` the label
+    of the gait the planner's gait seed chose at reset (None without one). Per env step t = 1..T
+    (arrays of length T), as ``env.step`` reported them: ``rewards`` (R per step, m, as any
+    reward wrapper left it), ``orientation`` (rad), ``lateral`` (m), ``effort`` (|f_c / a|^2),
+    ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and ``distance`` (T + 1,) along d
+    since reset (m), ``states`` (ReducedState copies). Per replan: ``replan_steps`` (the step it
+    ran at), ``replan_wall_s`` and ``replan_records`` (the planner's ``last_`` after it:
+    objectives, rollouts, and the planner's own terms, as :class:`~controllers.planner.Planner`
+    lists them). ``stop_reason`` says why the episode ended: "time" (its seconds ran out),
+    "diverged", "truncated by the time limit" (the env's TimeLimit) or "interrupted" (Ctrl-C:
+    :func:`run_episode` raises the KeyboardInterrupt with the steps recorded so far as its
+    ``result``, and writes the video of them; interrupted in the reset or the planner's set-up,
+    before the first state is recorded, its ``result`` is None).
     """
 
     planner: str
@@ -79,13 +81,18 @@ class EpisodeResult:
         return float(self.distance[i1] - self.distance[i0])
 
     def realtime_factor(self, replan_every: int) -> float:
-        """Simulated seconds advanced per replan / wall seconds per replan: the planning's
-        real-time factor (the episode's env steps and the gait seed at reset are not in it)."""
+        """Simulated seconds advanced per replan (``replan_every`` env steps) / wall seconds
+        per replan: the planning's real-time factor (the episode's env steps and the gait seed
+        at reset are not in it)."""
         if not self.replans:
             return float("nan")
         return replan_every * self.dt / float(np.mean(self.replan_wall_s))
 
     def summary(self, start: float = 2.0) -> str:
+        """One line: the distance along d from ``start`` (s; the whole episode if it is not
+        longer) to the end, in m and body lengths, R, the mean orientation (rad), the
+        sideways path length (m), the mean effort, the replans and their mean wall time, and
+        why the episode stopped."""
         # the distance after the settling time, or over the whole of a shorter episode (an
         # empty window would print a distance of zero that says nothing)
         t0 = start if start < self.seconds else 0.0

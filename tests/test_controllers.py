@@ -459,6 +459,18 @@ def _made_up_episode(body_length=0.5, planner="mppi"):
                          replan_wall_s=np.array([0.1, 0.3]))  # fmt: skip
 
 
+def test_episode_result_documents_every_field_and_its_summary():
+    """planner, dt, body_length and seed_gait were in no docstring, and summary(start), the
+    README's first MPC example's output, had none."""
+    import dataclasses
+    import re
+
+    for f in dataclasses.fields(EpisodeResult):
+        assert re.search(rf"``{f.name}``", EpisodeResult.__doc__), f.name
+    assert "``start``" in (EpisodeResult.summary.__doc__ or "")
+    assert "``replan_every``" in (EpisodeResult.realtime_factor.__doc__ or "")
+
+
 def test_episode_result_arithmetic_on_a_made_up_episode():
     # 0.15 s / 0.025 s is 5.999...: distance_between reads step 6, the nearest (int() would
     # read step 5); the real-time factor is the simulated seconds between replans per wall second
