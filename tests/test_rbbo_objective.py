@@ -296,10 +296,10 @@ def test_a_run_is_never_resumed_with_another_planner():
         make_objective({k: v for k, v in slow.items() if k != "planner"}, 6, 2)
 
 
-def test_a_bad_planner_setting_is_refused_when_the_objective_is_made():
-    """From Python, as ``rbbo optimize --mpc`` does: an unknown key, a bad value or a noise of
-    another length than C used to pass, and then every evaluation failed in its worker (a
-    2-evaluation RBBO.run returned failed=2 and no R, saying nothing)."""
+def test_a_bad_planner_setting_or_env_keyword_is_refused_when_the_objective_is_made():
+    """From Python, as ``rbbo optimize --mpc`` / ``--env-kwarg`` do: an unknown key, a bad
+    value or a noise of another length than C used to pass, and then every evaluation failed
+    in its worker (a 2-evaluation RBBO.run returned failed=2 and no R, saying nothing)."""
     env = "softrom_gym/BeamWalk-v0"
     with pytest.raises(TypeError, match="unknown MPPISettings setting 'nosie'"):
         EnvObjective(env, 6, 2, planner_kwargs={"nosie": 0.3})
@@ -311,6 +311,13 @@ def test_a_bad_planner_setting_is_refused_when_the_objective_is_made():
         EnvObjective(env, 6, 2, controller="gn", planner_kwargs={"samples": 8})
     with pytest.raises(TypeError, match="planner_kwargs must be a dict"):
         EnvObjective(env, 6, 2, planner_kwargs=[("noise", 0.3)])
+    # and the env's keywords, by name (the env is not built)
+    with pytest.raises(ValueError, match="BeamWalk-v0 takes no keyword 'colour'"):
+        EnvObjective(env, 6, 2, env_kwargs={"colour": 3})
+    with pytest.raises(ValueError, match="env keyword 'sim_dim' is set by rbbo itself"):
+        EnvObjective(env, 6, 2, env_kwargs={"sim_dim": 10})
+    with pytest.raises(TypeError, match="env_kwargs must be a dict"):
+        EnvObjective(env, 6, 2, env_kwargs=None)
     good = EnvObjective(env, 6, 2, planner_kwargs={"noise": (0.3, 0.2)})
     assert good.planner()[0].settings.noise == (0.3, 0.2)
 

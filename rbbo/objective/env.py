@@ -57,8 +57,9 @@ class EnvObjective:
         t_settle, seconds.
     env_kwargs, planner_kwargs : dict
         Passed to ``gym.make`` and to the planner (``controllers.planner_for``'s
-        ``changes``). For a registered env id the planner is made once here, so a setting
-        it refuses raises its ValueError or TypeError now, not in every evaluation.
+        ``changes``). For a registered env id the keywords' names are checked and the
+        planner is made once here, so a keyword the env does not take or a setting the
+        planner refuses raises its ValueError or TypeError now, not in every evaluation.
     """
 
     env_id: str
@@ -82,22 +83,25 @@ class EnvObjective:
             raise ValueError(f"settle_time must be a number of seconds >= 0, got {settle!r}")
         if not (math.isfinite(settle) and settle >= 0):  # (inf: no T could exceed it)
             raise ValueError(f"settle_time must be >= 0, got {settle!r}")
-        if not isinstance(self.planner_kwargs, dict):
-            raise TypeError(f"planner_kwargs must be a dict of planner settings, got "
-                            f"{type(self.planner_kwargs).__name__}")  # fmt: skip
+        for name in ("env_kwargs", "planner_kwargs"):
+            if not isinstance(getattr(self, name), dict):
+                raise TypeError(f"{name} must be a dict of keyword arguments, got "
+                                f"{type(getattr(self, name)).__name__}")  # fmt: skip
         self._env = None
         self._signature: list[float] | None = None
         self._signature_read = False  # an env without a signature is asked once, not per call
-        if self.planner_kwargs:
-            self._check_planner()
+        self._check_keywords()
 
-    def _check_planner(self) -> None:
-        """Make the planner once, so that a setting the controllers refuse (an unknown key, a
-        bad value, a per-dimension noise of another length than C) is a ValueError or
-        TypeError naming it here, not an error in every evaluation: RBBO.run records those as
-        failed evaluations, in worker processes, and a short run returned no R at all.
-        ``rbbo optimize`` checked its --mpc this way; an objective made in Python did not.
-        An env id that Gymnasium does not know (yet) is left to :meth:`make_env` to name."""
+    def _check_keywords(self) -> None:
+        """Check the env keywords by name and make the planner once (when there are planner
+        settings), so that a keyword the env does not take or a setting the controllers
+        refuse (an unknown key, a bad value, a per-dimension noise of another length than C)
+        is a ValueError or TypeError naming it here, not an error in every evaluation:
+        RBBO.run records those as failed evaluations, in worker processes, and a short run
+        returned no R at all. ``rbbo optimize`` checked its --env-kwarg and --mpc this way;
+        an objective made in Python did not. Nothing is built (the env is made at the first
+        evaluation). An env id that Gymnasium does not know (yet) is left to
+        :meth:`make_env` to name."""
         import gymnasium as gym
 
         import softrom_gym  # noqa: F401  (registers the envs)
@@ -106,7 +110,9 @@ class EnvObjective:
             gym.spec(self.env_id)
         except gym.error.Error:
             return
-        self.planner()
+        _check_env_keywords(self.env_id, self.env_kwargs)
+        if self.planner_kwargs:
+            self.planner()
 
     def __getstate__(self):
         state = self.__dict__.copy()
