@@ -49,7 +49,10 @@ def test_optimize_report_resume_rollout_on_a_synthetic_objective(tmp_path, capsy
     assert len(evaluations) == 10
 
     assert main(["rollout", str(run), "--seed", "7"]) == 0
-    assert capsys.readouterr().out.startswith("R = ")
+    out = capsys.readouterr().out
+    # the synthetic R is no rate: it printed "R = 0.7 per second" as an env run's does
+    assert out.startswith("R = ") and "per second" not in out
+    assert "(synthetic objective, T = 10 s, seed 7); optimum 1\n" in out
 
     # options the run's executor cannot take are refused as optimize refuses them (resume
     # dropped the address, and confirm ran a serial run's 4 "workers" one at a time)

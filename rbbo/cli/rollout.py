@@ -37,7 +37,8 @@ def cmd_rollout(args) -> int:
         if args.video:
             raise UsageError("--video needs an env run; a synthetic objective has no robot")
         r = objective(basis, seconds, args.seed)
-        print(f"R = {r:.6g} per second (T = {seconds:g} s, seed {args.seed}); "
+        # (the synthetic R is a number on Gr(M, C), the optimum's 1: not a rate per second)
+        print(f"R = {r:.6g} (synthetic objective, T = {seconds:g} s, seed {args.seed}); "
               f"optimum {objective.value(objective.optimum):.6g}")  # fmt: skip
         return 0
     if args.video:
