@@ -1,5 +1,6 @@
 """Objectives (rbbo.objective): the env objective against a stand-in env and controllers."""
 
+import json
 import pickle
 import sys
 import types
@@ -248,6 +249,15 @@ def test_bad_objective_specs():
     for t_max in (0, float("inf")):
         with pytest.raises(ValueError, match=f"t_max must be finite and > 0, got {t_max}"):
             SyntheticObjective(4, 2, t_max=t_max)
+    # named: a string raised math.isfinite's "must be real number, not str", True was 1
+    for name in ("noise", "bias", "delay", "t_max"):
+        for value in ("0.1", True, None):
+            with pytest.raises(ValueError, match=f"{name} must be a number, got {value!r}"):
+                SyntheticObjective(4, 2, **{name: value})
+    # numpy's numbers are taken, and stored as Python's: the spec goes into config.json
+    numpy = SyntheticObjective(np.int64(4), 2, optimum_seed=np.int64(3), noise=np.float32(0.5),
+                               t_max=np.int64(4))  # fmt: skip
+    assert json.loads(json.dumps(numpy.spec())) == SyntheticObjective(4, 2, 3, 0.5, t_max=4).spec()
 
 
 def test_a_run_is_never_replayed_in_another_simulation_space():

@@ -42,7 +42,8 @@ class SyntheticObjective:
     bias : float
         Low-fidelity bias b.
     t_max : float
-        The target fidelity T_max (seconds).
+        The target fidelity T_max (seconds): give the run's (``RBBOConfig.t_max``), or the
+        optimum's R at the run's T_max is below 1 (``rbbo optimize`` passes its --t-max).
     delay : float
         Sleep ``delay * T / t_max`` seconds per call (cost proportional to T).
     """
@@ -58,16 +59,25 @@ class SyntheticObjective:
     _v: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        _check_dims(self.sim_dim, self.control_dim)
+        # (numpy's numbers as Python's, here and below: spec() goes into config.json)
+        self.sim_dim, self.control_dim = _check_dims(self.sim_dim, self.control_dim)
         seed = self.optimum_seed
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"the synthetic seed must be an integer >= 0, got {seed!r}")
+        for name in ("noise", "bias", "delay", "t_max"):
+            value = getattr(self, name)
+            # (math.isfinite raised its own TypeError for a string, and took True as 1)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+                raise ValueError(f"{name} must be a number, got {value!r}")
         for name in ("noise", "bias", "delay"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
         if not (math.isfinite(self.t_max) and self.t_max > 0):
             raise ValueError(f"t_max must be finite and > 0, got {self.t_max!r}")
+        self.optimum_seed = int(seed)
+        for name in ("noise", "bias", "delay", "t_max"):
+            setattr(self, name, float(getattr(self, name)))
         rng = np.random.default_rng(self.optimum_seed)
         self._u, self._v = random_points(self.sim_dim, self.control_dim, 2, rng)
 
