@@ -330,6 +330,11 @@ def test_a_bad_planner_setting_or_env_keyword_is_refused_when_the_objective_is_m
         EnvObjective(env, 6, 2, env_kwargs=None)
     good = EnvObjective(env, 6, 2, planner_kwargs={"noise": (0.3, 0.2)})
     assert good.planner()[0].settings.noise == (0.3, 0.2)
+    # numpy's numbers are taken and stored as Python's (an np.int64 M failed RBBO.create's
+    # config.json with "Object of type int64 is not JSON serializable")
+    numpy = EnvObjective(env, np.int64(6), np.int32(2), settle_time=np.float32(1.5))
+    assert (type(numpy.sim_dim), type(numpy.control_dim), type(numpy.settle_time)) == (
+        int, int, float)  # fmt: skip
 
 
 def test_the_planner_keeps_its_seconds_at_the_envs_control_period():

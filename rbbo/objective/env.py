@@ -73,7 +73,8 @@ class EnvObjective:
     CONTROLLERS = ("mppi", "gn")
 
     def __post_init__(self) -> None:
-        _check_dims(self.sim_dim, self.control_dim)
+        # (numpy's integers as Python's: spec() goes into config.json)
+        self.sim_dim, self.control_dim = _check_dims(self.sim_dim, self.control_dim)
         if self.controller not in self.CONTROLLERS:
             raise ValueError(
                 f"unknown controller {self.controller!r}; valid: {list(self.CONTROLLERS)}"
@@ -83,6 +84,7 @@ class EnvObjective:
             raise ValueError(f"settle_time must be a number of seconds >= 0, got {settle!r}")
         if not (math.isfinite(settle) and settle >= 0):  # (inf: no T could exceed it)
             raise ValueError(f"settle_time must be >= 0, got {settle!r}")
+        self.settle_time = float(settle)
         for name in ("env_kwargs", "planner_kwargs"):
             if not isinstance(getattr(self, name), dict):
                 raise TypeError(f"{name} must be a dict of keyword arguments, got "
