@@ -335,6 +335,19 @@ def test_a_bad_planner_setting_or_env_keyword_is_refused_when_the_objective_is_m
     numpy = EnvObjective(env, np.int64(6), np.int32(2), settle_time=np.float32(1.5))
     assert (type(numpy.sim_dim), type(numpy.control_dim), type(numpy.settle_time)) == (
         int, int, float)  # fmt: skip
+    # ... and planner settings: the planner's record read np.int64(8) as the string
+    # "np.int64(8)", and the spec failed json.dumps
+    numpy = EnvObjective(env, 6, 2, planner_kwargs={
+        "samples": np.int64(8), "temperature": np.float32(0.25),
+        "noise": np.array([0.3, 0.2]), "seed_amplitudes": (np.float32(1.0), 1.5)})  # fmt: skip
+    record = numpy.planner_record()["settings"]
+    assert (record["samples"], record["temperature"], record["noise"]) == (8, 0.25, [0.3, 0.2])
+    assert json.loads(json.dumps(numpy.planner_kwargs)) == {
+        "samples": 8,
+        "temperature": 0.25,
+        "noise": [0.3, 0.2],
+        "seed_amplitudes": [1.0, 1.5],
+    }
 
 
 def test_the_planner_keeps_its_seconds_at_the_envs_control_period():

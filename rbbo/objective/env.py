@@ -20,6 +20,18 @@ from .protocol import PlannerMismatch, SimulationSpaceMismatch
 from .reward import settled_reward_rate
 
 
+def _plain(value: Any) -> Any:
+    """A planner setting with numpy's scalars and arrays as Python's numbers, lists and tuples
+    (anything else as it is)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple)):
+        return type(value)(_plain(v) for v in value)
+    return value
+
+
 @dataclass
 class EnvObjective:
     """R(B_c, T, seed): the MPC controller's task reward on a softrom env, per second.
@@ -89,6 +101,9 @@ class EnvObjective:
             if not isinstance(getattr(self, name), dict):
                 raise TypeError(f"{name} must be a dict of keyword arguments, got "
                                 f"{type(getattr(self, name)).__name__}")  # fmt: skip
+        # numpy's numbers and arrays as Python's: the settings go into config.json, and the
+        # planner's record (JSON, repr() for what JSON cannot say) read np.int64(8) as a string
+        self.planner_kwargs = {k: _plain(v) for k, v in self.planner_kwargs.items()}
         self._env = None
         self._signature: list[float] | None = None
         self._signature_read = False  # an env without a signature is asked once, not per call
