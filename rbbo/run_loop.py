@@ -120,6 +120,12 @@ def run(
         raise ValueError(f"budget_s must be > 0 seconds, got {budget_s!r}")
     own = executor is None
     if executor is None:
+        # (checked here, not by the executor alone: workers=True equalled 1 and ran serially,
+        # and a string timeout failed on '>' between str and int)
+        _positive_int("workers", workers)
+        workers = int(workers)
+        if timeout_s is not None and not _real("timeout_s", timeout_s) > 0:
+            raise ValueError(f"timeout_s must be > 0 seconds or None, got {timeout_s!r}")
         if objective is None:
             raise ValueError("give an objective or an executor")
         if not callable(objective):

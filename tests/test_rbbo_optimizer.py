@@ -16,7 +16,7 @@ import pytest
 
 from rbbo import RBBO, RBBOConfig, RBBOResult, SyntheticObjective
 from rbbo.baselines import random_search
-from rbbo.executors import Executor, SerialExecutor
+from rbbo.executors import Executor, ProcessExecutor, SerialExecutor
 from rbbo.executors.base import evaluate_task
 from rbbo.grassmann import identity_basis, projection_distance, random_points, validate_basis
 from rbbo.store import RunDirectoryError
@@ -484,7 +484,20 @@ def test_run_validates_its_limits_and_objective():
             opt.run(SyntheticObjective(4, 2), **limits)
     with pytest.raises(TypeError, match="objective must be callable .* got int"):
         opt.run(5, max_evaluations=3)
+    # the default executor's settings, named (workers=True ran as 1 worker, serially; a string
+    # timeout failed on '>' between str and int)
+    for options, match in (({"workers": True}, "workers must be an integer >= 1, got True"),
+                           ({"workers": 2, "timeout_s": "5"}, "timeout_s must be a number"),
+                           ({"timeout_s": 0}, "timeout_s must be > 0 seconds")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            opt.run(SyntheticObjective(4, 2), max_evaluations=3, **options)
     assert opt.history == []
+    # numpy's integers are integers: np.int64(2) workers was refused by the process pool
+    executor = ProcessExecutor(SyntheticObjective(4, 2), np.int64(2))
+    try:
+        assert executor.workers == 2 and type(executor.workers) is int
+    finally:
+        executor.shutdown()
 
 
 def test_a_reader_cannot_write_into_a_run(tmp_path):

@@ -21,6 +21,8 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 
+import numpy as np
+
 from .._warn import say_warnings_as
 from .base import EvaluationTask, Executor, evaluate_task, failed
 
@@ -99,8 +101,10 @@ class ProcessExecutor(Executor):
 
     def __init__(self, objective, workers: int = 1, timeout_s: float | None = None,
                  start_method: str = "spawn"):  # fmt: skip
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        # (numpy's integers too: np.int64(2) was refused as "not a positive integer")
+        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
             raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        workers = int(workers)
         if timeout_s is not None and not timeout_s > 0:
             raise ValueError(f"timeout_s must be > 0 or None, got {timeout_s!r}")
         self.objective = objective
