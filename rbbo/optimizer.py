@@ -117,6 +117,9 @@ class RBBO:
         self._gp: GrassmannGP | None = None
         self._gp_count = -1
         self._initial = initial_design(config)
+        # what summary.json holds for a run with a store: the result a session of a run in
+        # memory ended with (run_result reads it, so that `finished` means the same for both)
+        self._summary: dict[str, Any] | None = None
 
     # -- construction -------------------------------------------------------------------
     @classmethod
@@ -428,8 +431,8 @@ class RBBO:
     @property
     def finished(self) -> bool:
         """Whether the run ended (with its confirmation, if it has confirmation seeds) and
-        searched no further since: its recommendation is then fixed (:meth:`result`), and
-        best_basis.npy holds it."""
+        searched no further since: its recommendation is then fixed (:meth:`result`), and a
+        run directory's best_basis.npy holds it."""
         return run_result.finished(self)
 
     def result(self) -> RBBOResult:

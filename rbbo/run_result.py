@@ -35,6 +35,8 @@ def record_result(opt: RBBO) -> RBBOResult:
         opt.store.write_summary(result.summary())
         if result.best_basis is not None:
             opt.store.save_best(result.best_basis)
+    else:
+        opt._summary = result.summary()
     return result
 
 
@@ -65,13 +67,15 @@ def finished(opt: RBBO) -> bool:
 
 
 def _current_summary(opt: RBBO) -> dict[str, Any] | None:
-    """summary.json if no evaluation was recorded since a session wrote it."""
+    """summary.json (a run in memory: the result its last session ended with) if no
+    evaluation was recorded since a session wrote it."""
     if opt.store is None:
-        return None
-    try:
-        summary = opt.store.summary()
-    except RunDirectoryError:
-        return None
+        summary = opt._summary
+    else:
+        try:
+            summary = opt.store.summary()
+        except RunDirectoryError:
+            return None
     if not summary or summary.get("evaluations") != len(opt.evaluations):
         return None
     return summary

@@ -761,6 +761,23 @@ def _confirmed_then_resumed_to_eight(path):
     return objective, first, opt
 
 
+def test_a_run_in_memory_without_confirmation_seeds_is_finished_when_its_session_ends():
+    """As a run directory's is (its summary.json): an in-memory run with n_confirm = 0 read
+    finished = False after run() had ended, though it has no confirmation to wait for."""
+    objective = SyntheticObjective(6, 2)
+    opt = RBBO(RBBOConfig(6, 2, n_init=2, max_evaluations=4, n_confirm=0, **FAST))
+    assert not opt.finished
+    result = opt.run(objective)
+    assert opt.finished and opt.result().best_index == result.best_index
+    proposal = opt.ask()  # searched on since: not finished until a session ends again
+    opt.tell(proposal.index, objective(proposal.basis, proposal.T, proposal.seeds[0]))
+    assert not opt.finished
+    # with confirmation seeds, a session that skipped the confirmation has not finished
+    opt = RBBO(RBBOConfig(6, 2, n_init=2, max_evaluations=4, n_confirm=1, **FAST))
+    opt.run(objective, confirm=False)
+    assert not opt.finished
+
+
 def test_a_resumed_run_whose_recommendation_stands_is_finished(tmp_path):
     # searched on, kept its confirmed recommendation (nothing new to confirm): finished, and
     # best_basis.npy is still that recommendation
