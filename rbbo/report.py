@@ -129,7 +129,10 @@ def plot_convergence(opt: RBBO, path: str | Path) -> Path:
             for ax in axes:
                 ax.axhline(confirm[kind].R, color=color, ls="--", lw=1,
                            label=f"{name} = {confirm[kind].R:.3g} (fresh seeds)")  # fmt: skip
-    axes[0].set_ylabel("reward R per second")
+    # an env's R is the task reward per second (m/s); the synthetic objective's a number on
+    # Gr(M, C), 1 at its optimum
+    synthetic = (opt.objective_spec or {}).get("kind") == "synthetic"
+    axes[0].set_ylabel("R (synthetic objective)" if synthetic else "reward R per second")
     axes[1].legend(loc="lower right", fontsize=8)
     problem = (opt.store.config.get("problem") or {}).get("env_id", "") if opt.store else ""
     fig.suptitle(f"RBBO {problem}  Gr({opt.config.sim_dim}, {opt.config.control_dim}), "

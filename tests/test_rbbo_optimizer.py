@@ -778,6 +778,27 @@ def test_a_run_in_memory_without_confirmation_seeds_is_finished_when_its_session
     assert not opt.finished
 
 
+def test_the_convergence_plot_calls_only_an_env_runs_r_a_rate(tmp_path, monkeypatch):
+    """The synthetic objective's R is no rate (rbbo rollout says so too); its plot's axis
+    read "reward R per second" as an env run's does."""
+    import rbbo.report
+
+    labels = []
+
+    def savefig(fig, path, **kwargs):
+        labels.append(fig.axes[0].get_ylabel())
+        return path
+
+    monkeypatch.setattr(rbbo.report, "_atomic_savefig", savefig)
+    objective = SyntheticObjective(6, 2)
+    for spec in (objective.spec(), {"kind": "env", "env_id": "softrom_gym/CrossSwim-v0"}):
+        opt = RBBO(RBBOConfig(6, 2, n_init=1, max_evaluations=2, n_confirm=0, **FAST),
+                   objective_spec=spec)  # fmt: skip
+        opt.run(objective)
+        rbbo.report.plot_convergence(opt, tmp_path / "convergence.png")
+    assert labels == ["R (synthetic objective)", "reward R per second"]
+
+
 def test_a_resumed_run_whose_recommendation_stands_is_finished(tmp_path):
     # searched on, kept its confirmed recommendation (nothing new to confirm): finished, and
     # best_basis.npy is still that recommendation
