@@ -323,8 +323,14 @@ class GrassmannGP:
         Each basis must be orthonormal (the kernel reads its span through B B^T): one that
         is not is refused, as by :meth:`fit`, instead of predicted far off.
         """
-        for i, basis in enumerate(self._query(bases)):
+        query = self._query(bases)
+        for i, basis in enumerate(query):
             validate_basis(basis, name=f"bases[{i}]")
+        # (a NaN z predicted NaN, and one z per basis of another count numpy's broadcast error)
+        zq = np.asarray(z, dtype=float)
+        if zq.ndim > 1 or zq.size not in (1, len(query)) or not np.all(np.isfinite(zq)):
+            raise ValueError(f"z must be one finite fidelity or one per basis ({len(query)}), "
+                             f"got {z!r}")  # fmt: skip
         mu, sd = self.predict_standardized(bases, z)
         return self.y_mean_ + self.y_std_ * mu, self.y_std_ * sd
 

@@ -220,6 +220,20 @@ def test_gp_names_bad_hyperparameter_bounds_when_made(name):
             GrassmannGP(M, C, fidelity=True, **{name: (0.25, 0.25)})
 
 
+def test_gp_predict_names_a_bad_fidelity():
+    """predict(bases, z=nan) returned NaN, and a z per basis of another count raised numpy's
+    "operands could not be broadcast together"."""
+    bases = gr.random_points(M, C, 6, np.random.default_rng(0))
+    gp = GrassmannGP(M, C, fidelity=True, random_state=0)
+    gp.fit(bases, np.arange(6.0), z=np.linspace(0.0, 1.0, 6))
+    for z in (np.nan, [0.1, 0.2, 0.3], [[0.5, 0.5]]):
+        with pytest.raises(ValueError, match=r"z must be one finite fidelity or one per basis "
+                           r"\(2\)"):  # fmt: skip
+            gp.predict(bases[:2], z)
+    mu, _ = gp.predict(bases[:2], [0.5, 1.0])
+    assert mu[1] == pytest.approx(gp.predict(bases[1], 1.0)[0][0], rel=1e-12)
+
+
 def test_gp_names_a_bad_restart_count_when_made():
     """n_restarts reached scikit-learn as int(n_restarts): -1 failed the first fit of three or
     more points with the message of GaussianProcessRegressor's 'n_restarts_optimizer' (and
