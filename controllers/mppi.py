@@ -89,7 +89,8 @@ class MPPISettings(PlannerSettings):
         if isinstance(self.noise, tuple) and len(self.noise) != control_dim:
             raise ValueError(
                 f"noise has {len(self.noise)} standard deviations, one per control dimension, "
-                f"but the env has C = {control_dim}: give {control_dim} numbers or one"
+                f"but the env has C = {control_dim}: give {control_dim} numbers, or one number "
+                "(not in a sequence) for every dimension"
             )
 
 

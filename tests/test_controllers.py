@@ -459,6 +459,17 @@ def _made_up_episode(body_length=0.5, planner="mppi"):
                          replan_wall_s=np.array([0.1, 0.3]))  # fmt: skip
 
 
+def test_a_noise_sequence_of_another_length_than_c_says_what_to_give():
+    """The message "give 3 numbers or one" refused noise=(0.3,), which is one number: it says a
+    single number goes outside a sequence."""
+    with pytest.raises(ValueError, match=r"noise has 1 standard deviations, one per control "
+                       r"dimension, but the env has C = 3: give 3 numbers, or one number "
+                       r"\(not in a sequence\) for every dimension"):  # fmt: skip
+        MPPISettings(noise=(0.3,)).check_control_dim(3)
+    MPPISettings(noise=0.3).check_control_dim(3)
+    MPPISettings(noise=(0.3, 0.2, 0.1)).check_control_dim(3)
+
+
 def test_episode_result_documents_every_field_and_its_summary():
     """planner, dt, body_length and seed_gait were in no docstring, and summary(start), the
     README's first MPC example's output, had none."""
