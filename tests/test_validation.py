@@ -195,6 +195,15 @@ def test_integer_settings_accept_numpy_integers_and_name_overflow():
         cpp_sim.ReducedConfig(max_newton_iterations=2.5)
 
 
+def test_reduced_config_refuses_an_unknown_setting():
+    # a misspelt keyword would otherwise build the default setting (friction 0.8, not 0.5)
+    with pytest.raises(TypeError, match="unknown setting 'frction'"):
+        cpp_sim.ReducedConfig(frction=0.5)
+    with pytest.raises(TypeError, match="unknown setting 'frction'"):
+        cpp_sim.ReducedConfig(friction=0.5, frction=0.5)
+    assert cpp_sim.ReducedConfig(friction=0.5).friction == 0.5
+
+
 def test_reduced_settings_refuse_values_outside_their_range():
     # Each bound of the reduced model's settings table, just past its edge, raises an error
     # naming the setting and the value; the edges themselves are accepted.
