@@ -37,7 +37,8 @@ def export_trajectory(
         diverged simulation) is a ValueError naming it, and nothing is written.
     path : path
         ``frames/walk.ply`` writes ``frames/walk_0000.ply``, ``frames/walk_0001.ply``, ...;
-        the extension (.obj, .ply, .stl or .glb) picks the format. Folders are created.
+        the extension (.obj, .ply, .stl or .glb) picks the format. Folders are created, and
+        ``~`` is the home folder (as in a robot's mesh path).
     env : SoftRobotEnv (or a wrapper of one), optional
     robot : Robot, optional
 
@@ -54,7 +55,8 @@ def export_trajectory(
         if base is None:
             raise ValueError("export_trajectory needs env= or robot= to know the surface")
         robot = base.robot
-    path = Path(path)
+    # expanded as a mesh or control_basis path is: Path() alone made a folder named "~" here
+    path = Path(os.path.expanduser(os.fspath(path)))
     if path.suffix.lower() not in _FORMATS:
         raise ValueError(f"unsupported mesh format {path.suffix!r}; use one of {_FORMATS}")
     frames = []

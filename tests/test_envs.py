@@ -763,3 +763,17 @@ def test_vector_env_reset_seeds_its_own_np_random_as_gymnasium_s_vector_envs_do(
     single = gym.make("softrom_gym/BeamWalk-v0")
     for i in range(2):  # robot i is still a single env reset with seed 5 + i
         np.testing.assert_array_equal(obs[i], single.reset(seed=5 + i)[0])
+
+
+def test_export_expands_a_home_folder_path(tmp_path, monkeypatch):
+    # "~/frames/walk.ply" made a folder literally named "~" in the working directory, where a
+    # robot's mesh path and a control_basis path both read "~" as the home folder
+    home, work = tmp_path / "home", tmp_path / "work"
+    work.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(work)
+    robot = softrom_gym.robots.make_robot("beam", resolution=6)
+    files = softrom_gym.export_trajectory([robot.nodes], "~/frames/walk.ply", robot=robot)
+    assert files == [home / "frames" / "walk_0000.ply"]
+    assert files[0].is_file()
+    assert not any(work.iterdir())
