@@ -172,6 +172,22 @@ def test_from_mesh_warns_of_separate_bodies_and_of_units():
         from_mesh(trimesh.creation.box((length, length / 2, length / 2)), 2)
 
 
+def test_from_mesh_warns_when_thin_parts_change_the_volume():
+    # a 1 mm plate filled whole voxels of 5 mm at the default resolution: five times the
+    # mass, silently
+    plate = trimesh.creation.box((0.1, 0.1, 0.001))
+    with pytest.warns(UserWarning, match=r"the robot has 5 times the mesh's volume \(and mass\): "
+                      r"at resolution 20 a voxel is 0.005 m wide"):  # fmt: skip
+        robot = from_mesh(plate, 20)
+    assert robot.volume == pytest.approx(5 * 0.1 * 0.1 * 0.001)
+    rod = trimesh.creation.cylinder(radius=0.002, height=0.1)
+    with pytest.warns(UserWarning, match="times the mesh's volume"):
+        from_mesh(rod, 10)
+    # a plate resolved by its voxels, and a coarse sphere (1.24 times), are silent
+    assert from_mesh(trimesh.creation.box((0.1, 0.1, 0.005)), 20).volume == pytest.approx(5e-5)
+    from_mesh(trimesh.creation.icosphere(2, 0.05), 6)
+
+
 def test_degenerate_faces_do_not_make_a_mesh_open():
     box = trimesh.creation.box((0.2, 0.1, 0.05))
     faces = np.vstack([box.faces, [[0, 0, 1]]])  # a zero-area triangle

@@ -110,7 +110,8 @@ def from_mesh(
         resolution is too coarse to fill any voxel.
 
     Warns when the robot is shorter than 5 mm or longer than 5 m (a model in millimetres read
-    as metres), and when separate bodies are dropped or joined.
+    as metres), when separate bodies are dropped or joined, and when the robot's volume is
+    off the mesh's by more than half again (parts thinner than a voxel: raise resolution).
     """
     import trimesh
 
@@ -189,6 +190,18 @@ def from_mesh(
             "largest is then kept)",
             stacklevel=2,
         )
+    else:
+        # A part thinner than half a voxel still fills a whole one (a 1 mm plate made a 5 mm
+        # slab at the default resolution, five times the mass) or none: say so, by the volume.
+        with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume
+            ratio = float(kept.sum()) * pitch**3 / abs(float(surface.volume))
+        if not 1 / 1.5 <= ratio <= 1.5:
+            warnings.warn(
+                f"the robot has {ratio:.3g} times the mesh's volume (and mass): at resolution "
+                f"{resolution} a voxel is {pitch * scale:.3g} m wide, too coarse for the mesh's "
+                "thinnest parts, which fill a whole voxel or none; raise resolution",
+                stacklevel=2,
+            )
     nodes, tets = voxels_to_tets(kept, pitch * scale, origin * scale)
     nodes[:, :2] -= 0.5 * (nodes[:, :2].min(axis=0) + nodes[:, :2].max(axis=0))
     nodes[:, 2] -= nodes[:, 2].min()
