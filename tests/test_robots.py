@@ -192,7 +192,7 @@ def test_from_mesh_refuses_a_resolution_too_fine_to_mesh():
     # resolution 10**6 died in numpy's MemoryError ("Unable to allocate 1.04 EiB"), naming no
     # argument; 200 tested 4 million voxel centres against the surface for many minutes
     box = trimesh.creation.box((0.1, 0.05, 0.03))
-    grid = r"1000000 x 500000 x 300000 = 150,000,000,000,000,000 voxels, over the 1,000,000"
+    grid = r"1000000 x 500000 x 300000 = 150,000,000,000,000,000 voxels, over the 1,000,000 a"
     with pytest.raises(ValueError, match=rf"resolution 1000000 makes a grid of {grid}"):
         from_mesh(box, 10**6)
     cube = trimesh.creation.box((0.1, 0.1, 0.1))
@@ -200,6 +200,8 @@ def test_from_mesh_refuses_a_resolution_too_fine_to_mesh():
                        r"<= 100 \(20 is the default\)"):  # fmt: skip
         from_mesh(cube, 101)
     assert from_mesh(box, 60).num_nodes > 10_000  # (a 60 x 30 x 18 grid is meshed)
+    with pytest.raises(ValueError, match="resolution 1000000 makes a grid of 1000000 x "):
+        make_robot("beam", resolution=10**6)  # the benchmark robots too (83 PiB asked for)
 
 
 def test_degenerate_faces_do_not_make_a_mesh_open():

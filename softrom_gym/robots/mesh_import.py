@@ -10,14 +10,12 @@ import numpy as np
 
 from .._validate import real
 from .robot import Robot
-from .voxel import largest_component, voxels_to_tets
+from .voxel import check_grid, largest_component, voxels_to_tets
 
 if TYPE_CHECKING:
     import trimesh
 
-__all__ = ["MAX_GRID_CELLS", "from_mesh"]
-
-MAX_GRID_CELLS = 1_000_000  # voxels in from_mesh's grid: resolution 100 for a cube
+__all__ = ["from_mesh"]
 
 
 def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, str]:
@@ -110,7 +108,7 @@ def from_mesh(
     ValueError
         If the mesh is not watertight, has closed shells that overlap (not unioned), or the
         resolution is too coarse to fill any voxel, or so fine that the grid has more than
-        :data:`MAX_GRID_CELLS` voxels.
+        :data:`~softrom_gym.robots.voxel.MAX_GRID_CELLS` voxels.
 
     Warns when the robot is shorter than 5 mm or longer than 5 m (a model in millimetres read
     as metres), when separate bodies are dropped or joined, and when the robot's volume is
@@ -160,17 +158,7 @@ def from_mesh(
     counts = np.maximum(np.round((hi - lo) / pitch).astype(int), 1)
     # Centre the grid on the mesh so the voxelisation is symmetric for symmetric shapes.
     origin = 0.5 * (lo + hi) - 0.5 * pitch * counts
-    cells = int(np.prod(counts, dtype=object))  # (exact: int64 wraps at resolution ~ 2e6)
-    if cells > MAX_GRID_CELLS:
-        # Testing each centre against the surface takes about a second per 10^4 of them, and
-        # the reduced basis of the robot hours: refuse before either (resolution 10^6 asked
-        # numpy for an exabyte and died in a MemoryError naming no argument).
-        fits = int(resolution * (MAX_GRID_CELLS / cells) ** (1 / 3))
-        raise ValueError(
-            f"resolution {resolution} makes a grid of {' x '.join(map(str, counts))} = "
-            f"{cells:,} voxels, over the {MAX_GRID_CELLS:,} from_mesh meshes (a robot of up "
-            f"to ~{MAX_GRID_CELLS:,} nodes); use resolution <= {fits} (20 is the default)"
-        )
+    check_grid(resolution, counts)
     axes = [origin[a] + pitch * (np.arange(counts[a]) + 0.5) for a in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     bodies = _solid_bodies(surface, centres)

@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from .robot import Robot
-from .voxel import largest_component, voxels_to_tets
+from .voxel import check_grid, largest_component, voxels_to_tets
 
 __all__ = ["beam", "cross", "quadruped", "tripod"]
 
@@ -57,6 +57,7 @@ def _from_function(
     lo_a, hi_a = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
     pitch = float((hi_a - lo_a).max()) / _check_resolution(resolution)
     counts = np.maximum(np.round((hi_a - lo_a) / pitch).astype(int), 1)
+    check_grid(resolution, counts)
     centres = [lo_a[a] + pitch * (np.arange(counts[a]) + 0.5) for a in range(3)]
     occ = inside(*np.meshgrid(*centres, indexing="ij"))
     if not occ.any():

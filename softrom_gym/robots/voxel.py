@@ -12,7 +12,9 @@ import itertools
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["boundary_faces", "largest_component", "voxels_to_tets"]
+__all__ = ["MAX_GRID_CELLS", "boundary_faces", "check_grid", "largest_component", "voxels_to_tets"]
+
+MAX_GRID_CELLS = 1_000_000  # voxels in a robot's grid: resolution 100 for a cube
 
 # Corner offsets (i, j, k) of the unit cube, corner c has bits (c & 1, c >> 1 & 1, c >> 2 & 1).
 _CORNERS = np.array([[c & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], dtype=np.int64)
@@ -33,6 +35,34 @@ def _kuhn_tets() -> np.ndarray:
 
 
 _KUHN = _kuhn_tets()
+
+
+def check_grid(resolution: int, counts: np.ndarray) -> None:
+    """Refuse a voxel grid of more than :data:`MAX_GRID_CELLS` cells, naming ``resolution``.
+
+    Parameters
+    ----------
+    resolution : int
+        Voxels along the longest side, as the caller was given it.
+    counts : (3,) int array
+        The grid's voxels along x, y and z.
+
+    Raises
+    ------
+    ValueError
+        Naming the grid and the largest resolution that fits.
+    """
+    cells = int(np.prod(counts, dtype=object))  # (exact: int64 wraps at resolution ~ 2e6)
+    if cells > MAX_GRID_CELLS:
+        # Sampling the grid takes seconds to minutes, and the robot's reduced basis hours:
+        # refuse before either (resolution 10^6 asked numpy for an exabyte and died in a
+        # MemoryError naming no argument).
+        fits = int(resolution * (MAX_GRID_CELLS / cells) ** (1 / 3))
+        raise ValueError(
+            f"resolution {resolution} makes a grid of {' x '.join(map(str, counts))} = "
+            f"{cells:,} voxels, over the {MAX_GRID_CELLS:,} a robot is meshed from (up to "
+            f"~{MAX_GRID_CELLS:,} nodes); use resolution <= {fits} (20 is the default)"
+        )
 
 
 def largest_component(occupancy: np.ndarray) -> np.ndarray:
