@@ -186,6 +186,13 @@ def test_from_mesh_warns_when_thin_parts_change_the_volume():
     # a plate resolved by its voxels, and a coarse sphere (1.24 times), are silent
     assert from_mesh(trimesh.creation.box((0.1, 0.1, 0.005)), 20).volume == pytest.approx(5e-5)
     from_mesh(trimesh.creation.icosphere(2, 0.05), 6)
+    # a box with one face wound against the others (trimesh's volume halves) is no thin part
+    box = trimesh.creation.box((0.1, 0.05, 0.03))
+    faces = box.faces.copy()
+    faces[0] = faces[0][::-1]
+    flipped = trimesh.Trimesh(box.vertices, faces, process=False)
+    assert flipped.is_watertight and not flipped.is_winding_consistent
+    assert from_mesh(flipped, 6).num_nodes == from_mesh(box, 6).num_nodes
 
 
 def test_from_mesh_refuses_a_resolution_too_fine_to_mesh():

@@ -75,6 +75,25 @@ def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
     return max(1, solids)
 
 
+def _enclosed_volume(surface: trimesh.Trimesh) -> float | None:
+    """The volume a closed surface encloses, or None where its winding cannot tell it.
+
+    A face wound against its neighbours makes trimesh's signed volume wrong (one flipped
+    face of a box halved it); the voxels, filled by ray parity, do not depend on winding. One
+    shell is rewound to agree with itself; several are left alone, as which of them are
+    cavities is then unknown.
+    """
+    import trimesh
+
+    if not surface.is_winding_consistent:
+        surface = surface.copy()
+        trimesh.repair.fix_winding(surface)
+        if len(surface.split(only_watertight=False)) != 1:
+            return None
+    with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume
+        return abs(float(surface.volume))
+
+
 def from_mesh(
     mesh: str | os.PathLike | trimesh.Trimesh,
     resolution: int = 20,
@@ -195,8 +214,8 @@ def from_mesh(
     else:
         # A part thinner than half a voxel still fills a whole one (a 1 mm plate made a 5 mm
         # slab at the default resolution, five times the mass) or none: say so, by the volume.
-        with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume
-            ratio = float(kept.sum()) * pitch**3 / abs(float(surface.volume))
+        volume = _enclosed_volume(surface)
+        ratio = float(kept.sum()) * pitch**3 / volume if volume else 1.0
         if not 1 / 1.5 <= ratio <= 1.5:
             warnings.warn(
                 f"the robot has {ratio:.3g} times the mesh's volume (and mass): at resolution "
