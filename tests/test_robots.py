@@ -219,6 +219,17 @@ def test_degenerate_faces_do_not_make_a_mesh_open():
     assert from_mesh(broken, 6).num_nodes == from_mesh(box, 6).num_nodes
 
 
+def test_a_triangle_soup_is_closed_by_merging_its_vertices():
+    # a Trimesh made with process=False from an STL's triangles (three own vertices each) was
+    # "not watertight (36 boundary edges) ... e.g. trimesh.repair.fill_holes", which it is once
+    # its coincident vertices are merged, and which fill_holes does not cure
+    box = trimesh.creation.box((0.2, 0.1, 0.05))
+    soup = trimesh.Trimesh(box.vertices[box.faces].reshape(-1, 3), np.arange(36).reshape(12, 3),
+                           process=False)  # fmt: skip
+    assert not soup.is_watertight
+    assert from_mesh(soup, 6).num_nodes == from_mesh(box, 6).num_nodes
+
+
 def test_from_mesh_names_a_flat_mesh_and_non_finite_vertices():
     # both were reported as "resolution 6 is too coarse", which no resolution cures
     flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 1]], process=False)

@@ -146,12 +146,14 @@ def from_mesh(
     if not np.isfinite(surface.vertices).all():
         bad = int((~np.isfinite(surface.vertices).all(axis=1)).sum())
         raise ValueError(f"the mesh has {bad} vertices with non-finite coordinates (NaN or inf)")
-    degenerate = ~surface.nondegenerate_faces()
-    if not surface.is_watertight and degenerate.any():
-        # Zero-area triangles carry no geometry but can leave an edge count odd; without them
-        # the surface may close. (One that is closed only with a sliver keeps it.)
+    if not surface.is_watertight:
+        # A triangle soup (each face its own three vertices, as a Trimesh made with
+        # process=False from an STL has) closes once coincident vertices are merged, and
+        # zero-area triangles carry no geometry but can leave an edge count odd: without
+        # either the surface may close. (One that is closed only with a sliver keeps it.)
         cleaned = surface.copy()
-        cleaned.update_faces(~degenerate)
+        cleaned.merge_vertices()
+        cleaned.update_faces(cleaned.nondegenerate_faces())
         cleaned.remove_unreferenced_vertices()
         if cleaned.is_watertight:
             surface = cleaned
