@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SoftwareRenderer"]
+__all__ = ["SoftwareRenderer", "ground_cell"]
 
 _ROBOT_RGB = np.array([0.30, 0.55, 0.85])
 _ARROW_RGB = np.array([0.90, 0.25, 0.20])
@@ -29,6 +29,9 @@ class SoftwareRenderer:
         Camera direction, degrees.
     fov : float
         Vertical field of view, degrees.
+    cell : float
+        Side of the ground's checker squares, m; the arrow's lift off the ground and the
+        distance over which the ground fades scale with it (see :func:`ground_cell`).
     """
 
     def __init__(
@@ -39,10 +42,14 @@ class SoftwareRenderer:
         azimuth: float = -60.0,
         elevation: float = 30.0,
         fov: float = 45.0,
+        cell: float = 0.1,
     ) -> None:
         if width < 8 or height < 8:
             raise ValueError(f"image must be at least 8 x 8 pixels, got {width} x {height}")
+        if not (np.isfinite(cell) and cell > 0):
+            raise ValueError(f"cell must be a length > 0 m, got {cell!r}")
         self.width, self.height = int(width), int(height)
+        self.cell = float(cell)
         self.distance, self.azimuth, self.elevation, self.fov = distance, azimuth, elevation, fov
         ys, xs = np.mgrid[0 : self.height, 0 : self.width]
         self._px = xs + 0.5
@@ -86,7 +93,8 @@ class SoftwareRenderer:
         tris = [(positions[faces], _ROBOT_RGB)]
         if arrow is not None:
             tris.append((_arrow_triangles(np.asarray(target, float), np.asarray(arrow, float),
-                                          self.distance * 0.5), _ARROW_RGB))  # fmt: skip
+                                          self.distance * 0.5, 0.02 * self.cell),
+                         _ARROW_RGB))  # fmt: skip
         for triangles, rgb in tris:
             self._rasterise(img, zbuf, triangles, rgb, eye, rot, focal)
         return (np.clip(img, 0, 1) * 255).astype(np.uint8)
@@ -108,13 +116,13 @@ class SoftwareRenderer:
             t = -eye[2] / dz
         hit = (t > 0) & np.isfinite(t)
         pts = eye + t[..., None] * dirs
-        cell = 0.1
+        cell = self.cell
         checker = (np.floor(pts[..., 0] / cell) + np.floor(pts[..., 1] / cell)) % 2
         line = (np.abs(pts[..., 0] / cell - np.round(pts[..., 0] / cell)) < 0.04) | (
             np.abs(pts[..., 1] / cell - np.round(pts[..., 1] / cell)) < 0.04
         )
         shade = np.where(line, 0.45, np.where(checker > 0, 0.78, 0.70))
-        fade = np.exp(-np.hypot(pts[..., 0] - target[0], pts[..., 1] - target[1]) / 6.0)
+        fade = np.exp(-np.hypot(pts[..., 0] - target[0], pts[..., 1] - target[1]) / (60 * cell))
         color = shade[..., None] * fade[..., None] + _SKY_RGB * (1 - fade[..., None])
         # The ground writes no depth: nothing drawn here is below it, and a 2 mm arrow lying on
         # it would lose a depth test to interpolation error.
@@ -158,12 +166,32 @@ class SoftwareRenderer:
             img[ymin : ymax + 1, xmin : xmax + 1][draw] = rgb * lambert[k]
 
 
-def _arrow_triangles(origin: np.ndarray, direction: np.ndarray, length: float) -> np.ndarray:
-    """A flat arrow on the ground from below ``origin`` along ``direction``."""
+def ground_cell(size: float) -> float:
+    """The ground's checker size for a robot ``size`` m long: a power of ten times 0.1 m,
+    1.5 to 15 squares a body length (0.1 m for the benchmark robots, 0.15-1.5 m long), so
+    that motion shows on the ground at any scale.
+
+    Parameters
+    ----------
+    size : float
+        The robot's largest extent, m.
+
+    Returns
+    -------
+    float
+        The side of a checker square, m.
+    """
+    return 0.1 * 10.0 ** np.floor(np.log10(size / 0.15))
+
+
+def _arrow_triangles(
+    origin: np.ndarray, direction: np.ndarray, length: float, lift: float
+) -> np.ndarray:
+    """A flat arrow ``lift`` m above the ground from below ``origin`` along ``direction``."""
     d = np.array([direction[0], direction[1], 0.0])
     d /= max(np.linalg.norm(d), 1e-12)
     side = np.array([-d[1], d[0], 0.0])
-    base = np.array([origin[0], origin[1], 0.002])
+    base = np.array([origin[0], origin[1], lift])
     w, head = 0.04 * length, 0.3 * length
     shaft_end = base + (length - head) * d
     tip = base + length * d

@@ -422,6 +422,22 @@ def test_rgb_array_rendering_is_headless_and_follows_the_robot(env_id):
     assert env.metadata["render_fps"] == 40
 
 
+def test_a_robot_renders_alike_at_any_size():
+    # The ground's checker was 10 cm and the arrow 2 mm above it at any size: a 6 mm robot
+    # stood on one grey grid line with the arrow poking out of its top (a 4 m one on a moire
+    # of 40 cells a body length). Scene and camera now scale together.
+    frames = []
+    for length in (0.006, 0.06, 0.6):
+        env = gym.make("softrom_gym/SoftRobot-v0", robot=trimesh.creation.box(
+            (length, length / 2, length / 2)), resolution=2, sim_dim=3, control_dim=1,
+            reset_noise_scale=0.0, render_mode="rgb_array")  # fmt: skip
+        env.reset(seed=0)
+        frames.append(env.render().astype(int))
+    for frame in frames[:2]:
+        differs = np.abs(frame - frames[2]).max(axis=-1) > 24
+        assert differs.mean() < 0.01
+
+
 def test_unknown_render_mode_is_rejected():
     from softrom_gym.envs import SoftRobotEnv
 

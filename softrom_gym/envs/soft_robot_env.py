@@ -236,10 +236,12 @@ class SoftRobotEnv(gym.Env):
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
             return None
         if self._renderer is None:
-            from ..rendering import SoftwareRenderer
+            from ..rendering import SoftwareRenderer, ground_cell
 
             size = float(np.ptp(self.robot.nodes, axis=0).max())
-            self._renderer = SoftwareRenderer(distance=2.2 * size)
+            # the ground scales with the robot as the camera does (a fixed 10 cm checker
+            # was one grey line under a 6 mm robot, a moire under a 4 m one)
+            self._renderer = SoftwareRenderer(distance=2.2 * size, cell=ground_cell(size))
         positions = self.model.positions(self._state.q)
         com = self.model.com(self._state.q)
         return self._renderer.render(
