@@ -246,6 +246,26 @@ def test_from_mesh_names_a_flat_mesh_and_non_finite_vertices():
         from_mesh(ring, 2)
 
 
+def test_a_robot_names_tetrahedra_that_are_not_node_indices():
+    # tets of 4.9 were truncated to node 4 silently; an index past the nodes made
+    # robot.surface() an IndexError and an empty robot 'choose 1 <= M <= -6'
+    nodes = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]]) * 0.05
+    with pytest.raises(ValueError, match=r"tets must be node indices \(integers\), got 4.9 in "
+                       r"tets\[1\]"):  # fmt: skip
+        Robot("x", nodes, [[0, 1, 2, 3], [1, 2, 3, 4.9]])
+    with pytest.raises(ValueError, match=r"tets\[1\] = \[1, 2, 3, 7\] has node index 7 out "
+                       r"of range \[0, 5\)"):  # fmt: skip
+        Robot("x", nodes, [[0, 1, 2, 3], [1, 2, 3, 7]])
+    with pytest.raises(ValueError, match=r"tets\[0\] = \[-1, 1, 2, 3\] has node index -1 "):
+        Robot("x", nodes, [[-1, 1, 2, 3]])
+    with pytest.raises(ValueError, match="a robot needs at least one tetrahedron, got none"):
+        Robot("x", np.zeros((0, 3)), np.zeros((0, 4)))
+    with pytest.raises(ValueError, match=r"tets must be node indices \(integers\), got a bool"):
+        Robot("x", nodes, np.ones((1, 4), dtype=bool))
+    whole = Robot("x", nodes, np.array([[0, 1, 2, 3], [1, 2, 3, 4]], dtype=float))  # integral
+    assert whole.tets.dtype == np.int64 and whole.tets.tolist() == [[0, 1, 2, 3], [1, 2, 3, 4]]
+
+
 def test_robot_and_from_mesh_name_bad_shapes_resolutions_and_scales(tmp_path):
     nodes, tets = np.eye(4, 3), np.array([[0, 1, 2, 3]])
     with pytest.raises(ValueError, match=r"nodes has shape \(4, 2\), expected \(N, 3\)"):

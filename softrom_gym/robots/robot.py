@@ -20,6 +20,24 @@ if TYPE_CHECKING:
 __all__ = ["Robot"]
 
 
+def _node_indices(tets: object) -> np.ndarray:
+    """``tets`` as int64, refusing what is not a whole number (casting truncated 4.9 to 4)."""
+    raw = np.asarray(tets)
+    if raw.dtype.kind == "b":
+        raise ValueError("tets must be node indices (integers), got a bool array")
+    if raw.dtype.kind == "f":
+        whole = np.isfinite(raw) & (raw == np.round(raw))
+        if not whole.all():
+            at = np.argwhere(~whole)[0]
+            where = f" in tets[{at[0]}]" if raw.ndim == 2 else ""
+            bad = float(raw[tuple(at)])
+            raise ValueError(f"tets must be node indices (integers), got {bad!r}{where}")
+    try:
+        return np.ascontiguousarray(raw, dtype=np.int64)
+    except (TypeError, ValueError):
+        raise ValueError(f"tets must be node indices (integers), got {tets!r}") from None
+
+
 @dataclass(frozen=True, eq=False)
 class Robot:
     """A soft robot: rest mesh (metres, z up, resting on z = 0) and material.
@@ -50,11 +68,19 @@ class Robot:
 
     def __post_init__(self) -> None:
         nodes = np.ascontiguousarray(self.nodes, dtype=np.float64)
-        tets = np.ascontiguousarray(self.tets, dtype=np.int64)
+        tets = _node_indices(self.tets)
         if nodes.ndim != 2 or nodes.shape[1] != 3:
             raise ValueError(f"nodes has shape {nodes.shape}, expected (N, 3)")
         if tets.ndim != 2 or tets.shape[1] != 4:
             raise ValueError(f"tets has shape {tets.shape}, expected (T, 4)")
+        if len(tets) == 0:
+            raise ValueError("a robot needs at least one tetrahedron, got none")
+        # (here, not only in the C++ model: surface() and volume index nodes with them)
+        outside = (tets < 0) | (tets >= len(nodes))
+        if outside.any():
+            t, k = (int(i) for i in np.argwhere(outside)[0])
+            raise ValueError(f"tets[{t}] = {tets[t].tolist()} has node index {tets[t, k]} out "
+                             f"of range [0, {len(nodes)})")  # fmt: skip
         nodes.flags.writeable = False
         tets.flags.writeable = False
         object.__setattr__(self, "nodes", nodes)
