@@ -100,6 +100,22 @@ def test_from_mesh_reads_files(tmp_path):
     assert robot.name == "capsule" and robot.youngs_modulus == 2e5
 
 
+def test_a_malformed_mesh_file_is_named(tmp_path):
+    # trimesh's own errors named no file: "KeyError: 'y'", "IndexError: index 8 is out of
+    # bounds ...", "Not a ply file!", a JSONDecodeError for a truncated .glb
+    (tmp_path / "faces.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
+    (tmp_path / "header.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n"
+    )
+    (tmp_path / "zeros.ply").write_bytes(bytes(100))
+    glb = trimesh.exchange.gltf.export_glb(trimesh.Scene(trimesh.creation.box((0.1, 0.1, 0.1))))
+    (tmp_path / "cut.glb").write_bytes(glb[: len(glb) // 2])
+    for name in ("faces.obj", "header.ply", "zeros.ply", "cut.glb"):
+        with pytest.raises(ValueError, match=rf"cannot read '.*{name}' as a mesh \(the file is "
+                           rf"malformed\?\): \w+"):  # fmt: skip
+            from_mesh(tmp_path / name, 4)
+
+
 def test_from_mesh_rejects_open_mesh():
     box = trimesh.creation.box((1, 1, 1))
     open_box = trimesh.Trimesh(box.vertices, box.faces[:-2], process=False)

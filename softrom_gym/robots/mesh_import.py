@@ -36,6 +36,15 @@ def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, s
                 f"cannot read {path!r} as a mesh: use a surface format trimesh reads "
                 "(.stl, .obj, .ply, .off, .glb, ...)"
             ) from None
+        except OSError:
+            raise  # (it names the file: permission denied, ...)
+        except Exception as exc:
+            # A malformed file fails inside trimesh's parsers with whatever they raise
+            # (KeyError 'y', IndexError, "Not a ply file!", a JSONDecodeError), naming no file.
+            raise ValueError(
+                f"cannot read {path!r} as a mesh (the file is malformed?): "
+                f"{type(exc).__name__}: {exc}"
+            ) from exc
         if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
             raise ValueError(f"{path!r} holds no triangle mesh")
         return loaded, os.path.splitext(os.path.basename(path))[0]
