@@ -171,6 +171,28 @@ def test_from_mesh_refuses_overlapping_shells():
     assert 0.2**3 - 0.14**3 < hollow.volume < 0.2**3 - 0.06**3
 
 
+def test_an_inside_out_mesh_is_read_as_the_solid_it_bounds():
+    # Every face wound inwards (a mirrored export): the overlap test counted the shells as
+    # cavities, so two crossing bars were not refused but hollowed where they cross (even ray
+    # parity) and one arm kept, with "raise resolution to keep thin parts"
+    bars = [trimesh.creation.box((0.2, 0.05, 0.05)), trimesh.creation.box((0.05, 0.2, 0.05))]
+    crossing = trimesh.util.concatenate(bars)
+    crossing.invert()
+    with pytest.raises(ValueError, match="some overlap .a voxel centre lies inside two of them"):
+        from_mesh(crossing, 10)
+    two = [trimesh.creation.box((0.1, 0.1, 0.1)) for _ in range(2)]
+    two[1].apply_translation((0.3, 0.0, 0.0))
+    apart = trimesh.util.concatenate(two)
+    apart.invert()
+    with pytest.warns(UserWarning, match="dropped 125 of 250 voxels: the mesh has 2 separate"):
+        from_mesh(apart, 20)
+    box = trimesh.creation.box((0.2, 0.1, 0.05))
+    inverted = box.copy()
+    inverted.invert()
+    np.testing.assert_array_equal(from_mesh(inverted, 6).nodes, from_mesh(box, 6).nodes)
+    assert inverted.volume < 0  # the caller's mesh is left as it was
+
+
 def test_from_mesh_warns_of_separate_bodies_and_of_units():
     two = [trimesh.creation.box((0.1, 0.1, 0.1)) for _ in range(2)]
     two[1].apply_translation((0.12, 0.0, 0.0))  # 2 cm apart

@@ -172,6 +172,14 @@ def from_mesh(
             f"mesh is not watertight ({open_edges} boundary edges): from_mesh needs a closed "
             "surface to tell inside from outside; repair it first (e.g. trimesh.repair.fill_holes)"
         )
+    with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume
+        inside_out = surface.is_winding_consistent and float(surface.volume) < 0
+    if inside_out:
+        # Faces wound inwards (a mirrored export): the ray test fills the same voxels, but
+        # _solid_bodies reads each shell as a cavity, so overlapping shells were not refused
+        # (and were hollowed where they overlap). The solid the surface bounds is meant.
+        surface = surface.copy()
+        surface.invert()
     unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
     if unknown:
         raise TypeError(f"unknown material parameter(s) {sorted(unknown)}")
