@@ -193,6 +193,24 @@ def test_an_inside_out_mesh_is_read_as_the_solid_it_bounds():
     assert inverted.volume < 0  # the caller's mesh is left as it was
 
 
+def test_a_shell_wound_inwards_outside_every_solid_is_refused():
+    # An inward shell is a cavity only inside a solid. One that reaches outside (a bar with
+    # flipped faces crossing another, a cavity poking through its box) was taken for one:
+    # the crossing bars were cut to an arm, the box notched, with "raise resolution to keep
+    # thin parts"
+    bar, flipped = trimesh.creation.box((0.2, 0.05, 0.05)), trimesh.creation.box((0.05, 0.2, 0.05))
+    flipped.invert()
+    poking = trimesh.creation.box((0.1, 0.1, 0.1)).apply_translation((0.1, 0.0, 0.0))
+    poking.invert()
+    alone = trimesh.creation.box((0.1, 0.1, 0.1)).apply_translation((0.5, 0.0, 0.0))
+    alone.invert()
+    for other in (flipped, poking, alone):
+        outer = bar if other is flipped else trimesh.creation.box((0.2, 0.2, 0.2))
+        with pytest.raises(ValueError, match="a shell wound inwards .a cavity. reaches outside "
+                           "every solid shell"):  # fmt: skip
+            from_mesh(trimesh.util.concatenate([outer, other]), 10)
+
+
 def test_from_mesh_warns_of_separate_bodies_and_of_units():
     two = [trimesh.creation.box((0.1, 0.1, 0.1)) for _ in range(2)]
     two[1].apply_translation((0.12, 0.0, 0.0))  # 2 cm apart

@@ -54,9 +54,10 @@ def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, s
 def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
     """The number of closed shells enclosing material (a shell facing inwards, a cavity, is
     not one). Refuses shells that overlap: where they do, the surface's ray test is undefined
-    (it gave another robot on each call). Overlap is tested where it matters, at the voxel
-    centres: the shells' winding number (+1 inside an outward shell, -1 inside a cavity)
-    exceeds 1 only inside two solids at once, not in a solid nested in a cavity."""
+    (it gave another robot on each call), and a cavity that reaches outside every solid.
+    Both are tested where they matter, at the voxel centres: the shells' winding number (+1
+    inside an outward shell, -1 inside a cavity) exceeds 1 only inside two solids at once,
+    not in a solid nested in a cavity, and is below 0 only in a cavity outside any solid."""
     shells = surface.split(only_watertight=False)
     with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume
         volumes = [float(s.volume) for s in shells]
@@ -69,7 +70,9 @@ def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
     )
     np.fill_diagonal(meets, False)
     winding = np.zeros(len(centres), dtype=int)
-    for k in np.flatnonzero(meets.any(axis=1)):  # shells alone in their box cannot overlap
+    # Shells alone in their box cannot overlap; a cavity is tested even alone, as it must lie
+    # inside a solid.
+    for k in np.flatnonzero(meets.any(axis=1) | (np.array(volumes) < 0)):
         lo, hi = boxes[k]
         near = np.flatnonzero(np.all((centres >= lo) & (centres <= hi), axis=1))
         if near.size:
@@ -80,6 +83,14 @@ def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
             f"the mesh has {solids} closed shells, and some overlap (a voxel centre lies inside "
             "two of them): inside-outside is undefined there, so union them into one watertight "
             "surface first (e.g. in Blender, or trimesh.boolean.union with the manifold3d engine)"
+        )
+    if winding.min(initial=0) < 0:
+        # Inside an inward shell but no solid: it is not a cavity but a solid with its faces
+        # flipped (or a cavity poking out), and the ray test would hollow or cut it there.
+        raise ValueError(
+            "a shell wound inwards (a cavity) reaches outside every solid shell (a voxel centre "
+            "lies inside it and in no solid): flip its faces if it is a solid "
+            "(trimesh.Trimesh.invert on that shell), or keep a cavity inside its solid"
         )
     return max(1, solids)
 
@@ -134,8 +145,9 @@ def from_mesh(
     Raises
     ------
     ValueError
-        If the mesh is not watertight, has closed shells that overlap (not unioned), or the
-        resolution is too coarse to fill any voxel, or so fine that the grid has more than
+        If the mesh is not watertight, has closed shells that overlap (not unioned) or a
+        shell wound inwards outside every solid (flipped faces), or the resolution is too
+        coarse to fill any voxel, or so fine that the grid has more than
         :data:`~softrom_gym.robots.voxel.MAX_GRID_CELLS` voxels.
 
     Warns when the robot is shorter than 5 mm or longer than 5 m (a model in millimetres read
