@@ -793,3 +793,16 @@ def test_export_expands_a_home_folder_path(tmp_path, monkeypatch):
     assert files == [home / "frames" / "walk_0000.ply"]
     assert files[0].is_file()
     assert not any(work.iterdir())
+
+
+def test_a_trimesh_scene_is_a_mesh_robot(tmp_path):
+    # trimesh.load("robot.glb") gives a Scene: it was "unknown robot <trimesh.Scene ...>"
+    scene = trimesh.Scene(trimesh.creation.box((0.2, 0.1, 0.1)))
+    env = gym.make("softrom_gym/SoftRobot-v0", robot=scene, resolution=2, sim_dim=3,
+                   control_dim=1)  # fmt: skip
+    assert env.unwrapped.robot.volume == pytest.approx(0.002)
+    with pytest.raises(ValueError, match="scale = 2 applies to a mesh"):
+        gym.make("softrom_gym/SoftRobot-v0", robot="beam", scale=2)
+    half = gym.make("softrom_gym/SoftRobot-v0", robot=scene, scale=0.5, resolution=2, sim_dim=3,
+                    control_dim=1)  # fmt: skip
+    assert half.unwrapped.robot.volume == pytest.approx(0.00025)

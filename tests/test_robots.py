@@ -116,6 +116,25 @@ def test_a_malformed_mesh_file_is_named(tmp_path):
             from_mesh(tmp_path / name, 4)
 
 
+def test_a_scene_is_meshed_as_its_file_is(tmp_path):
+    # trimesh.load("robot.glb") gives a Scene, which was "mesh must be a file path or a
+    # trimesh.Trimesh, got Scene" (and "unknown robot" in the env) while the path itself
+    # was read, its geometry concatenated
+    scene = trimesh.Scene()
+    scene.add_geometry(
+        trimesh.creation.box((0.2, 0.1, 0.05)),
+        transform=trimesh.transformations.rotation_matrix(np.pi / 2, (0, 0, 1)),
+    )
+    scene.export(tmp_path / "robot.glb")
+    from_file = from_mesh(tmp_path / "robot.glb", 8)
+    from_scene = from_mesh(trimesh.load(tmp_path / "robot.glb"), 8)
+    np.testing.assert_array_equal(from_scene.nodes, from_file.nodes)
+    np.testing.assert_array_equal(from_scene.tets, from_file.tets)
+    assert np.ptp(from_scene.nodes, axis=0) == pytest.approx((0.1, 0.2, 0.05))  # turned
+    with pytest.raises(ValueError, match="the trimesh.Scene holds no triangle mesh"):
+        from_mesh(trimesh.Scene(), 8)
+
+
 def test_from_mesh_rejects_open_mesh():
     box = trimesh.creation.box((1, 1, 1))
     open_box = trimesh.Trimesh(box.vertices, box.faces[:-2], process=False)
@@ -129,7 +148,9 @@ def test_from_mesh_bad_arguments(tmp_path):
     (tmp_path / "notes.txt").write_text("not a mesh\n")
     with pytest.raises(ValueError, match=r"cannot read .*notes.txt.* as a mesh: use .*\.stl"):
         from_mesh(tmp_path / "notes.txt")
-    with pytest.raises(TypeError, match="mesh must be a file path or a trimesh.Trimesh"):
+    with pytest.raises(
+        TypeError, match="mesh must be a file path, a trimesh.Trimesh or a trimesh.Scene, got int"
+    ):
         from_mesh(42)
     with pytest.raises(TypeError, match="unknown material parameter"):
         from_mesh(trimesh.creation.box((1, 1, 1)), stiffness=3)

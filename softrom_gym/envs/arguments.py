@@ -24,12 +24,13 @@ __all__ = [
 
 
 def is_trimesh(value: object) -> bool:
-    """Whether ``value`` is a ``trimesh.Trimesh`` (a mesh to build a robot from)."""
+    """Whether ``value`` is a ``trimesh.Trimesh`` or ``trimesh.Scene`` (a mesh to build a
+    robot from; ``trimesh.load`` gives a scene for a .glb)."""
     # trimesh is imported on use (a second at start-up): a Trimesh exists only if it was.
     import sys
 
     module = sys.modules.get("trimesh")
-    return module is not None and isinstance(value, module.Trimesh)
+    return module is not None and isinstance(value, (module.Trimesh, module.Scene))
 
 
 def task_direction(direction: float | np.ndarray) -> np.ndarray:
@@ -129,15 +130,15 @@ def checked_control_basis(
 
 
 def make_robot(
-    robot: str | os.PathLike | Robot | Any,  # (Any: a trimesh.Trimesh, imported on use)
+    robot: str | os.PathLike | Robot | Any,  # (Any: a trimesh.Trimesh or Scene, imported on use)
     material: dict[str, float],
     resolution: int | None,
     scale: float | None,
 ) -> Robot:
-    """The robot the env simulates: a name in :data:`~softrom_gym.robots.ROBOTS`, a mesh path
-    or ``trimesh.Trimesh`` (meshed with ``from_mesh``), or a :class:`Robot` as given, with
-    ``material`` (youngs_modulus, poisson_ratio, density), ``resolution`` and ``scale``
-    applied where they mean something and refused by name where they do not."""
+    """The robot the env simulates: a name in :data:`~softrom_gym.robots.ROBOTS`, a mesh path,
+    ``trimesh.Trimesh`` or ``Scene`` (meshed with ``from_mesh``), or a :class:`Robot` as
+    given, with ``material`` (youngs_modulus, poisson_ratio, density), ``resolution`` and
+    ``scale`` applied where they mean something and refused by name where they do not."""
     unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
     if unknown:
         raise ValueError(f"unknown material parameter(s) {sorted(unknown)}")
@@ -177,5 +178,5 @@ def make_robot(
                              "is known")  # fmt: skip
     raise ValueError(
         f"unknown robot {robot!r}; valid robots: {sorted(ROBOTS)}, a mesh file path "
-        "(STL/OBJ/PLY), a trimesh.Trimesh, or a softrom_gym.robots.Robot"
+        "(STL/OBJ/PLY), a trimesh.Trimesh or Scene, or a softrom_gym.robots.Robot"
     )

@@ -95,7 +95,7 @@ class SoftRobotEnv(gym.Env):
 
     ## Arguments
     ``robot`` (name in :data:`softrom_gym.robots.ROBOTS`, a mesh path in metres, a
-    trimesh.Trimesh, or a Robot), ``task``
+    trimesh.Trimesh or trimesh.Scene, or a Robot), ``task``
     ("walk" or "swim"), ``direction`` (angle in radians or 2-vector), ``control_dim`` C
     (default 3, or the columns of ``control_basis``), ``sim_dim`` M (default 20, or the rows
     of ``control_basis``), ``control_basis`` B_c (M x C, orthonormal to 1e-8, or the path of

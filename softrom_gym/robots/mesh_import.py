@@ -18,11 +18,20 @@ if TYPE_CHECKING:
 __all__ = ["from_mesh"]
 
 
-def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, str]:
+def _load(
+    mesh: str | os.PathLike | trimesh.Trimesh | trimesh.Scene,
+) -> tuple[trimesh.Trimesh, str]:
     import trimesh  # imported on use: it costs about a second at start-up
 
     if isinstance(mesh, trimesh.Trimesh):
         return mesh, "mesh"
+    if isinstance(mesh, trimesh.Scene):
+        # what trimesh.load gives for a .glb or a multi-object .obj: its geometry placed by
+        # the scene's transforms and concatenated, as loading the file with force="mesh" does
+        merged = mesh.to_mesh()
+        if len(merged.faces) == 0:
+            raise ValueError("the trimesh.Scene holds no triangle mesh")
+        return merged, "mesh"
     if isinstance(mesh, (str, os.PathLike)):
         path = os.path.expanduser(os.fspath(mesh))
         if not os.path.exists(path):
@@ -48,7 +57,9 @@ def _load(mesh: str | os.PathLike | trimesh.Trimesh) -> tuple[trimesh.Trimesh, s
         if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
             raise ValueError(f"{path!r} holds no triangle mesh")
         return loaded, os.path.splitext(os.path.basename(path))[0]
-    raise TypeError(f"mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
+    raise TypeError(
+        f"mesh must be a file path, a trimesh.Trimesh or a trimesh.Scene, got {type(mesh).__name__}"
+    )
 
 
 def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
@@ -115,7 +126,7 @@ def _enclosed_volume(surface: trimesh.Trimesh) -> float | None:
 
 
 def from_mesh(
-    mesh: str | os.PathLike | trimesh.Trimesh,
+    mesh: str | os.PathLike | trimesh.Trimesh | trimesh.Scene,
     resolution: int = 20,
     *,
     scale: float = 1.0,
@@ -131,8 +142,9 @@ def from_mesh(
 
     Parameters
     ----------
-    mesh : path or trimesh.Trimesh
-        A closed (watertight) surface; units are metres after ``scale``.
+    mesh : path, trimesh.Trimesh or trimesh.Scene
+        A closed (watertight) surface; units are metres after ``scale``. A scene (what
+        ``trimesh.load`` gives for a .glb) is its geometry concatenated, as its file is.
     resolution : int
         Voxels along the longest side of the bounding box (>= 2).
     scale : float
