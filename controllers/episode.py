@@ -135,7 +135,8 @@ def run_episode(
     progress : bool
         Show a tqdm progress bar.
     video : path, optional
-        Write the episode as a video (needs imageio with ffmpeg, and an rgb_array env).
+        Write the episode as a video (needs imageio with ffmpeg, and an rgb_array env);
+        ``~`` is the home folder. The folder must exist.
     """
     if not isinstance(planner, Planner):
         raise TypeError(f"planner must be a controllers.Planner, got {type(planner).__name__}")
@@ -150,6 +151,8 @@ def run_episode(
     if video is not None and getattr(env, "render_mode", None) != "rgb_array":
         raise ValueError("video needs an env made with render_mode='rgb_array'")
     if video is not None:
+        # "~" is the home folder, as in a robot's mesh path and export_trajectory's path
+        video = os.path.expanduser(os.fspath(video))
         _check_video_path(video)  # before the episode, not after it
         _imageio()
     api = EnvAPI(env)  # (planner.reset refuses an action wrapper: check_physical_actions)
@@ -251,7 +254,7 @@ _VIDEO_SUFFIXES = {".mp4", ".m4v", ".mov", ".mkv", ".avi", ".webm", ".gif"}
 
 
 def _check_video_path(video: str | os.PathLike) -> None:
-    path = Path(video)
+    path = Path(os.path.expanduser(os.fspath(video)))  # (as run_episode reads it)
     if path.suffix.lower() not in _VIDEO_SUFFIXES:
         raise ValueError(f"video {os.fspath(video)!r}: the file name must end in one of "
                          f"{', '.join(sorted(_VIDEO_SUFFIXES))}")  # fmt: skip

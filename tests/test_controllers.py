@@ -541,6 +541,20 @@ def test_a_video_without_imageio_fails_before_the_episode(tmp_path, monkeypatch)
     assert planner.plan_ is None  # refused before the episode started
 
 
+def test_a_video_path_under_home_is_expanded(tmp_path, monkeypatch):
+    # "~/walk.gif" was refused as "the folder '~' does not exist" (--video "~/..." too), where
+    # a robot's mesh path and export_trajectory read "~" as the home folder
+    home = tmp_path / "home"
+    home.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(tmp_path)
+    env = small_env("walk", render_mode="rgb_array")
+    run_episode(env, MPPI(MPPISettings(horizon=4, knots=2, samples=2)), 0.05, seed=0,
+                progress=False, video="~/walk.gif")  # fmt: skip
+    assert (home / "walk.gif").stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["home"]
+
+
 def test_a_bad_video_path_fails_before_the_episode(tmp_path):
     env = small_env("walk", render_mode="rgb_array")
     planner = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
