@@ -286,6 +286,11 @@ def test_from_mesh_refuses_a_resolution_too_fine_to_mesh():
     assert from_mesh(box, 60).num_nodes > 10_000  # (a 60 x 30 x 18 grid is meshed)
     with pytest.raises(ValueError, match="resolution 1000000 makes a grid of 1000000 x "):
         make_robot("beam", resolution=10**6)  # the benchmark robots too (83 PiB asked for)
+    # 10**20 voxels along a side wrapped int64 to a 1-voxel side, and meshed 8 nodes
+    with pytest.raises(ValueError, match="resolution 100000000000000000000 makes a grid of "):
+        from_mesh(box, 10**20)
+    with pytest.raises(ValueError, match="resolution 100000000000000000000 makes a grid of "):
+        make_robot("beam", resolution=10**20)
 
 
 def test_degenerate_faces_do_not_make_a_mesh_open():

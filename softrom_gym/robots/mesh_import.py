@@ -217,10 +217,11 @@ def from_mesh(
 
     lo, hi = surface.bounds
     pitch = float((hi - lo).max()) / int(resolution)
-    counts = np.maximum(np.round((hi - lo) / pitch).astype(int), 1)
+    counts = np.maximum(np.round((hi - lo) / pitch), 1)  # (float: int64 wraps at 1e19)
+    check_grid(resolution, counts)
+    counts = counts.astype(int)
     # Centre the grid on the mesh so the voxelisation is symmetric for symmetric shapes.
     origin = 0.5 * (lo + hi) - 0.5 * pitch * counts
-    check_grid(resolution, counts)
     axes = [origin[a] + pitch * (np.arange(counts[a]) + 0.5) for a in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     bodies = _solid_bodies(surface, centres)

@@ -56,8 +56,9 @@ def _from_function(
     """Voxelise ``inside(x, y, z)`` (evaluated at voxel centres) over the box [lo, hi]."""
     lo_a, hi_a = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
     pitch = float((hi_a - lo_a).max()) / _check_resolution(resolution)
-    counts = np.maximum(np.round((hi_a - lo_a) / pitch).astype(int), 1)
+    counts = np.maximum(np.round((hi_a - lo_a) / pitch), 1)  # (float: int64 wraps at 1e19)
     check_grid(resolution, counts)
+    counts = counts.astype(int)
     centres = [lo_a[a] + pitch * (np.arange(counts[a]) + 0.5) for a in range(3)]
     occ = inside(*np.meshgrid(*centres, indexing="ij"))
     if not occ.any():

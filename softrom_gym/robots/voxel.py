@@ -44,22 +44,24 @@ def check_grid(resolution: int, counts: np.ndarray) -> None:
     ----------
     resolution : int
         Voxels along the longest side, as the caller was given it.
-    counts : (3,) int array
-        The grid's voxels along x, y and z.
+    counts : (3,) array
+        The grid's voxels along x, y and z (whole numbers; float before a cast to int64,
+        which would wrap for an absurd resolution).
 
     Raises
     ------
     ValueError
         Naming the grid and the largest resolution that fits.
     """
-    cells = int(np.prod(counts, dtype=object))  # (exact: int64 wraps at resolution ~ 2e6)
+    sides = [int(c) for c in counts]
+    cells = int(np.prod(sides, dtype=object))  # (exact: int64 wraps at resolution ~ 2e6)
     if cells > MAX_GRID_CELLS:
         # Sampling the grid takes seconds to minutes, and the robot's reduced basis hours:
         # refuse before either (resolution 10^6 asked numpy for an exabyte and died in a
         # MemoryError naming no argument).
         fits = int(resolution * (MAX_GRID_CELLS / cells) ** (1 / 3))
         raise ValueError(
-            f"resolution {resolution} makes a grid of {' x '.join(map(str, counts))} = "
+            f"resolution {resolution} makes a grid of {' x '.join(map(str, sides))} = "
             f"{cells:,} voxels, over the {MAX_GRID_CELLS:,} a robot is meshed from (up to "
             f"~{MAX_GRID_CELLS:,} nodes); use resolution <= {fits} (20 is the default)"
         )
