@@ -312,6 +312,25 @@ def test_a_triangle_soup_is_closed_by_merging_its_vertices():
     assert from_mesh(soup, 6).num_nodes == from_mesh(box, 6).num_nodes
 
 
+def test_duplicate_faces_and_edges_shared_by_bodies_are_told_from_holes():
+    # Both were "not watertight (0 boundary edges) ... e.g. trimesh.repair.fill_holes": there
+    # is no hole. A face listed twice carries nothing and is dropped; bodies touching along
+    # an edge are named as such.
+    box = trimesh.creation.box((0.2, 0.1, 0.05))
+    twice = trimesh.Trimesh(box.vertices, np.vstack([box.faces, box.faces[:1]]), process=False)
+    assert not twice.is_watertight
+    assert from_mesh(twice, 6).num_nodes == from_mesh(box, 6).num_nodes
+    cube = trimesh.creation.box((0.1, 0.1, 0.1))
+    touching = trimesh.util.concatenate([cube, cube.copy().apply_translation((0.1, 0.1, 0.0))])
+    touching.merge_vertices()
+    with pytest.raises(ValueError, match=r"mesh is not watertight \(1 edges shared by more than "
+                       r"two faces: bodies touching along an edge"):  # fmt: skip
+        from_mesh(touching, 10)
+    with pytest.raises(ValueError, match=r"mesh is not watertight \(3 boundary edges\).*"
+                       r"fill_holes"):  # fmt: skip
+        from_mesh(trimesh.Trimesh(box.vertices, box.faces[1:], process=False), 6)
+
+
 def test_from_mesh_names_a_flat_mesh_and_non_finite_vertices():
     # both were reported as "resolution 6 is too coarse", which no resolution cures
     flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 1]], process=False)

@@ -166,7 +166,6 @@ def from_mesh(
     as metres), when separate bodies are dropped or joined, and when the robot's volume is
     off the mesh's by more than half again (parts thinner than a voxel: raise resolution).
     """
-    import trimesh
 
     surface, default_name = _load(mesh)
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
@@ -183,18 +182,27 @@ def from_mesh(
         # A triangle soup (each face its own three vertices, as a Trimesh made with
         # process=False from an STL has) closes once coincident vertices are merged, and
         # zero-area triangles carry no geometry but can leave an edge count odd: without
-        # either the surface may close. (One that is closed only with a sliver keeps it.)
+        # either the surface may close, nor a face listed twice (its edges then count 3 or
+        # 4). (One that is closed only with a sliver keeps it.)
         cleaned = surface.copy()
         cleaned.merge_vertices()
         cleaned.update_faces(cleaned.nondegenerate_faces())
+        cleaned.update_faces(cleaned.unique_faces())
         cleaned.remove_unreferenced_vertices()
         if cleaned.is_watertight:
             surface = cleaned
     if not surface.is_watertight:
-        open_edges = len(trimesh.grouping.group_rows(surface.edges_sorted, require_count=1))
+        _, uses = np.unique(surface.edges_sorted, axis=0, return_counts=True)
+        if (uses == 1).any():
+            why = f"{int((uses == 1).sum())} boundary edges"
+            fix = "repair it first (e.g. trimesh.repair.fill_holes)"
+        else:  # closed, but not a manifold: fill_holes finds no hole to fill
+            why = (f"{int((uses > 2).sum())} edges shared by more than two faces: bodies "
+                   "touching along an edge, or faces crossing one another")  # fmt: skip
+            fix = "separate or union the bodies first (e.g. in Blender)"
         raise ValueError(
-            f"mesh is not watertight ({open_edges} boundary edges): from_mesh needs a closed "
-            "surface to tell inside from outside; repair it first (e.g. trimesh.repair.fill_holes)"
+            f"mesh is not watertight ({why}): from_mesh needs a closed surface to tell inside "
+            f"from outside; {fix}"
         )
     with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume
         inside_out = surface.is_winding_consistent and float(surface.volume) < 0
