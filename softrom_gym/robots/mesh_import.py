@@ -266,8 +266,8 @@ def from_mesh(
     else:
         # A part thinner than half a voxel still fills a whole one (a 1 mm plate made a 5 mm
         # slab at the default resolution, five times the mass) or none: say so, by the volume.
-        volume = _enclosed_volume(surface)
-        ratio = float(kept.sum()) * pitch**3 / volume if volume else 1.0
+        enclosed = _enclosed_volume(surface)
+        ratio = float(kept.sum()) * pitch**3 / enclosed if enclosed else 1.0
         if not 1 / 1.5 <= ratio <= 1.5:
             warnings.warn(
                 f"the robot has {ratio:.3g} times the mesh's volume (and mass): at resolution "
