@@ -855,3 +855,108 @@ def test_a_confirm_that_fails_stops_its_executor(tmp_path, capsys, monkeypatch):
     with pytest.raises(RuntimeError, match="a worker failed"):
         main(["confirm", str(run)])
     assert len(made) == 1 and made[0].stopped == [False]
+
+
+def test_a_run_directory_that_cannot_be_locked_is_a_one_line_error(tmp_path, capsys, monkeypatch):
+    """A read-only run directory (an archived copy, a read-only mount) cannot take the writer's
+    lock: resume and confirm say so in one line naming the lock file, not with a traceback,
+    and report still reads it (found with a read-only bind mount of a finished run)."""
+    import errno
+
+    run = tmp_path / "run"
+    main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+          "--out", str(run)])  # fmt: skip
+    capsys.readouterr()
+    real_open = os.open
+
+    def read_only(path, flags, *args, **kwargs):
+        if str(path).endswith(".rbbo.lock"):
+            raise OSError(errno.EROFS, "Read-only file system", str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    for command in (["resume", str(run), "--no-progress"], ["confirm", str(run)]):
+        err = _error(capsys, command)
+        assert f"cannot lock {run} to write it" in err
+        assert "Read-only file system" in err and ".rbbo.lock" in err
+    assert main(["report", str(run), "--png", str(tmp_path / "plot.png")]) == 0
+
+
+def test_a_disk_that_fills_during_a_run_is_a_one_line_error_and_the_run_resumes(
+    tmp_path, capsys, monkeypatch
+):
+    """A write the system refuses mid-run (a full disk) stops the run with one line naming
+    the run and how to go on, exit status 1, not a traceback; what was recorded is kept
+    (found filling a 28 kB tmpfs under a run)."""
+    import errno
+
+    from rbbo.store import run_store
+
+    real_append = run_store._append_line
+    calls = []
+
+    def filling(path, line, end_partial=False):
+        calls.append(path)
+        if len(calls) > 8:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_append(path, line, end_partial)
+
+    monkeypatch.setattr(run_store, "_append_line", filling)
+    run = tmp_path / "run"
+    with pytest.warns(RuntimeWarning, match="end of this session was not recorded"):
+        code = main(["optimize", "synthetic", *TINY, "--iterations", "8", "--executor",
+                     "serial", "--out", str(run)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 1
+    assert err.count("\n") == 1 and err.startswith("rbbo: error: ")
+    assert "No space left on device" in err and f"rbbo resume {run}" in err
+    recorded = len(_history(run))
+    monkeypatch.undo()
+    assert main(["resume", str(run), "--no-progress"]) == 0
+    assert len(_history(run)) > recorded
+    # a confirm the disk refuses: one line too, and the run as it was
+    capsys.readouterr()
+    before = (run / "history.jsonl").read_bytes()
+
+    def full(path, line, end_partial=False):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(run_store, "_append_line", full)
+    code = main(["confirm", str(run)])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert err == (f"rbbo: error: {run}: [Errno 28] No space left on device; run rbbo "
+                   f"confirm {run} again once it can be written\n")  # fmt: skip
+    assert (run / "history.jsonl").read_bytes() == before
+
+
+def test_a_plot_that_cannot_be_written_after_a_run_leaves_the_run_finished(
+    tmp_path, capsys, monkeypatch
+):
+    """The convergence plot is drawn after the run has finished and recorded its result: a
+    plot the disk refuses is a warning (rbbo report draws it later), and the table is
+    printed; a run whose directory cannot take the plot is still readable by rbbo report
+    (found with a full tmpfs and with a read-only bind mount)."""
+    import errno
+
+    from rbbo import report
+
+    def refused(opt, path, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(report, "plot_convergence", refused)
+    run = tmp_path / "run"
+    code = main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+                 "--out", str(run)])  # fmt: skip
+    out, err = capsys.readouterr()
+    assert code == 0
+    assert "R_init" in out
+    assert f"cannot write the plot {run / 'convergence.png'}" in err
+    assert "No space left on device" in err and "Traceback" not in err
+    assert (run / "summary.json").is_file() and (run / "best_basis.npy").is_file()
+    # rbbo report of that run: the table, and the plot it cannot write named
+    code = main(["report", str(run)])
+    out, err = capsys.readouterr()
+    assert code == 0
+    assert "R_init" in out
+    assert f"cannot write the plot {run / 'convergence.png'}" in err

@@ -247,9 +247,10 @@ def test_failed_writes_and_locks_leak_no_descriptor_and_hold_no_lock(tmp_path, m
     monkeypatch.undo()
     assert sorted(p.name for p in run.iterdir()) == []
     # _acquire_lock: the lock is taken, then writing the pid fails; the fd is closed, which
-    # lets the lock go, so that a later store (here: this process) can take it
+    # lets the lock go, so that a later store (here: this process) can take it; the error
+    # names the lock file (a one-line error of the command line, not a traceback)
     monkeypatch.setattr(os, "ftruncate", refuse)
-    with pytest.raises(OSError, match="No locks available"):
+    with pytest.raises(RunDirectoryError, match=r"cannot lock .*\.rbbo\.lock: No locks available"):
         _acquire_lock(run)
     monkeypatch.undo()
     assert _open_fds() == before

@@ -2,7 +2,8 @@
 the subcommand, and turn its errors into one-line messages and exit statuses.
 
 Exit status 2: bad input (a usage error, a run directory that cannot be used, a simulation
-space that does not match the run's); 1: evaluations kept failing; 130: interrupted (Ctrl-C
+space that does not match the run's); 1: evaluations kept failing, or the system refused a
+read or write (a full disk); 130: interrupted (Ctrl-C
 or SIGTERM), with what was recorded kept. Run as the console script (or ``python -m rbbo``),
 warnings are printed as ``rbbo: warning: ...`` lines, as its errors are, without Python's
 source location.
@@ -57,6 +58,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rbbo: error: {message}", file=sys.stderr)
         return 2
     except EvaluationsFailing as exc:  # rbbo optimize, resume, or a stage of reproduce
+        print(f"rbbo: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        # a read or write the system refused (a full disk, a file made unreadable) outside a
+        # search, which reports its own: what was recorded before it is kept
         print(f"rbbo: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

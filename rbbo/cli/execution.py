@@ -77,9 +77,27 @@ def _execute(opt, executor, max_evaluations, budget_s, progress: bool,
         close()
         executor.shutdown(wait=False)
         raise
+    except OSError as exc:
+        # a write the system refused (a full disk, a directory made read-only under the run):
+        # the evaluations recorded before it are kept, and a resume goes on from them
+        close()
+        executor.shutdown(wait=False)
+        print(f"rbbo: error: {opt.store.path}: {exc}; the run stopped (what it recorded is "
+              f"kept: free space or fix the directory, then rbbo resume {opt.store.path})",
+              file=sys.stderr)  # fmt: skip
+        return 1
     close()
     executor.shutdown()
     print(format_table([report_row(opt)]))
-    png = plot_convergence(opt, opt.store.path / "convergence.png")
-    print(f"run directory: {opt.store.path}  (best basis: best_basis.npy, plot: {png.name})")
+    path = opt.store.path / "convergence.png"
+    try:
+        png = plot_convergence(opt, path)
+    except OSError as exc:
+        # the run has finished and recorded its result: only the picture is missing
+        print(f"rbbo: warning: cannot write the plot {path}: {exc} (the run is recorded; "
+              f"rbbo report {opt.store.path} --png FILE draws it)", file=sys.stderr)  # fmt: skip
+        plot = "none"
+    else:
+        plot = png.name
+    print(f"run directory: {opt.store.path}  (best basis: best_basis.npy, plot: {plot})")
     return 0

@@ -194,6 +194,12 @@ def cmd_confirm(args) -> int:
         print(f"\ninterrupted; nothing is lost: run rbbo confirm {store.path} again",
               file=sys.stderr)  # fmt: skip
         return 130
+    except OSError as exc:
+        # a write the system refused (a full disk): what was recorded before it is kept
+        executor.shutdown(wait=False)
+        print(f"rbbo: error: {store.path}: {exc}; run rbbo confirm {store.path} again once "
+              "it can be written", file=sys.stderr)  # fmt: skip
+        return 1
     except BaseException:
         # (a usage error from bad stored input, a failed worker: its processes are stopped,
         # not left to the interpreter's exit)

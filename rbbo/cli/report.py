@@ -36,11 +36,18 @@ def cmd_report(args) -> int:
         try:
             png = plot_convergence(opt, path)
         except OSError as exc:
-            raise UsageError(f"cannot write the plot {path}: {exc}") from exc
+            if args.png is not None:  # the file asked for
+                raise UsageError(f"cannot write the plot {path}: {exc}") from exc
+            # the default place, in a run directory that may be read-only (an archived copy):
+            # the table is what is read from it, and still printed
+            print(f"rbbo: warning: cannot write the plot {path}: {exc} (--png FILE writes "
+                  "it elsewhere)", file=sys.stderr)  # fmt: skip
+            png = None
         # the recommendation (R*'s B_c) is written when a session finishes, never by a report
         best = Path(run_dir) / BEST
         found = (f"best basis {best}" if best.is_file() else
                  f"no {BEST} yet (no session has finished: rbbo resume {run_dir})")  # fmt: skip
-        print(f"{run_dir}: plot {png}, {found}", file=sys.stderr)
+        plot = "no plot" if png is None else f"plot {png}"
+        print(f"{run_dir}: {plot}, {found}", file=sys.stderr)
     print(format_table(rows))
     return 0

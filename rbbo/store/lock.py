@@ -32,7 +32,12 @@ def _acquire_lock(path: Path) -> str:
     if held is not None:
         held[1] += 1
         return key
-    fd = os.open(path / LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+    try:
+        fd = os.open(path / LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+    except OSError as exc:
+        # a read-only directory or mount (an archived run): a writer cannot take the lock,
+        # which is the user's to fix, not a traceback's; readers (rbbo report) take none
+        raise _cannot_lock(path, exc) from exc
     try:
         if fcntl is not None:
             try:
@@ -45,13 +50,23 @@ def _acquire_lock(path: Path) -> str:
                 ) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-    except BaseException:
+    except BaseException as exc:
         # any failure (ENOLCK on a network file system, a full disk): the descriptor closed,
         # which also lets go of a lock already taken, so that no later store finds it held
         os.close(fd)
+        if isinstance(exc, OSError):
+            raise _cannot_lock(path, exc) from exc
         raise
     _HELD_LOCKS[key] = [fd, 1]
     return key
+
+
+def _cannot_lock(path: Path, exc: OSError) -> RunDirectoryError:
+    """The error for a lock the system refused (not one another process holds)."""
+    reason = exc.strerror or str(exc)
+    return RunDirectoryError(f"cannot lock {path} to write it ({path / LOCK}: {reason}): "
+                             "a run is resumed or confirmed in a directory it can write; "
+                             "rbbo report reads one it cannot")  # fmt: skip
 
 
 def _release_lock(key: str) -> None:
