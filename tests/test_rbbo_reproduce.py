@@ -1827,3 +1827,51 @@ def test_the_rl_stage_evaluates_as_table_one_measures(tmp_path, monkeypatch):
     assert {k: kwargs[k] for k in ("eval_seeds", "seconds", "settle_time", "seed")} == {
         "eval_seeds": 4, "seconds": 7.0, "settle_time": 1.5, "seed": 3}  # fmt: skip
 
+
+def test_a_second_session_on_the_same_directory_is_refused_and_changes_nothing(
+    tmp_path, capsys, monkeypatch
+):
+    """Two sessions in one --out at once (the same command in a second terminal while the
+    first runs under nohup) would append the same CSV rows and each rewrite reproduce.json
+    from what it had read, one session's record lost: the second is refused in one line and
+    writes nothing (found running rbbo reproduce twice on one --out; reproduce.json kept one
+    of the two sessions). A folder that is a file is named too."""
+    import subprocess
+    import sys
+
+    from rbbo.reproduce import runner
+
+    monkeypatch.setattr(runner, "optimise", lambda path, *args, **kwargs: path)
+    monkeypatch.setattr(runner, "_objective", lambda plan, bench, *args: None)
+    argv = ["reproduce", "--benchmarks", "CrossSwim-v0", "--stages", "table", "--no-progress"]
+    out = tmp_path / "out"
+    assert main([*argv, "--out", str(out)]) == 0
+    capsys.readouterr()
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    holder = subprocess.Popen(  # a session still running in another process
+        [sys.executable, "-c", "import fcntl, os, sys, time\n"
+         f"fd = os.open({str(out / '.rbbo.lock')!r}, os.O_RDWR | os.O_CREAT)\n"
+         "fcntl.flock(fd, fcntl.LOCK_EX); print('held', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline() == "held\n"
+        code = main([*argv, "--out", str(out)])
+        err = capsys.readouterr().err
+    finally:
+        holder.kill()
+        holder.wait()
+        holder.stdout.close()
+    assert code == 2
+    assert err.startswith("rbbo: error: ") and err.count("\n") == 1
+    assert f"{out} is in use by another process" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+    assert main([*argv, "--out", str(out)]) == 0  # once it has ended
+    sessions = json.loads((out / "reproduce.json").read_text())["sessions"]
+    assert len(sessions) == 2
+    capsys.readouterr()
+    (tmp_path / "file").write_text("")
+    code = main([*argv, "--out", str(tmp_path / "file")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"cannot create the reproduction directory {tmp_path / 'file'}" in err

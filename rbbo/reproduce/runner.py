@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from ..provenance import machine_description, source_version
-from ..store import RunDirectoryError, _atomic_write, _make_dirs
+from ..store import RunDirectoryError, _acquire_lock, _atomic_write, _make_dirs, _release_lock
 from .csv_rows import _append_row as _append_row
 from .csv_rows import _supersede as _supersede
 from .optimisation_runs import _objective, optimise
@@ -80,10 +80,27 @@ def reproduce(out: str | os.PathLike, plan: ReproducePlan, *, progress: bool = T
 
     Returns a dict with the Table I rows and the paths written (see :mod:`.document`).
     """
+    out = Path(out)
+    try:
+        _make_dirs(out)  # (the runs and tables in it are fsynced; so must its name be)
+    except OSError as exc:  # (--out names a file, or a folder that cannot be made)
+        raise RunDirectoryError(f"cannot create the reproduction directory {out}: {exc}") from exc
+    # One session at a time: a second one (the same command in another terminal, or another
+    # stage) would append the same rows to the CSV files, and each rewrites reproduce.json
+    # from what it read at its start, dropping the other's session record. Each RBBO run
+    # folder in it has its own lock besides; --status and --report-only take none.
+    key = _acquire_lock(out)
+    try:
+        return _reproduce(out, plan, progress, log, command, copy_report)
+    finally:
+        _release_lock(key)
+
+
+def _reproduce(out: Path, plan: ReproducePlan, progress: bool, log: Log, command: str | None,
+               copy_report: str | os.PathLike | None) -> dict[str, Any]:  # fmt: skip
+    """:func:`reproduce` in ``out``, which this process has locked."""
     from .document import write_report
 
-    out = Path(out)
-    _make_dirs(out)  # (the runs and tables in it are fsynced; so must its name be)
     log = _tee(log, out / "reproduce.log")
     document = _load_plan(out, plan)
     session: dict[str, Any] = {
