@@ -960,3 +960,16 @@ def test_a_plot_that_cannot_be_written_after_a_run_leaves_the_run_finished(
     assert code == 0
     assert "R_init" in out
     assert f"cannot write the plot {run / 'convergence.png'}" in err
+
+
+def test_a_summary_edited_into_other_json_is_read_as_corrupted(tmp_path, capsys):
+    """summary.json is rewritten when a session ends; one that does not parse is passed over
+    by resume, and so must one that parses to something else than an object (an
+    AttributeError traceback from rbbo resume; found hand-editing summary.json to [1, 2])."""
+    run = tmp_path / "run"
+    main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+          "--out", str(run)])  # fmt: skip
+    (run / "summary.json").write_text("[1, 2]\n")
+    capsys.readouterr()
+    assert main(["resume", str(run), "--iterations", "5", "--no-progress"]) == 0
+    assert json.loads((run / "summary.json").read_text())["evaluations"] == 5

@@ -424,9 +424,10 @@ def test_more_corrupted_run_files_are_named(tmp_path):
     (tmp_path / "run" / "best_basis.npy").write_bytes(b"not an array")
     with pytest.raises(RunDirectoryError, match="best_basis.npy is corrupted"):
         RunStore.open(tmp_path / "run", repair=False).best_basis()
-    (tmp_path / "run" / "summary.json").write_text("{oops")
-    with pytest.raises(RunDirectoryError, match="summary.json is corrupted"):
-        RunStore.open(tmp_path / "run", repair=False).summary()
+    for text in ("{oops", "[1, 2]", "null"):  # (JSON, but no summary: a hand edit)
+        (tmp_path / "run" / "summary.json").write_text(text)
+        with pytest.raises(RunDirectoryError, match="summary.json is corrupted"):
+            RunStore.open(tmp_path / "run", repair=False).summary()
     assert RunStore.open(tmp_path / "run", repair=False).sessions() == []  # none recorded
     with pytest.raises(ValueError, match=r"basis must be an \(M, C\) array, got shape \(3,\)"):
         Evaluation(0, np.ones(3), 1.0, 1.0)

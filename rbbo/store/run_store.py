@@ -295,10 +295,15 @@ class RunStore:
         _atomic_write(self.path / SUMMARY, (data + "\n").encode())
 
     def summary(self) -> dict[str, Any] | None:
+        """summary.json (None before a session has written one); one that holds no JSON
+        object raises :class:`RunDirectoryError`."""
         path = self.path / SUMMARY
         if not path.is_file():
             return None
         try:
-            return json.loads(path.read_text())
+            summary = json.loads(path.read_text())
         except json.JSONDecodeError as exc:
             raise RunDirectoryError(f"{path} is corrupted: {exc}") from exc
+        if not isinstance(summary, dict):  # (a hand edit: its readers look keys up in it)
+            raise RunDirectoryError(f"{path} is corrupted: it holds no JSON object")
+        return summary
