@@ -36,6 +36,12 @@ def resume(cls: type[RBBO], path, *, read_only: bool = False) -> RBBO:
         config = RBBOConfig(**settings)
     except (TypeError, ValueError) as exc:
         raise RunDirectoryError(f"{store.path}/config.json has invalid settings: {exc}") from exc
+    for key in ("objective", "problem", "execution"):
+        # (a hand edit: their readers look keys up in them; absent in runs made without one)
+        value = store.config.get(key)
+        if value is not None and not isinstance(value, dict):
+            raise RunDirectoryError(f"{store.path}/config.json has invalid settings: {key!r} "
+                                    f"must be a JSON object, got {value!r}")  # fmt: skip
     opt = cls(config, store=store, objective_spec=store.config.get("objective"))
     history = store.history()
     _check_history(store, history, config)

@@ -973,3 +973,39 @@ def test_a_summary_edited_into_other_json_is_read_as_corrupted(tmp_path, capsys)
     capsys.readouterr()
     assert main(["resume", str(run), "--iterations", "5", "--no-progress"]) == 0
     assert json.loads((run / "summary.json").read_text())["evaluations"] == 5
+
+
+@pytest.mark.parametrize(("edit", "match"), [
+    (lambda c: c.update(execution=5), "'execution' must be a JSON object, got 5"),
+    (lambda c: c.update(objective=3), "'objective' must be a JSON object, got 3"),
+    (lambda c: c["execution"].pop("workers"), None),  # (a default: one worker)
+    (lambda c: c["execution"].update(workers="two"), "workers must be a positive integer, got "
+                                                     "'two'"),
+    (lambda c: c["execution"].update(timeout_s=-1), "timeout_s must be null or a positive "
+                                                    "number of seconds, got -1"),
+    (lambda c: c["execution"].update(executor="bogus"), "executor must be one of process, ray, "
+                                                        "serial, got 'bogus'"),
+])  # fmt: skip
+def test_a_hand_edited_execution_or_objective_in_config_json_is_named(tmp_path, capsys, edit,
+                                                                      match):  # fmt: skip
+    """config.json's "execution" and "objective" were read unchecked: an edit that made one
+    no object, or dropped workers, was a TypeError / KeyError / AttributeError traceback from
+    resume, confirm or report, and a negative timeout_s was taken (found hand-editing the
+    config.json of a finished synthetic run)."""
+    run = tmp_path / "run"
+    main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+          "--out", str(run)])  # fmt: skip
+    config = json.loads((run / "config.json").read_text())
+    edit(config)
+    (run / "config.json").write_text(json.dumps(config))
+    capsys.readouterr()
+    if match is None:
+        assert main(["resume", str(run), "--iterations", "5", "--no-progress"]) == 0
+        return
+    commands = [["resume", str(run), "--iterations", "5", "--no-progress"], ["confirm", str(run)]]
+    if "objective" in match:
+        commands.append(["report", str(run)])
+    for command in commands:
+        err = _error(capsys, command)
+        assert f"{run}/config.json has invalid" in err and match in err
+    assert len(_history(run)) == 6  # nothing evaluated

@@ -29,6 +29,47 @@ def _limits_text(iterations: int | None, budget: float | None) -> str:
     return " and ".join(limits) or "none"
 
 
+# How a run made without a stored "execution" (an early version's) runs its evaluations.
+_EXECUTION_DEFAULTS = {"executor": "process", "workers": 1, "timeout_s": 600.0,
+                       "address": None, "deterministic": False}  # fmt: skip
+
+
+def _stored_execution(store) -> dict:
+    """The run's stored execution settings (config.json's "execution", defaults filled in),
+    checked as ``rbbo optimize`` checks its options, so that a hand-edited one is named with
+    its file rather than failing later (a traceback, or a negative per-evaluation limit).
+
+    Raises
+    ------
+    RunDirectoryError
+        When a setting is not one ``rbbo optimize`` could have stored.
+    """
+    import math
+
+    from ..store import RunDirectoryError
+
+    execution = {**_EXECUTION_DEFAULTS, **(store.config.get("execution") or {})}
+
+    def bad(key: str, what: str) -> RunDirectoryError:
+        return RunDirectoryError(f"{store.path}/config.json has invalid execution settings: "
+                                 f"{key} must be {what}, got {execution[key]!r}")  # fmt: skip
+
+    if execution["executor"] not in ("process", "ray", "serial"):
+        raise bad("executor", "one of process, ray, serial")
+    workers = execution["workers"]
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise bad("workers", "a positive integer")
+    timeout = execution["timeout_s"]  # (None: no limit, as a library call may store)
+    if timeout is not None and (isinstance(timeout, bool) or not isinstance(timeout, (int, float))
+                                or not 0 < timeout < math.inf):  # fmt: skip
+        raise bad("timeout_s", "null or a positive number of seconds")
+    if execution["address"] is not None and not isinstance(execution["address"], str):
+        raise bad("address", "null or a Ray address")
+    if not isinstance(execution["deterministic"], bool):
+        raise bad("deterministic", "true or false")
+    return execution
+
+
 def cmd_optimize(args) -> int:
     from ..objective import make_objective, parse_objective_spec
     from ..optimizer import RBBO, RBBOConfig
@@ -115,8 +156,7 @@ def cmd_resume(args) -> int:
     store = opt.store
     assert store is not None  # (resume opens the run's store)
     objective = _objective_of(opt)
-    execution = dict(store.config.get("execution") or {"executor": "process",
-                     "workers": 1, "timeout_s": 600.0})  # fmt: skip
+    execution = _stored_execution(store)
     if args.workers:
         execution["workers"] = args.workers
     if args.executor:
@@ -180,8 +220,7 @@ def cmd_confirm(args) -> int:
                          "R_init and R*; confirm measures a finished run again")  # fmt: skip
     before = opt.result()
     objective = _objective_of(opt)
-    execution = dict(store.config.get("execution") or {"executor": "process",
-                     "workers": 1, "timeout_s": 600.0})  # fmt: skip
+    execution = _stored_execution(store)
     # (checked as optimize and resume check it: --workers 4 on a serial run is refused)
     executor = _make_executor(
         objective, {**execution, "workers": args.workers or execution["workers"]}
