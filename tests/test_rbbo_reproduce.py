@@ -1875,3 +1875,28 @@ def test_a_second_session_on_the_same_directory_is_refused_and_changes_nothing(
     err = capsys.readouterr().err
     assert code == 2
     assert f"cannot create the reproduction directory {tmp_path / 'file'}" in err
+
+
+def test_status_reads_iterations_and_workers_given_as_a_session_would_run(
+    reproduction, tmp_path, capsys
+):
+    """--status with a larger --iterations than the stored cap said 'done' and no budget
+    left, as if the option were not there, though a session given it searches on; its
+    --workers were ignored too (found with rbbo reproduce --iterations 5 --status after a
+    session of --iterations 3)."""
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(reproduction, out)
+    status = ["reproduce", "--out", str(out), "--status", "--stages", "table"]
+    capsys.readouterr()
+    assert main(status) == 0
+    stored = capsys.readouterr().out.splitlines()
+    assert "done: 3 evaluations" in stored[0] and stored[-1].startswith(
+        "optimisation budget left: 0.00 h on 1 worker"
+    )
+    assert main([*status, "--iterations", "5", "--workers", "2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "done" not in lines[0] and "min more to search" in lines[0]
+    assert not lines[-1].startswith("optimisation budget left: 0.00 h")
+    assert "on 2 workers" in lines[-1]

@@ -180,7 +180,8 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--status", action="store_true",
                    help="print what each part of the reproduction in --out has done and the "
                    "budget left (the stages of the stored plan and of its earlier sessions; "
-                   "--stages, --repeats and budgets given here override it, --benchmarks "
+                   "--stages, --repeats, --iterations, --workers and budgets given here "
+                   "override it, as a session given them would run, --benchmarks "
                    "narrows it to some of its benchmarks), and exit")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
@@ -245,7 +246,8 @@ def _status(args, wanted: ReproducePlan, usage_error: type[Exception]) -> int:
          "budget_s"), ("--direction-budget", "direction_budget", "direction_budget_s"),
         ("--rl-benchmarks", "rl_benchmarks", "rl_benchmarks"), ("--rl-steps", "rl_steps",
          "rl_steps"), ("--rl-algos", "rl_algos", "rl_algos"),
-        ("--repeats", "repeats", "repeats")) if flag in given}  # fmt: skip
+        ("--repeats", "repeats", "repeats"), ("--iterations", "iterations", "iterations"),
+        ("--workers", "workers", "workers")) if flag in given}  # fmt: skip
     if "--benchmarks" in given:
         unknown = [b for b in args.benchmarks if b not in stored.benchmarks]
         if unknown:
