@@ -350,6 +350,13 @@ def test_other_settings_on_an_existing_directory_are_refused(reproduction, capsy
         (["--mpc", "horizon=0"], "horizon"),
         (["--t-min", "1", "--settle-time", "2"], "settle_time"),
         (["--settle-time", "-1"], "need 0 <= settle_time"),
+        # the options, and which took their defaults (a tiny run's --t-max 2 under --t-min 4)
+        (
+            ["--t-max", "2", "--settle-time", "1"],
+            "got --settle-time 1, --t-min 4 (default), "
+            "--t-max 2: the BOCA runs search episode "
+            "lengths T in [--t-min, --t-max]",
+        ),
         (["--repeats", "0"], "repeats must be an integer >= 1, got 0"),
         (["--repeats", "two"], "'two'"),
         (["--stages", "studies", "--repeats", "3"], "--repeats 3 runs Table I's RBBO runs"),

@@ -277,8 +277,25 @@ def command(args, usage_error: type[Exception]) -> int:
     from .tables import format_markdown
 
     try:
-        plan = _plan(args)
         given = {a.split("=")[0] for a in args.argv if a.startswith("--")}
+        if not 0 <= args.settle_time < args.t_min < args.t_max:
+            # (the plan says it with its field names; here the options, and which of them
+            # took their defaults: "--t-max 2 --settle-time 1" is refused for --t-min's 4)
+            def shown(flag: str, value: float) -> str:
+                return f"{flag} {value:g}" + ("" if flag in given else " (default)")
+
+            got = ", ".join(
+                [
+                    shown("--settle-time", args.settle_time),
+                    shown("--t-min", args.t_min),
+                    shown("--t-max", args.t_max),
+                ]
+            )
+            raise ValueError(
+                f"need 0 <= settle_time < t_min < t_max, got {got}: the BOCA runs search "
+                "episode lengths T in [--t-min, --t-max] and measure R from --settle-time on"
+            )
+        plan = _plan(args)
         if "--repeats" in given and "table" not in plan.stages and not args.status:
             raise ValueError(f"--repeats {args.repeats} runs Table I's RBBO runs again: it "
                              "needs stage table in --stages (e.g. --stages table)")  # fmt: skip
