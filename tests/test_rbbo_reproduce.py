@@ -1907,3 +1907,24 @@ def test_status_reads_iterations_and_workers_given_as_a_session_would_run(
     assert "done" not in lines[0] and "min more to search" in lines[0]
     assert not lines[-1].startswith("optimisation budget left: 0.00 h")
     assert "on 2 workers" in lines[-1]
+
+
+@pytest.mark.parametrize(
+    ("argv", "noted"),
+    [(["--iterations", "3"], True), (["--iterations", "7"], False),
+     (["--iterations", "3", "--init", "1"], False)],
+)  # fmt: skip
+def test_iterations_the_initial_design_fills_are_noted(tmp_path, capsys, monkeypatch, argv, noted):
+    """rbbo optimize notes an --iterations that the initial design fills (no GP proposal);
+    rbbo reproduce said nothing, and its report calls such runs RBBO's (found with the tiny
+    reproduce of --iterations 3 under the default --init 5: every evaluation 'initial')."""
+    from rbbo.reproduce import runner
+
+    monkeypatch.setattr(runner, "optimise", lambda path, *args, **kwargs: path)
+    monkeypatch.setattr(runner, "_objective", lambda plan, bench, *args: None)
+    code = main(["reproduce", "--benchmarks", "CrossSwim-v0", "--stages", "table",
+                 "--no-progress", "--out", str(tmp_path / "out"), *argv])  # fmt: skip
+    assert code == 0
+    err = capsys.readouterr().err
+    assert ("the initial design (the identity basis, then 5 random points) takes every "
+            "evaluation of the runs of stage(s) table" in err) is noted  # fmt: skip

@@ -316,6 +316,18 @@ def command(args, usage_error: type[Exception]) -> int:
         raise usage_error(str(exc)) from exc
     if args.status:
         return _status(args, plan, usage_error)
+    searching = [s for s in plan.ordered_stages() if s in ("table", "bo", "directions")]
+    if (
+        not args.report_only
+        and plan.iterations is not None
+        and searching
+        and (plan.iterations <= plan.n_init + 1)
+    ):
+        # as rbbo optimize notes it: the report would call these RBBO runs, which they are not
+        print(f"note: --iterations {plan.iterations} <= 1 + --init {plan.n_init}: the initial "
+              f"design (the identity basis, then {plan.n_init} random points) takes every "
+              f"evaluation of the runs of stage(s) {', '.join(searching)}, and the GP "
+              "proposes none", file=sys.stderr)  # fmt: skip
     if args.report_only:
         document, stored = _stored(args.out, usage_error, "nothing to report")
         written = write_report(args.out, stored, document, args.report)
