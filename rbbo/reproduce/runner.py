@@ -14,6 +14,8 @@ Layout of ``OUT`` (every part resumable: rerunning the same command continues it
     rl/<bench>/               the RL baselines (PPO, SAC) and MPPI on Table I's bases
                               (``rbbo baselines``' layout)
     reproduce.log             what each session printed
+    .rbbo.lock                held by the session that runs (one at a time; --status and
+                              --report-only read without it)
     table1.csv, table1_runs.csv, table1.md, transfer_table.csv, *.png, REPORT.md
 
 Every optimisation run is an ordinary RBBO run directory (``rbbo report`` reads it); a
