@@ -1928,3 +1928,34 @@ def test_iterations_the_initial_design_fills_are_noted(tmp_path, capsys, monkeyp
     err = capsys.readouterr().err
     assert ("the initial design (the identity basis, then 5 random points) takes every "
             "evaluation of the runs of stage(s) table" in err) is noted  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("sessions", "match"),
+    [(5, "'sessions' must be a list, got 5"),
+     ([1], "session 1 is not a record with its command: 1"),
+     ([{"command": "rbbo reproduce", "wall_s": "x"}], "session 1's wall_s is 'x'"),
+     ([{"command": "rbbo reproduce", "stages": "table"}], "session 1's stages is 'table'")],
+)  # fmt: skip
+def test_a_hand_edited_session_record_is_named_for_status_report_only_and_a_rerun(
+    sessions, match, tmp_path, capsys, monkeypatch
+):
+    """reproduce.json's sessions were read unchecked: a hand edit that made them no list, or
+    a record no object or with a wall time that is no number, was a TypeError or
+    AttributeError traceback of --status, --report-only and a rerun (found editing the
+    reproduce.json of a tiny reproduction)."""
+    from rbbo.reproduce import runner
+
+    monkeypatch.setattr(runner, "optimise", lambda path, *args, **kwargs: path)
+    monkeypatch.setattr(runner, "_objective", lambda plan, bench, *args: None)
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], stages=["table"])
+    text = json.dumps({"plan": plan.to_dict(), "sessions": sessions})
+    (tmp_path / "reproduce.json").write_text(text)
+    out = ["reproduce", "--out", str(tmp_path)]
+    rerun = ["--benchmarks", "CrossSwim-v0", "--stages", "table", "--no-progress"]
+    for argv in (["--status"], ["--report-only"], rerun):
+        assert main([*out, *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "reproduce.json is not a reproduce plan" in err[0]
+        assert match in err[0]
+        assert (tmp_path / "reproduce.json").read_text() == text  # kept for its owner to mend

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .plan import _STAGES, BENCHMARKS, ReproducePlan
+from .plan import _STAGES, BENCHMARKS, ReproducePlan, check_sessions
 
 __all__ = ["add_parser", "command"]
 
@@ -216,7 +216,9 @@ def _stored(out: Path, usage_error: type[Exception], missing: str) -> tuple[dict
         raise usage_error(f"{out} has no reproduce.json: {missing}")
     try:
         document = json.loads(path.read_text())
-        return document, ReproducePlan.from_dict(document["plan"])
+        plan = ReproducePlan.from_dict(document["plan"])
+        check_sessions(document)
+        return document, plan
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise usage_error(f"{path} is not a reproduce plan: {exc}") from None
 

@@ -7,7 +7,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-__all__ = ["BENCHMARKS", "PAPER_DIRECTIONS", "PAPER_TABLE1", "ReproducePlan"]
+__all__ = ["BENCHMARKS", "PAPER_DIRECTIONS", "PAPER_TABLE1", "ReproducePlan", "check_sessions"]
 
 BENCHMARKS = ("CrossSwim-v0", "CrossWalk-v0", "BeamWalk-v0", "QuadrupedWalk-v0", "TripodWalk-v0")
 
@@ -33,6 +33,41 @@ _STAGES = ("table", "bo", "transfer", "directions", "perturbation", "studies", "
 # What each stage runs besides the optimisation budgets, as the launch line and --status say.
 _BESIDES_BUDGETS = {"transfer": "the transfer", "perturbation": "the perturbation study",
                     "studies": "the studies of C", "rl": "the RL baselines"}  # fmt: skip
+
+
+# What each session record of reproduce.json holds (runner.reproduce writes them), as the
+# report and --status read it: a key's value must be one of these types where present.
+_SESSION_TYPES: dict[str, tuple[type, ...]] = {
+    "command": (str,), "source": (str, type(None)), "machine": (str, type(None)),
+    "started": (int, float), "wall_s": (int, float), "budget_s": (int, float),
+    "direction_budget_s": (int, float), "workers": (int,), "repeats": (int,),
+    "deterministic": (bool,), "stages": (list,),
+}  # fmt: skip
+
+
+def check_sessions(document: dict[str, Any]) -> None:
+    """Check the session records of reproduce.json's ``document`` (a missing list is an empty
+    one, set in it), so that a hand-edited record is named, not a traceback of the report.
+
+    Raises
+    ------
+    ValueError
+        Naming the session (counted from 1) and the setting that is wrong.
+    """
+    sessions = document.setdefault("sessions", [])
+    if not isinstance(sessions, list):
+        raise ValueError(f"'sessions' must be a list, got {sessions!r}")
+    for number, session in enumerate(sessions, start=1):
+        if not isinstance(session, dict) or not isinstance(session.get("command"), str):
+            raise ValueError(f"session {number} is not a record with its command: {session!r}")
+        for key, types in _SESSION_TYPES.items():
+            value = session.get(key)
+            # (bool is an int: a true/false where a count or a time belongs is refused too)
+            wrong = isinstance(value, bool) and bool not in types
+            if key in session and (wrong or not isinstance(value, types)):
+                raise ValueError(f"session {number}'s {key} is {value!r}")
+        if "stages" in session and not all(isinstance(x, str) for x in session["stages"]):
+            raise ValueError(f"session {number}'s stages is {session['stages']!r}")
 
 
 def _short(env_id: str) -> str:

@@ -43,7 +43,7 @@ from .csv_rows import _append_row as _append_row
 from .csv_rows import _supersede as _supersede
 from .optimisation_runs import _objective, optimise
 from .optimisation_runs import _run_spec as _run_spec
-from .plan import ReproducePlan
+from .plan import ReproducePlan, check_sessions
 from .session_log import Log, _log_stderr, _tee
 from .stages import _evaluate_seeds as _evaluate_seeds
 from .stages import _perturbation_base, perturbation, rl_baselines, studies
@@ -62,6 +62,7 @@ def _load_plan(out: Path, plan: ReproducePlan) -> dict[str, Any]:
     try:
         document = json.loads(path.read_text())
         stored = ReproducePlan.from_dict(document["plan"])
+        check_sessions(document)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise RunDirectoryError(f"{path} is not a reproduce plan: {exc}") from None
     differing = stored.differences(plan)
