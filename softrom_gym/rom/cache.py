@@ -27,7 +27,8 @@ def cache_dir() -> Path:
     """Where subspaces and cubature rules are cached: ``$SOFTROM_CACHE_DIR`` or the user cache."""
     env = os.environ.get("SOFTROM_CACHE_DIR")
     if env:
-        return Path(env)
+        # (a quoted "~/cache" reaches us unexpanded; it would make a folder named "~" here)
+        return Path(os.path.expanduser(env))
     if sys.platform == "darwin":
         base = Path.home() / "Library" / "Caches"
     else:
@@ -83,10 +84,14 @@ def load_entry(
     return None
 
 
+_UNWRITABLE: set[Path] = set()  # cache folders this process has already warned about
+
+
 def save_entry(path: Path | None, **arrays: npt.ArrayLike) -> None:
     """Write ``arrays`` to ``path`` atomically: a concurrent reader never sees half a file,
     nor do two writers (processes or threads) share a temporary file, and a read-only cache
-    location only costs speed."""
+    location only costs speed (said once per folder and process in a RuntimeWarning: a new
+    robot's model is then rebuilt, minutes, every time it is made)."""
     if path is None:
         return
     tmp = path.with_name(f"{path.stem}.{os.getpid()}.{threading.get_ident()}.tmp.npz")
@@ -95,6 +100,15 @@ def save_entry(path: Path | None, **arrays: npt.ArrayLike) -> None:
         # (numpy's stub also matches a **dict against savez's allow_pickle: bool)
         np.savez(tmp, **arrays)  # type: ignore[arg-type]
         os.replace(tmp, path)
-    except OSError:
+    except OSError as exc:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
+        if path.parent not in _UNWRITABLE:
+            _UNWRITABLE.add(path.parent)
+            warnings.warn(
+                f"softrom_gym: cannot write the cache entry {path} ({exc.strerror or exc}): "
+                "it is built again each time it is needed; set SOFTROM_CACHE_DIR to a folder "
+                "you can write",
+                RuntimeWarning,
+                stacklevel=3,
+            )
