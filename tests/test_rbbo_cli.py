@@ -1009,3 +1009,17 @@ def test_a_hand_edited_execution_or_objective_in_config_json_is_named(tmp_path, 
         err = _error(capsys, command)
         assert f"{run}/config.json has invalid" in err and match in err
     assert len(_history(run)) == 6  # nothing evaluated
+
+
+def test_a_quoted_home_folder_in_a_path_option_is_the_home_folder(tmp_path, capsys, monkeypatch):
+    # no shell expands "~" quoted (or in --out=~/run): read as the home folder, as a robot's
+    # mesh path and control_basis are, never as a folder named "~" in the working directory
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.chdir(tmp_path)
+    args = ["optimize", "synthetic", *TINY, "--iterations", "3", "--executor", "serial"]
+    assert main([*args, "--out", "~/run"]) == 0
+    assert (tmp_path / "home" / "run" / "history.jsonl").is_file()
+    assert main(["report", "~/run", "--png", "~/plots/run.png"]) == 0
+    assert (tmp_path / "home" / "plots" / "run.png").is_file()
+    assert not (tmp_path / "~").exists()
+    capsys.readouterr()

@@ -10,10 +10,19 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
+from pathlib import Path
 from typing import Any
 
 _DURATION = re.compile(r"^(?:(\d+(?:\.\d*)?)h)?(?:(\d+(?:\.\d*)?)m)?(?:(\d+(?:\.\d*)?)s)?$")
+
+
+def user_path(text: str) -> Path:
+    """A path option's value, ``~`` read as the home folder even where no shell expanded it
+    (quoted, or in ``--out=~/run``): a robot's mesh path and ``control_basis`` read it so, and
+    a folder named "~" in the working directory is never what was meant."""
+    return Path(os.path.expanduser(text))
 
 
 def parse_duration(text: str) -> float:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import re
-from pathlib import Path
 
 from .arguments import (
     _env_kwarg,
@@ -20,6 +19,7 @@ from .arguments import (
     mpc_changes_arg,
     parse_duration,
     rl_steps_arg,
+    user_path,
 )
 from .errors import UsageError
 
@@ -101,11 +101,11 @@ def _parser() -> argparse.ArgumentParser:
                      help="fresh seeds for R_init and R* (default 3)")  # fmt: skip
     opt.add_argument("--optimizer", choices=["lrbfgs", "cg"], default="lrbfgs",
                      help="acquisition maximiser on the Grassmannian (default lrbfgs)")  # fmt: skip
-    opt.add_argument("--out", type=Path, help="run directory (default runs/<env>-<time>)")
+    opt.add_argument("--out", type=user_path, help="run directory (default runs/<env>-<time>)")
     opt.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     res = sub.add_parser("resume", help="continue a run from its directory")
-    res.add_argument("run_dir", type=Path, metavar="DIR")
+    res.add_argument("run_dir", type=user_path, metavar="DIR")
     res.add_argument("--budget", type=parse_duration, help="new total wall-time budget")
     res.add_argument("--iterations", type=_positive_int, help="new total number of evaluations")
     res.add_argument("--workers", type=_positive_int, help="default: the run's")
@@ -119,16 +119,16 @@ def _parser() -> argparse.ArgumentParser:
 
     con = sub.add_parser("confirm", help="measure R_init and R* of a finished run again "
                          "(after an upgrade, or on another machine)")  # fmt: skip
-    con.add_argument("run_dir", type=Path, metavar="DIR")
+    con.add_argument("run_dir", type=user_path, metavar="DIR")
     con.add_argument("--workers", type=_positive_int, help="default: the run's")
 
     rep = sub.add_parser("report", help="print the table and write convergence.png")
-    rep.add_argument("run_dirs", type=Path, nargs="+", metavar="DIR")
-    rep.add_argument("--png", type=Path, help="plot path (default DIR/convergence.png)")
+    rep.add_argument("run_dirs", type=user_path, nargs="+", metavar="DIR")
+    rep.add_argument("--png", type=user_path, help="plot path (default DIR/convergence.png)")
 
     rol = sub.add_parser("rollout", help="replay the best B_c with MPC")
-    rol.add_argument("run_dir", type=Path, metavar="DIR")
-    rol.add_argument("--video", type=Path, help="write an mp4 of the rollout")
+    rol.add_argument("run_dir", type=user_path, metavar="DIR")
+    rol.add_argument("--video", type=user_path, help="write an mp4 of the rollout")
     rol.add_argument("--seconds", type=_positive_float,
                      help="episode (and video) length, s (default the run's T_max); R is "
                      "measured from the run's settle time on, so an episode no longer than "
@@ -144,7 +144,7 @@ def _parser() -> argparse.ArgumentParser:
     bas.add_argument("--control-basis", default="identity",
                      help="comma list of identity, best (of --run) or PATH.npy (default "
                      "identity)")  # fmt: skip
-    bas.add_argument("--run", type=Path, metavar="DIR", help="RBBO run directory (for best)")
+    bas.add_argument("--run", type=user_path, metavar="DIR", help="RBBO run directory (for best)")
     bas.add_argument("--sim-dim", type=_positive_int,
                      help="M of the identity basis and the env (default: the --run's, else a "
                      "PATH.npy basis's rows, else 20)")  # fmt: skip
@@ -155,7 +155,8 @@ def _parser() -> argparse.ArgumentParser:
                      type=_env_kwarg,
                      help="a gym.make keyword for the env, repeatable, as optimize's "
                      "(with --run: the run's keywords are used; these must agree)")  # fmt: skip
-    bas.add_argument("--out", type=Path, help="output directory (default runs/baselines-<env>)")
+    bas.add_argument("--out", type=user_path,
+                     help="output directory (default runs/baselines-<env>)")  # fmt: skip
     bas.add_argument("--eval-seeds", type=_positive_int, default=5,
                      help="evaluation episodes (default 5)")  # fmt: skip
     bas.add_argument("--seconds", type=_positive_float, default=10.0,

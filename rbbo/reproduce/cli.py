@@ -68,6 +68,12 @@ def _mpc_changes(text: str) -> dict[str, Any]:
     return mpc_changes_arg(text)
 
 
+def _user_path(text: str) -> Path:
+    from ..cli.arguments import user_path
+
+    return user_path(text)
+
+
 def _rl_steps(text: str) -> int | dict[str, int]:
     from ..cli.arguments import rl_steps_arg
 
@@ -170,11 +176,11 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    "(repeatable)")  # fmt: skip
     p.add_argument("--timeout", type=parse_duration, default=defaults.timeout_s,
                    help="per-evaluation limit (default 30m)")  # fmt: skip
-    p.add_argument("--out", type=Path, default=Path("runs/reproduce"),
+    p.add_argument("--out", type=_user_path, default=Path("runs/reproduce"),
                    help="the reproduction's directory (default runs/reproduce)")  # fmt: skip
     p.add_argument("--report-only", action="store_true",
                    help="rewrite tables, figures and REPORT.md from the runs in --out")  # fmt: skip
-    p.add_argument("--report", type=Path, metavar="PATH",
+    p.add_argument("--report", type=_user_path, metavar="PATH",
                    help="also write the report here, its links relative to it "
                    "(e.g. docs/REPORT.md)")  # fmt: skip
     p.add_argument("--status", action="store_true",
