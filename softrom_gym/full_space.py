@@ -42,6 +42,7 @@ from scipy.sparse.linalg import splu
 
 import cpp_sim
 
+from ._validate import real_array
 from .robots import Robot
 
 __all__ = ["FullSpaceModel", "FullSpaceState"]
@@ -106,6 +107,25 @@ class FullSpaceModel:
 
     def __post_init__(self) -> None:
         n = self.robot.num_nodes
+        self._check_settings()
+        if self.actuation is not None:
+            a = real_array("actuation", self.actuation)
+            if a.ndim != 2 or a.shape[0] != 3 * n or not np.all(np.isfinite(a)):
+                raise ValueError(
+                    f"actuation must be a finite (3N, C) = ({3 * n}, C) array, got shape {a.shape}"
+                )
+            self.actuation = a
+        self._fem = self.robot.fem_model()
+        self._m3 = np.repeat(np.asarray(self._fem.mass), 3)
+        self._total_mass = float(np.sum(self._fem.mass))
+        self._k0 = sp.csr_matrix(self._fem.stiffness(self.robot.nodes, project=False))
+        self._surface = np.asarray(self.robot.surface_nodes, dtype=np.int64)
+
+    def _check_settings(self) -> np.ndarray:
+        """Refuse a setting that is no finite number of the right sign. The model is a
+        mutable dataclass, so :meth:`step` checks again: ``model.dt = -0.01`` after
+        construction stepped backwards in time without a word, and a new ``gravity`` was
+        ignored). Returns the gravity (3,) in m/s^2."""
 
         def real(name: str) -> float:
             value = getattr(self, name)
@@ -127,22 +147,13 @@ class FullSpaceModel:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-        g = np.asarray(self.gravity, dtype=np.float64)
-        if g.shape != (3,) or not np.all(np.isfinite(g)):
+        try:
+            g = real_array("gravity", self.gravity)
+        except ValueError:
+            g = None
+        if g is None or g.shape != (3,) or not np.all(np.isfinite(g)):
             raise ValueError(f"gravity must be 3 finite numbers (m/s^2), got {self.gravity!r}")
-        if self.actuation is not None:
-            a = np.asarray(self.actuation, dtype=np.float64)
-            if a.ndim != 2 or a.shape[0] != 3 * n or not np.all(np.isfinite(a)):
-                raise ValueError(
-                    f"actuation must be a finite (3N, C) = ({3 * n}, C) array, got shape {a.shape}"
-                )
-            self.actuation = a
-        self._fem = self.robot.fem_model()
-        self._m3 = np.repeat(np.asarray(self._fem.mass), 3)
-        self._total_mass = float(np.sum(self._fem.mass))
-        self._k0 = sp.csr_matrix(self._fem.stiffness(self.robot.nodes, project=False))
-        self._surface = np.asarray(self.robot.surface_nodes, dtype=np.int64)
-        self._gravity = np.tile(np.asarray(self.gravity, dtype=np.float64), n)
+        return g
 
     @classmethod
     def matching(cls, model: cpp_sim.ReducedModel, robot: Robot, basis: np.ndarray
@@ -185,9 +196,23 @@ class FullSpaceModel:
         return FullSpaceState(x, v, impulses)
 
     def com(self, x: np.ndarray) -> np.ndarray:
-        """Centre of mass (3,) of positions x (N, 3)."""
+        """Centre of mass (3,) of positions x (N, 3), in m."""
         mass = np.asarray(self._fem.mass)
-        return mass @ np.asarray(x) / self._total_mass
+        return mass @ self._nodal("x", x) / self._total_mass
+
+    def _nodal(self, name: str, value: object, rows: int | None = None) -> np.ndarray:
+        """``value`` as a finite real (rows, 3) array (rows defaults to N); a wrong shape, a
+        complex, boolean or non-finite entry is named here rather than surfacing as a
+        broadcasting error, a dropped imaginary part or a 'Newton step diverged'."""
+        rows = self.robot.num_nodes if rows is None else rows
+        a = real_array(name, value)
+        if a.shape != (rows, 3):
+            raise ValueError(f"{name} has shape {a.shape}, expected ({rows}, 3)")
+        bad = np.argwhere(~np.isfinite(a))
+        if bad.size:
+            raise ValueError(f"{name} has a non-finite value ({a[tuple(bad[0])]}) at row "
+                             f"{bad[0][0]}")  # fmt: skip
+        return a
 
     # -- one step --------------------------------------------------------------------------
     def step(self, state: FullSpaceState, controls: np.ndarray | None = None
@@ -195,11 +220,14 @@ class FullSpaceModel:
         """One step under controls f_c (C,); returns the new state and an info dict
         (``newton_iterations``, ``converged``, ``stagger_iterations``, ``contact_converged``,
         ``active_rows``, ``contacts``)."""
+        gravity = self._check_settings()
         h = self.dt
         m3 = self._m3
-        x_n = np.asarray(state.x, dtype=np.float64).ravel()
-        v_n = np.asarray(state.v, dtype=np.float64).ravel()
-        f_ext = m3 * self._gravity
+        n = self.robot.num_nodes
+        x_n = self._nodal("state.x", state.x).ravel()
+        v_n = self._nodal("state.v", state.v).ravel()
+        warm = self._nodal("state.impulses", state.impulses, rows=len(self._surface))
+        f_ext = m3 * np.tile(gravity, n)
         if controls is not None:
             actuation = self.actuation
             if actuation is None:
@@ -207,12 +235,11 @@ class FullSpaceModel:
                     "this model has no actuation, so it takes no controls (give "
                     "actuation, or FullSpaceModel.matching a reduced model)"
                 )
-            fc = np.asarray(controls, dtype=np.float64)
+            fc = real_array("controls", controls)
             if fc.shape != (actuation.shape[1],) or not np.all(np.isfinite(fc)):
                 raise ValueError(f"controls must be finite with shape "
                                  f"({actuation.shape[1]},), got {fc.shape}")  # fmt: skip
             f_ext = f_ext + m3 * (actuation @ fc)
-        n = self.robot.num_nodes
         diag = sp.diags(m3 * (1.0 + h * self.damping_alpha))
         damping = h * self.damping_beta * self._k0
         v = v_n.copy()
@@ -237,7 +264,7 @@ class FullSpaceModel:
             if np.sqrt(np.sum(m3 * dv * dv)) / scale < self.newton_tolerance:
                 info["converged"] = True
                 break
-        v, impulses, contact = self._contacts(x_n, v, factor, state.impulses)
+        v, impulses, contact = self._contacts(x_n, v, factor, warm)
         info.update(contact)
         new = FullSpaceState((x_n + h * v).reshape(n, 3), v.reshape(n, 3), impulses)
         return new, info

@@ -188,3 +188,42 @@ def test_settings_and_models_without_a_full_space_counterpart_are_named(bar):
     with pytest.raises(ValueError, match=rf"basis has shape \(48, {sub.M + 5}\), expected "
                        rf"\(48, {sub.M + 6}\) for this model"):  # fmt: skip
         FullSpaceModel.matching(walk, bar, sub.basis[:, :-1])
+
+
+def test_a_bad_state_or_a_setting_changed_after_construction_is_named(bar):
+    """Found by calling step with hand-made states: a (N, 2) x was a numpy broadcasting error,
+    an inf velocity was reported as 'x contains a non-finite value', impulses of the wrong
+    length were used silently as the warm start, a complex x lost its imaginary part with a
+    warning only, and ``model.dt = -0.01`` after construction stepped backwards in time."""
+    model = FullSpaceModel(bar)
+    rest = model.rest_state()
+    x, v, imp = rest.x, rest.v, rest.impulses
+    n, ns = bar.num_nodes, len(bar.surface_nodes)
+    cases = (
+        ((x[:, :2], v, imp), rf"state.x has shape \({n}, 2\), expected \({n}, 3\)"),
+        ((x, v[:-1], imp), rf"state.v has shape \({n - 1}, 3\), expected \({n}, 3\)"),
+        ((x, v + np.inf, imp), r"state.v has a non-finite value \(inf\) at row 0"),
+        ((x, v, imp[:-1]), rf"state.impulses has shape \({ns - 1}, 3\), expected \({ns}, 3\)"),
+        ((x + 0j, v, imp), "state.x must be real numbers, got a complex128 array"),
+        ((x, v, "abc"), "state.impulses must be real numbers"),
+    )
+    from softrom_gym.full_space import FullSpaceState
+
+    for fields, match in cases:
+        with pytest.raises(ValueError, match=match):
+            model.step(FullSpaceState(*fields))
+    with pytest.raises(ValueError, match=rf"x has shape \(5, 3\), expected \({n}, 3\)"):
+        model.com(x[:5])
+    with pytest.raises(ValueError, match="actuation must be real numbers, got a bool array"):
+        FullSpaceModel(bar, np.ones((3 * n, 2), dtype=bool))
+    with pytest.raises(ValueError, match="gravity must be 3 finite numbers"):
+        FullSpaceModel(bar, gravity="abc")
+    model.dt = -0.01
+    with pytest.raises(ValueError, match="dt must be > 0, got -0.01"):
+        model.step(rest)
+    # A gravity set after construction is the one the step uses: one step of free fall from
+    # rest moves every node by g dt^2 (implicit Euler), here along +x, far above the ground.
+    model.dt, model.gravity = 0.01, (3.0, 0.0, 0.0)
+    lifted = FullSpaceState(x + np.array([0.0, 0.0, 1.0]), v, imp)
+    new, _ = model.step(lifted)
+    np.testing.assert_allclose(new.x - lifted.x, np.tile([3.0e-4, 0.0, 0.0], (n, 1)), atol=1e-9)
