@@ -458,3 +458,16 @@ def test_model_and_cubature_arguments_are_named(robot, subspace):
     for tolerance in (0.0, 1.0):
         with pytest.raises(ValueError, match=rf"tolerance must be in \(0, 1\), got {tolerance}"):
             train_cubature(robot, subspace, tolerance=tolerance)
+    # Found by passing each argument a wrong type: num_poses=2.5 was "'float' object cannot be
+    # interpreted as an integer", tolerance='0.1' a '<' TypeError, seed=-1 numpy's "expected
+    # non-negative integer" (none naming the argument), and seed=True silently seeded 1.
+    for kwargs, error, match in (
+        ({"num_poses": 2.5}, TypeError, "num_poses must be an integer, got 2.5"),
+        ({"num_poses": True}, TypeError, "num_poses must be an integer, got True"),
+        ({"tolerance": "0.1"}, TypeError, "tolerance must be a real number, got '0.1'"),
+        ({"seed": True}, TypeError, "seed must be an integer, got True"),
+        ({"seed": 1.5}, TypeError, "seed must be an integer, got 1.5"),
+        ({"seed": -1}, ValueError, "seed must be >= 0, got -1"),
+    ):
+        with pytest.raises(error, match=match):
+            train_cubature(robot, subspace, cache=False, **kwargs)

@@ -18,6 +18,7 @@ from scipy.optimize import nnls
 
 import cpp_sim
 
+from .._validate import real
 from ..robots import Robot
 from .cache import cache_path, load_entry, mesh_key, save_entry
 from .subspace import Subspace
@@ -158,8 +159,13 @@ def train_cubature(
         Say on stderr what is being computed and how long it took (nothing when the rule
         comes from the cache).
     """
-    if num_poses < 1:
-        raise ValueError(f"num_poses must be >= 1, got {num_poses}")
+    # A bool is an int to Python: seed=True silently seeded 1, num_poses=True sampled 1 pose.
+    for name, value, low in (("num_poses", num_poses, 1), ("seed", seed, 0)):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise TypeError(f"{name} must be an integer, got {value!r}")
+        if value < low:
+            raise ValueError(f"{name} must be >= {low}, got {value}")
+    tolerance = real("tolerance", tolerance)
     if not 0 < tolerance < 1:
         raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
     if max_elements is None:
