@@ -255,6 +255,11 @@ def test_too_many_modes_raise(robot):
             build_subspace(small, m, cache=False)
     with pytest.raises(ValueError, match="num_derivatives must be in"):
         build_subspace(robot, 10, num_derivatives=10, cache=False)
+    # Found by passing num_derivatives a float and a bool: 1.5 was "slice indices must be
+    # integers" from deep in the build, '1' a '<=' TypeError, True silently one derivative.
+    for bad in (1.5, True, "1"):
+        with pytest.raises(TypeError, match=f"num_derivatives must be an integer, got {bad!r}"):
+            build_subspace(small, 6, num_derivatives=bad, cache=False)
 
 
 def test_the_largest_simulation_space_of_a_small_mesh_is_all_its_vibration_modes():

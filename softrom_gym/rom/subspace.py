@@ -220,6 +220,10 @@ def build_subspace(
         )
     if num_derivatives is None:
         num_derivatives = M // 3 if M >= 6 else 0
+    elif isinstance(num_derivatives, (bool, np.bool_)) or not isinstance(
+        num_derivatives, (int, np.integer)
+    ):  # 1.5 was a slice-index TypeError deep in the build, True silently one derivative
+        raise TypeError(f"num_derivatives must be an integer, got {num_derivatives!r}")
     if not 0 <= num_derivatives < M:
         raise ValueError(f"num_derivatives must be in [0, M), got {num_derivatives} for M = {M}")
     num_modes = M - num_derivatives
