@@ -188,9 +188,19 @@ class FullSpaceModel:
 
     def state_from_reduced(self, basis: np.ndarray, state: cpp_sim.ReducedState
                            ) -> FullSpaceState:  # fmt: skip
-        """x = X + B_r q, v = B_r q_dot; the contact impulses carry over per surface node."""
+        """x = X + B_r q, v = B_r q_dot; the contact impulses carry over per surface node.
+
+        ``basis`` is B_r (3N, M + 6), the reduced model's; a wrong shape, a complex or a
+        non-finite entry raises ValueError (they were a matmul error or a state of NaNs)."""
         n = self.robot.num_nodes
-        x = self.robot.nodes + (basis @ np.asarray(state.q)).reshape(n, 3)
+        q = np.asarray(state.q)
+        basis = real_array("basis", basis)
+        if basis.shape != (3 * n, q.size):
+            raise ValueError(f"basis has shape {basis.shape}, expected (3N, M + 6) = "
+                             f"({3 * n}, {q.size}) for this robot and state")  # fmt: skip
+        if not np.all(np.isfinite(basis)):
+            raise ValueError("basis has a non-finite entry")
+        x = self.robot.nodes + (basis @ q).reshape(n, 3)
         v = (basis @ np.asarray(state.qdot)).reshape(n, 3)
         impulses = np.asarray(state.impulses, dtype=np.float64).reshape(-1, 3).copy()
         return FullSpaceState(x, v, impulses)

@@ -227,3 +227,22 @@ def test_a_bad_state_or_a_setting_changed_after_construction_is_named(bar):
     lifted = FullSpaceState(x + np.array([0.0, 0.0, 1.0]), v, imp)
     new, _ = model.step(lifted)
     np.testing.assert_allclose(new.x - lifted.x, np.tile([3.0e-4, 0.0, 0.0], (n, 1)), atol=1e-9)
+
+
+def test_state_from_reduced_names_a_bad_basis(bar):
+    """Found by passing B_r with a column or rows missing, a NaN and a complex entry: a matmul
+    or reshape error, or silently a state of NaNs / the real part."""
+    sub = full_basis(bar)
+    walk = build_reduced_model(bar, forces="exact", subspace=sub)
+    model = FullSpaceModel.matching(walk, bar, sub.basis)
+    state = walk.rest_state()
+    shape = r"expected \(3N, M \+ 6\) = \(48, 48\)"
+    for bad, match in ((sub.basis[:, :-1], shape), (sub.basis[:-3], shape),
+                       (sub.basis * np.nan, "basis has a non-finite entry"),
+                       (sub.basis + 0j, "basis must be real numbers")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            model.state_from_reduced(bad, state)
+    # The good basis: X + B_r q at rest, and the impulses carried over per surface node.
+    full = model.state_from_reduced(sub.basis, state)
+    np.testing.assert_allclose(full.x, bar.nodes, atol=1e-12)
+    assert full.impulses.shape == (len(bar.surface_nodes), 3)
