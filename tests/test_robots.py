@@ -367,6 +367,29 @@ def test_a_robot_names_tetrahedra_that_are_not_node_indices():
     assert whole.tets.dtype == np.int64 and whole.tets.tolist() == [[0, 1, 2, 3], [1, 2, 3, 4]]
 
 
+def test_a_robot_names_non_finite_or_complex_nodes_and_inverted_tetrahedra():
+    # Found by building robots from bad arrays: NaN nodes gave volume nan, complex nodes lost
+    # their imaginary part with a warning only, bool nodes were read as 0 / 1 m, and a
+    # tetrahedron wound the wrong way gave a negative volume and mass; only fem_model()
+    # refused them. A string material override was pybind11's argument listing.
+    nodes = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]) * 0.05
+    tets = [[0, 1, 2, 3]]
+    assert Robot("x", nodes, tets).volume == pytest.approx(0.05**3 / 6)
+    bad = nodes.astype(float)
+    bad[2, 1] = np.nan
+    with pytest.raises(ValueError, match=r"nodes\[2\] = \[0.0, nan, 0.0\] is not finite"):
+        Robot("x", bad, tets)
+    with pytest.raises(ValueError, match="nodes must be real numbers, got a complex128 array"):
+        Robot("x", nodes + 0j, tets)
+    with pytest.raises(ValueError, match="nodes must be real numbers, got a bool array"):
+        Robot("x", nodes > 0, tets)
+    with pytest.raises(ValueError, match=r"tets\[0\] = \[1, 0, 2, 3\] has non-positive rest "
+                       r"volume -2.08333e-05"):  # fmt: skip
+        Robot("x", nodes, [[1, 0, 2, 3]])
+    with pytest.raises(TypeError, match="youngs_modulus must be a real number, got '1e4'"):
+        Robot("x", nodes, tets).fem_model(youngs_modulus="1e4")
+
+
 def test_robot_and_from_mesh_name_bad_shapes_resolutions_and_scales(tmp_path):
     nodes, tets = np.eye(4, 3), np.array([[0, 1, 2, 3]])
     with pytest.raises(ValueError, match=r"nodes has shape \(4, 2\), expected \(N, 3\)"):

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._validate import real
+from .._validate import real, real_array
 from .voxel import boundary_faces
 
 if TYPE_CHECKING:
@@ -67,10 +67,13 @@ class Robot:
     metadata: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        nodes = np.ascontiguousarray(self.nodes, dtype=np.float64)
+        nodes = np.ascontiguousarray(real_array("nodes", self.nodes))
         tets = _node_indices(self.tets)
         if nodes.ndim != 2 or nodes.shape[1] != 3:
             raise ValueError(f"nodes has shape {nodes.shape}, expected (N, 3)")
+        if not np.all(np.isfinite(nodes)):
+            row = int(np.argwhere(~np.isfinite(nodes))[0][0])
+            raise ValueError(f"nodes[{row}] = {nodes[row].tolist()} is not finite")
         if tets.ndim != 2 or tets.shape[1] != 4:
             raise ValueError(f"tets has shape {tets.shape}, expected (T, 4)")
         if len(tets) == 0:
@@ -81,6 +84,15 @@ class Robot:
             t, k = (int(i) for i in np.argwhere(outside)[0])
             raise ValueError(f"tets[{t}] = {tets[t].tolist()} has node index {tets[t, k]} out "
                              f"of range [0, {len(nodes)})")  # fmt: skip
+        # A tetrahedron wound the wrong way (or flat) made volume and mass negative (or NaN)
+        # and the surface inside out; only fem_model() refused it, as the C++ model does.
+        p = nodes[tets]
+        vol = np.linalg.det(p[:, 1:] - p[:, :1]) / 6.0
+        if not np.all(vol > 0):
+            t = int(np.flatnonzero(~(vol > 0))[0])
+            raise ValueError(f"tets[{t}] = {tets[t].tolist()} has non-positive rest volume "
+                             f"{vol[t]:.6g} (tetrahedra must be positively oriented and "
+                             "non-degenerate)")  # fmt: skip
         nodes.flags.writeable = False
         tets.flags.writeable = False
         object.__setattr__(self, "nodes", nodes)
@@ -154,12 +166,14 @@ class Robot:
         unknown = set(material) - {"youngs_modulus", "poisson_ratio", "density"}
         if unknown:
             raise TypeError(f"unknown material parameter(s) {sorted(unknown)}")
+        # real() names a string or bool override (pybind11's "incompatible constructor
+        # arguments" listing did not); the C++ model checks the ranges.
         return cpp_sim.FEMModel(
             self.nodes,
             self.tets,
-            material.get("youngs_modulus", self.youngs_modulus),
-            material.get("poisson_ratio", self.poisson_ratio),
-            material.get("density", self.density),
+            real("youngs_modulus", material.get("youngs_modulus", self.youngs_modulus)),
+            real("poisson_ratio", material.get("poisson_ratio", self.poisson_ratio)),
+            real("density", material.get("density", self.density)),
         )
 
     def __repr__(self) -> str:
