@@ -416,3 +416,19 @@ def test_robot_and_from_mesh_name_bad_shapes_resolutions_and_scales(tmp_path):
     trimesh.PointCloud(np.random.default_rng(0).random((10, 3))).export(cloud)
     with pytest.raises(ValueError, match="points.ply' holds no triangle mesh"):
         from_mesh(cloud, 4)
+
+
+def test_voxels_to_tets_names_a_bad_pitch_or_origin():
+    # Found by passing each a wrong value: a string pitch was numpy's "ufunc 'isfinite' not
+    # supported", a NaN origin silently NaN nodes, a 2-number origin a broadcasting error.
+    from softrom_gym.robots.voxel import voxels_to_tets
+
+    occ = np.ones((2, 1, 1), dtype=bool)
+    with pytest.raises(TypeError, match="pitch must be a real number, got '0.1'"):
+        voxels_to_tets(occ, "0.1")
+    for origin in ([np.nan, 0.0, 0.0], [0.0, 0.0]):
+        with pytest.raises(ValueError, match="origin must be 3 finite numbers"):
+            voxels_to_tets(occ, 0.1, origin=origin)
+    nodes, _ = voxels_to_tets(occ, 0.1, origin=[1.0, 2.0, 3.0])
+    np.testing.assert_allclose(nodes.min(axis=0), [1.0, 2.0, 3.0])
+    np.testing.assert_allclose(nodes.max(axis=0), [1.2, 2.1, 3.1])

@@ -12,6 +12,8 @@ import itertools
 import numpy as np
 from scipy import ndimage
 
+from .._validate import real, real_array
+
 __all__ = ["MAX_GRID_CELLS", "boundary_faces", "check_grid", "largest_component", "voxels_to_tets"]
 
 MAX_GRID_CELLS = 1_000_000  # voxels in a robot's grid: resolution 100 for a cube
@@ -102,9 +104,13 @@ def voxels_to_tets(
         raise ValueError(f"occupancy must be a 3-D array, got shape {occ.shape}")
     if not occ.any():
         raise ValueError("occupancy grid is empty: no voxel is filled")
+    pitch = real("pitch", pitch)  # a string was numpy's "ufunc 'isfinite' not supported"
     if not (np.isfinite(pitch) and pitch > 0):
         raise ValueError(f"pitch must be > 0, got {pitch}")
-    origin = np.zeros(3) if origin is None else np.asarray(origin, dtype=float)
+    # A NaN origin gave NaN nodes, one of 2 numbers a broadcasting error.
+    origin = np.zeros(3) if origin is None else real_array("origin", origin)
+    if origin.shape != (3,) or not np.all(np.isfinite(origin)):
+        raise ValueError(f"origin must be 3 finite numbers (m), got {origin.tolist()}")
     vox = np.argwhere(occ)  # (V, 3)
     shape = np.array(occ.shape) + 1
     corner_ijk = vox[:, None, :] + _CORNERS[None, :, :]  # (V, 8, 3)
