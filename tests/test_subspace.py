@@ -458,6 +458,10 @@ def test_model_and_cubature_arguments_are_named(robot, subspace):
         build_reduced_model(robot, 20, subspace=subspace, forces="fast")
     with pytest.raises(ValueError, match=r"subspace basis has \d+ rows, robot has 3N = \d+"):
         build_reduced_model(quadruped(), 20, subspace=subspace)
+    # Found by passing M with a prebuilt subspace: M=5 built the subspace's 20-mode model.
+    with pytest.raises(ValueError, match="M = 5 but the subspace has M = 20 deformation"):
+        build_reduced_model(robot, 5, subspace=subspace, forces="exact")
+    assert build_reduced_model(robot, subspace=subspace, forces="exact").M == subspace.M
     with pytest.raises(ValueError, match="num_poses must be >= 1, got 0"):
         train_cubature(robot, subspace, num_poses=0)
     for tolerance in (0.0, 1.0):

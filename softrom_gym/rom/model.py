@@ -21,7 +21,7 @@ _SETTINGS = frozenset(cpp_sim.ReducedConfig.SETTINGS)
 
 def build_reduced_model(
     robot: Robot,
-    M: int = 20,
+    M: int | None = None,
     *,
     forces: Literal["cubature", "exact"] = "cubature",
     control_basis: np.ndarray | None = None,
@@ -36,9 +36,10 @@ def build_reduced_model(
     Parameters
     ----------
     robot : Robot
-    M : int
+    M : int, optional
         Deformation coordinates of B_r (the state has M + 6 coordinates: 3 rigid translations,
-        then 3 linearised rotations, then the M deformation coordinates).
+        then 3 linearised rotations, then the M deformation coordinates). Default 20, or the
+        ``subspace``'s M when one is given; an M that differs from the subspace's raises.
     forces : {"cubature", "exact"}
         ``"cubature"`` (default) evaluates reduced elastic forces on a trained element subset,
         O(|S|) per step; ``"exact"`` sums every tetrahedron (the reference, O(T)).
@@ -63,8 +64,15 @@ def build_reduced_model(
         raise TypeError(f"unknown setting(s) {sorted(unknown)}; valid: {sorted(_SETTINGS)}")
     if forces not in ("cubature", "exact"):
         raise ValueError(f"forces must be 'cubature' or 'exact', got {forces!r}")
-    sub = subspace if subspace is not None else build_subspace(robot, M, cache=cache,
-                                                               verbose=verbose)  # fmt: skip
+    if subspace is None:
+        sub = build_subspace(robot, 20 if M is None else M, cache=cache, verbose=verbose)
+    else:
+        # M was ignored when a subspace came with it: M=5 with a 20-mode subspace built a
+        # 20-mode model without a word.
+        if M is not None and M != subspace.M:
+            raise ValueError(f"M = {M!r} but the subspace has M = {subspace.M} deformation "
+                             "coordinates (leave M out to use the subspace's)")  # fmt: skip
+        sub = subspace
     if sub.basis.shape[0] != 3 * robot.num_nodes:
         raise ValueError(
             f"subspace basis has {sub.basis.shape[0]} rows, robot has 3N = {3 * robot.num_nodes}"
