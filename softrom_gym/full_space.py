@@ -183,6 +183,7 @@ class FullSpaceModel:
 
     # -- states ----------------------------------------------------------------------------
     def rest_state(self) -> FullSpaceState:
+        """The robot at rest: x the rest nodes (N, 3), v and the contact impulses zero."""
         n, ns = self.robot.num_nodes, len(self._surface)
         return FullSpaceState(self.robot.nodes.copy(), np.zeros((n, 3)), np.zeros((ns, 3)))
 
