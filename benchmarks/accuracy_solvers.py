@@ -98,7 +98,10 @@ def gait_speeds(robot, task: str, count: int, seconds: float) -> dict:
         "mean_speed_fast": float(speeds["fast"].mean()),
         "rms_fast_minus_reference": rms(d_fast),
         "rms_perturbed_minus_reference": rms(d_pert),
-        "mean_gap_standard_error": float(d_fast.std(ddof=1) / np.sqrt(count)) if count > 1 else 0,
+        # one gait has no spread to estimate: null (printed "-"), not a 0 that reads as exact
+        "mean_gap_standard_error": float(d_fast.std(ddof=1) / np.sqrt(count))
+        if count > 1
+        else None,
         "rms_reference_minus_tight": rms(speeds["reference"] - speeds["tight"]),
         "rms_fast_minus_tight": rms(speeds["fast"] - speeds["tight"]),
     }
@@ -125,6 +128,10 @@ def main() -> None:
             f"{'speed ref':>10} {'speed fast':>10} {'rms f-r':>9} {'rms p-r':>9} {'se gap':>8} | "
             f"{'rms r-t':>9} {'rms f-t':>9}"
         )
+
+    def cell(x: float | None) -> str:
+        return f"{x:>8.5f}" if x is not None else f"{'-':>8}"
+
     for name in args.robots:
         robot_name, task = BENCHMARKS[name]
         robot = ROBOTS[robot_name]()
@@ -138,7 +145,7 @@ def main() -> None:
             f"{row['step_err_fast']:>9.2e} | {row['mean_speed_reference']:>+10.5f} "
             f"{row['mean_speed_fast']:>+10.5f} {row['rms_fast_minus_reference']:>9.5f} "
             f"{row['rms_perturbed_minus_reference']:>9.5f} "
-            f"{row['mean_gap_standard_error']:>8.5f} | {row['rms_reference_minus_tight']:>9.5f} "
+            f"{cell(row['mean_gap_standard_error'])} | {row['rms_reference_minus_tight']:>9.5f} "
             f"{row['rms_fast_minus_tight']:>9.5f}",
             flush=True,
         )
