@@ -159,3 +159,29 @@ def test_every_name_the_benchmark_scripts_import_from_the_package_exists(monkeyp
                     missing.append(f"{script.name}: {module}" + (f".{name}" if name else ""))
     assert checked > 100
     assert not missing, f"benchmark scripts import names that do not exist: {missing}"
+
+
+def test_every_option_the_readme_gives_a_benchmark_script_exists():
+    # The scripts are not run by the suite (minutes each), so an option renamed in a script
+    # but not in the README's prose (`bench_rom.py --rounds 3`) or its bash block went stale
+    # silently. Each --option written after a script's name, within the same `...` span or
+    # command line, must be one that script defines ("--option" in its source).
+    folder = README.parent / "benchmarks"
+    text = README.read_text()
+    prose = re.sub(r"^```.*?^```", "", text, flags=re.S | re.M)  # (fences break the pairing)
+    spans = re.findall(r"`([^`]+)`", prose) + [" ".join(c) for c in _command_lines()]
+    checked, stale = 0, []
+    for span in spans:
+        # split at each script name: an option belongs to the script named before it
+        parts = re.split(r"(?:benchmarks/)?(\w+\.py)\b", span)
+        for script, args in zip(parts[1::2], parts[2::2], strict=True):
+            path = folder / script
+            if not path.is_file():
+                continue
+            source = path.read_text()
+            for option in re.findall(r"(?<![\w-])(--[a-z][a-z0-9-]*)", args.split("#")[0]):
+                checked += 1
+                if f'"{option}"' not in source:
+                    stale.append(f"{script} {option}")
+    assert checked >= 20
+    assert not stale, f"the README gives benchmark scripts options they lack: {sorted(stale)}"
