@@ -20,7 +20,8 @@ controller's splines are):
   solver the per-call set-up of A_0's inverse (each ``step`` call forms it; a ``rollout``
   forms it once for all its steps);
 * for each solver the model offers (``reference``: the exact Newton path; ``fast``: the
-  default), so the two columns read side by side.
+  default), one row each, so the two read side by side (no ratio is printed: compare
+  ``us/step`` of the two rows of one run).
 
 ``--warm-start converged`` is a bound, not a mode to run: each timed step is taken a second
 time from the same state with the first try's converged impulses as its warm start (the
