@@ -47,6 +47,12 @@ def main() -> None:
                    help="seed_periods of the second column (env steps; 3 and 4 Hz)")  # fmt: skip
     args = p.parse_args()
     periods = tuple(args.periods)
+    import controllers
+
+    try:  # bad --periods: named now, not as a traceback after the first 10-s episode
+        controllers.planner_for("softrom_gym/SoftRobot-v0", args.planner, seed_periods=periods)
+    except ValueError as exc:
+        p.error(f"--periods: {exc}")
     print(f"{args.planner}, SoftRobot-v0, distance t = 2..10 s in body lengths: the 2 Hz cycle "
           f"only | also cycles of {', '.join(f'{x:.4g}' for x in periods)} env steps")  # fmt: skip
     for robot in args.robots:
