@@ -128,6 +128,11 @@ def main(argv: list[str] | None = None) -> list[dict]:
         if BASIS.ndim != 2 or BASIS.shape[0] != DEFAULT_M:
             p.error(f"--control-basis must be {DEFAULT_M} x C, got shape {BASIS.shape}")
         args.cs = [BASIS.shape[1]]
+    # checked now: a --closed-loop-dims M below C (or a negative seed) was a traceback raised
+    # only after each C's closed loop and replays had run (minutes at the defaults)
+    if args.seed < 0 or any(m < max(args.cs) for m in args.closed_loop_dims):
+        p.error(f"need --seed >= 0 and every --closed-loop-dims >= C = {max(args.cs)}, got "
+                f"{args.seed}, {args.closed_loop_dims}")  # fmt: skip
 
     def numerics(env: gym.Env) -> None:
         env.unwrapped.model.solver = "reference"

@@ -47,6 +47,8 @@ def main() -> None:
                    help="seed_periods of the second column (env steps; 3 and 4 Hz)")  # fmt: skip
     args = p.parse_args()
     periods = tuple(args.periods)
+    if min(args.seeds) < 0:  # gymnasium's reset refuses it, as a traceback mid-run
+        p.error(f"--seeds must be >= 0, got {args.seeds}")
     import controllers
 
     try:  # bad --periods: named now, not as a traceback after the first 10-s episode
