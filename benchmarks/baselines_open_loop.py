@@ -107,6 +107,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--out", type=Path, default=Path("runs/open_loop"))
     p.add_argument("--json", action="store_true", help="one JSON object per benchmark's best")
     args = p.parse_args(argv)
+    if min(args.seeds) < 0:  # gymnasium's reset refuses it, as a traceback mid-run
+        p.error(f"--seeds must be >= 0, got {args.seeds}")
     if not 0 < args.start < args.seconds:
         p.error(f"--start {args.start:g} must lie inside (0, --seconds {args.seconds:g})")
     ids = [i if "/" in i else f"softrom_gym/{i}" for i in args.env_ids]

@@ -85,6 +85,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
                    help="planner settings changed from the defaults")  # fmt: skip
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     args = p.parse_args(argv)
+    if min(args.seeds) < 0:  # gymnasium's reset refuses it, as a traceback mid-run
+        p.error(f"--seeds must be >= 0, got {args.seeds}")
     args.changes = {k: v for part in args.mpc for k, v in part.items()}
     ids = [i if "/" in i else f"softrom_gym/{i}" for i in args.env_ids]
     if not (args.seconds > 0 and args.start >= 0):

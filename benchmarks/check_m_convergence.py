@@ -100,6 +100,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
                         "walkers only; slow: the beam's three took 21 min on 2 shared "
                         "cores)")  # fmt: skip
     args = p.parse_args(argv)
+    if args.seed < 0:  # gymnasium's reset refuses it, as a traceback
+        p.error(f"--seed must be >= 0, got {args.seed}")
     if min(args.sim_dims) < 3:
         p.error(f"--sim-dims must be >= C = 3, got {args.sim_dims}")
     for env_id in args.env_ids:

@@ -65,6 +65,8 @@ def main() -> None:
     p.add_argument("--start", type=float, default=2.0, help="distance counts from this time (s)")
     p.add_argument("--json", action="store_true", help="one JSON object per solver")
     args = p.parse_args()
+    if args.seed < 0:  # gymnasium's reset refuses it, as a traceback
+        p.error(f"--seed must be >= 0, got {args.seed}")
     if not 0 < args.start < args.seconds:
         p.error(f"--start {args.start} must lie inside (0, --seconds {args.seconds})")
     try:

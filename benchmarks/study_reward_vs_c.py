@@ -37,6 +37,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/study_reward_vs_c"))
     args = p.parse_args(argv)
+    if min(args.seeds) < 0:  # gymnasium's reset refuses it, as a traceback mid-run
+        p.error(f"--seeds must be >= 0, got {args.seeds}")
     if min(args.cs) < 1 or not 0 < args.seconds < np.inf:
         p.error(f"need --cs >= 1 and --seconds > 0, got {args.cs}, {args.seconds:g}")
     try:  # an unknown id, C above M, a bad thread count or setting: named before any row
