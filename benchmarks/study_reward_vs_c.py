@@ -39,8 +39,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     args = p.parse_args(argv)
     if min(args.seeds) < 0:  # gymnasium's reset refuses it, as a traceback mid-run
         p.error(f"--seeds must be >= 0, got {args.seeds}")
-    if min(args.cs) < 1 or not 0 < args.seconds < np.inf:
-        p.error(f"need --cs >= 1 and --seconds > 0, got {args.cs}, {args.seconds:g}")
+    # (a negative --start was controllers.studies' ValueError traceback)
+    if min(args.cs) < 1 or not 0 < args.seconds < np.inf or args.start < 0:
+        p.error(f"need --cs >= 1, --seconds > 0 and --start >= 0, got {args.cs}, "
+                f"{args.seconds:g}, {args.start:g}")  # fmt: skip
     try:  # an unknown id, C above M, a bad thread count or setting: named before any row
         gym.make(args.env_id, control_dim=max(args.cs)).close()
         default_planner(args.env_id, args.planner, threads=args.threads)
