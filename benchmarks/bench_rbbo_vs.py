@@ -306,6 +306,14 @@ def main(argv=None) -> None:
         return (DEFAULTS[p]["seeds"] if seeds is None else seeds,
                 DEFAULTS[p]["evaluations"] if evaluations is None else evaluations)  # fmt: skip
 
+    if part in ("b", "both"):
+        # checked before part (a) runs, as usage errors: part_b's own SystemExit came after
+        # (a)'s minutes under --part both, with exit status 1
+        if not args.t > args.settle_time:
+            parser.error(f"--t {args.t} must exceed --settle-time {args.settle_time}")
+        if budget("b")[1] <= args.n_init + 1:
+            parser.error(f"--evaluations {budget('b')[1]} must exceed RBBO's initial design "
+                         f"(--n-init + 1 = {args.n_init + 1})")  # fmt: skip
     if part in ("a", "both"):
         part_a(args, *budget("a"), args.png or Path("runs/bench_rbbo_vs.png"))
     if part in ("b", "both"):
