@@ -17,11 +17,19 @@ def real(name: str, value: object) -> float:
     return float(value)
 
 
+def integer(name: str, value: object) -> int:
+    """``value`` as an int. A bool (Python's or numpy's) or a float is named, not read as a
+    count (``True`` would be 1, ``2.5`` fail later as a slice index)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    return int(value)
+
+
 def real_array(name: str, value: object) -> np.ndarray:
     """``value`` as a float64 array. A complex array is refused (casting would drop its
     imaginary part with a warning only), a boolean one too (True would act as 1.0), and so is
     anything that is not numbers, each naming ``name`` and what it got."""
-    raw = np.asarray(value) if not isinstance(value, np.ndarray) else value
+    raw = np.asarray(value)
     if raw.dtype.kind in "bc":
         raise ValueError(f"{name} must be real numbers, got a {raw.dtype} array: {raw}")
     try:

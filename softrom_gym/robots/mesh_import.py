@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._validate import real
+from .._validate import integer, real
 from .robot import Robot
 from .voxel import check_grid, largest_component, voxels_to_tets
 
@@ -168,8 +168,7 @@ def from_mesh(
     """
 
     surface, default_name = _load(mesh)
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
-        raise TypeError(f"resolution must be an integer, got {resolution!r}")
+    integer("resolution", resolution)
     if resolution < 2:
         raise ValueError(f"resolution must be >= 2 voxels along the longest side, got {resolution}")
     scale = real("scale", scale)

@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from .._validate import integer
 from .robot import Robot
 from .voxel import check_grid, largest_component, voxels_to_tets
 
@@ -22,8 +23,7 @@ Box = tuple[tuple[float, float, float], tuple[float, float, float]]
 
 
 def _check_resolution(resolution: int) -> int:
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
-        raise TypeError(f"resolution must be an integer, got {resolution!r}")
+    integer("resolution", resolution)
     if resolution < 2:
         raise ValueError(f"resolution must be >= 2 voxels along the longest side, got {resolution}")
     return int(resolution)

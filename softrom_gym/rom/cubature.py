@@ -18,7 +18,7 @@ from scipy.optimize import nnls
 
 import cpp_sim
 
-from .._validate import real
+from .._validate import integer, real
 from ..robots import Robot
 from .cache import cache_path, load_entry, mesh_key, save_entry
 from .subspace import Subspace
@@ -161,18 +161,14 @@ def train_cubature(
     """
     # A bool is an int to Python: seed=True silently seeded 1, num_poses=True sampled 1 pose.
     for name, value, low in (("num_poses", num_poses, 1), ("seed", seed, 0)):
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-            raise TypeError(f"{name} must be an integer, got {value!r}")
-        if value < low:
+        if integer(name, value) < low:
             raise ValueError(f"{name} must be >= {low}, got {value}")
     tolerance = real("tolerance", tolerance)
     if not 0 < tolerance < 1:
         raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
     if max_elements is None:
         max_elements = min(robot.num_tets, 25 * subspace.M)
-    elif isinstance(max_elements, bool) or not isinstance(max_elements, (int, np.integer)):
-        raise TypeError(f"max_elements must be an integer, got {max_elements!r}")
-    elif max_elements < 1:
+    elif integer("max_elements", max_elements) < 1:
         raise ValueError(f"max_elements must be >= 1, got {max_elements}")
     # The poses are scaled by the subspace's frequencies, so the rule depends on them as
     # well as on the basis (they differ for a hand-built Subspace).

@@ -37,6 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .._validate import integer
 from ..robots import Robot
 from .cache import cache_path, load_entry, mesh_key, save_entry
 from .eigen import (
@@ -208,8 +209,7 @@ def build_subspace(
         from the cache).
     """
     n = robot.num_nodes
-    if isinstance(M, bool) or not isinstance(M, (int, np.integer)):
-        raise TypeError(f"M must be an integer, got {M!r}")
+    integer("M", M)
     max_m = 3 * n - 6
     if M < 1:
         raise ValueError(f"M must be >= 1 deformation mode, got {M}")
@@ -220,10 +220,8 @@ def build_subspace(
         )
     if num_derivatives is None:
         num_derivatives = M // 3 if M >= 6 else 0
-    elif isinstance(num_derivatives, (bool, np.bool_)) or not isinstance(
-        num_derivatives, (int, np.integer)
-    ):  # 1.5 was a slice-index TypeError deep in the build, True silently one derivative
-        raise TypeError(f"num_derivatives must be an integer, got {num_derivatives!r}")
+    else:  # 1.5 was a slice-index TypeError deep in the build, True silently one derivative
+        integer("num_derivatives", num_derivatives)
     if not 0 <= num_derivatives < M:
         raise ValueError(f"num_derivatives must be in [0, M), got {num_derivatives} for M = {M}")
     num_modes = M - num_derivatives
