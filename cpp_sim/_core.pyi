@@ -35,7 +35,7 @@ class FEMModel:
         ...
     def energy(self, x: typing.Any) -> float:
         """
-        Elastic potential energy E(x) in J for positions x (N, 3).
+        Elastic potential energy E(x) in J for positions x (N, 3). Raises ValueError where positions so large that the material model overflows make it non-finite.
         """
     def forces(self, x: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """
@@ -46,7 +46,8 @@ class FEMModel:
         One implicit Euler step; returns (x_new, v_new), each (N, 3).
         
         Newton's method on the incremental potential with a backtracking line search and a sparse
-        Cholesky solve (see ``solver``). ``fixed`` (boolean mask (N,) or node indices) clamps nodes in place.
+        Cholesky solve (see ``solver``). ``fixed`` (boolean mask (N,) or node indices; empty fixes
+        none) clamps nodes in place.
         Raises RuntimeError if the step diverges.
         """
     def stiffness(self, x: typing.Any, project: bool = False) -> typing.Any:
@@ -142,19 +143,18 @@ class FEMModel:
 class ReducedState:
     """
     State of a reduced model: q_r and qdot_r (M + 6,) and the contact impulses (3 per surface
-    node) that warm-start the next contact solve. Copies in, copies out; picklable.
+    node) that warm-start the next contact solve. Copies in, copies out; picklable (by its
+    constructor's arguments, so an unpickled state is checked as a new one is).
     """
     def __copy__(self) -> ReducedState:
         ...
     def __deepcopy__(self, arg0: dict) -> ReducedState:
         ...
-    def __getstate__(self) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]:
-        ...
     def __init__(self, q: typing.Any, qdot: typing.Any, impulses: typing.Any) -> None:
         ...
-    def __repr__(self) -> str:
+    def __reduce__(self) -> tuple[type, tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]]:
         ...
-    def __setstate__(self, arg0: tuple) -> None:
+    def __repr__(self) -> str:
         ...
     def copy(self) -> ReducedState:
         ...
@@ -189,13 +189,17 @@ class ReducedModel:
         Centre of mass (3,) of reduced coordinates q.
         """
     def elastic_energy(self, q_e: typing.Any) -> float:
-        ...
+        """
+        Elastic energy E(X + B_e q_e) in J by cubature (sum_e w_e E_e), q_e = q[3:] (M + 3,): the rotations and deformation coordinates; translations store no energy.
+        """
     def elastic_forces(self, q_e: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """
         Reduced elastic force B_e^T f(X + B_e q_e) (M + 3,) by cubature, q_e = q[3:].
         """
     def elastic_stiffness(self, q_e: typing.Any, project: bool = False) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
-        ...
+        """
+        Reduced stiffness -d(elastic_forces)/dq_e = sum_e w_e U_e^T H_e U_e (M + 3, M + 3) by cubature, H_e the element's energy Hessian. project=True clamps each H_e to be PSD first, as the implicit step does.
+        """
     def min_volume_ratio(self, q: typing.Any) -> float:
         """
         min det F over every tetrahedron at reduced coordinates q: the smallest deformed-to-rest volume ratio J. J <= 0: an element is inverted (a material too soft for the loads).
@@ -205,7 +209,9 @@ class ReducedModel:
         Node positions (N, 3) of reduced coordinates q.
         """
     def rest_state(self) -> ReducedState:
-        ...
+        """
+        The undeformed state at rest: q = qdot = 0 (M + 6,), no contact impulses.
+        """
     def rollout(self, state: typing.Any, controls: typing.Any, threads: typing.Any = None, observe: typing.Any = None) -> dict:
         """
         B rollouts of H steps from one state (or a sequence of B states), controls (B, H, C).
@@ -433,6 +439,9 @@ class ReducedConfig:
     set; `ReducedConfig.SETTINGS` lists the names.
     """
     SETTINGS: typing.ClassVar[tuple] = ('dt', 'gravity', 'contact', 'solver', 'friction', 'ground_height', 'contact_margin', 'penalty_stiffness', 'fluid_density', 'drag_coefficient', 'damping_alpha', 'damping_beta', 'newton_tolerance', 'max_newton_iterations', 'contact_tolerance', 'max_stagger_iterations', 'stabilization', 'direction', 'max_speed', 'profile')
+    __hash__: typing.ClassVar[None] = None
+    def __eq__(self, arg0: ReducedConfig) -> bool:
+        ...
     @typing.overload
     def __init__(self) -> None:
         ...
@@ -441,6 +450,8 @@ class ReducedConfig:
         """
         ReducedConfig(**settings): defaults, then the given settings (validated).
         """
+    def __reduce__(self) -> tuple[typing.Any, tuple]:
+        ...
     def __repr__(self) -> str:
         ...
     @property

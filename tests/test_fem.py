@@ -147,6 +147,11 @@ def test_fixed_nodes_stay_put(small_block):
     x2, _ = fem.step(nodes, np.zeros_like(nodes), 0.01, fixed=np.flatnonzero(fixed))
     x1, _ = fem.step(nodes, np.zeros_like(nodes), 0.01, fixed=fixed)
     np.testing.assert_array_equal(x1, x2)
+    # An empty list (numpy makes it float64) or index array fixes nothing, as None does.
+    x0, _ = fem.step(nodes, np.zeros_like(nodes), 0.01)
+    for none_fixed in ([], (), np.array([], dtype=int)):
+        xe, _ = fem.step(nodes, np.zeros_like(nodes), 0.01, fixed=none_fixed)
+        np.testing.assert_array_equal(xe, x0)
 
 
 def _cantilever_tip_ratio(n: int) -> float:

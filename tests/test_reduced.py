@@ -303,6 +303,22 @@ def test_a_diverged_rollout_earns_no_reward_from_then_on(walker):
     assert np.all(out["rewards"][0, :2] > 0) and np.all(out["rewards"][0, 2:] == 0.0)
 
 
+def test_a_state_pickles_by_value_and_cannot_be_changed_in_place(walker):
+    import copy
+    import pickle
+
+    state, _ = walker.step(walker.rest_state(), np.array([0.5, -0.2, 0.1]))
+    for twin in (pickle.loads(pickle.dumps(state)), copy.copy(state), copy.deepcopy(state)):
+        for field in ("q", "qdot", "impulses"):
+            np.testing.assert_array_equal(getattr(twin, field), getattr(state, field))
+        # a twin steps exactly as the original does
+        np.testing.assert_array_equal(walker.step(twin, np.zeros(3))[0].q,
+                                      walker.step(state, np.zeros(3))[0].q)  # fmt: skip
+    # pybind11's pickle support made __setstate__ a constructor, ignored on a built state:
+    # state.__setstate__((q, qdot, impulses)) returned None and changed nothing.
+    assert not hasattr(state, "__setstate__")
+
+
 def test_rollouts_from_a_sequence_of_states_each_start_from_their_own(walker):
     # One start state per rollout: rollout b continues from starts[b], as stepping does.
     rest = walker.rest_state()
@@ -444,8 +460,10 @@ def test_bad_input_raises_clear_errors(walker):
         walker.profile = "no"
     with pytest.raises(ValueError, match=r"q has shape \(1, 26\), expected a 1-D array"):
         cpp_sim.ReducedState(state.q[None], state.qdot, state.impulses)
-    with pytest.raises(ValueError, match="pickled state is \\(q, qdot, impulses\\), got 2 items"):
-        cpp_sim.ReducedState.__new__(cpp_sim.ReducedState).__setstate__((state.q, state.qdot))
+    with pytest.raises(ValueError, match="impulses has 7 entries, not a multiple of 3"):
+        cpp_sim.ReducedState(state.q, state.qdot, np.zeros(7))
+    with pytest.raises(ValueError, match=r"q has 5 entries, expected M \+ 6 >= 7"):
+        cpp_sim.ReducedState(np.zeros(5), np.zeros(5), np.zeros(0))
     # |d| of a finite d can overflow or underflow; the unit direction must not
     for d, unit in (([1e200, 0, 0], [1, 0, 0]), ([1e154, 1e154, 0], [0.5**0.5, 0.5**0.5, 0]),
                     ([1e-170, 0, 0], [1, 0, 0])):  # fmt: skip

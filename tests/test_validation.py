@@ -195,6 +195,37 @@ def test_integer_settings_accept_numpy_integers_and_name_overflow():
         cpp_sim.ReducedConfig(max_newton_iterations=2.5)
 
 
+def test_evaluations_that_overflow_raise_instead_of_returning_nan(tet):
+    # Finite but huge positions overflow inside the material model (|F|^2 is inf, inf - inf
+    # NaN); the energy, forces and stiffness say so rather than return NaN as physics.
+    nodes, tets = tet
+    fem = make(nodes, tets)
+    huge = nodes * 1e200
+    for name, call in (
+        ("elastic energy", lambda: fem.energy(huge)),
+        ("elastic force", lambda: fem.forces(huge)),
+        ("stiffness", lambda: fem.stiffness(huge)),
+    ):
+        message = rf"the {name} is not finite at x \(largest \|x\| = 1e\+200\)"
+        with pytest.raises(ValueError, match=message):
+            call()
+    # large but representable positions still evaluate
+    assert np.isfinite(fem.energy(nodes * 1e3))
+
+
+def test_reduced_config_pickles_copies_and_compares():
+    import copy
+    import pickle
+
+    config = cpp_sim.ReducedConfig(friction=0.3, gravity=[0.0, 0.0, -1.62], contact="penalty")
+    for twin in (pickle.loads(pickle.dumps(config)), copy.copy(config), copy.deepcopy(config)):
+        assert twin == config and twin is not config
+        assert repr(twin) == repr(config)
+    twin.friction = 0.4
+    assert twin != config
+    assert config != "friction=0.3" and config != None  # noqa: E711 (== None is the point)
+
+
 def test_reduced_config_refuses_an_unknown_setting():
     # a misspelt keyword would otherwise build the default setting (friction 0.8, not 0.5)
     with pytest.raises(TypeError, match="unknown setting 'frction'"):

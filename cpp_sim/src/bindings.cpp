@@ -198,19 +198,31 @@ density : float
       .def(
           "energy",
           [](const FEMModel& f, py::handle x) {
-            return f.energy(v::real_matrix(x, "x", f.mesh().num_nodes, 3));
+            const VecX xv = v::real_matrix(x, "x", f.mesh().num_nodes, 3);
+            const double e = f.energy(xv);
+            v::finite_result(e, "the elastic energy", xv, "x");
+            return e;
           },
-          py::arg("x"), "Elastic potential energy E(x) in J for positions x (N, 3).")
+          py::arg("x"),
+          "Elastic potential energy E(x) in J for positions x (N, 3). Raises ValueError where "
+          "positions so large that the material model overflows make it non-finite.")
       .def(
           "forces",
           [](const FEMModel& f, py::handle x) {
-            return v::positions_out(f.forces(v::real_matrix(x, "x", f.mesh().num_nodes, 3)));
+            const VecX xv = v::real_matrix(x, "x", f.mesh().num_nodes, 3);
+            const VecX out = f.forces(xv);
+            v::finite_result(out, "the elastic force", xv, "x");
+            return v::positions_out(out);
           },
           py::arg("x"), "Internal elastic forces -dE/dx (N, 3) in N.")
       .def(
           "stiffness",
           [](const FEMModel& f, py::handle x, bool project) {
-            return to_csr(f.stiffness(v::real_matrix(x, "x", f.mesh().num_nodes, 3), project));
+            const VecX xv = v::real_matrix(x, "x", f.mesh().num_nodes, 3);
+            const SpMat k = f.stiffness(xv, project);
+            v::finite_result(Eigen::Map<const VecX>(k.valuePtr(), k.nonZeros()), "the stiffness",
+                             xv, "x");
+            return to_csr(k);
           },
           py::arg("x"), py::arg("project") = false,
           "Stiffness K = d(-forces)/dx as a scipy.sparse CSR (3N, 3N) matrix; row 3i+k is "
@@ -238,7 +250,8 @@ density : float
           R"doc(One implicit Euler step; returns (x_new, v_new), each (N, 3).
 
 Newton's method on the incremental potential with a backtracking line search and a sparse
-Cholesky solve (see ``solver``). ``fixed`` (boolean mask (N,) or node indices) clamps nodes in place.
+Cholesky solve (see ``solver``). ``fixed`` (boolean mask (N,) or node indices; empty fixes
+none) clamps nodes in place.
 Raises RuntimeError if the step diverges.)doc")
       .def_property_readonly(
           "last_step_stats",

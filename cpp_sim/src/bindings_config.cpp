@@ -211,6 +211,25 @@ set; `ReducedConfig.SETTINGS` lists the names.)doc");
     }
     return out + ")";
   });
+  // Pickled (and so copied, and sent to worker processes) as ReducedConfig(**settings), so an
+  // unpickled config goes through the same validation as a new one.
+  cfg.def("__reduce__", [](py::object self) {
+    const ReducedConfig& c = self.cast<const ReducedConfig&>();
+    py::dict values;
+    for (const Setting& s : settings()) values[s.name] = s.get(c);
+    py::object partial = py::module_::import("functools").attr("partial");
+    return py::make_tuple(partial(py::type::of(self), **values), py::tuple());
+  });
+  cfg.def(
+      "__eq__",
+      // A ReducedConfig argument with is_operator: anything else gets NotImplemented, as
+      // Python's own types answer.
+      [](const ReducedConfig& a, const ReducedConfig& b) {
+        for (const Setting& s : settings())
+          if (!s.get(a).equal(s.get(b))) return false;
+        return true;
+      },
+      py::is_operator());
   model.def_property(
       "config", [](const ReducedModel& r) { return r.config; },
       [](ReducedModel& r, const ReducedConfig& c) { r.config = c; },

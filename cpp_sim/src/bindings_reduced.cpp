@@ -103,6 +103,21 @@ void check_state(const ReducedModel& m, const ReducedState& s) {
   }
 }
 
+ReducedState make_state(py::handle q, py::handle qdot, py::handle impulses) {
+  ReducedState s;
+  s.q = vector_in(q, "q", -1);
+  s.qdot = vector_in(qdot, "qdot", s.q.size());
+  s.impulses = vector_in(impulses, "impulses", -1);
+  if (s.q.size() < ReducedModel::kRigid + 1)
+    throw py::value_error("q has " + std::to_string(s.q.size()) +
+                          " entries, expected M + 6 >= 7 (3 translations, 3 rotations, M >= 1 "
+                          "deformation coordinates)");
+  if (s.impulses.size() % 3 != 0)
+    throw py::value_error("impulses has " + std::to_string(s.impulses.size()) +
+                          " entries, not a multiple of 3 (one 3-vector per surface node)");
+  return s;
+}
+
 std::unique_ptr<ReducedModel> make_reduced(py::handle nodes, py::handle tets, double e, double nu,
                                            double rho, py::handle basis, py::handle cub_elements,
                                            py::handle cub_weights, py::handle surface_nodes,
@@ -218,35 +233,26 @@ void bind_config(py::module_& m, py::class_<ReducedModel>& model);
 void bind_reduced(py::module_& m) {
   py::class_<ReducedState>(m, "ReducedState", R"doc(
 State of a reduced model: q_r and qdot_r (M + 6,) and the contact impulses (3 per surface
-node) that warm-start the next contact solve. Copies in, copies out; picklable.)doc")
-      .def(py::init([](py::handle q, py::handle qdot, py::handle impulses) {
-             ReducedState s;
-             s.q = vector_in(q, "q", -1);
-             s.qdot = vector_in(qdot, "qdot", s.q.size());
-             s.impulses = vector_in(impulses, "impulses", -1);
-             return s;
-           }),
-           py::arg("q"), py::arg("qdot"), py::arg("impulses"))
+node) that warm-start the next contact solve. Copies in, copies out; picklable (by its
+constructor's arguments, so an unpickled state is checked as a new one is).)doc")
+      .def(py::init(&make_state), py::arg("q"), py::arg("qdot"), py::arg("impulses"))
       .def_property_readonly("q", [](const ReducedState& s) { return vec_out(s.q); })
       .def_property_readonly("qdot", [](const ReducedState& s) { return vec_out(s.qdot); })
       .def_property_readonly("impulses", [](const ReducedState& s) { return vec_out(s.impulses); })
       .def("copy", [](const ReducedState& s) { return ReducedState(s); })
       .def("__copy__", [](const ReducedState& s) { return ReducedState(s); })
       .def("__deepcopy__", [](const ReducedState& s, py::dict) { return ReducedState(s); })
-      .def(py::pickle(
-          [](const ReducedState& s) {
-            return py::make_tuple(vec_out(s.q), vec_out(s.qdot), vec_out(s.impulses));
-          },
-          [](py::tuple t) {
-            if (t.size() != 3)
-              throw py::value_error("a ReducedState's pickled state is (q, qdot, impulses), got " +
-                                    std::to_string(t.size()) + " items");
-            ReducedState s;
-            s.q = vector_in(t[0], "q", -1);
-            s.qdot = vector_in(t[1], "qdot", s.q.size());
-            s.impulses = vector_in(t[2], "impulses", -1);
-            return s;
-          }))
+      // __reduce__ rather than py::pickle: pybind11 binds the latter's __setstate__ as a
+      // constructor, which it silently ignores on a state already built, so
+      // `state.__setstate__(...)` changed nothing. A state is immutable from Python; pickling
+      // now calls the constructor, and there is no __setstate__ to misuse.
+      .def("__reduce__",
+           [](py::object self) {
+             const ReducedState& s = self.cast<const ReducedState&>();
+             return py::make_tuple(
+                 py::type::of(self),
+                 py::make_tuple(vec_out(s.q), vec_out(s.qdot), vec_out(s.impulses)));
+           })
       .def("__repr__", [](const ReducedState& s) {
         return "ReducedState(dim=" + std::to_string(s.q.size()) + ")";
       });
@@ -295,7 +301,8 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
             r.set_control_basis(b);
           },
           "B_c, (M, C), orthonormal: f_r = B_c f_c acts on the deformation coordinates.")
-      .def("rest_state", &ReducedModel::rest_state)
+      .def("rest_state", &ReducedModel::rest_state,
+           "The undeformed state at rest: q = qdot = 0 (M + 6,), no contact impulses.")
       .def(
           "step",
           [](const ReducedModel& r, const ReducedState& s, py::handle fc) {
@@ -467,13 +474,21 @@ KeyboardInterrupt.)doc")
       .def(
           "elastic_energy",
           [](const ReducedModel& r, py::handle qd) {
-            return r.elastic_energy(vector_in(qd, "q_e", r.elastic_dim()));
+            const VecX q = vector_in(qd, "q_e", r.elastic_dim());
+            const double e = r.elastic_energy(q);
+            v::finite_result(e, "the reduced elastic energy", q, "q_e");
+            return e;
           },
-          py::arg("q_e"))
+          py::arg("q_e"),
+          "Elastic energy E(X + B_e q_e) in J by cubature (sum_e w_e E_e), q_e = q[3:] (M + 3,): "
+          "the rotations and deformation coordinates; translations store no energy.")
       .def(
           "elastic_forces",
           [](const ReducedModel& r, py::handle qd) {
-            return vec_out(r.elastic_forces(vector_in(qd, "q_e", r.elastic_dim())));
+            const VecX q = vector_in(qd, "q_e", r.elastic_dim());
+            const VecX out = r.elastic_forces(q);
+            v::finite_result(out, "the reduced elastic force", q, "q_e");
+            return vec_out(out);
           },
           py::arg("q_e"), "Reduced elastic force B_e^T f(X + B_e q_e) (M + 3,) by cubature, q_e = q[3:].")
       .def(
@@ -485,9 +500,15 @@ KeyboardInterrupt.)doc")
       .def(
           "elastic_stiffness",
           [](const ReducedModel& r, py::handle qd, bool project) {
-            return r.elastic_stiffness(vector_in(qd, "q_e", r.elastic_dim()), project);
+            const VecX q = vector_in(qd, "q_e", r.elastic_dim());
+            MatX k = r.elastic_stiffness(q, project);
+            v::finite_result(k, "the reduced stiffness", q, "q_e");
+            return k;
           },
-          py::arg("q_e"), py::arg("project") = false);
+          py::arg("q_e"), py::arg("project") = false,
+          "Reduced stiffness -d(elastic_forces)/dq_e = sum_e w_e U_e^T H_e U_e (M + 3, M + 3) by "
+          "cubature, H_e the element's energy Hessian. project=True clamps each H_e to be PSD "
+          "first, as the implicit step does.");
 
   m.def(
       "reduced_element_forces",

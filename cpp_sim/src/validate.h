@@ -167,6 +167,8 @@ inline std::vector<char> node_mask(py::handle obj, const char* name, int n) {
   if (a.ndim() != 1)
     throw py::value_error(std::string(name) + " has shape " + shape_str(a) +
                           ", expected a 1-D boolean mask or index array");
+  // An empty list or array fixes no node, whatever dtype numpy gave it ([] is float64).
+  if (a.shape(0) == 0) return mask;
   const char kind = a.dtype().kind();
   if (kind == 'b') {
     if (a.shape(0) != n)
@@ -188,6 +190,24 @@ inline std::vector<char> node_mask(py::handle obj, const char* name, int n) {
                          std::string(py::str(a.dtype())));
   }
   return mask;
+}
+
+// An evaluation's result must be finite. Finite input can still overflow inside the material
+// model (|F|^2 of coordinates near 1e155 is inf, and inf - inf is NaN): say so rather than hand
+// back NaN as if it were physics.
+template <typename Derived>
+inline void finite_result(const Eigen::DenseBase<Derived>& r, const char* what, const VecX& input,
+                          const char* input_name) {
+  if (r.allFinite()) return;
+  std::ostringstream msg;
+  msg << what << " is not finite at " << input_name << " (largest |" << input_name
+      << "| = " << (input.size() ? input.cwiseAbs().maxCoeff() : 0.0)
+      << "): the material model overflows double precision there";
+  throw py::value_error(msg.str());
+}
+
+inline void finite_result(double r, const char* what, const VecX& input, const char* input_name) {
+  finite_result(Eigen::Matrix<double, 1, 1>::Constant(r), what, input, input_name);
 }
 
 // (N, 3) float64 numpy array from a 3N vector.
