@@ -164,6 +164,7 @@ def test_transfer_table_is_the_bases_measured_in_the_larger_model(reproduction):
     init, best = ([float(v) for v in r["R_seeds"].split()] for r in rows)
     report = (reproduction / "REPORT.md").read_text()
     assert "## Table I's control spaces at M = 24" in report
+    assert "), 1 worker, controller" in report  # one worker, not "1 workers"
     line = next(x for x in report.splitlines() if x.startswith("| CrossSwim-v0 |"))
     cells = [c.strip() for c in line.strip("|").split("|")]
     mean, _ = confidence_interval(init)

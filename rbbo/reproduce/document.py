@@ -82,9 +82,10 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
     progress = stage_progress(out, plan)
     beside = "; the BO run beside it had the same" if progress["bo"][0] or panels else ""
     each = f", each of its {plan.repeats} runs" if plan.repeats > 1 else ""
+    workers = _session_values(sessions, "workers", plan.workers)
     lines += [f"Total wall time {total / 60:.1f} min on {_machine(sessions)}. Budget per "
               f"benchmark {_session_values(sessions, 'budget_s', plan.budget_s)} min{cap} "
-              f"(BOCA{each}{beside}), {_session_values(sessions, 'workers', plan.workers)} workers"
+              f"(BOCA{each}{beside}), {workers} worker{'' if workers == '1' else 's'}"
               f"{_told_in_order(sessions, plan.deterministic)}, "
               f"controller {plan.controller}, M = {plan.sim_dim}, "
               f"C = {plan.control_dim}, T in [{plan.t_min:g}, {plan.t_max:g}] s, R measured "
