@@ -20,8 +20,11 @@ controller's splines are):
   solver the per-call set-up of A_0's inverse (each ``step`` call forms it; a ``rollout``
   forms it once for all its steps);
 * for each solver the model offers (``reference``: the exact Newton path; ``fast``: the
-  default), one row each, so the two read side by side (no ratio is printed: compare
-  ``us/step`` of the two rows of one run).
+  default), one row each, timed one after the other in the same run; the fast row's
+  ``ref/fast`` column (``--json`` key ``ref_over_fast``) is the reference row's ``us/step``
+  over its own, the fast solver's speed-up on that robot and configuration. It is the ratio
+  to read: the ``us/step`` themselves move with the machine and its load, the ratio much
+  less.
 
 ``--warm-start converged`` is a bound, not a mode to run: each timed step is taken a second
 time from the same state with the first try's converged impulses as its warm start (the
@@ -144,6 +147,11 @@ def profile(
                     "actuation": kind, "warm_start": warm_start, **r,
                 }
             )  # fmt: skip
+        timed = {row["solver"]: row for row in rows if row.get("config") == config}
+        if {"reference", "fast"} <= timed.keys():
+            timed["fast"]["ref_over_fast"] = (
+                timed["reference"]["us_per_step"] / timed["fast"]["us_per_step"]
+            )
     model = build_reduced_model(robot, control_basis=np.eye(20)[:, :3])
     q_e = pose[3:]
     rows.append(
@@ -185,7 +193,7 @@ def main() -> None:
             f"{'robot':<10} {'config':<10} {'solver':<10} {'us/step':>9} {'newton':>7} "
             f"{'stagger':>8} {'p10/50/90':>10} {'rows':>6} {'newton cap':>11} "
             f"{'stagger cap':>12} "
-            f"{'dynamics':>9} {'drag':>6} {'normal':>7} {'friction':>9}"
+            f"{'dynamics':>9} {'drag':>6} {'normal':>7} {'friction':>9} {'ref/fast':>9}"
         )
     for name in args.robots:
         for r in profile(name, args.steps, args.actuation, args.warm_start, args.configs):
@@ -198,13 +206,15 @@ def main() -> None:
                     flush=True,
                 )
             else:
+                ratio = f"{r['ref_over_fast']:.2f}x" if "ref_over_fast" in r else ""
                 print(
                     f"{name:<10} {r['config']:<10} {r['solver']:<10} {r['us_per_step']:>9.0f} "
                     f"{r['newton_per_step']:>7.2f} {r['staggers_per_step']:>8.2f} "
                     f"{spread(r):>10} "
                     f"{r['rows_per_step']:>6.1f} {r['newton_cap_share']:>11.1%} "
                     f"{r['stagger_cap_share']:>12.1%} {r['dynamics_us']:>9.0f} "
-                    f"{r['drag_us']:>6.0f} {r['normal_us']:>7.0f} {r['friction_us']:>9.0f}",
+                    f"{r['drag_us']:>6.0f} {r['normal_us']:>7.0f} {r['friction_us']:>9.0f} "
+                    f"{ratio:>9}",
                     flush=True,
                 )
 
