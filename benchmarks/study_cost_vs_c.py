@@ -5,7 +5,11 @@ one GN iteration (the K C + 1 finite-difference rollouts and the batched line se
 the reset state, best of ``--repeats``, on ``--threads`` threads, with the benchmark's
 default horizon and knots unless overridden. The K C + 1 rollouts grow linearly in C and the
 normal equations cubically, so the cost should grow at least linearly; the paper reports
-superlinear growth. Writes ``cost_vs_c.csv`` and ``cost_vs_c.png`` into ``--out``.
+superlinear growth. The Cs run in ascending order, and each row's ``x C_min`` (CSV
+``relative_cost``, with ``relative_to_C`` naming the reference) is its iteration's wall time
+over that of the smallest C, measured in the same run: the figure to compare between
+machines and runs, where the seconds move with the machine and its load.
+Writes ``cost_vs_c.csv`` and ``cost_vs_c.png`` into ``--out``.
 
     python benchmarks/study_cost_vs_c.py [--cs 1 2 ... 20] [--horizon H] [--knots K]
 """
@@ -49,16 +53,24 @@ def main(argv: list[str] | None = None) -> list[dict]:
         default_planner(args.env_id, "gn", threads=args.threads, **changes)
     except (ValueError, TypeError, gym.error.Error) as exc:
         p.error(str(exc))
-    print(f"{'C':>3} {'rollouts':>9} {'GN iteration s':>15} {'per rollout ms':>15}")
+    # ascending, so the reference of the ratio (the smallest C) is measured first and every
+    # row can print its ratio as it comes
+    cs = sorted(args.cs)
+    print(f"{'C':>3} {'rollouts':>9} {'GN iteration s':>15} {'per rollout ms':>15} "
+          f"{f'x C={cs[0]}':>8}")  # fmt: skip
+    reference: dict[str, float] = {}
 
     def show(row: dict) -> None:
+        base = reference.setdefault("iteration_s", row["iteration_s"])
+        # (the row is the one gn_cost_against_c returns: the CSV gets the ratio too)
+        row.update(relative_cost=row["iteration_s"] / base, relative_to_C=cs[0])
         print(f"{row['C']:>3} {row['rollouts']:>9} {row['iteration_s']:>15.3f} "
-              f"{1e3 * row['iteration_s'] / row['rollouts']:>15.2f}", flush=True)  # fmt: skip
+              f"{1e3 * row['iteration_s'] / row['rollouts']:>15.2f} "
+              f"{row['relative_cost']:>8.2f}", flush=True)  # fmt: skip
 
-    rows = gn_cost_against_c(args.env_id, args.cs, repeats=args.repeats, threads=args.threads,
+    rows = gn_cost_against_c(args.env_id, cs, repeats=args.repeats, threads=args.threads,
                              planner_changes=changes, on_row=show)  # fmt: skip
     write_csv(rows, args.out / "cost_vs_c.csv")
-    cs = [r["C"] for r in rows]
     walls = [r["iteration_s"] for r in rows]
     plot_lines({"one GN iteration": (cs, walls, None)}, "control-space dimension C",
                "wall time (s)", args.out / "cost_vs_c.png")  # fmt: skip
