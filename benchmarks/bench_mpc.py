@@ -7,6 +7,18 @@ seconds per replan; >= 1 keeps up with the robot), and the distance along d betw
 t = ``--start`` and the end, per second and in body lengths (mean over seeds). Writes the
 rows to ``bench_mpc.csv`` in ``--out`` (default ``runs/bench_mpc``).
 
+``plan/phys`` (CSV ``plan_over_physics``, with ``physics_wall_s``) is the ratio measured side
+by side: the episode's replan wall time over that of its physics floor. Each replan's
+rollouts (every control sequence it passed to the env's public ``rollout``, from the same
+start state) are replayed right after it, before the env steps on, as one batched
+``rollout`` call on the same threads, and timed; the ratio is the replans' total over the
+replays' total. 1 would be a planner that costs nothing beyond the physics it asks for; the
+excess is its own work (the splines, the cost, Gauss-Newton's linear algebra) and the
+splitting of its rollouts into batches that wait on one another (Gauss-Newton's Jacobian
+before its line search, MPPI's rounds), each waiting on its slowest thread. The replays do not
+change the episode (``rollout`` leaves the env's state as it was) and are not counted in the
+replan times or the real-time factor; they make a run take up to twice as long.
+
     python benchmarks/bench_mpc.py [ENV_ID ...] [--planners mppi gn] [--seconds 10]
         [--seeds 0 1 2] [--mpc KEY=VALUE,...] [--json] [--out runs/bench_mpc]
 
@@ -21,6 +33,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -35,11 +48,53 @@ from _results import write_csv
 IDS = [f"softrom_gym/{name}" for name in softrom_gym.BENCHMARKS]
 
 
+class PhysicsFloor(gym.Wrapper):
+    """Passes the planner's ``rollout`` calls through, and before the next ``step`` replays
+    the last replan's as one batched ``rollout``, timed (``wall_s``, one per replan).
+
+    A replan's calls are those from the start state its ``plan`` took: the gait seed at
+    reset rolls out from a state of its own and is left out, as it is of the replan times.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.physics = env.get_wrapper_attr("rollout")  # the env's own
+        self.calls: list[tuple[Any, np.ndarray, int | None]] = []
+        self.wall_s: list[float] = []
+
+    def rollout(self, state, controls, threads=None, observe=None) -> dict[str, np.ndarray]:
+        self.calls.append((state, np.asarray(controls), threads))
+        return self.physics(state, controls, threads=threads, observe=observe)
+
+    def step(self, action):
+        if self.calls:
+            self._replay()
+        return self.env.step(action)
+
+    def reset(self, **kwargs):
+        self.calls.clear()
+        return self.env.reset(**kwargs)
+
+    def _replay(self) -> None:
+        state, _, threads = self.calls[-1]
+        replan = [u for s, u, _ in self.calls if s is state]
+        self.calls.clear()
+        # (one call per horizon: the planners' replans use one, but nothing forbids more)
+        batches: dict[int, list[np.ndarray]] = {}
+        for u in replan:
+            batches.setdefault(u.shape[1], []).append(u)
+        start = time.perf_counter()
+        for group in batches.values():
+            self.physics(state, np.concatenate(group), threads=threads)
+        self.wall_s.append(time.perf_counter() - start)
+
+
 def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
-    walls, distances, lengths, rtfs = [], [], [], []
+    walls, physics, distances, lengths, rtfs = [], [], [], [], []
+    plan_total = physics_total = 0.0
     start = time.perf_counter()
     for seed in args.seeds:
-        env = gym.make(env_id)
+        env = PhysicsFloor(gym.make(env_id))
         planner, every = default_planner(env_id, planner_name, threads=args.threads,
                                          **args.changes)  # fmt: skip
         res = run_episode(env, planner, args.seconds, replan_every=every, seed=seed,
@@ -49,12 +104,19 @@ def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
         rtfs.append(res.realtime_factor(every))
         distances.append(res.distance_between(t0))
         lengths.append(res.body_length)
+        if len(env.wall_s) != res.replans:  # every replan is followed by the step that replays it
+            raise RuntimeError(f"{res.replans} replans but {len(env.wall_s)} replays")
+        physics.append(float(np.mean(env.wall_s)))
+        plan_total += float(np.sum(res.replan_wall_s))
+        physics_total += float(np.sum(env.wall_s))
         env.close()
     span = args.seconds - args.start if args.seconds > args.start else args.seconds
     return {
         "env_id": env_id,
         "controller": planner_name,
         "replan_wall_s": float(np.mean(walls)),
+        "physics_wall_s": float(np.mean(physics)),
+        "plan_over_physics": plan_total / physics_total,
         "realtime_factor": float(np.mean(rtfs)),
         "distance_per_s": float(np.mean(distances)) / span,
         "distance_bl": float(np.mean(distances) / lengths[0]),
@@ -106,8 +168,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             if args.seconds > limit + 1e-9:
                 p.error(f"--seconds {args.seconds:g} exceeds {env_id}'s {limit:g}-s episode")
     if not args.json:
-        print(f"{'env id':<30} {'ctrl':<5} {'replan s':>9} {'RTF':>7} {'m/s':>8} {'BL':>7} "
-              f"{'sd BL':>7}")  # fmt: skip
+        print(f"{'env id':<30} {'ctrl':<5} {'replan s':>9} {'plan/phys':>10} {'RTF':>7} "
+              f"{'m/s':>8} {'BL':>7} {'sd BL':>7}")  # fmt: skip
     rows = []
     for env_id in ids:
         for planner in args.planners:
@@ -117,8 +179,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
                 print(json.dumps(row), flush=True)
             else:
                 print(f"{env_id:<30} {planner:<5} {row['replan_wall_s']:>9.3f} "
-                      f"{row['realtime_factor']:>7.3f} {row['distance_per_s']:>8.4f} "
-                      f"{row['distance_bl']:>7.3f} {row['distance_bl_std']:>7.3f}",
+                      f"{row['plan_over_physics']:>10.2f} {row['realtime_factor']:>7.3f} "
+                      f"{row['distance_per_s']:>8.4f} {row['distance_bl']:>7.3f} "
+                      f"{row['distance_bl_std']:>7.3f}",
                       flush=True)  # fmt: skip
     write_csv(rows, args.out / "bench_mpc.csv")
     return rows
