@@ -1,9 +1,14 @@
-"""Shared by the benchmark scripts: write a results table as CSV and a line plot as PNG."""
+"""Shared by the benchmark scripts: write a results table as CSV and a line plot as PNG.
+
+Figures are replaced whole or not at all (:func:`save_figure`): a run interrupted while it
+draws leaves the last run's image, not a truncated one in its place.
+"""
 
 from __future__ import annotations
 
 import csv
 from pathlib import Path
+from typing import Any
 
 
 def write_csv(rows: list[dict], path: Path) -> None:
@@ -12,6 +17,20 @@ def write_csv(rows: list[dict], path: Path) -> None:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
+
+
+def save_figure(fig: Any, path: Path, dpi: int) -> Path:
+    """Write matplotlib figure ``fig`` to ``path`` (its format from the suffix) atomically.
+
+    Drawn into memory, written to a temporary file in ``path``'s folder and renamed over
+    ``path`` (``os.replace``), by the helper that writes rbbo's own figures, so a Ctrl-C or a
+    kill mid-draw leaves the old file. Makes the folder if need be. Returns ``path``.
+    """
+    from rbbo.store import _atomic_savefig
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return _atomic_savefig(fig, path, dpi=dpi)
 
 
 def plot_lines(series: dict[str, tuple[list, list, list | None]], xlabel: str, ylabel: str,
@@ -35,5 +54,7 @@ def plot_lines(series: dict[str, tuple[list, list, list | None]], xlabel: str, y
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=120)
+    finally:
+        plt.close(fig)

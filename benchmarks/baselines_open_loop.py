@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -24,6 +25,9 @@ import numpy as np
 
 import softrom_gym
 from controllers.gaits import gait_grid
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _results import save_figure
 
 IDS = [f"softrom_gym/{name}" for name in softrom_gym.BENCHMARKS]
 
@@ -89,8 +93,10 @@ def plot(rows: list[dict], path: Path, span: str) -> None:
     ax.axhline(0.0, color="0.7", lw=0.8)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=120)
+    finally:
+        plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> list[dict]:

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -57,6 +58,9 @@ import numpy as np
 from rbbo import RBBO, RBBOConfig, SyntheticObjective
 from rbbo.baselines import cma_es, random_search
 from rbbo.grassmann import identity_basis
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _results import save_figure
 
 PROBLEMS = [(10, 2), (20, 3)]
 T_MAX = 10.0
@@ -350,8 +354,7 @@ def plot(results, seeds: int, path: Path) -> None:
             ax.grid(alpha=0.3)
             ax.legend(loc="lower right")
     fig.suptitle(f"RBBO vs random search vs CMA-ES, {seeds} seeds (mean ± sd)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 def plot_real(results, r_init: float, problem: str, seeds: int, path: Path) -> None:
@@ -381,8 +384,7 @@ def plot_real(results, r_init: float, problem: str, seeds: int, path: Path) -> N
     axes[0].set_title("best observed R against evaluations")
     axes[1].set_title("against wall time (mean over seeds)")
     fig.suptitle(f"{problem}: RBBO vs random search vs CMA-ES, {seeds} seeds (mean ± sd)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 if __name__ == "__main__":
