@@ -29,6 +29,7 @@ GAITS = {
     "softrom_gym/CrossSwim-v0": (2.0, (0, 120, 240)),
     "softrom_gym/CrossWalk-v0": (2.0, (0, 180, 180)),
     "softrom_gym/BeamWalk-v0": (4.0, (0, 0, 180)),
+    "softrom_gym/QuadrupedWalk-v0": (2.0, (0, 240, 120)),
     "softrom_gym/TripodWalk-v0": (3.0, (0, 180, 180)),
 }
 G = 9.81
