@@ -17,7 +17,13 @@ excess is its own work (the splines, the cost, Gauss-Newton's linear algebra) an
 splitting of its rollouts into batches that wait on one another (Gauss-Newton's Jacobian
 before its line search, MPPI's rounds), each waiting on its slowest thread. The replays do not
 change the episode (``rollout`` leaves the env's state as it was) and are not counted in the
-replan times or the real-time factor; they make a run take up to twice as long.
+replan times or the real-time factor; they make a run take up to twice as long. The two
+sides run one after the other, not at once, so a shared machine's load moves a single replay
+by 10-20 % either way (a 1-s run read 0.88): read the ratio of a whole run, whose replans
+average that out. ``rollout_share`` (CSV and ``--json`` only) splits it without a second
+measurement: the share of the replans' wall time spent inside their own ``rollout`` calls,
+so 1 - it is the planner's own work, and plan/phys x rollout_share (those calls over the one
+batch) the batching's.
 
     python benchmarks/bench_mpc.py [ENV_ID ...] [--planners mppi gn] [--seconds 10]
         [--seeds 0 1 2] [--mpc KEY=VALUE,...] [--json] [--out runs/bench_mpc]
@@ -50,7 +56,8 @@ IDS = [f"softrom_gym/{name}" for name in softrom_gym.BENCHMARKS]
 
 class PhysicsFloor(gym.Wrapper):
     """Passes the planner's ``rollout`` calls through, and before the next ``step`` replays
-    the last replan's as one batched ``rollout``, timed (``wall_s``, one per replan).
+    the last replan's as one batched ``rollout``, timed (``wall_s``, one per replan; and
+    ``inside_s``, the time the replan's own calls took).
 
     A replan's calls are those from the start state its ``plan`` took: the gait seed at
     reset rolls out from a state of its own and is left out, as it is of the replan times.
@@ -59,12 +66,15 @@ class PhysicsFloor(gym.Wrapper):
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
         self.physics = env.get_wrapper_attr("rollout")  # the env's own
-        self.calls: list[tuple[Any, np.ndarray, int | None]] = []
+        self.calls: list[tuple[Any, np.ndarray, int | None, float]] = []
         self.wall_s: list[float] = []
+        self.inside_s: list[float] = []
 
     def rollout(self, state, controls, threads=None, observe=None) -> dict[str, np.ndarray]:
-        self.calls.append((state, np.asarray(controls), threads))
-        return self.physics(state, controls, threads=threads, observe=observe)
+        start = time.perf_counter()
+        out = self.physics(state, controls, threads=threads, observe=observe)
+        self.calls.append((state, np.asarray(controls), threads, time.perf_counter() - start))
+        return out
 
     def step(self, action):
         if self.calls:
@@ -76,8 +86,9 @@ class PhysicsFloor(gym.Wrapper):
         return self.env.reset(**kwargs)
 
     def _replay(self) -> None:
-        state, _, threads = self.calls[-1]
-        replan = [u for s, u, _ in self.calls if s is state]
+        state, _, threads, _ = self.calls[-1]
+        replan = [u for s, u, _, _ in self.calls if s is state]
+        self.inside_s.append(sum(t for s, _, _, t in self.calls if s is state))
         self.calls.clear()
         # (one call per horizon: the planners' replans use one, but nothing forbids more)
         batches: dict[int, list[np.ndarray]] = {}
@@ -91,7 +102,7 @@ class PhysicsFloor(gym.Wrapper):
 
 def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
     walls, physics, distances, lengths, rtfs = [], [], [], [], []
-    plan_total = physics_total = 0.0
+    plan_total = physics_total = inside_total = 0.0
     start = time.perf_counter()
     for seed in args.seeds:
         env = PhysicsFloor(gym.make(env_id))
@@ -109,6 +120,7 @@ def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
         physics.append(float(np.mean(env.wall_s)))
         plan_total += float(np.sum(res.replan_wall_s))
         physics_total += float(np.sum(env.wall_s))
+        inside_total += float(np.sum(env.inside_s))
         env.close()
     span = args.seconds - args.start if args.seconds > args.start else args.seconds
     return {
@@ -117,6 +129,7 @@ def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
         "replan_wall_s": float(np.mean(walls)),
         "physics_wall_s": float(np.mean(physics)),
         "plan_over_physics": plan_total / physics_total,
+        "rollout_share": inside_total / plan_total,
         "realtime_factor": float(np.mean(rtfs)),
         "distance_per_s": float(np.mean(distances)) / span,
         "distance_bl": float(np.mean(distances) / lengths[0]),
