@@ -19,11 +19,11 @@ before its line search, MPPI's rounds), each waiting on its slowest thread. The 
 change the episode (``rollout`` leaves the env's state as it was) and are not counted in the
 replan times or the real-time factor; they make a run take up to twice as long. The two
 sides run one after the other, not at once, so a shared machine's load moves a single replay
-by 10-20 % either way (a 1-s run read 0.88): read the ratio of a whole run, whose replans
-average that out. ``rollout_share`` (CSV and ``--json`` only) splits it without a second
-measurement: the share of the replans' wall time spent inside their own ``rollout`` calls,
-so 1 - it is the planner's own work, and plan/phys x rollout_share (those calls over the one
-batch) the batching's.
+by up to a quarter either way (1-s runs of two replans read 0.88 to 1.23): read the ratio of
+a whole run, whose replans average that out. ``rollout_share`` (CSV and ``--json`` only)
+splits it without a second measurement: the share of the replans' wall time spent inside
+their own ``rollout`` calls, so 1 - it is the planner's own work, and plan/phys x
+rollout_share (those calls over the one batch) the batching's.
 
     python benchmarks/bench_mpc.py [ENV_ID ...] [--planners mppi gn] [--seconds 10]
         [--seeds 0 1 2] [--mpc KEY=VALUE,...] [--json] [--out runs/bench_mpc]
