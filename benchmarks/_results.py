@@ -1,22 +1,31 @@
 """Shared by the benchmark scripts: write a results table as CSV and a line plot as PNG.
 
-Figures are replaced whole or not at all (:func:`save_figure`): a run interrupted while it
-draws leaves the last run's image, not a truncated one in its place.
+Tables and figures are replaced whole or not at all (:func:`write_csv`, :func:`save_figure`):
+a run interrupted while it writes leaves the last run's file, not a truncated one in its
+place.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 from typing import Any
 
 
 def write_csv(rows: list[dict], path: Path) -> None:
+    """Write ``rows`` (dicts with the first row's keys) to ``path`` as CSV, replacing the file
+    whole (as :func:`save_figure` does figures): an interrupted write leaves the last run's
+    table, not a truncated one."""
+    from rbbo.store import _atomic_write
+
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    _atomic_write(path, buffer.getvalue().encode())
 
 
 def save_figure(fig: Any, path: Path, dpi: int) -> Path:

@@ -14,7 +14,6 @@ benchmark.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import time
@@ -27,7 +26,7 @@ import softrom_gym
 from controllers.gaits import gait_grid
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _results import save_figure
+from _results import save_figure, write_csv
 
 IDS = [f"softrom_gym/{name}" for name in softrom_gym.BENCHMARKS]
 
@@ -128,11 +127,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     except (ValueError, gym.error.Error) as exc:
         p.error(str(exc))
     rows = [row for env_id in ids for row in measure(env_id, args)]
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "open_loop.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(rows, args.out / "open_loop.csv")
     plot(rows, args.out / "open_loop.png", f"{args.start:g}..{args.seconds:g}")
     best = []
     for env_id in ids:

@@ -37,6 +37,29 @@ def test_a_benchmark_figure_is_replaced_whole_or_not_at_all(tmp_path, monkeypatc
     assert [p.name for p in png.parent.iterdir()] == ["cost_vs_c.png"]
 
 
+def test_a_benchmark_table_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
+    import csv
+
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    import _results
+
+    table = tmp_path / "runs" / "bench.csv"  # (a folder not made yet)
+    _results.write_csv([{"C": 1, "s": 0.5}, {"C": 2, "s": 0.75}], table)
+    before = table.read_bytes()
+    assert list(csv.DictReader(before.decode().splitlines())) == [
+        {"C": "1", "s": "0.5"}, {"C": "2", "s": "0.75"}]  # fmt: skip
+
+    def torn(self, rows):  # a row written, then the run stopped
+        self.writerow(rows[0])
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(csv.DictWriter, "writerows", torn)
+    with pytest.raises(KeyboardInterrupt):
+        _results.write_csv([{"C": 3, "s": 1.0}, {"C": 4, "s": 2.0}], table)
+    assert table.read_bytes() == before
+    assert [p.name for p in table.parent.iterdir()] == ["bench.csv"]
+
+
 def test_bench_mpc_replays_each_replan_whole_and_leaves_the_episode_as_it_was(monkeypatch):
     # plan/phys is a replan over its own rollouts run again as one batch: the replay must hold
     # every rollout of that replan (and none of the gait seed's at reset), and must not move
