@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,11 @@ def export_trajectory(
     path : path
         ``frames/walk.ply`` writes ``frames/walk_0000.ply``, ``frames/walk_0001.ply``, ...;
         the extension (.obj, .ply, .stl or .glb) picks the format. Folders are created, and
-        ``~`` is the home folder (as in a robot's mesh path).
+        ``~`` is the home folder (as in a robot's mesh path). Exporting again to the same
+        path replaces the earlier sequence: its frames are overwritten, and once the new ones
+        are written, those beyond the new count (``walk_0004.ply`` on, after 4 frames) are
+        removed. Only files named as this export names its frames are removed; others in the
+        folder (another stem or format, ``walk_notes.txt``) are left alone.
     env : SoftRobotEnv (or a wrapper of one), optional
     robot : Robot, optional
 
@@ -83,4 +88,22 @@ def export_trajectory(
         mesh.remove_unreferenced_vertices()
         mesh.export(out)
         written.append(out)
+    _remove_later_frames(path, len(written))
     return written
+
+
+def _remove_later_frames(path: Path, count: int) -> None:
+    """Remove frames ``count`` on of an earlier export to ``path``.
+
+    Left in place, they followed the new frames in the folder, and a video encoded from
+    ``walk_*.ply`` mixed two runs. A file is one of the sequence's only if its name is exactly
+    what :func:`export_trajectory` writes for some frame (``{stem}_{i:04d}{suffix}``), so a
+    user's ``walk_notes.txt`` or ``walk_00005.ply`` is never touched.
+    """
+    pattern = re.compile(re.escape(path.stem) + r"_(\d{4,})" + re.escape(path.suffix))
+    for entry in path.parent.iterdir():
+        match = pattern.fullmatch(entry.name)
+        if match is None or f"{int(match[1]):04d}" != match[1] or int(match[1]) < count:
+            continue
+        if entry.is_symlink() or entry.is_file():  # (a folder so named is not a frame)
+            entry.unlink()

@@ -806,3 +806,30 @@ def test_a_trimesh_scene_is_a_mesh_robot(tmp_path):
     half = gym.make("softrom_gym/SoftRobot-v0", robot=scene, scale=0.5, resolution=2, sim_dim=3,
                     control_dim=1)  # fmt: skip
     assert half.unwrapped.robot.volume == pytest.approx(0.00025)
+
+
+def test_a_shorter_export_removes_the_earlier_export_s_later_frames_and_nothing_else(tmp_path):
+    # Guards: exporting 2 frames where 4 had been exported left walk_0002 and walk_0003 of the
+    # earlier run beside them, and a video encoded from walk_*.ply mixed the two runs.
+    robot = softrom_gym.robots.make_robot("beam", resolution=6)
+    lifted = robot.nodes + np.array([0.0, 0.0, 0.01])
+    frames = tmp_path / "frames"
+    softrom_gym.export_trajectory([robot.nodes] * 4, frames / "walk.ply", robot=robot)
+    others = ["walk_0005.obj", "walk_00003.ply", "walk_0002_x.ply", "run_0003.ply",
+              "walk_notes.txt", "walk_12a4.ply"]  # fmt: skip
+    for name in others:  # not frames of this sequence: another format, stem or numbering
+        (frames / name).write_text("the user's")
+    (frames / "walk_0009.ply").mkdir()  # a folder is never removed
+    files = softrom_gym.export_trajectory([lifted] * 2, frames / "walk.ply", robot=robot)
+    assert [f.name for f in files] == ["walk_0000.ply", "walk_0001.ply"]
+    left = sorted(p.name for p in frames.iterdir())
+    assert left == sorted([*others, "walk_0000.ply", "walk_0001.ply", "walk_0009.ply"])
+    for name in others:
+        assert (frames / name).read_text() == "the user's"
+    assert trimesh.load(files[1]).bounds[0, 2] == pytest.approx(0.01)
+    # a longer sequence's five-digit frames are the sequence's too
+    many = tmp_path / "many"
+    many.mkdir()
+    (many / "m_10000.ply").write_text("an earlier export's frame 10000")
+    softrom_gym.export_trajectory([robot.nodes], many / "m.ply", robot=robot)
+    assert sorted(p.name for p in many.iterdir()) == ["m_0000.ply"]
