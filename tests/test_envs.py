@@ -833,3 +833,98 @@ def test_a_shorter_export_removes_the_earlier_export_s_later_frames_and_nothing_
     (many / "m_10000.ply").write_text("an earlier export's frame 10000")
     softrom_gym.export_trajectory([robot.nodes], many / "m.ply", robot=robot)
     assert sorted(p.name for p in many.iterdir()) == ["m_0000.ply"]
+
+
+def _vector_pair(mode, steps=2):
+    """The vector env and Gymnasium's SyncVectorEnv of single envs, both in autoreset
+    ``mode``, truncating after ``steps``."""
+    ours = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, max_episode_steps=steps,
+                        vectorization_mode="vector_entry_point", autoreset_mode=mode)  # fmt: skip
+    sync = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, max_episode_steps=steps,
+                        vectorization_mode="sync",
+                        vector_kwargs={"autoreset_mode": mode})  # fmt: skip
+    return ours, sync
+
+
+def _assert_same_step(a, b):
+    for x, y in zip(a[:4], b[:4], strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert sorted(a[4]) == sorted(b[4])
+    for key in ("distance", "_distance", "com"):
+        np.testing.assert_array_equal(a[4][key], b[4][key])
+    if "final_obs" in b[4]:
+        np.testing.assert_array_equal(a[4]["_final_obs"], b[4]["_final_obs"])
+        for i in np.flatnonzero(b[4]["_final_obs"]):
+            np.testing.assert_array_equal(a[4]["final_obs"][i], b[4]["final_obs"][i])
+        for key in ("distance", "_distance", "diverged"):
+            np.testing.assert_array_equal(a[4]["final_info"][key], b[4]["final_info"][key])
+
+
+def test_vector_env_autoresets_in_the_same_step_as_gymnasium_s_vector_envs():
+    # Guards: autoreset_mode=SAME_STEP reached SoftRobotEnv as an unknown keyword (TypeError),
+    # so the vector env offered NEXT_STEP only, Gymnasium's SyncVectorEnv all three modes.
+    from gymnasium.vector import AutoresetMode
+
+    ours, sync = _vector_pair(AutoresetMode.SAME_STEP)
+    assert ours.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
+    assert ours.spec.kwargs["autoreset_mode"] is AutoresetMode.SAME_STEP
+    obs, _ = ours.reset(seed=3)
+    np.testing.assert_array_equal(obs, sync.reset(seed=3)[0])
+    rng = np.random.default_rng(0)
+    bound = ours.env.action_bound
+    for t in range(4):
+        actions = rng.uniform(-bound, bound, (2, 3)).astype(np.float32)
+        step = ours.step(actions)
+        _assert_same_step(step, sync.step(actions))
+        assert step[3].all() == (t % 2 == 1)  # (every second step ends and resets at once)
+    assert "final_obs" in step[4] and step[4]["final_info"]["_distance"].all()
+    # the class's metadata is every instance's default: NEXT_STEP
+    plain = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                         vectorization_mode="vector_entry_point")  # fmt: skip
+    assert plain.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
+    as_text = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, autoreset_mode="SameStep",
+                           vectorization_mode="vector_entry_point")  # fmt: skip
+    assert as_text.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
+    for bad in ("same_step", 1, None):
+        with pytest.raises(ValueError, match=rf"autoreset_mode must be one of \['NextStep', "
+                           rf"'SameStep', 'Disabled'\] or an AutoresetMode, "
+                           rf"got {bad!r}"):  # fmt: skip
+            gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, autoreset_mode=bad,
+                         vectorization_mode="vector_entry_point")  # fmt: skip
+
+
+def test_vector_env_without_autoreset_resets_by_mask_and_names_ended_envs_it_is_stepped_with():
+    from gymnasium.error import ResetNeeded
+    from gymnasium.vector import AutoresetMode
+
+    ours, sync = _vector_pair(AutoresetMode.DISABLED)
+    assert ours.metadata["autoreset_mode"] is AutoresetMode.DISABLED
+    np.testing.assert_array_equal(ours.reset(seed=3)[0], sync.reset(seed=3)[0])
+    zero = np.zeros((2, 3), dtype=np.float32)
+    _assert_same_step(ours.step(zero), sync.step(zero))
+    # robot 0 starts again (its own stream goes on), robot 1 keeps its last observation
+    options = {"reset_mask": np.array([True, False])}
+    obs, info = ours.reset(options=options)
+    expected, sync_info = sync.reset(options={"reset_mask": np.array([True, False])})
+    np.testing.assert_array_equal(obs, expected)
+    assert options == {"reset_mask": options["reset_mask"]}  # (the caller's dict is theirs)
+    assert info["_distance"].tolist() == sync_info["_distance"].tolist() == [True, False]
+    step = ours.step(zero)
+    _assert_same_step(step, sync.step(zero))
+    assert step[3].tolist() == [False, True]
+    with pytest.raises(ResetNeeded, match=r"sub-environment\(s\) \[1\] ended .* "
+                       r"reset\(options=\{'reset_mask': mask\}\)"):  # fmt: skip
+        ours.step(zero)
+    ours.reset(options={"reset_mask": np.array([False, True])})
+    sync.reset(options={"reset_mask": np.array([False, True])})
+    _assert_same_step(ours.step(zero), sync.step(zero))
+    for bad, error, text in (
+        (np.array([True]), ValueError, r"reset_mask must be 2 booleans, got \[True\]"),
+        (np.array([1, 0]), ValueError, r"reset_mask must be 2 booleans, got \[1, 0\]"),
+        (np.array([False, False]), ValueError, "reset_mask resets no sub-environment"),
+    ):
+        with pytest.raises(error, match=text):
+            ours.reset(options={"reset_mask": bad})
+    with pytest.raises(ValueError, match=r"reset takes the options 'state' \(.*\) and "
+                       r"'reset_mask' \(.*\), got \['speed'\]"):  # fmt: skip
+        ours.reset(options={"reset_mask": np.array([True, True]), "speed": 1})

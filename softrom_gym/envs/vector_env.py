@@ -6,6 +6,7 @@ from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -23,15 +24,28 @@ class SoftRobotVectorEnv(VectorEnv):
 
     Each ``step`` advances every robot in a single batched C++ call (one rollout of one env
     step per robot, on a thread pool). Sub-environment i behaves exactly like a single
-    :class:`SoftRobotEnv` reset with seed ``seed + i``. Autoreset follows Gymnasium's
-    ``AutoresetMode.NEXT_STEP``: the step after an episode ends resets that robot and returns
-    its first observation with reward 0. Episodes are truncated after ``max_episode_steps``.
-    ``reset(options={"state": state})`` starts every robot from that ``ReducedState`` (an
-    autoreset later starts it at rest, as a plain reset does).
+    :class:`SoftRobotEnv` reset with seed ``seed + i``. Episodes are truncated after
+    ``max_episode_steps``. ``reset(options={"state": state})`` starts every robot from that
+    ``ReducedState`` (an autoreset later starts it at rest, as a plain reset does), and
+    ``reset(options={"reset_mask": mask})`` (a bool array of ``num_envs``) resets only the
+    robots where ``mask`` is True, as Gymnasium's vector envs do.
+
+    Autoreset follows ``autoreset_mode``, one of Gymnasium's modes (see
+    https://farama.org/Vector-Autoreset-Mode; ``metadata["autoreset_mode"]`` says which):
+
+    * ``AutoresetMode.NEXT_STEP`` (default): the step after an episode ends resets that robot
+      and returns its first observation, with reward 0 and its reset info.
+    * ``AutoresetMode.SAME_STEP``: the step that ends an episode resets the robot at once and
+      returns its first observation; the episode's last observation and info are in
+      ``info["final_obs"]`` and ``info["final_info"]`` (masks ``info["_final_obs"]``, ...).
+    * ``AutoresetMode.DISABLED``: nothing is reset by ``step``; reset the robots whose
+      episode ended with ``reset(options={"reset_mask": terminated | truncated})``. Stepping
+      one that was not is a ``gymnasium.error.ResetNeeded`` naming it.
 
     Create it with ``gym.make_vec(id, num_envs=n, vectorization_mode="vector_entry_point")``;
-    ``max_episode_steps`` (default 400) and ``threads`` are the vector env's own, and every
-    other keyword is passed to :class:`SoftRobotEnv`.
+    ``max_episode_steps`` (default 400), ``threads`` and ``autoreset_mode`` (an
+    ``AutoresetMode`` or its value, ``"SameStep"``) are the vector env's own, and every other
+    keyword is passed to :class:`SoftRobotEnv`.
     """
 
     # Not a ClassVar: gymnasium's VectorEnv declares it per instance.
@@ -49,6 +63,7 @@ class SoftRobotVectorEnv(VectorEnv):
         num_envs: int = 1,
         max_episode_steps: int | None = 400,
         threads: int | None = None,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         **env_kwargs: Any,
     ) -> None:
         if (
@@ -71,6 +86,15 @@ class SoftRobotVectorEnv(VectorEnv):
             isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1
         ):
             raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
+        modes = [mode.value for mode in AutoresetMode]
+        if isinstance(autoreset_mode, AutoresetMode):
+            mode = autoreset_mode
+        elif isinstance(autoreset_mode, str) and autoreset_mode in modes:
+            mode = AutoresetMode(autoreset_mode)
+        else:
+            raise ValueError(
+                f"autoreset_mode must be one of {modes} or an AutoresetMode, got {autoreset_mode!r}"
+            )
         if env_kwargs.get("render_mode") is not None:
             raise ValueError(
                 f"the vector env does not render (render_mode={env_kwargs['render_mode']!r}); "
@@ -80,6 +104,9 @@ class SoftRobotVectorEnv(VectorEnv):
         self.num_envs = num_envs
         self.max_episode_steps = max_episode_steps
         self.threads = None if threads is None else int(threads)
+        self.autoreset_mode = mode
+        # per instance, as SyncVectorEnv's: the class's metadata stays every default's
+        self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.single_observation_space = self.env.observation_space
         self.single_action_space = self.env.action_space
         # (batch_space of a Box is a Box, of shape (num_envs, *shape))
@@ -90,7 +117,11 @@ class SoftRobotVectorEnv(VectorEnv):
         self._states = [self.env.model.rest_state() for _ in range(num_envs)]
         self._com0 = np.zeros((num_envs, 3))
         self._elapsed = np.zeros(num_envs, dtype=np.int64)
+        # Robots whose episode ended: reset by the next step (NEXT_STEP), or refused by it
+        # until reset(options={"reset_mask": ...}) (DISABLED); never set under SAME_STEP.
         self._autoreset = np.zeros(num_envs, dtype=bool)
+        # each robot's last observation: what a reset_mask reset returns for those it skips
+        self._last_obs = np.zeros(self.observation_space.shape, dtype=np.float32)
         self._rngs = [seeding.np_random()[0] for _ in range(num_envs)]
 
     def _reset_one(self, i: int, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
@@ -120,21 +151,48 @@ class SoftRobotVectorEnv(VectorEnv):
             raise ValueError(
                 f"seed must be None, an int or a list of {self.num_envs} ints, got {seed!r}"
             )
-        self.env._reset_start(options)  # (an error before any sub-env is reset)
+        # (checked before any sub-env is reset; the caller's dict is left as it was)
+        options, mask = self._reset_options(options)
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             # VectorEnv.reset's own seeding: np_random and np_random_seed are the vector
             # env's, as Gymnasium's vector envs have them (the robots' streams are their own)
             super().reset(seed=int(seed))
         infos: dict[str, Any] = {}
-        obs = np.zeros(self.observation_space.shape, dtype=np.float32)
         for i, s in enumerate(seeds):
+            if not mask[i]:
+                continue
             # Gymnasium's rule: an unseeded reset continues each sub-env's own stream.
             if s is not None:
                 self._rngs[i] = seeding.np_random(int(s))[0]
-            obs[i], info = self._reset_one(i, options)
+            self._last_obs[i], info = self._reset_one(i, options)
             infos = self._add_info(infos, info, i)
-        self._autoreset[:] = False
-        return obs, infos
+        self._autoreset[mask] = False
+        return self._last_obs.copy(), infos
+
+    def _reset_options(self, options: dict | None) -> tuple[dict | None, np.ndarray]:
+        """``options`` for each robot's reset, and the robots to reset (Gymnasium's
+        ``reset_mask``, default all), or an error naming what is wrong."""
+        if not options:
+            return None, np.ones(self.num_envs, dtype=bool)
+        if not isinstance(options, dict):
+            raise TypeError(f"options must be a dict or None, got {type(options).__name__}")
+        unknown = sorted(set(options) - {"state", "reset_mask"})
+        if unknown:
+            raise ValueError(
+                "reset takes the options 'state' (a ReducedState from get_state()) and "
+                f"'reset_mask' (a bool array of num_envs = {self.num_envs}), got {unknown}"
+            )
+        rest = {key: value for key, value in options.items() if key != "reset_mask"}
+        self.env._reset_start(rest)
+        if "reset_mask" not in options:
+            return rest, np.ones(self.num_envs, dtype=bool)
+        mask = np.asarray(options["reset_mask"])
+        if mask.dtype != np.bool_ or mask.shape != (self.num_envs,):
+            raise ValueError(f"reset_mask must be {self.num_envs} booleans, got "
+                             f"{mask.tolist()!r}")  # fmt: skip
+        if not mask.any():
+            raise ValueError("reset_mask resets no sub-environment (it is all False)")
+        return rest, mask.copy()
 
     def step(self, actions: np.ndarray):
         a = real_array("actions", actions)
@@ -143,6 +201,13 @@ class SoftRobotVectorEnv(VectorEnv):
         if not np.all(np.isfinite(a)):
             rows = sorted({int(i) for i in np.argwhere(~np.isfinite(a))[:, 0]})
             raise ValueError(f"actions contains non-finite values (env indices {rows})")
+        if self.autoreset_mode is AutoresetMode.DISABLED and self._autoreset.any():
+            pending = np.flatnonzero(self._autoreset).tolist()
+            raise ResetNeeded(
+                f"sub-environment(s) {pending} ended (terminated or truncated) and were not "
+                "reset: with autoreset_mode DISABLED, reset them with "
+                "reset(options={'reset_mask': mask}) before the next step"
+            )
         obs = np.zeros(self.observation_space.shape, dtype=np.float32)
         rewards = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, dtype=bool)
@@ -170,6 +235,16 @@ class SoftRobotVectorEnv(VectorEnv):
                 info = env._info(state, float(out["lateral"][k, 0]),
                                  float(out["effort"][k, 0]), diverged,
                                  float(out["orientation"][k, 0]))  # fmt: skip
+                if self.autoreset_mode is AutoresetMode.SAME_STEP and (
+                    terminated[i] or truncated[i]
+                ):
+                    final = {"final_obs": obs[i].copy(), "final_info": info}
+                    infos = self._add_info(infos, final, int(i))
+                    obs[i], info = self._reset_one(int(i))
                 infos = self._add_info(infos, info, int(i))
-        self._autoreset = terminated | truncated
+        ended = terminated | truncated
+        # (under SAME_STEP the robots that ended are reset already)
+        same_step = self.autoreset_mode is AutoresetMode.SAME_STEP
+        self._autoreset = np.zeros_like(ended) if same_step else ended
+        self._last_obs[:] = obs
         return obs, rewards, terminated, truncated, infos
