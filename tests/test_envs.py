@@ -928,3 +928,45 @@ def test_vector_env_without_autoreset_resets_by_mask_and_names_ended_envs_it_is_
     with pytest.raises(ValueError, match=r"reset takes the options 'state' \(.*\) and "
                        r"'reset_mask' \(.*\), got \['speed'\]"):  # fmt: skip
         ours.reset(options={"reset_mask": np.array([True, True]), "speed": 1})
+
+
+def test_set_control_basis_updates_the_spec_so_the_spec_makes_this_env(tmp_path):
+    # Guards: env.spec kept the B_c the env was made with after set_control_basis, so
+    # gym.make(env.spec) (or a vector env's copies made from it) stepped another control space
+    # without a word.
+    import json
+
+    rng = np.random.default_rng(1)
+    basis = np.linalg.qr(rng.standard_normal((20, 3)))[0]
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    made_with = env.unwrapped.spec
+    env.unwrapped.set_control_basis(basis)
+    assert made_with.kwargs == {"robot": "beam", "task": "walk"}  # (a spec given out stays)
+    action = np.array([0.5, -0.3, 0.2], dtype=np.float32) * env.unwrapped.action_bound
+    again = gym.make(env.spec)
+    np.testing.assert_array_equal(again.unwrapped.control_basis, basis)
+    for e in (env, again):
+        e.reset(seed=0)
+    np.testing.assert_array_equal(env.step(action)[0], again.step(action)[0])
+    # a matrix orthonormalised on the way: the spec holds the B_c used, bit for bit
+    skew = rng.standard_normal((20, 3))
+    env.unwrapped.set_control_basis(skew, orthonormalize=True)
+    spec = env.unwrapped.spec
+    assert spec.kwargs["orthonormalize"] is False
+    np.testing.assert_array_equal(spec.kwargs["control_basis"], env.unwrapped.control_basis)
+    skew[0, 0] = 99.0  # (the caller's array is theirs: the spec holds a copy)
+    assert not np.shares_memory(spec.kwargs["control_basis"], env.unwrapped.control_basis)
+    np.testing.assert_array_equal(
+        gym.make(spec).unwrapped.control_basis, env.unwrapped.control_basis
+    )
+    # a path stays a path (and the spec JSON), orthonormalize as given
+    np.save(tmp_path / "b.npy", 2.0 * basis)
+    env.unwrapped.set_control_basis(str(tmp_path / "b.npy"), orthonormalize=True)
+    kwargs = json.loads(env.unwrapped.spec.to_json())["kwargs"]
+    assert kwargs["control_basis"] == str(tmp_path / "b.npy") and kwargs["orthonormalize"]
+    np.testing.assert_array_equal(gym.make(env.unwrapped.spec).unwrapped.control_basis,
+                                  env.unwrapped.control_basis)  # fmt: skip
+    # a refused basis changes neither the env nor its spec
+    with pytest.raises(ValueError, match="control_basis is not orthonormal"):
+        env.unwrapped.set_control_basis(skew)
+    assert env.unwrapped.spec.kwargs["control_basis"] == str(tmp_path / "b.npy")

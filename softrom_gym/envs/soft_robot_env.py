@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 from collections.abc import Mapping
@@ -375,11 +376,26 @@ class SoftRobotEnv(gym.Env):
 
         Raises ValueError naming the problem for a wrong shape, non-finite entries, or a
         non-orthonormal B_c (pass ``orthonormalize=True`` to accept any full-rank matrix).
+
+        ``env.unwrapped.spec`` follows: its ``control_basis`` becomes this one, so
+        ``gym.make(spec)`` makes an env with this B_c, as Gymnasium's spec is meant to make the
+        env it describes. A path stays a path (the spec stays JSON-serialisable), with
+        ``orthonormalize`` as given; an array is held as the B_c now used (a copy), with
+        ``orthonormalize=False``. The spec is a new ``EnvSpec``: one read earlier is left as
+        it was, and so is ``env.spec`` of a wrapper that read it before the swap (Gymnasium's
+        wrappers keep a copy of the spec from their first read), so read the spec after it.
         """
         m, c = self.control_basis.shape
         b = checked_control_basis(read_basis(control_basis), m, c, orthonormalize)
         self.model.control_basis = b
         self.control_basis = b
+        if self.spec is not None:
+            if isinstance(control_basis, (str, os.PathLike)):
+                given: dict[str, Any] = {"control_basis": control_basis,
+                                         "orthonormalize": bool(orthonormalize)}  # fmt: skip
+            else:
+                given = {"control_basis": b.copy(), "orthonormalize": False}
+            self.spec = dataclasses.replace(self.spec, kwargs={**self.spec.kwargs, **given})
 
     # ---------------------------------------------------------------- MPC API
     def get_state(self) -> cpp_sim.ReducedState:
