@@ -970,3 +970,28 @@ def test_set_control_basis_updates_the_spec_so_the_spec_makes_this_env(tmp_path)
     with pytest.raises(ValueError, match="control_basis is not orthonormal"):
         env.unwrapped.set_control_basis(skew)
     assert env.unwrapped.spec.kwargs["control_basis"] == str(tmp_path / "b.npy")
+
+
+def test_the_env_s_control_basis_is_its_own_not_the_caller_s_array():
+    # Guards: env.control_basis was the caller's array itself (float64 is not copied by
+    # np.asarray), while the C++ model holds a copy: writing into that array afterwards
+    # changed env.control_basis but not the model, so a deepcopy (rebuilt from
+    # env.control_basis) stepped another control space than the original.
+    basis = np.eye(20)[:, :3].copy()
+    env = gym.make("softrom_gym/BeamWalk-v0", control_basis=basis)
+    basis[:] = np.eye(20)[:, 3:6]
+    np.testing.assert_array_equal(env.unwrapped.control_basis, np.eye(20)[:, :3])
+    twin = copy.deepcopy(env.unwrapped)
+    action = np.full(3, 0.5 * twin.action_bound, dtype=np.float32)
+    env.reset(seed=0)
+    twin.reset(seed=0)
+    np.testing.assert_array_equal(env.step(action)[0], twin.step(action)[0])
+    replaced = np.eye(20)[:, 1:4].copy()
+    for e in (env.unwrapped, twin):
+        e.set_control_basis(replaced)
+        assert not np.shares_memory(e.control_basis, replaced)
+        # writing into it would leave the model on the old B_c: refused, not silent
+        with pytest.raises(ValueError, match="read-only"):
+            e.control_basis[0, 0] = 2.0
+    with pytest.raises(ValueError, match="read-only"):
+        pickle.loads(pickle.dumps(env.unwrapped)).control_basis[0, 0] = 2.0

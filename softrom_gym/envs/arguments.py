@@ -92,11 +92,24 @@ def dimensions(
 def checked_control_basis(
     b_c: npt.ArrayLike | None, sim_dim: int, control_dim: int, orthonormalize: bool
 ) -> np.ndarray:
-    """B_c as a float (M, C) matrix with orthonormal columns (the first C modes when None).
+    """B_c as a float (M, C) matrix with orthonormal columns (the first C modes when None):
+    a read-only array of its own.
 
     A matrix that is not orthonormal to 1e-8 is refused, or with ``orthonormalize`` replaced
     by the Q of its QR (each column keeping its orientation) when it has full rank.
     """
+    b = _checked_basis(b_c, sim_dim, control_dim, orthonormalize)
+    # Never the caller's array (np.asarray does not copy a float64 one), and read-only: the
+    # C++ model holds a copy, so a write into either would leave the env's B_c and the
+    # model's apart, and a pickled or deep-copied env (rebuilt from the env's) unlike it.
+    b = np.array(b, dtype=float, copy=True)
+    b.flags.writeable = False
+    return b
+
+
+def _checked_basis(
+    b_c: npt.ArrayLike | None, sim_dim: int, control_dim: int, orthonormalize: bool
+) -> np.ndarray:
     if b_c is None:
         return np.eye(sim_dim, control_dim)  # (not eye(M)[:, :C]: M may be too large, named later)
     raw = np.asarray(b_c)

@@ -361,6 +361,9 @@ class SoftRobotEnv(gym.Env):
         settings = dict(state)
         model_settings = settings.pop("_model_settings")
         self.__dict__.update(settings)
+        # (an array unpickles writeable: read-only again, as checked_control_basis made it)
+        self.control_basis = self.control_basis.copy()
+        self.control_basis.flags.writeable = False
         self.model = build_reduced_model(
             self.robot, self.control_basis.shape[0], subspace=self.subspace,
             control_basis=self.control_basis, **model_settings,
