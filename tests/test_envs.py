@@ -995,3 +995,32 @@ def test_the_env_s_control_basis_is_its_own_not_the_caller_s_array():
             e.control_basis[0, 0] = 2.0
     with pytest.raises(ValueError, match="read-only"):
         pickle.loads(pickle.dumps(env.unwrapped)).control_basis[0, 0] = 2.0
+
+
+def test_a_walking_robot_must_rest_on_the_ground(monkeypatch):
+    # Guards: a Robot of the user's own whose lowest node was off z = 0 was taken as it was: 5 cm
+    # above the ground it fell for the first steps of every episode (the reward counting the
+    # landing), 1 cm below it started interpenetrating and was kicked out by the contact.
+    from softrom_gym.envs import soft_robot_env
+    from softrom_gym.robots import Robot
+    from softrom_gym.robots.voxel import voxels_to_tets
+
+    nodes, tets = voxels_to_tets(np.ones((4, 2, 2), dtype=bool), 0.02)
+
+    def never(*args, **kwargs):
+        raise AssertionError("built B_r or the model before naming a bad argument")
+
+    monkeypatch.setattr(soft_robot_env, "build_subspace", never)
+    for dz, where in ((0.05, "above"), (-0.01, "below")):
+        robot = Robot("block", nodes + np.array([0.0, 0.0, dz]), tets)
+        with pytest.raises(ValueError, match=rf"robot 'block' does not rest on the ground: its "
+                           rf"lowest node is {abs(dz):g} m {where} z = 0.*robot.nodes - "
+                           r"\[0, 0, robot.nodes\[:, 2\].min\(\)\]"):  # fmt: skip
+            gym.make("softrom_gym/SoftRobot-v0", robot=robot)
+    monkeypatch.undo()
+    # a swimmer has no ground; round-off far below the contact's scale is on the ground
+    gym.make("softrom_gym/SoftRobot-v0", robot=Robot("block", nodes + np.array([0, 0, 0.05]), tets),
+             task="swim", sim_dim=4, control_dim=1)  # fmt: skip
+    near = Robot("block", nodes - np.array([0, 0, 1e-12]), tets)
+    near = gym.make("softrom_gym/SoftRobot-v0", robot=near, sim_dim=4, control_dim=1)
+    assert near.reset(seed=0)[0][0] == pytest.approx(0.02)

@@ -14,6 +14,7 @@ import numpy.typing as npt
 from ..robots import ROBOTS, Robot, from_mesh
 
 __all__ = [
+    "check_on_ground",
     "checked_control_basis",
     "dimensions",
     "is_trimesh",
@@ -193,3 +194,24 @@ def make_robot(
         f"unknown robot {robot!r}; valid robots: {sorted(ROBOTS)}, a mesh file path "
         "(STL/OBJ/PLY), a trimesh.Trimesh or Scene, or a softrom_gym.robots.Robot"
     )
+
+
+def check_on_ground(robot: Robot) -> None:
+    """Refuse a walking robot whose lowest node is off the ground plane z = 0.
+
+    A robot above it would fall for the first steps of every episode (the reward counting the
+    landing), one below it start interpenetrating and be kicked out by the contact. Named
+    robots and meshes (``from_mesh``) are placed on it; a :class:`Robot` built from nodes is
+    taken as given, so it is checked here rather than moved: its coordinates are the user's.
+    Round-off (a millionth of the robot's size) is on the ground.
+    """
+    z = float(robot.nodes[:, 2].min())
+    size = float(np.ptp(robot.nodes, axis=0).max())
+    if abs(z) > 1e-6 * size:
+        where = "above" if z > 0 else "below"
+        raise ValueError(
+            f"robot {robot.name!r} does not rest on the ground: its lowest node is {abs(z):g} m "
+            f"{where} z = 0, where a walking robot starts (it would "
+            f"{'fall' if z > 0 else 'start inside the ground'}); move it there, e.g. "
+            "dataclasses.replace(robot, nodes=robot.nodes - [0, 0, robot.nodes[:, 2].min()])"
+        )

@@ -17,7 +17,14 @@ import cpp_sim
 from .._validate import real, real_array
 from ..robots import Robot
 from ..rom import build_reduced_model, build_subspace
-from .arguments import checked_control_basis, dimensions, make_robot, read_basis, task_direction
+from .arguments import (
+    check_on_ground,
+    checked_control_basis,
+    dimensions,
+    make_robot,
+    read_basis,
+    task_direction,
+)
 
 if TYPE_CHECKING:
     from ..rendering import SoftwareRenderer
@@ -96,7 +103,8 @@ class SoftRobotEnv(gym.Env):
 
     ## Arguments
     ``robot`` (name in :data:`softrom_gym.robots.ROBOTS`, a mesh path in metres, a
-    trimesh.Trimesh or trimesh.Scene, or a Robot), ``task``
+    trimesh.Trimesh or trimesh.Scene, or a Robot; a walking Robot's lowest node must lie on
+    the ground, z = 0, as named and meshed robots' do), ``task``
     ("walk" or "swim"), ``direction`` (angle in radians or 2-vector), ``control_dim`` C
     (default 3, or the columns of ``control_basis``), ``sim_dim`` M (default 20, or the rows
     of ``control_basis``), ``control_basis`` B_c (M x C, orthonormal to 1e-8, or the path of
@@ -184,6 +192,8 @@ class SoftRobotEnv(gym.Env):
         self.task = task
         self.frame_skip = int(frame_skip)
         self.robot = make_robot(robot, material or {}, resolution, scale)
+        if task == "walk":  # (a swimmer has no ground)
+            check_on_ground(self.robot)
         self.direction = task_direction(direction)
         self.control_basis = checked_control_basis(b_c, sim_dim, control_dim, orthonormalize)
 

@@ -42,6 +42,9 @@ def _node_indices(tets: object) -> np.ndarray:
 class Robot:
     """A soft robot: rest mesh (metres, z up, resting on z = 0) and material.
 
+    Named robots and :func:`~softrom_gym.robots.from_mesh` rest on z = 0; nodes given here
+    are taken as they are, and a walking env refuses a robot whose lowest node is off it.
+
     Attributes
     ----------
     name : str
