@@ -102,8 +102,13 @@ def test_a_diverging_step_terminates_and_does_not_truncate():
     env = gym.make("softrom_gym/SoftRobot-v0", robot="beam", action_scale=1e9)
     env.reset(seed=0)
     action = np.full(3, env.get_wrapper_attr("action_bound"), dtype=np.float32)
-    _, _, terminated, truncated, info = env.step(action)
+    before = env.unwrapped._obs(env.unwrapped.get_state())
+    obs, reward, terminated, truncated, info = env.step(action)
     assert terminated and not truncated and info["diverged"]
+    # as the docstring says: the robot stops at the last good state (here the start: it
+    # diverged in the first sub-step), pays nothing for the lost sub-steps, no penalty
+    np.testing.assert_array_equal(obs, before)
+    assert reward == 0.0 and info["distance"] == 0.0
 
 
 def test_seeded_determinism(env):
