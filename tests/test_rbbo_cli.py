@@ -1023,3 +1023,27 @@ def test_a_quoted_home_folder_in_a_path_option_is_the_home_folder(tmp_path, caps
     assert (tmp_path / "home" / "plots" / "run.png").is_file()
     assert not (tmp_path / "~").exists()
     capsys.readouterr()
+
+
+def test_report_of_several_runs_reports_every_good_one_and_names_each_bad_one(tmp_path, capsys):
+    # it stopped at the first bad directory: the good runs after it were never reported
+    good = [tmp_path / "a", tmp_path / "b"]
+    for run in good:
+        assert main(["optimize", "synthetic", *TINY, "--iterations", "4",
+                     "--executor", "serial", "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    empty, missing = tmp_path / "empty", tmp_path / "missing"
+    empty.mkdir()
+    code = main(["report", str(empty), str(good[0]), str(missing), str(good[1])])
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert len(out.splitlines()[2:4]) == 2 and all(" 6  2 " in r for r in out.splitlines()[2:4])
+    errors = [line for line in err.splitlines() if line.startswith("rbbo: error: ")]
+    assert errors == [f"rbbo: error: {empty} is not an RBBO run directory (no config.json)",
+                      f"rbbo: error: {missing} is not a directory",
+                      "rbbo: error: 2 of 4 run directories could not be reported"]  # fmt: skip
+    assert all(f"{run}: plot " in err for run in good)
+    # one bad directory alone is a one-line usage error, as before
+    assert _error(capsys, ["report", str(missing)]) == (
+        f"rbbo: error: {missing} is not a directory\n"
+    )

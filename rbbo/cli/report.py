@@ -1,5 +1,10 @@
 """``rbbo report``: the table of one or more runs, each run's convergence plot, and where its
-best basis is."""
+best basis is.
+
+Each DIR is reported on its own: one that cannot be read is named in a one-line error and the
+others are still reported; the exit status is then non-zero (2 for a run directory that cannot
+be used, 1 for a read the system refused), as for a single DIR.
+"""
 
 from __future__ import annotations
 
@@ -11,7 +16,7 @@ from .errors import UsageError
 
 def cmd_report(args) -> int:
     from ..report import format_table, load, plot_convergence, report_row
-    from ..store import BEST
+    from ..store import BEST, RunDirectoryError
 
     if args.png is not None and len(args.run_dirs) > 1:
         raise UsageError("--png names one plot: give one DIR")
@@ -29,9 +34,24 @@ def cmd_report(args) -> int:
             args.png.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise UsageError(f"cannot write --png {args.png}: {exc}") from exc
+    failed: list[Path] = []
+    code = 0
     for run_dir in args.run_dirs:
-        opt = load(run_dir)
-        rows.append(report_row(opt))
+        try:
+            opt = load(run_dir)
+            rows.append(report_row(opt))
+        except (RunDirectoryError, OSError) as exc:
+            # each run is reported on its own: one that cannot be read is named, and the
+            # others are still reported (a corrupted run among many must not hide them)
+            failed.append(run_dir)
+            # (exit statuses as main() gives them: 2 for a run directory that cannot be
+            # used, 1 for a read the system refused)
+            code = max(code, 2 if isinstance(exc, RunDirectoryError) else 1)
+            message = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
+            if str(run_dir) not in message:
+                message = f"{run_dir}: {message}"
+            print(f"rbbo: error: {message}", file=sys.stderr)
+            continue
         path = args.png or Path(run_dir) / "convergence.png"
         try:
             png = plot_convergence(opt, path)
@@ -49,5 +69,10 @@ def cmd_report(args) -> int:
                  f"no {BEST} yet (no session has finished: rbbo resume {run_dir})")  # fmt: skip
         plot = "no plot" if png is None else f"plot {png}"
         print(f"{run_dir}: {plot}, {found}", file=sys.stderr)
-    print(format_table(rows))
-    return 0
+    if rows:
+        print(format_table(rows))
+    if failed and len(args.run_dirs) > 1:
+        # the errors may have scrolled past the table: the count closes the report
+        print(f"rbbo: error: {len(failed)} of {len(args.run_dirs)} run directories could not "
+              "be reported", file=sys.stderr)  # fmt: skip
+    return code
