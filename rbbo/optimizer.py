@@ -48,6 +48,8 @@
 - With a run directory every finished evaluation is fsynced to history.jsonl before the next
   proposal, and every proposal to proposals.jsonl before it is evaluated;
   :meth:`RBBO.resume` rebuilds the optimiser from them, the proposals in flight included.
+  :meth:`RBBO.run` refuses an objective whose ``spec()`` is not the one the run recorded
+  (``objective_spec``), naming what differs, unless ``allow_objective_change=True``.
 """
 
 # The optimiser, module by job: this module is RBBO itself (settings, the GP, ask/tell, the
@@ -372,6 +374,7 @@ class RBBO:
         confirm: bool = True,
         callback: Callable[[Evaluation], None] | None = None,
         deterministic: bool = False,
+        allow_objective_change: bool = False,
     ) -> RBBOResult:
         """Optimise until ``max_evaluations`` or ``budget_s`` (defaults: the config's).
 
@@ -401,14 +404,35 @@ class RBBO:
             given number of workers and ``max_evaluations`` (not under ``budget_s``, which is
             wall time), at the cost of a worker idling while an older evaluation finishes.
             Default False: a free worker gets a new point at once.
+        allow_objective_change : bool
+            Go on with an objective other than the one the run recorded (see Raises): it
+            becomes the run's objective in config.json (what ``rbbo resume`` rebuilds), and
+            the one it replaces is kept there under ``"replaced_objectives"`` with the number
+            of history lines evaluated under it. Default False.
+
+        Raises
+        ------
+        rbbo.objective.ObjectiveMismatch
+            Before anything is evaluated, when the objective (or the executor's
+            ``objective``) is not the one the run recorded (``objective_spec``, config.json's
+            ``"objective"``): its ``spec()`` differs in a recorded setting. The message
+            names each difference. What cannot be compared is not checked: a run made
+            without an ``objective_spec``, an objective without a ``spec()`` (a function, a
+            wrapper), an executor without an ``objective`` attribute, and :meth:`ask` and
+            :meth:`tell`, which never see the objective.
         """
         return run_loop.run(self, objective, executor=executor, workers=workers,
                             timeout_s=timeout_s, max_evaluations=max_evaluations,
                             budget_s=budget_s, confirm=confirm, callback=callback,
-                            deterministic=deterministic)  # fmt: skip
+                            deterministic=deterministic,
+                            allow_objective_change=allow_objective_change)  # fmt: skip
 
     def confirm_again(
-        self, executor: Executor, callback: Callable[[Evaluation], None] | None = None
+        self,
+        executor: Executor,
+        callback: Callable[[Evaluation], None] | None = None,
+        *,
+        allow_objective_change: bool = False,
     ) -> RBBOResult:
         """Measure R_init and R* again on the run's fresh seeds and append the new
         confirmations; R_init and R* are then the new values, the earlier ones stay in the
@@ -425,8 +449,11 @@ class RBBO:
             workers)``); it is not shut down.
         callback : callable, optional
             Called with each recorded Evaluation.
+        allow_objective_change : bool
+            As for :meth:`run`, which refuses the executor's ``objective`` as it refuses it
+            (:class:`rbbo.objective.ObjectiveMismatch`) when it is not the recorded one.
         """
-        return run_loop.confirm_again(self, executor, callback)
+        return run_loop.confirm_again(self, executor, callback, allow_objective_change)
 
     @property
     def finished(self) -> bool:

@@ -105,6 +105,7 @@ def run(
     confirm: bool = True,
     callback: Callable[[Evaluation], None] | None = None,
     deterministic: bool = False,
+    allow_objective_change: bool = False,
 ) -> RBBOResult:
     """Optimise until ``max_evaluations`` or ``budget_s`` (see :meth:`RBBO.run`, which calls
     this with its own arguments)."""
@@ -118,6 +119,10 @@ def run(
         _positive_int("max_evaluations", max_evaluations)
     if budget_s is not None and not _real("budget_s", budget_s) > 0:
         raise ValueError(f"budget_s must be > 0 seconds, got {budget_s!r}")
+    evaluated = objective if executor is None else getattr(executor, "objective", None)
+    if executor is not None or objective is not None:
+        # (before anything is evaluated or written: a refused call changes nothing)
+        _expect_objective(opt, evaluated, executor is not None, allow_objective_change)
     own = executor is None
     if executor is None:
         # (checked here, not by the executor alone: workers=True equalled 1 and ran serially,
@@ -183,7 +188,10 @@ def run(
 
 
 def confirm_again(
-    opt: RBBO, executor: Executor, callback: Callable[[Evaluation], None] | None = None
+    opt: RBBO,
+    executor: Executor,
+    callback: Callable[[Evaluation], None] | None = None,
+    allow_objective_change: bool = False,
 ) -> RBBOResult:
     """Measure R_init and R* again on the run's fresh seeds (see :meth:`RBBO.confirm_again`,
     which calls this)."""
@@ -191,10 +199,46 @@ def confirm_again(
         raise ValueError("the run has no evaluation to confirm yet")
     if opt.config.n_confirm == 0:
         raise ValueError("the run was made with no confirmation seeds (n_confirm = 0)")
+    _expect_objective(opt, getattr(executor, "objective", None), True, allow_objective_change)
     session = _Session(opt, "confirm", {"workers": executor.workers})
     with session.ending():
         _confirm(opt, session, executor, callback, again=True)
         return record_result(opt)
+
+
+def _expect_objective(opt: RBBO, objective: Any, via_executor: bool, allow_change: bool) -> None:
+    """Refuse an objective other than the one the run recorded (config.json's "objective"),
+    naming what differs, unless ``allow_change``: then it becomes the run's, and the one it
+    replaces is kept in config.json's "replaced_objectives" with the number of history lines
+    evaluated under it. What cannot be compared is not checked: a run that recorded no
+    objective (made without ``objective_spec``), an executor that does not say what it
+    evaluates (no ``objective`` attribute), an objective without a ``spec()`` (a function, or
+    a wrapper of the recorded objective that injects faults or logs, which must go on)."""
+    from .objective import ObjectiveMismatch, objective_differences
+    from .objective.spec import json_spec
+
+    recorded = opt.objective_spec
+    if recorded is None or (via_executor and objective is None):
+        return
+    differences = objective_differences(recorded, objective)
+    if not differences:  # (None: it cannot be compared)
+        return
+    where = f"the run in {opt.store.path}" if opt.store is not None else "this run"
+    if not allow_change:
+        raise ObjectiveMismatch(
+            f"the objective given is not the one {where} recorded: {'; '.join(differences)}. "
+            "Its R would be mixed with the recorded R of another objective. Pass the recorded "
+            "objective (rbbo.objective.make_objective(opt.objective_spec, M, C) rebuilds it), "
+            "start a new run, or pass allow_objective_change=True to go on with this one (the "
+            "run then records it, and keeps the one it replaces)"
+        )
+    new = json_spec(objective)  # (it has one: it was compared)
+    if opt.store is not None:
+        replaced = list(opt.store.config.get("replaced_objectives") or [])
+        replaced.append({"objective": recorded, "history_lines": len(opt.history)})
+        opt.store.update_config({"objective": new, "replaced_objectives": replaced},
+                                merge=False)  # fmt: skip
+    opt.objective_spec = new
 
 
 def _tell_outcome(opt: RBBO, proposal: Proposal, outcome, callback) -> Evaluation:

@@ -794,7 +794,8 @@ def test_the_convergence_plot_calls_only_an_env_runs_r_a_rate(tmp_path, monkeypa
     for spec in (objective.spec(), {"kind": "env", "env_id": "softrom_gym/CrossSwim-v0"}):
         opt = RBBO(RBBOConfig(6, 2, n_init=1, max_evaluations=2, n_confirm=0, **FAST),
                    objective_spec=spec)  # fmt: skip
-        opt.run(objective)
+        # (a function stands in for the env's objective: one without a spec() is not compared)
+        opt.run(lambda basis, T, seed: objective(basis, T, seed))
         rbbo.report.plot_convergence(opt, tmp_path / "convergence.png")
     assert labels == ["R (synthetic objective)", "reward R per second"]
 
@@ -1240,3 +1241,67 @@ def test_random_search_starts_from_the_identity_only_when_asked():
     without = random_search(objective, 6, 2, 3, T=10.0, rng=0, include_identity=False)
     np.testing.assert_array_equal(with_identity[0][0], identity_basis(6, 2))
     assert not any(np.array_equal(b, identity_basis(6, 2)) for b, _, _ in without)
+
+
+def _a_stopped_run(path, objective):
+    config = RBBOConfig(6, 2, n_init=2, max_evaluations=3, n_confirm=0, **FAST)
+    opt = RBBO.create(path, config, objective_spec=objective.spec())
+    opt.run(objective, max_evaluations=2)
+    opt.store.close()
+    return {p.name: p.read_bytes() for p in path.iterdir() if p.is_file()}
+
+
+def test_a_run_resumed_from_python_with_another_objective_is_refused_naming_what_differs(
+    tmp_path,
+):
+    # RBBO.resume(...).run(objective) never compared the objective with the one the run
+    # recorded: a user resuming with another noise level silently mixed two objectives' R
+    from rbbo.objective import ObjectiveMismatch
+
+    run = tmp_path / "run"
+    before = _a_stopped_run(run, SyntheticObjective(6, 2, noise=0.01))
+    other = SyntheticObjective(6, 2, noise=0.05, optimum_seed=3)
+    for call in (lambda opt: opt.run(other), lambda opt: opt.run(executor=SerialExecutor(other))):
+        opt = RBBO.resume(run)
+        with pytest.raises(ObjectiveMismatch) as error:
+            call(opt)
+        message = str(error.value)
+        assert str(run) in message and "allow_objective_change=True" in message
+        assert "noise 0.05 (recorded 0.01)" in message and "optimum_seed 3 (recorded 0)" in message
+        assert "bias" not in message  # (the same)
+        opt.store.close()
+        assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()} == before
+
+    def plain(basis, T, seed):
+        return 0.0
+
+    # one without a spec() cannot be compared (a wrapper that injects faults must go on),
+    # and the same objective goes on
+    opt = RBBO.resume(run)
+    assert opt.run(plain, max_evaluations=3).evaluations == 3
+    assert opt.run(SyntheticObjective(6, 2, noise=0.01), max_evaluations=4).evaluations == 4
+    opt.store.close()
+
+
+def test_allow_objective_change_goes_on_and_keeps_the_objective_it_replaced(tmp_path):
+    run = tmp_path / "run"
+    old = SyntheticObjective(6, 2, noise=0.01)
+    _a_stopped_run(run, old)
+    # (delay changes only the cost of an evaluation, not R: a run may be resumed with another)
+    slower = SyntheticObjective(6, 2, noise=0.01, delay=0.001)
+    opt = RBBO.resume(run)
+    assert opt.run(slower, max_evaluations=3).evaluations == 3
+    assert opt.objective_spec == old.spec()
+    opt.store.close()
+    new = SyntheticObjective(6, 2, noise=0.02)
+    opt = RBBO.resume(run)
+    assert opt.run(new, max_evaluations=4, allow_objective_change=True).evaluations == 4
+    assert opt.objective_spec == new.spec()
+    opt.store.close()
+    config = json.loads((run / "config.json").read_text())
+    assert config["objective"] == new.spec()  # what rbbo resume rebuilds from now on
+    # the first three lines of history.jsonl were evaluated with the old one, still recorded
+    assert config["replaced_objectives"] == [{"objective": old.spec(), "history_lines": 3}]
+    # a run made without a spec has nothing to compare with: any objective is taken
+    bare = RBBO.create(tmp_path / "bare", RBBOConfig(6, 2, n_init=2, n_confirm=0, **FAST))
+    assert bare.run(new, max_evaluations=2).evaluations == 2

@@ -2,9 +2,9 @@
 the subcommand, and turn its errors into one-line messages and exit statuses.
 
 Exit status 2: bad input (a usage error, a run directory that cannot be used, a simulation
-space that does not match the run's); 1: evaluations kept failing, or the system refused a
-read or write (a full disk); 130: interrupted (Ctrl-C
-or SIGTERM), with what was recorded kept. Run as the console script (or ``python -m rbbo``),
+space or an objective that does not match the run's); 1: evaluations kept failing, or the
+system refused a read or write (a full disk); 130: interrupted (Ctrl-C or SIGTERM), with what
+was recorded kept. Run as the console script (or ``python -m rbbo``),
 warnings are printed as ``rbbo: warning: ...`` lines, as its errors are, without Python's
 source location.
 """
@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     rbbo``) it also prints the warnings of the process as ``rbbo: warning:`` lines; a call
     with an argument list leaves the caller's warning display alone.
     """
-    from ..objective import SimulationSpaceMismatch
+    from ..objective import ObjectiveMismatch, SimulationSpaceMismatch
     from ..optimizer import EvaluationsFailing
     from ..store import RunDirectoryError
 
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         args.argv = list(sys.argv[1:] if argv is None else argv)
         with _terminate_as_interrupt():
             return COMMANDS[args.command](args)
-    except (UsageError, RunDirectoryError, SimulationSpaceMismatch) as exc:
+    except (UsageError, RunDirectoryError, SimulationSpaceMismatch, ObjectiveMismatch) as exc:
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"rbbo: error: {message}", file=sys.stderr)
         return 2

@@ -25,10 +25,10 @@ from .env import EnvObjective
 from .env_keywords import NO_TIME_LIMIT, SET_BY_RBBO
 from .env_keywords import _check_env_keywords as _check_env_keywords
 from .planner import planner_record
-from .protocol import Objective, PlannerMismatch, SimulationSpaceMismatch
+from .protocol import Objective, ObjectiveMismatch, PlannerMismatch, SimulationSpaceMismatch
 from .reward import settled_reward_rate, settled_step
 from .spec import _SYNTHETIC_KEYS as _SYNTHETIC_KEYS
-from .spec import make_objective, parse_objective_spec
+from .spec import make_objective, objective_differences, parse_objective_spec
 from .synthetic import SyntheticObjective
 
 __all__ = [
@@ -36,10 +36,12 @@ __all__ = [
     "SET_BY_RBBO",
     "EnvObjective",
     "Objective",
+    "ObjectiveMismatch",
     "PlannerMismatch",
     "SimulationSpaceMismatch",
     "SyntheticObjective",
     "make_objective",
+    "objective_differences",
     "parse_objective_spec",
     "planner_record",
     "settled_reward_rate",

@@ -10,7 +10,7 @@ import hashlib
 import math
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -55,6 +55,9 @@ class SyntheticObjective:
     bias: float = 0.3
     t_max: float = 10.0
     delay: float = 0.0
+    # spec() settings that change an evaluation's cost, not R: a run may go on with another
+    # (rbbo.objective.objective_differences)
+    COST_ONLY: ClassVar[frozenset[str]] = frozenset({"delay"})
     _u: np.ndarray = field(init=False, repr=False, compare=False)  # (derived from the seed)
     _v: np.ndarray = field(init=False, repr=False, compare=False)
 

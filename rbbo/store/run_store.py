@@ -163,16 +163,17 @@ class RunStore:
             f.flush()
             os.fsync(f.fileno())
 
-    def update_config(self, changes: dict[str, Any]) -> None:
+    def update_config(self, changes: dict[str, Any], *, merge: bool = True) -> None:
         """Merge ``changes`` into config.json, key by key (a dict value merges into the dict
-        it replaces), and rewrite the file atomically: a kill leaves the old file or the new.
+        it replaces; ``merge=False``: replaces it whole), and rewrite the file atomically: a
+        kill leaves the old file or the new.
 
         Only a store that holds the directory's lock (one that writes) may do this.
         """
         self._require_writer("its config cannot change")
         config = json.loads(json.dumps(self.config))  # a deep copy: the old one if this fails
         for key, value in changes.items():
-            if isinstance(value, dict) and isinstance(config.get(key), dict):
+            if merge and isinstance(value, dict) and isinstance(config.get(key), dict):
                 config[key].update(value)
             else:
                 config[key] = value
