@@ -10,6 +10,7 @@
         result = opt.run(objective, workers=2)
         # or drive it yourself:
         p = opt.ask(); opt.tell(p.index, objective(p.basis, p.T, p.seeds[0]))
+        opt.close()  # the run directory's lock, for another process (or `with RBBO.create(...)`)
 
 - Initial design: the identity basis (the first C modes of B_r) at T_max, then ``n_init``
   Haar-random points of Gr(M, C) (with BOCA, alternately at T_min and T_max).
@@ -64,7 +65,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -80,6 +81,9 @@ from .run_loop import MAX_CONSECUTIVE_FAILURES as MAX_CONSECUTIVE_FAILURES
 from .run_loop import EvaluationsFailing
 from .run_result import _ok_R
 from .store import Evaluation, RunStore
+
+if TYPE_CHECKING:
+    from typing_extensions import Self  # (typing's from Python 3.11)
 
 __all__ = ["FIDELITIES", "RBBO", "EvaluationsFailing", "Proposal", "RBBOConfig", "RBBOResult"]
 
@@ -122,6 +126,7 @@ class RBBO:
         # what summary.json holds for a run with a store: the result a session of a run in
         # memory ended with (run_result reads it, so that `finished` means the same for both)
         self._summary: dict[str, Any] | None = None
+        self._closed = False
 
     # -- construction -------------------------------------------------------------------
     @classmethod
@@ -158,6 +163,41 @@ class RBBO:
         is skipped and the directory is left untouched).
         """
         return restore.resume(cls, path, read_only=read_only)
+
+    # -- releasing the run directory ------------------------------------------------------
+    def close(self) -> None:
+        """Release what the run holds: its run directory's lock (``DIR/.rbbo.lock``), so that
+        another process, or another :meth:`resume` in this one, may write the run.
+
+        What was recorded stays readable (``history``, :meth:`result`, :meth:`recommend`);
+        :meth:`ask`, :meth:`tell`, :meth:`run`, :meth:`confirm_again` and
+        :meth:`set_limits` then raise ValueError. Closing again does nothing. An RBBO is also
+        a context manager that closes on leaving its block (an exception included), as a
+        file is. Nothing else is held between calls: :meth:`run` shuts down the executor it
+        makes before it returns, files are opened for each write, and an executor passed in
+        is its caller's to shut down.
+        """
+        self._closed = True
+        if self.store is not None:
+            self.store.close()
+
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` was called."""
+        return self._closed
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()
+
+    def _require_open(self) -> None:
+        if self._closed:
+            where = f"RBBO of {self.store.path}" if self.store is not None else "RBBO"
+            again = (f"; RBBO.resume({str(self.store.path)!r}) opens the run again"
+                     if self.store is not None else "")  # fmt: skip
+            raise ValueError(f"this {where} is closed{again}")
 
     # -- bookkeeping --------------------------------------------------------------------
     @property
@@ -236,6 +276,7 @@ class RBBO:
         had handed out and not seen evaluated (DIR/proposals.jsonl), so that it evaluates
         what the uninterrupted run would have.
         """
+        self._require_open()
         if self._restored:
             proposal = self._restored.pop(0)
             self.pending[proposal.index] = proposal
@@ -302,6 +343,7 @@ class RBBO:
         Evaluation
             The record appended to the history (and to DIR/history.jsonl).
         """
+        self._require_open()
         if index not in self.pending:
             raise ValueError(f"no pending proposal with index {index}")
         if R is not None:
@@ -343,6 +385,7 @@ class RBBO:
         Raises ValueError for an invalid limit, as :class:`RBBOConfig` does, before anything
         is written.
         """
+        self._require_open()
         if max_evaluations is None and budget_s is None:
             raise ValueError("give max_evaluations or budget_s")
         config = replace(self.config, max_evaluations=max_evaluations, budget_s=budget_s)
@@ -421,6 +464,7 @@ class RBBO:
             wrapper), an executor without an ``objective`` attribute, and :meth:`ask` and
             :meth:`tell`, which never see the objective.
         """
+        self._require_open()
         return run_loop.run(self, objective, executor=executor, workers=workers,
                             timeout_s=timeout_s, max_evaluations=max_evaluations,
                             budget_s=budget_s, confirm=confirm, callback=callback,
@@ -453,6 +497,7 @@ class RBBO:
             As for :meth:`run`, which refuses the executor's ``objective`` as it refuses it
             (:class:`rbbo.objective.ObjectiveMismatch`) when it is not the recorded one.
         """
+        self._require_open()
         return run_loop.confirm_again(self, executor, callback, allow_objective_change)
 
     @property

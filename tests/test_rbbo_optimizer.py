@@ -1305,3 +1305,40 @@ def test_allow_objective_change_goes_on_and_keeps_the_objective_it_replaced(tmp_
     # a run made without a spec has nothing to compare with: any objective is taken
     bare = RBBO.create(tmp_path / "bare", RBBOConfig(6, 2, n_init=2, n_confirm=0, **FAST))
     assert bare.run(new, max_evaluations=2).evaluations == 2
+
+
+def test_close_releases_the_run_directory_and_a_closed_rbbo_refuses_to_go_on(tmp_path):
+    # an RBBO held its run directory's lock until it was garbage-collected: a second
+    # RBBO.resume of the run in the same program after `del` or a finished `with` depended on
+    # the collector, and another process was refused until this one exited
+    run = tmp_path / "run"
+    objective = SyntheticObjective(6, 2)
+    config = RBBOConfig(6, 2, n_init=2, max_evaluations=3, n_confirm=0, **FAST)
+    with RBBO.create(run, config, objective_spec=objective.spec()) as opt:
+        assert not opt.closed
+        opt.run(objective)
+        kept = opt  # (a reference the collector cannot take away)
+    assert kept.closed and kept.store is not None and not kept.store.writable
+    # another process may now write the run
+    code = ("import sys; from rbbo import RBBO; opt = RBBO.resume(sys.argv[1]); "
+            "print(len(opt.evaluations))")  # fmt: skip
+    child = subprocess.run([sys.executable, "-c", code, str(run)], capture_output=True,
+                           text=True, timeout=120)  # fmt: skip
+    assert child.returncode == 0, child.stderr
+    assert child.stdout.strip() == "3"
+    # what it recorded is still read; nothing more is asked, told or run
+    assert len(kept.evaluations) == 3 and kept.result().evaluations == 3
+    for call in (kept.ask, lambda: kept.tell(0, 1.0), lambda: kept.run(objective),
+                 lambda: kept.set_limits(5, None)):  # fmt: skip
+        with pytest.raises(ValueError, match=f"RBBO of {run} is closed; RBBO.resume"):
+            call()
+    kept.close()  # (again: nothing)
+    # left by an exception, the lock is released too, and an in-memory RBBO closes alike
+    with pytest.raises(KeyError), RBBO.resume(run) as again:
+        raise KeyError
+    assert again.closed
+    RBBO.resume(run).close()
+    with RBBO(config) as memory:
+        memory.ask()
+    with pytest.raises(ValueError, match="this RBBO is closed"):
+        memory.ask()

@@ -198,6 +198,9 @@ def test_update_config_merges_rewrites_and_needs_the_lock(tmp_path):
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [".rbbo.lock", "config.json",
                                                                     "history.jsonl"]  # fmt: skip
     store.close()
+    # (a closed writer said "was opened read-only", which it never was)
+    with pytest.raises(RunDirectoryError, match="run was closed; its config cannot change"):
+        store.update_config({"x": 2})
     reader = RunStore.open(tmp_path / "run", repair=False)
     with pytest.raises(RunDirectoryError, match="read-only"):
         reader.update_config({"x": 2})

@@ -40,6 +40,7 @@ class RunStore:
         self.path = Path(path)
         self.config = config
         self._lock_key: str | None = None
+        self._closed = False  # (a writer that let go of its lock, told from a reader)
 
     def _lock(self) -> None:
         if self._lock_key is None:
@@ -50,6 +51,7 @@ class RunStore:
         if self._lock_key is not None:
             _release_lock(self._lock_key)
             self._lock_key = None
+            self._closed = True
 
     def __del__(self) -> None:
         try:
@@ -66,7 +68,8 @@ class RunStore:
         """Refuse a write through a reader: it holds no lock, and the run may still be going
         in another process, which would then record the same evaluation indices."""
         if self._lock_key is None:
-            raise RunDirectoryError(f"{self.path} was opened read-only; {what} (resume it to "
+            how = "was closed" if self._closed else "was opened read-only"
+            raise RunDirectoryError(f"{self.path} {how}; {what} (resume it to "
                                     "write: RBBO.resume without read_only)")  # fmt: skip
 
     @property
