@@ -272,6 +272,11 @@ class RBBO:
     def ask(self) -> Proposal:
         """The next (B_c, T) to evaluate; it stays pending until :meth:`tell`.
 
+        A pending proposal counts against :meth:`run`'s ``max_evaluations`` as an
+        evaluation, and :meth:`run` evaluates those pending when it is called first (oldest
+        first), so a proposal asked and never told is neither lost nor a place of the limit
+        left empty.
+
         A resumed run first hands out again, oldest first, the proposals its stopped session
         had handed out and not seen evaluated (DIR/proposals.jsonl), so that it evaluates
         what the uninterrupted run would have.
@@ -434,7 +439,9 @@ class RBBO:
             For the default executor.
         max_evaluations : int, optional
             Stop proposing after this many evaluations in all (those of earlier sessions
-            included; confirmations not counted). Default: the config's.
+            included; confirmations not counted). Default: the config's. Proposals asked
+            with :meth:`ask` and not told yet are evaluated first, oldest first, and count
+            as these evaluations (those the limit leaves unevaluated stay pending).
         budget_s : float, optional
             Stop proposing once this much wall time (seconds, earlier sessions included) is
             spent. Default: the config's.

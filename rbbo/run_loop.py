@@ -148,6 +148,7 @@ def run(
     failure_limit = max(MAX_CONSECUTIVE_FAILURES, 2 * executor.workers)
     failed_in_a_row, last_error = 0, None
     ok = False
+    untold = _hand_out_again(opt)
     with session.ending():
         try:
             in_flight: dict[Future, Proposal] = {}
@@ -182,9 +183,32 @@ def run(
                 _confirm(opt, session, executor, callback)
             ok = True
         finally:
+            # those the limits left unasked stay the caller's to tell, as they were (by
+            # identity: a Proposal's == compares its basis array)
+            left = [p for p in opt._restored if any(p is q for q in untold)]
+            opt._restored = [p for p in opt._restored if not any(p is q for q in left)]
+            opt.pending.update((p.index, p) for p in left)
             if own:
                 executor.shutdown(wait=ok)
         return record_result(opt)
+
+
+def _hand_out_again(opt: RBBO) -> list[Proposal]:
+    """Queue the search proposals asked with :meth:`RBBO.ask` and not told to be asked again
+    first, oldest first, and return them.
+
+    They are recorded (proposals.jsonl), other proposals were fitted with them as fantasies,
+    and :meth:`RBBO.can_submit` counts them: left pending, they took places of the run's
+    ``max_evaluations`` that nothing filled. Evaluated first, as a resumed run evaluates those
+    its stopped session left in flight, they make the run the one ask/tell in proposal order
+    would have made.
+    """
+    untold = sorted((p for p in opt.pending.values() if p.kind not in CONFIRM_KINDS),
+                    key=lambda p: p.index)  # fmt: skip
+    for proposal in untold:
+        del opt.pending[proposal.index]
+    opt._restored = sorted(untold + opt._restored, key=lambda p: p.index)
+    return untold
 
 
 def confirm_again(

@@ -1342,3 +1342,36 @@ def test_close_releases_the_run_directory_and_a_closed_rbbo_refuses_to_go_on(tmp
         memory.ask()
     with pytest.raises(ValueError, match="this RBBO is closed"):
         memory.ask()
+
+
+def test_run_evaluates_the_proposals_asked_and_never_told_and_counts_them_once(tmp_path):
+    # they counted against run()'s max_evaluations (can_submit counts those pending) but run()
+    # never evaluated them: asked once and not told, a run of 5 recorded 4 evaluations
+    objective = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=2, max_evaluations=5, n_confirm=0, **FAST)
+    opt = RBBO.create(tmp_path / "run", config, objective_spec=objective.spec())
+    first, second = opt.ask(), opt.ask()
+    opt.tell(first.index, objective(first.basis, first.T, first.seeds[0]))
+    result = opt.run(objective)
+    assert result.evaluations == 5 and not opt.pending
+    assert [e.index for e in opt.evaluations] == [0, 1, 2, 3, 4]
+    np.testing.assert_array_equal(opt.evaluations[1].basis, second.basis)
+    # a run already at its limit leaves one asked and not told to its caller to tell
+    third = RBBO(config)
+    asked = [third.ask() for _ in range(5)]
+    third.tell(asked[0].index, 0.5)
+    assert third.run(objective, max_evaluations=1).evaluations == 1
+    assert sorted(third.pending) == [1, 2, 3, 4]
+    third.tell(asked[4].index, 0.25)
+    opt.close()
+    # beside a resumed run's proposals left in flight, all in index order
+    run = tmp_path / "resumed"
+    stopped = RBBO.create(run, config, objective_spec=objective.spec())
+    stopped.ask(), stopped.ask()
+    stopped.close()
+    resumed = RBBO.resume(run)
+    assert resumed.ask().index == 0  # (1 is still to be handed out again)
+    assert resumed.run(objective, max_evaluations=1).evaluations == 1
+    assert list(resumed.pending) == [] and [p.index for p in resumed._restored] == [1]
+    assert resumed.run(objective).evaluations == 5
+    resumed.close()
