@@ -13,8 +13,8 @@ J(x) = R(x) - |r(x)|^2 - w_d n_lost(x) (see :mod:`controllers.cost`). One iterat
 3. a batched line search: the steps for ``len(line_search)`` damping values
    ``mu * line_search[i]`` run in one rollout, and the best is taken only if it raises J.
    mu then moves to the accepted value (or, when none is accepted, to ten times the largest
-   value tried: 1000 mu with the default ``line_search``, up to 1e150), so an iteration
-   never lowers the objective. mu carries over from replan to replan: after a run of
+   value tried: 1000 mu with the default ``line_search``; mu is kept in [1e-150, 1e150]), so
+   an iteration never lowers the objective. mu carries over from replan to replan: after a run of
    rejections (where the finite-difference gradient through contact misleads) the step
    shrinks to nothing and only the exploration candidates move the plan (on the quadruped mu
    passed 1e4 after 2-4.5 s on each of 3 seeds, and reached 1e38 by 10 s on one).
@@ -48,8 +48,11 @@ __all__ = ["GaussNewtonSettings", "GaussNewtonShooting"]
 
 # Each rejected iteration multiplies mu by 10 max(line_search) (1000 by default), so a long
 # run of them (a minute of quadruped walking) would overflow to inf and the knots to NaN. The
-# step is nil long before this cap, which only keeps the arithmetic finite.
+# step is nil long before this cap, which only keeps the arithmetic finite. The floor keeps mu
+# positive: an accepted step with a tiny multiplier could underflow it to 0, where the
+# rejections' "ten times the largest tried" would leave it for good (an undamped solve).
 _MAX_DAMPING = 1e150
+_MIN_DAMPING = 1e-150
 
 
 @dataclass(frozen=True)
@@ -63,9 +66,11 @@ class GaussNewtonSettings(PlannerSettings):
     fd_step : float
         Finite-difference step on a knot, in units of the action bound.
     damping : float
-        Initial Levenberg damping mu (m per unit knot^2).
+        Initial Levenberg damping mu (m per unit knot^2), between 1e-150 and 1e150 (the range
+        mu is kept in).
     line_search : tuple of float
-        Multipliers of mu tried in one batched rollout.
+        Multipliers of mu tried in one batched rollout (a product outside mu's range is
+        taken at its end).
     max_step : float or None
         Trust region: each trial step, and each exploration candidate's perturbation, is
         scaled down so that no knot moves by more than this (units of the bound); None: no
@@ -103,6 +108,9 @@ class GaussNewtonSettings(PlannerSettings):
         if self.fd_step > 0.5:
             raise ValueError(f"fd_step must be <= 0.5 (units of the bound), got {self.fd_step}")
         _check_positive("damping", self.damping)
+        if not _MIN_DAMPING <= self.damping <= _MAX_DAMPING:
+            raise ValueError(f"damping must be between {_MIN_DAMPING:g} and {_MAX_DAMPING:g} "
+                             f"(m per unit knot^2), got {self.damping!r}")  # fmt: skip
         if self.max_step is not None:
             _check_positive("max_step", self.max_step)
         _check_int("explore", self.explore, low=0)
@@ -163,7 +171,11 @@ class GaussNewtonShooting(Planner):
             x = plan.knots.ravel()
             g = grad - 2.0 * jac.T @ ev.residuals[0]
             hess = 2.0 * jac.T @ jac
-            mus = self.damping_ * np.asarray(s.line_search, dtype=float)
+            # (mu near an end of its range times a large or small multiplier leaves the
+            # floats: inf would make every step NaN, and 0 an undamped solve)
+            with np.errstate(over="ignore", under="ignore"):
+                mus = self.damping_ * np.asarray(s.line_search, dtype=float)
+            mus = np.clip(mus, _MIN_DAMPING, _MAX_DAMPING)
             eye = np.eye(x.size)
             steps = [np.linalg.solve(hess + mu * eye, g) for mu in mus]
             if s.max_step is not None:

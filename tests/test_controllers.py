@@ -1372,3 +1372,31 @@ def test_the_command_says_a_warning_in_one_line(monkeypatch, say_warning):
     assert say_warning("the gait diverged") == [
         "python -m controllers: warning: the gait diverged (RuntimeWarning)"
     ]
+
+
+SCALES = [{"line_search": (1e160,)},  # mu * 1e160 > 1.8e308 once mu is at its cap
+          {"damping": 1e150, "line_search": (1.0, 1e200)},
+          {"damping": 1e-150, "line_search": (1e-200, 1.0)}]  # fmt: skip
+
+
+@pytest.mark.parametrize("settings", SCALES)
+def test_gauss_newton_damping_stays_finite_and_positive_at_any_scale(walker, settings):
+    # mu * line_search overflowed to inf (a RuntimeWarning, then NaN steps) once mu had
+    # reached its cap (1e150) with a multiplier above ~1e158, and underflowed to 0 below
+    # ~1e-308, where a rejection's "ten times the largest tried" left mu at 0 for good
+    gn = GaussNewtonShooting(GaussNewtonSettings(horizon=6, knots=2, iterations=3, **settings))
+    gn.reset(walker, seed=0)
+    for _ in range(2):
+        gn.plan(walker)
+        assert 1e-150 <= gn.damping_ <= 1e150
+        assert np.isfinite(gn.plan_.knots).all()
+        assert all(e >= s for s, e in gn.last_["objectives"])
+
+
+def test_gauss_newton_refuses_a_damping_beyond_its_range_naming_it():
+    import re
+
+    for damping in (1e151, 1e-151):
+        message = f"damping must be between 1e-150 and 1e+150 (m per unit knot^2), got {damping!r}"
+        with pytest.raises(ValueError, match=re.escape(message)):
+            GaussNewtonSettings(damping=damping)
