@@ -1047,3 +1047,20 @@ def test_report_of_several_runs_reports_every_good_one_and_names_each_bad_one(tm
     assert _error(capsys, ["report", str(missing)]) == (
         f"rbbo: error: {missing} is not a directory\n"
     )
+
+
+def test_report_and_resume_help_say_what_the_command_does_and_what_its_arguments_are(capsys):
+    # their --help printed no description, a bare DIR, and a --budget without its format or
+    # that a new limit replaces both stored ones (a run's --iterations limit is dropped)
+    for command, wanted in (
+        ("report", ["Print the table and write convergence.png", "DIR a run directory",
+                    "the others are still reported"]),
+        ("resume", ["Continue a run from its directory", "DIR the run directory", "e.g. 30m, 2h",
+                    "replaces both of the run's stored limits"]),
+    ):  # fmt: skip
+        with pytest.raises(SystemExit) as exit_:
+            main([command, "--help"])
+        assert exit_.value.code == 0
+        out = " ".join(capsys.readouterr().out.split())
+        for text in wanted:
+            assert " ".join(text.split()) in out, (command, text, out)

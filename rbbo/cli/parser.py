@@ -104,11 +104,25 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--out", type=user_path, help="run directory (default runs/<env>-<time>)")
     opt.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    res = sub.add_parser("resume", help="continue a run from its directory")
-    res.add_argument("run_dir", type=user_path, metavar="DIR")
-    res.add_argument("--budget", type=parse_duration, help="new total wall-time budget")
-    res.add_argument("--iterations", type=_positive_int, help="new total number of evaluations")
-    res.add_argument("--workers", type=_positive_int, help="default: the run's")
+    # (a subcommand's help is shown in `rbbo --help` only: its own --help needs a description)
+    about = "continue a run from its directory"
+    res = sub.add_parser("resume", help=about,
+                         description=f"{about.capitalize()}: it searches on to its limits "
+                         "(the stored ones unless --budget or --iterations is given), then "
+                         "measures R_init and R* on fresh seeds.")  # fmt: skip
+    res.add_argument("run_dir", type=user_path, metavar="DIR",
+                     help="the run directory (rbbo optimize's --out)")  # fmt: skip
+    new_limit = ("; replaces both of the run's stored limits, and is stored for later "
+                 "resumes")  # fmt: skip
+    res.add_argument("--budget", type=parse_duration,
+                     help="new total wall time, earlier sessions included, e.g. 30m, 2h"
+                     + new_limit)  # fmt: skip
+    res.add_argument("--iterations", type=_positive_int,
+                     help="new total number of evaluations, earlier sessions included"
+                     + new_limit)  # fmt: skip
+    res.add_argument(
+        "--workers", type=_positive_int, help="evaluations run at once (default: the run's)"
+    )
     res.add_argument(
         "--executor",
         choices=["process", "ray", "serial"],
@@ -120,10 +134,18 @@ def _parser() -> argparse.ArgumentParser:
     con = sub.add_parser("confirm", help="measure R_init and R* of a finished run again "
                          "(after an upgrade, or on another machine)")  # fmt: skip
     con.add_argument("run_dir", type=user_path, metavar="DIR")
-    con.add_argument("--workers", type=_positive_int, help="default: the run's")
+    con.add_argument(
+        "--workers", type=_positive_int, help="evaluations run at once (default: the run's)"
+    )
 
-    rep = sub.add_parser("report", help="print the table and write convergence.png")
-    rep.add_argument("run_dirs", type=user_path, nargs="+", metavar="DIR")
+    about = "print the table and write convergence.png"
+    rep = sub.add_parser("report", help=about,
+                         description=f"{about.capitalize()} of each run (R_init, R* and the "
+                         "improvement, as the paper's Table I). A DIR that cannot be read is "
+                         "named in an error and the others are still reported; the exit "
+                         "status is then non-zero.")  # fmt: skip
+    rep.add_argument("run_dirs", type=user_path, nargs="+", metavar="DIR",
+                     help="a run directory (several: one row each)")  # fmt: skip
     rep.add_argument("--png", type=user_path, help="plot path (default DIR/convergence.png)")
 
     rol = sub.add_parser("rollout", help="replay the best B_c with MPC")
