@@ -278,7 +278,9 @@ def test_resume_with_a_new_limit_replaces_the_stored_ones(tmp_path, capsys):
     done = len([h for h in _history(run) if not h["kind"].startswith("confirm")])
     # the stored 1-s budget is spent; with only the old limits there is nothing to search
     assert main(["resume", str(run), "--no-progress", "--executor", "serial"]) == 0
-    assert "has reached its limit (a budget of 1 s; it has" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "has reached its limit (a budget of 1 s; it has" in err
+    assert "resumed for" not in err  # (nothing was resumed: it printed "resumed for 0 s")
     # a new --iterations replaces the budget instead of stopping at it
     assert main(["resume", str(run), "--iterations", str(done + 3), "--no-progress",
                  "--executor", "serial"]) == 0  # fmt: skip

@@ -188,7 +188,11 @@ def cmd_resume(args) -> int:
                 opt.set_limits(iterations, budget)
             print(f"{store.path}: its limit is now {_limits_text(iterations, budget)} (was "
                   f"{old}), stored in config.json for later resumes", file=sys.stderr)  # fmt: skip
-        if not opt.can_submit(iterations, budget):
+        at_limit = not opt.can_submit(iterations, budget)
+        # (a run at its limit whose confirmation is done has nothing left to resume; one
+        # whose confirmation an interrupt cut short is confirmed below)
+        nothing_to_do = at_limit and opt.finished
+        if at_limit:
             done = len(opt.evaluations)
             print(f"{store.path} has reached its limit ({_limits_text(iterations, budget)}; it "
                   f"has {done} evaluations, {_duration_text(opt.elapsed_s)}): nothing more to "
@@ -199,7 +203,7 @@ def cmd_resume(args) -> int:
         raise
     code = _execute(opt, executor, iterations, budget, not args.no_progress,
                     bool(execution.get("deterministic", False)))  # fmt: skip
-    if code == 0:
+    if code == 0 and not nothing_to_do:
         print(f"resumed for {time.monotonic() - started:.0f} s", file=sys.stderr)
     return code
 

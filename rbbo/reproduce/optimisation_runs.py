@@ -108,6 +108,9 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
         # On an interrupt the workers are killed, not waited for: they ignore the group's
         # SIGINT, and an evaluation in flight can take minutes.
         executor.shutdown(wait=finished)
+        # (the run's lock, now rather than at garbage collection: a reproduction opens its
+        # runs one after another in one process, and `rbbo resume DIR` may follow at once)
+        opt.close()
         if bar is not None:
             bar.close()
     log(f"[{path.name}] done: {result.evaluations} evaluations, R_init {_r(result.R_init)}, "
