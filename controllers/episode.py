@@ -19,9 +19,10 @@ __all__ = ["EpisodeResult", "run_episode"]
 class EpisodeResult:
     """One closed-loop episode.
 
-    ``planner`` is the planner's name ("mppi" or "gn"), ``dt`` the env's control period (s),
-    ``body_length`` the robot's (m, for distances in body lengths) and ``seed_gait`` the label
-    of the gait the planner's gait seed chose at reset (None without one). Per env step t = 1..T
+    ``planner`` is the planner's ``name`` ("mppi", "gn", or a planner of one's own), ``dt``
+    the env's control period (s), ``body_length`` the robot's (m, for distances in body
+    lengths) and ``seed_gait`` the label of the gait the planner's gait seed chose at reset
+    (None without one). Per env step t = 1..T
     (arrays of length T), as ``env.step`` reported them: ``rewards`` (R per step, m, as any
     reward wrapper left it), ``orientation`` (rad), ``lateral`` (m), ``effort`` (|f_c / a|^2),
     ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and ``distance`` (T + 1,) along d
@@ -125,6 +126,8 @@ def run_episode(
         (the planners' actions are f_c in the robot's units, which ``RescaleAction`` would
         scale again); ``render_mode="rgb_array"`` for a video.
     planner : Planner
+        Its ``plan`` and ``action`` must leave the env's state as they found it (they try
+        plans with ``rollout``); one that moves it raises RuntimeError naming the method.
     seconds : float
         Simulated time; the episode stops early if the simulation diverges or the env's
         time limit truncates it.
@@ -202,9 +205,11 @@ def _closed_loop(env, planner, api, steps, replan_every, record, com, states, re
             start = time.perf_counter()
             planner.plan(env)
             wall.append(time.perf_counter() - start)
+            _check_unchanged(planner, "plan", states[-1], api.get_state())
             replan_steps.append(t)
             records.append(dict(planner.last_))
         action = planner.action(env)
+        _check_unchanged(planner, "action", states[-1], api.get_state())
         _, reward, terminated, truncated, info = env.step(action)
         for key, value in (("rewards", reward), ("orientation", info["orientation"]),
                            ("lateral", info["lateral"]), ("effort", info["effort"]),
@@ -222,6 +227,23 @@ def _closed_loop(env, planner, api, steps, replan_every, record, com, states, re
         if truncated and t < steps - 1:  # the limit ended it before the time asked for
             return "truncated by the time limit"
     return "time"
+
+
+def _check_unchanged(planner: Planner, method: str, before: Any, after: Any) -> None:
+    """Raise RuntimeError if ``planner.<method>`` moved the env off the state it was given.
+
+    A planner of one's own that steps the env to try a plan (and forgets to put it back)
+    would otherwise move the robot between the episode's steps, unrecorded: the distance
+    would count motion no recorded action made."""
+    if all(np.array_equal(getattr(before, k), getattr(after, k))
+           for k in ("q", "qdot", "impulses")):  # fmt: skip
+        return
+    raise RuntimeError(
+        f"{type(planner).__name__}.{method} changed the env's state: a planner must leave "
+        "the env as it found it. Try plans with the env's rollout(state, controls) (batched, "
+        "and the env is left as it was), not step(), which also counts against the env's "
+        "time limit; or restore the state with set_state(state) before returning"
+    )
 
 
 def _result(planner, api, env, record, com, states, replan_steps, wall, records,

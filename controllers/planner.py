@@ -87,15 +87,42 @@ class Planner(ABC):
         refuses an env that steps another (its gait would run at another frequency).
         :func:`controllers.planner_for` sets it; None leaves it unchecked.
 
-    Subclasses implement :meth:`_optimise` (one replan's update of ``self.plan_``'s knots).
-    After :meth:`plan`, ``last_`` holds the replan's record: ``objective_start`` (J of the
-    warm-started plan), ``objective_best`` (Gauss-Newton: J of the plan it adopts; MPPI: J
-    of its best sample, since the weighted mean it adopts is not rolled out, which would cost
-    another rollout), ``rollouts`` and ``wall_s``; MPPI adds ``effective_samples`` (1 / sum
-    of the squared weights), Gauss-Newton ``objectives`` (J before and after each iteration),
-    ``accepted`` ("step", "explore" or "none" per iteration) and ``damping`` (mu after them).
-    With ``gait_seed``, :meth:`reset` leaves ``seed_``: the gait chosen (``gait``, its label),
-    its ``objective`` and its cycle (``period``, env steps).
+    Subclasses implement :meth:`_optimise` (one replan's update of ``self.plan_``'s knots); see
+    "Writing a planner" below. After :meth:`plan`, ``last_`` holds the replan's record:
+    ``objective_start`` (J of the warm-started plan), ``objective_best`` (Gauss-Newton: J of the
+    plan it adopts; MPPI: J of its best sample, since the weighted mean it adopts is not rolled
+    out, which would cost another rollout), ``rollouts`` and ``wall_s``; MPPI adds
+    ``effective_samples`` (1 / sum of the squared weights), Gauss-Newton ``objectives`` (J
+    before and after each iteration), ``accepted`` ("step", "explore" or "none" per iteration)
+    and ``damping`` (mu after them). With ``gait_seed``, :meth:`reset` leaves ``seed_``: the
+    gait chosen (``gait``, its label), its ``objective`` and its cycle (``period``, env steps).
+
+    Writing a planner
+    -----------------
+    Subclass :class:`Planner` (and :class:`PlannerSettings`, a frozen dataclass, for settings
+    of its own: ``from_shared`` copies a benchmark default's plan and objective into them),
+    set ``name`` (it labels :class:`~controllers.EpisodeResult` and the progress bar) and
+    implement ``_optimise(state)``, one replan from ``state`` (the env's, a ``ReducedState``
+    copy). :meth:`plan` has shift-warm-started the plan and reset ``last_`` before calling
+    it, and :meth:`action` then reads the plan. What a subclass may use:
+
+    * ``self.plan_``: the :class:`SplinePlan`; update ``plan_.knots`` (K, C), in units of
+      the action bound a, within [-1, 1] (the controls are clipped to it).
+    * ``self._evaluate(state, knots)``: R - Λ (an :class:`~controllers.Evaluation`,
+      ``objective`` (B,)) of a batch of knots (B, K, C) in one batched rollout, scored with
+      the settings' weights and window as the shipped planners score theirs; it counts the
+      rollouts in ``last_["rollouts"]``.
+    * ``self.rng_``: a ``numpy.random.Generator`` seeded by :meth:`reset` (draw from it, and
+      a seeded episode repeats).
+    * ``self.api_``: the env's MPC API (``rollout``, ``get_state``, ``center_of_mass``,
+      ``bound``, ``dt``, ``direction``, ``control_dim``), for a planner that rolls out
+      controls of its own; :func:`controllers.evaluate` scores them.
+    * ``self.last_``: add ``objective_start`` and ``objective_best`` (and terms of its own)
+      for :func:`~controllers.run_episode`'s ``replan_records``.
+
+    Leave the env's state as it was: try plans with ``rollout``, not ``step`` (which also
+    counts against the env's time limit); :func:`~controllers.run_episode` raises
+    RuntimeError if ``plan`` or ``action`` moved it.
     """
 
     name = "planner"
@@ -212,8 +239,21 @@ class Planner(ABC):
             )
 
     def _evaluate(self, state: Any, knots: np.ndarray, horizon: int | None = None) -> Evaluation:
-        """R - Λ of a batch of knots (B, K, C) from ``state``, in one batched rollout."""
+        """R - Λ of a batch of knots (B, K, C) from ``state``, in one batched rollout.
+
+        ``knots`` are in units of the action bound (clipped to [-1, 1] with the controls);
+        ``horizon`` (default: the plan's) rolls each out over that many env steps. Counts the
+        rollouts in ``last_["rollouts"]``.
+        """
         plan = self._plan
+        knots = np.asarray(knots, dtype=float)
+        expected = (plan.num_knots, plan.control_dim)
+        # (named here: the env would name the spline's controls, not the knots given)
+        if knots.ndim != 3 or knots.shape[1:] != expected:
+            raise ValueError(
+                f"knots has shape {knots.shape}, expected (B, {expected[0]}, {expected[1]}): "
+                "a batch of B plans' knots (one plan's knots K x C: knots[None])"
+            )
         if horizon is not None and horizon != plan.horizon:
             plan = SplinePlan(horizon, plan.num_knots, plan.control_dim, plan.kind, plan.period)
             plan.offset = self._plan.offset

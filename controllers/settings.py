@@ -154,6 +154,27 @@ class PlannerSettings:
         """Raise ValueError if these settings cannot plan C = ``control_dim`` dimensions (a
         per-dimension setting of another length); the planner checks it at reset."""
 
+    @classmethod
+    def from_shared(cls, settings: PlannerSettings, **changes: Any):
+        """Settings of this class with the shared settings (the fields of
+        :class:`PlannerSettings`: horizon, knots, period, window, weights, gait seed, ...) of
+        ``settings``, and ``changes`` (validated as the constructor validates them).
+
+        For a planner of one's own compared with MPPI on the same plan and objective:
+        ``CEMSettings.from_shared(default_settings(env_id, "mppi")[0], samples=32)``. Only the
+        shared fields are copied: another planner's own settings (MPPI's ``samples``,
+        ``noise``) keep this class's defaults even where a name is the same, as their meaning
+        may not be.
+        """
+        if not isinstance(settings, PlannerSettings):
+            raise TypeError(f"settings must be a PlannerSettings, got {type(settings).__name__}")
+        own = {f.name for f in fields(cls)}
+        unknown = sorted(set(changes) - own)
+        if unknown:
+            raise TypeError(f"unknown {cls.__name__} setting {unknown[0]!r}; valid: {sorted(own)}")
+        shared = {f.name: getattr(settings, f.name) for f in fields(PlannerSettings)}
+        return cls(**{**shared, **changes})
+
     def replace(self, **changes: Any):
         """A copy with some fields changed (validated again)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}

@@ -1,0 +1,90 @@
+"""A planner of one's own against the Planner base class and run_episode: the subclass
+contract the docstrings promise, and the mistakes it names.
+
+Small robots (a 28-node beam, 6 modes) and short horizons keep these fast."""
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import softrom_gym  # noqa: F401  (registers the envs)
+from controllers import Planner, PlannerSettings, default_settings, run_episode
+
+
+def small_env(task="swim"):
+    return gym.make("softrom_gym/SoftRobot-v0", robot="beam", task=task, sim_dim=6,
+                    resolution=6)  # fmt: skip
+
+
+class Stepper(Planner):
+    """Plans by stepping the env itself (and forgets to put it back): every replan moves the
+    robot without run_episode knowing."""
+
+    name = "stepper"
+
+    def _optimise(self, state: Any) -> None:
+        self.api_.unwrapped.step(np.ones(self.api_.control_dim))
+
+
+def test_run_episode_refuses_a_planner_that_changes_the_env_state():
+    env = small_env()
+    planner = Stepper(PlannerSettings(horizon=4, knots=2))
+    with pytest.raises(RuntimeError, match=r"Stepper\.plan changed the env's state"):
+        run_episode(env, planner, 0.1, replan_every=2, seed=0, progress=False)
+
+
+class Restorer(Planner):
+    """Steps the env to evaluate, then restores the state with set_state: allowed."""
+
+    name = "restorer"
+
+    def _optimise(self, state: Any) -> None:
+        env = self.api_.unwrapped
+        env.step(np.ones(self.api_.control_dim))
+        env.set_state(state)
+
+
+def test_run_episode_accepts_a_planner_that_restores_the_env_state():
+    env = small_env()
+    result = run_episode(env, Restorer(PlannerSettings(horizon=4, knots=2)), 0.1,
+                         replan_every=2, seed=0, progress=False)  # fmt: skip
+    assert result.stop_reason == "time" and result.planner == "restorer"
+
+
+class Unbatched(Planner):
+    """Scores its plan's knots (K, C) without the batch axis _evaluate takes."""
+
+    def _optimise(self, state: Any) -> None:
+        self._evaluate(state, self._plan.knots)
+
+
+def test_evaluate_names_knots_without_their_batch_axis():
+    env = small_env()
+    planner = Unbatched(PlannerSettings(horizon=4, knots=2))
+    planner.reset(env, seed=0)
+    c = env.action_space.shape[0]
+    with pytest.raises(ValueError, match=rf"knots has shape \(2, {c}\), expected \(B, 2, {c}\)"):
+        planner.plan(env)
+
+
+@dataclass(frozen=True)
+class OwnSettings(PlannerSettings):
+    samples: int = 8
+    elites: int = 2
+
+
+def test_from_shared_takes_the_shared_settings_of_a_benchmark_default():
+    mppi, _ = default_settings("softrom_gym/CrossSwim-v0", "mppi")
+    own = OwnSettings.from_shared(mppi, elites=3)
+    assert isinstance(own, OwnSettings)
+    for f in fields(PlannerSettings):
+        assert getattr(own, f.name) == getattr(mppi, f.name), f.name
+    # MPPI's own settings stay MPPI's, even where a name is shared (samples)
+    assert (own.samples, own.elites) == (8, 3) and mppi.samples != 8
+    with pytest.raises(TypeError, match="unknown OwnSettings setting 'elite'"):
+        OwnSettings.from_shared(mppi, elite=3)
+    with pytest.raises(TypeError, match="must be a PlannerSettings"):
+        OwnSettings.from_shared({"horizon": 4})
