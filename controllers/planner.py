@@ -122,7 +122,8 @@ class Planner(ABC):
 
     Leave the env's state as it was: try plans with ``rollout``, not ``step`` (which also
     counts against the env's time limit); :func:`~controllers.run_episode` raises
-    RuntimeError if ``plan`` or ``action`` moved it.
+    RuntimeError if ``plan`` or ``action`` moved it. ``examples/cem_planner.py`` is a
+    cross-entropy method written this way.
     """
 
     name = "planner"

@@ -88,3 +88,33 @@ def test_from_shared_takes_the_shared_settings_of_a_benchmark_default():
         OwnSettings.from_shared(mppi, elite=3)
     with pytest.raises(TypeError, match="must be a PlannerSettings"):
         OwnSettings.from_shared({"horizon": 4})
+
+
+def _example(name):
+    """A module of examples/, imported from its file (examples/ is not a package)."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # (a dataclass looks its module up there)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_cem_example_runs_seeded_and_records_its_replans():
+    cem = _example("cem_planner")
+    env = small_env("walk")
+    settings = cem.CEMSettings(horizon=6, knots=2, samples=4, elites=2, iterations=2)
+    planner = cem.CEM(settings)
+    first = run_episode(env, planner, 0.2, replan_every=4, seed=3, progress=False)
+    again = run_episode(env, planner, 0.2, replan_every=4, seed=3, progress=False)
+    np.testing.assert_array_equal(first.actions, again.actions)
+    assert first.planner == "cem" and first.replans == 2
+    record = first.replan_records[0]
+    assert record["rollouts"] == 8
+    assert record["objective_best"] >= record["objective_start"]
+    with pytest.raises(ValueError, match="elites must be in"):
+        cem.CEMSettings(samples=4, elites=5)
