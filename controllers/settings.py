@@ -112,7 +112,14 @@ class PlannerSettings:
             if self.window > self.horizon:
                 raise ValueError(f"window = {self.window} exceeds the horizon ({self.horizon})")
         if not isinstance(self.weights, CostWeights):
-            raise TypeError(f"weights must be a CostWeights, got {type(self.weights).__name__}")
+            # (a command line's --mpc reads weights=... as a number or a string: say where
+            # they can be given instead)
+            raise TypeError(
+                "weights must be a controllers.CostWeights(orientation=, lateral=, effort=, "
+                f"divergence=, velocity=), got {self.weights!r}; a command line's --mpc cannot "
+                "set them (give a planner CostWeights in Python: default_planner(env_id, "
+                "planner, weights=CostWeights(...)))"
+            )
         if not isinstance(self.gait_seed, (bool, np.bool_)):
             raise TypeError(f"gait_seed must be True or False, got {self.gait_seed!r}")
         if self.gait_seed and self.period is None:

@@ -725,7 +725,7 @@ def test_invalid_weights_and_inputs_raise_clear_errors(walker):
         CostWeights(lateral=-1.0)
     with pytest.raises(ValueError, match="weight effort must be finite and >= 0, got inf"):
         CostWeights(effort=float("inf"))
-    with pytest.raises(TypeError, match="weights must be a CostWeights, got dict"):
+    with pytest.raises(TypeError, match=r"must be a controllers\.CostWeights\(.*got \{'lat"):
         PlannerSettings(weights={"lateral": 1.0})
     with pytest.raises(TypeError, match="settings must be MPPISettings, got GaussNewtonSettings"):
         MPPI(GaussNewtonSettings())
@@ -1400,3 +1400,16 @@ def test_gauss_newton_refuses_a_damping_beyond_its_range_naming_it():
         message = f"damping must be between 1e-150 and 1e+150 (m per unit knot^2), got {damping!r}"
         with pytest.raises(ValueError, match=re.escape(message)):
             GaussNewtonSettings(damping=damping)
+
+
+def test_weights_given_on_a_command_line_are_named_as_not_settable_there(capsys):
+    # --mpc weights=... read as a number or a string: the error said only "must be a
+    # CostWeights, got int", which a command line cannot give
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["BeamWalk-v0", "--mpc", "weights=1"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "weights must be a controllers.CostWeights" in err and "got 1" in err
+    assert "--mpc cannot set them" in err
+    with pytest.raises(TypeError, match=r"CostWeights\(orientation=, lateral=, effort="):
+        MPPISettings(weights={"effort": 0.01})
