@@ -166,3 +166,16 @@ def test_control_basis_is_swapped_in_place_and_validated(tmp_path):
     np.testing.assert_array_equal(model.control_basis, b[:, ::-1])
     with pytest.raises(FileNotFoundError, match="control_basis file .* does not exist"):
         base.set_control_basis(tmp_path / "missing.npy")
+
+
+def test_the_env_docstring_names_every_attribute_the_planners_use():
+    # A planner of one's own is written from this section: it named neither direction nor
+    # center_of_mass, which controllers.planner.EnvAPI reads (R is along d from the start
+    # COM).
+    from softrom_gym.envs.soft_robot_env import SoftRobotEnv
+
+    doc = SoftRobotEnv.__doc__
+    section = doc[doc.index("## For model-predictive control") : doc.index("## Version History")]
+    for name in ("get_state", "set_state", "rollout", "action_bound", "dt", "direction",
+                 "center_of_mass", "body_length"):  # fmt: skip
+        assert f"``{name}" in section, name

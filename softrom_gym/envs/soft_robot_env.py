@@ -135,9 +135,13 @@ class SoftRobotEnv(gym.Env):
     ``rollout(state, controls)`` runs B control sequences (B, H, C) of H env steps from a
     state through the batched C++ path (see :meth:`rollout`), returning the per-step terms a
     planner needs (COM, orientation vector, R, Λ's terms, lost steps after a divergence).
-    Through ``gym.make``'s wrappers reach them, and ``action_bound``, ``dt`` (control
-    period, s) and ``body_length`` (m), with ``env.get_wrapper_attr(name)``. A plan replays
-    exactly: ``rollout`` of H actions and H calls of ``step`` agree to the last bit.
+    ``center_of_mass(state)`` is a state's COM (m) and ``direction`` the task direction d (a
+    unit 3-vector in the ground plane): R of a rollout is d · (com_H - center_of_mass(state)),
+    as the planners score it. Through ``gym.make``'s wrappers reach them, and
+    ``action_bound`` (a, the box's bound), ``dt`` (control period, s) and ``body_length`` (m),
+    with ``env.get_wrapper_attr(name)``. A plan replays exactly: ``rollout`` of H actions and H
+    calls of ``step`` agree to the last bit. A planner leaves the env's state as it found it:
+    ``rollout`` does; ``step`` moves it (and counts against the time limit).
 
     ## Version History
     * v0: initial release.
