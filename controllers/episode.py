@@ -151,6 +151,12 @@ def run_episode(
         raise ValueError(f"replan_every must be a positive integer, got {replan_every!r}")
     if not (isinstance(seconds, (int, float, np.number)) and np.isfinite(seconds) and seconds > 0):
         raise ValueError(f"seconds must be a positive number, got {seconds!r}")
+    # named before env.reset, which would name it as gymnasium's seeding error (and a fresh
+    # env's failed first reset leaves gymnasium's env checker failing the next episode's step)
+    if seed is not None and (
+        isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
+    ):
+        raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
     if video is not None and getattr(env, "render_mode", None) != "rgb_array":
         raise ValueError("video needs an env made with render_mode='rgb_array'")
     if video is not None:

@@ -118,3 +118,17 @@ def test_cem_example_runs_seeded_and_records_its_replans():
     assert record["objective_best"] >= record["objective_start"]
     with pytest.raises(ValueError, match="elites must be in"):
         cem.CEMSettings(samples=4, elites=5)
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, "0", True])
+def test_run_episode_names_a_bad_seed_before_the_env_is_reset(seed):
+    # env.reset named it as gymnasium's "Seed must be ..." error; a fresh env's first reset
+    # failing also left gymnasium's env checker broken, and the next episode on that env
+    # failed in step() with "cannot unpack non-iterable NoneType object"
+    env = small_env()
+    planner = Restorer(PlannerSettings(horizon=4, knots=2))
+    with pytest.raises(
+        ValueError, match=rf"seed must be a non-negative integer or None, got {seed!r}"
+    ):
+        run_episode(env, planner, 0.05, seed=seed, progress=False)
+    assert run_episode(env, planner, 0.05, seed=0, progress=False).stop_reason == "time"
