@@ -41,6 +41,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from .cost import Evaluation
 from .planner import Planner
 from .settings import PlannerSettings, _check_int, _check_positive, _real_tuple
 
@@ -140,7 +141,9 @@ class GaussNewtonShooting(Planner):
         super().reset(env, seed)
         self.damping_ = float(self.settings.damping)
 
-    def jacobian(self, state: Any, knots: np.ndarray | None = None):
+    def jacobian(
+        self, state: Any, knots: np.ndarray | None = None
+    ) -> tuple[Evaluation, np.ndarray, np.ndarray]:
         """Forward-difference Jacobians at ``knots`` (default: the plan's), one rollout.
 
         Returns

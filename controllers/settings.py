@@ -4,12 +4,15 @@ checks the planners' own settings reuse; each refuses a bad value by name."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from .cost import CostWeights
 from .spline import KINDS
+
+if TYPE_CHECKING:
+    from typing_extensions import Self  # (typing's from Python 3.11)
 
 __all__ = ["PlannerSettings"]
 
@@ -162,7 +165,7 @@ class PlannerSettings:
         per-dimension setting of another length); the planner checks it at reset."""
 
     @classmethod
-    def from_shared(cls, settings: PlannerSettings, **changes: Any):
+    def from_shared(cls, settings: PlannerSettings, **changes: Any) -> Self:
         """Settings of this class with the shared settings (the fields of
         :class:`PlannerSettings`: horizon, knots, period, window, weights, gait seed, ...) of
         ``settings``, and ``changes`` (validated as the constructor validates them).
@@ -182,7 +185,7 @@ class PlannerSettings:
         shared = {f.name: getattr(settings, f.name) for f in fields(PlannerSettings)}
         return cls(**{**shared, **changes})
 
-    def replace(self, **changes: Any):
+    def replace(self, **changes: Any) -> Self:
         """A copy with some fields changed (validated again)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
         unknown = sorted(set(changes) - set(values))

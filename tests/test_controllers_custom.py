@@ -132,3 +132,31 @@ def test_run_episode_names_a_bad_seed_before_the_env_is_reset(seed):
     ):
         run_episode(env, planner, 0.05, seed=seed, progress=False)
     assert run_episode(env, planner, 0.05, seed=0, progress=False).stop_reason == "time"
+
+
+def test_every_public_function_of_controllers_has_type_hints():
+    # (a planner written against them is type-checked against them: from_shared and replace
+    # returned Any, so CEMSettings.from_shared(...).elites was never checked)
+    import inspect
+
+    import controllers
+
+    missing = []
+    for name in controllers.__all__:
+        obj = getattr(controllers, name)
+        found = [(name, obj)] if inspect.isfunction(obj) else []
+        if inspect.isclass(obj):
+            for attr, member in vars(obj).items():
+                if attr.startswith("_") and attr != "__init__":
+                    continue
+                func = getattr(member, "__func__", member)  # (a classmethod's function)
+                func = getattr(func, "fget", func)  # (a property's getter)
+                if inspect.isfunction(func):
+                    found.append((f"{name}.{attr}", func))
+        for label, func in found:
+            signature = inspect.signature(func)
+            if signature.return_annotation is inspect.Signature.empty:
+                missing.append(f"{label} -> ?")
+            missing += [f"{label}({p.name})" for p in signature.parameters.values()
+                        if p.name not in ("self", "cls") and p.annotation is p.empty]  # fmt: skip
+    assert missing == []
