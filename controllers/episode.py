@@ -67,6 +67,7 @@ class EpisodeResult:
 
     @property
     def replans(self) -> int:
+        """How many times the planner replanned (``plan`` calls in the episode)."""
         return int(self.replan_wall_s.size)
 
     def distance_between(self, t0: float, t1: float | None = None) -> float:

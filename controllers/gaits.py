@@ -65,6 +65,7 @@ class SinusoidGait:
         return self.amplitude * bound * np.sin(arg)
 
     def label(self) -> str:
+        """A short name: frequency, amplitude and phases in degrees ("2Hz A=1 phases=0/120/240")."""
         degrees = "/".join(str(round(np.degrees(p))) for p in self.phases)
         return f"{self.frequency:g}Hz A={self.amplitude:g} phases={degrees}"
 

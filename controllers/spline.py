@@ -100,6 +100,7 @@ class SplinePlan:
 
     @property
     def num_knots(self) -> int:
+        """K, the knots per control dimension."""
         return self.knots.shape[0]
 
     @property
@@ -111,6 +112,7 @@ class SplinePlan:
         return (self.horizon - 1) / (k - 1) if k > 1 else float("inf")
 
     def copy(self) -> SplinePlan:
+        """An independent copy: the same knots (copied) and clock."""
         new = SplinePlan(self.horizon, self.num_knots, self.control_dim, self.kind, self.period)
         new.knots = self.knots.copy()
         new.offset = self.offset

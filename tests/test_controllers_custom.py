@@ -160,3 +160,27 @@ def test_every_public_function_of_controllers_has_type_hints():
             missing += [f"{label}({p.name})" for p in signature.parameters.values()
                         if p.name not in ("self", "cls") and p.annotation is p.empty]  # fmt: skip
     assert missing == []
+
+
+def test_every_public_member_of_controllers_has_a_docstring():
+    import inspect
+
+    import controllers
+
+    missing = []
+    for name in controllers.__all__:
+        obj = getattr(controllers, name)
+        if not inspect.isclass(obj):
+            continue
+        for attr, member in vars(obj).items():
+            if attr.startswith("_"):
+                continue
+            if isinstance(member, property):
+                documented = bool(member.__doc__)
+            elif inspect.isfunction(getattr(member, "__func__", member)):
+                documented = bool(inspect.getdoc(getattr(obj, attr)))  # (or its base's)
+            else:
+                continue
+            if not documented:
+                missing.append(f"{name}.{attr}")
+    assert missing == []
