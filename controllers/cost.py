@@ -96,8 +96,9 @@ def evaluate(
         The env's ``rollout`` output (``com`` (B, H, 3), ``theta`` (B, H, 3), ``lost``).
     controls : (B, H, C) array
         The controls in units of the action bound, clipped to [-1, 1].
-    start_com : (3,) array
-        c_0, the COM of the start state.
+    start_com : (3,) or (B, 3) array
+        c_0, the COM of the start state, or of each rollout's start state (for a ``rollout``
+        from a list of B states).
     direction : (3,) array
         d, unit, in the ground plane.
     dt : float
@@ -118,7 +119,12 @@ def evaluate(
     if window is not None and (isinstance(window, bool) or not isinstance(window, (int, np.integer))
                                or window < 1):  # fmt: skip
         raise ValueError(f"window must be an integer >= 1 or None, got {window!r}")
-    rel = com - np.asarray(start_com)[None, None, :]
+    start = np.asarray(start_com, dtype=float)
+    # (one start per rollout is named, not broadcast against the steps where B = H)
+    if start.shape not in ((3,), (b, 3)):
+        raise ValueError(f"start_com has shape {start.shape}, expected (3,) or ({b}, 3): the "
+                         "start state's centre of mass, or one per rollout")  # fmt: skip
+    rel = com - start.reshape(-1, 1, 3)
     along = rel @ direction
     if window is None or window >= h:
         reward = along[:, -1].copy()

@@ -184,3 +184,31 @@ def test_every_public_member_of_controllers_has_a_docstring():
             if not documented:
                 missing.append(f"{name}.{attr}")
     assert missing == []
+
+
+def test_evaluate_scores_rollouts_from_one_start_state_each():
+    # rollout takes a list of B start states (multiple shooting, a tree of plans); evaluate
+    # took one start COM only, and B of them broadcast against the H steps (silently, where
+    # B = H) instead of being named
+    from controllers import CostWeights, evaluate
+
+    env = small_env()
+    env.reset(seed=0)
+    get_state, rollout = env.get_wrapper_attr("get_state"), env.get_wrapper_attr("rollout")
+    com_of, d = env.get_wrapper_attr("center_of_mass"), env.get_wrapper_attr("direction")
+    bound = env.get_wrapper_attr("action_bound")
+    first = get_state()
+    env.step(np.full(env.action_space.shape, bound))
+    second = get_state()
+    u = np.random.default_rng(0).uniform(-1, 1, (2, 2, env.action_space.shape[0]))
+    out = rollout([first, second], bound * u)
+    starts = np.stack([com_of(first), com_of(second)])
+    both = evaluate(out, u, starts, d, 0.025, CostWeights())
+    for i, state in enumerate((first, second)):
+        alone = evaluate(rollout(state, bound * u[i : i + 1]), u[i : i + 1], com_of(state), d,
+                         0.025, CostWeights())  # fmt: skip
+        np.testing.assert_allclose(both.objective[i], alone.objective[0], rtol=1e-12)
+    with pytest.raises(
+        ValueError, match=r"start_com has shape \(3, 3\), expected \(3,\) or \(2, 3\)"
+    ):
+        evaluate(out, u, np.zeros((3, 3)), d, 0.025, CostWeights())
