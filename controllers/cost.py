@@ -120,7 +120,7 @@ def evaluate(
                                or window < 1):  # fmt: skip
         raise ValueError(f"window must be an integer >= 1 or None, got {window!r}")
     start = np.asarray(start_com, dtype=float)
-    # (one start per rollout is named, not broadcast against the steps where B = H)
+    # (a start of another shape is named here, not by numpy further on)
     if start.shape not in ((3,), (b, 3)):
         raise ValueError(f"start_com has shape {start.shape}, expected (3,) or ({b}, 3): the "
                          "start state's centre of mass, or one per rollout")  # fmt: skip

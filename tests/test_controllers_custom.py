@@ -188,8 +188,8 @@ def test_every_public_member_of_controllers_has_a_docstring():
 
 def test_evaluate_scores_rollouts_from_one_start_state_each():
     # rollout takes a list of B start states (multiple shooting, a tree of plans); evaluate
-    # took one start COM only, and B of them broadcast against the H steps (silently, where
-    # B = H) instead of being named
+    # took one start COM only, and B of them failed inside numpy ("all the input arrays must
+    # have same number of dimensions")
     from controllers import CostWeights, evaluate
 
     env = small_env()
