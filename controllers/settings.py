@@ -174,7 +174,9 @@ class PlannerSettings:
         ``CEMSettings.from_shared(default_settings(env_id, "mppi")[0], samples=32)``. Only the
         shared fields are copied: another planner's own settings (MPPI's ``samples``,
         ``noise``) keep this class's defaults even where a name is the same, as their meaning
-        may not be.
+        may not be. The times are env steps of the control period ``settings`` were made
+        for: make the planner with that ``dt`` too (``CEM(own, dt=mppi.dt)``), so that its
+        ``reset`` refuses an env of another period as the source planner's does.
         """
         if not isinstance(settings, PlannerSettings):
             raise TypeError(f"settings must be a PlannerSettings, got {type(settings).__name__}")
