@@ -19,17 +19,17 @@ __all__ = ["EpisodeResult", "run_episode"]
 class EpisodeResult:
     """One closed-loop episode.
 
-    ``planner`` is the planner's ``name`` ("mppi", "gn", or a planner of one's own), ``dt``
-    the env's control period (s), ``body_length`` the robot's (m, for distances in body
-    lengths) and ``seed_gait`` the label of the gait the planner's gait seed chose at reset
-    (None without one). Per env step t = 1..T
-    (arrays of length T), as ``env.step`` reported them: ``rewards`` (R per step, m, as any
-    reward wrapper left it), ``orientation`` (rad), ``lateral`` (m), ``effort`` (|f_c / a|^2),
-    ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and ``distance`` (T + 1,) along d
-    since reset (m), ``states`` (ReducedState copies). Per replan: ``replan_steps`` (the step it
-    ran at), ``replan_wall_s`` and ``replan_records`` (the planner's ``last_`` after it:
-    objectives, rollouts, and the planner's own terms, as :class:`~controllers.planner.Planner`
-    lists them). ``stop_reason`` says why the episode ended: "time" (its seconds ran out),
+    ``planner`` is the planner's ``name`` ("mppi", "gn", or a planner of one's own), ``dt`` the
+    env's control period (s), ``body_length`` the robot's (m, for distances in body lengths) and
+    ``seed_gait`` the label of the gait the planner's gait seed chose at reset (None without
+    one). Per env step t = 1..T (arrays of length T), as ``env.step`` reported them: ``rewards``
+    (R per step, m, as any reward wrapper left it), ``orientation`` (rad), ``lateral`` (m),
+    ``effort`` (|f_c / a|^2), ``actions`` (T, C). Per state t = 0..T: ``com`` (T + 1, 3) and
+    ``distance`` (T + 1,) along d since reset (m), ``states`` (ReducedState copies). Per replan:
+    ``replan_steps`` (the step it ran at), ``replan_wall_s`` and ``replan_records`` (the
+    planner's ``last_`` after it: objectives, rollouts, and the planner's own terms, as
+    :class:`~controllers.planner.Planner` lists them) and ``replan_every`` (the interval asked
+    for, env steps). ``stop_reason`` says why the episode ended: "time" (its seconds ran out),
     "diverged", "truncated by the time limit" (the env's TimeLimit) or "interrupted" (Ctrl-C:
     :func:`run_episode` raises the KeyboardInterrupt with the steps recorded so far as its
     ``result``, and writes the video of them; interrupted in the reset or the planner's set-up,
@@ -52,6 +52,7 @@ class EpisodeResult:
     replan_records: list[dict[str, Any]] = field(default_factory=list, repr=False)
     stop_reason: str = ""
     seed_gait: str | None = None
+    replan_every: int = 1
 
     @property
     def seconds(self) -> float:
@@ -82,12 +83,14 @@ class EpisodeResult:
         i1 = n if t1 is None else round(t1 / self.dt)
         return float(self.distance[i1] - self.distance[i0])
 
-    def realtime_factor(self, replan_every: int) -> float:
-        """Simulated seconds advanced per replan (``replan_every`` env steps) / wall seconds
-        per replan: the planning's real-time factor (the episode's env steps and the gait seed
-        at reset are not in it)."""
+    def realtime_factor(self, replan_every: int | None = None) -> float:
+        """Simulated seconds advanced per replan (``replan_every`` env steps; default: the
+        episode's) / wall seconds per replan: the planning's real-time factor (the episode's
+        env steps and the gait seed at reset are not in it)."""
         if not self.replans:
             return float("nan")
+        if replan_every is None:
+            replan_every = self.replan_every
         return replan_every * self.dt / float(np.mean(self.replan_wall_s))
 
     def summary(self, start: float = 2.0) -> str:
@@ -190,8 +193,9 @@ def run_episode(
         # what was recorded is the user's: handed back with the interrupt, not lost to it
         # (an attribute KeyboardInterrupt does not declare: the steps ride on the interrupt)
         interrupt.result = _result(  # type: ignore[attr-defined]
-            planner, api, env, record, com, states, replan_steps, wall, records, "interrupted"
-        )
+            planner, api, env, record, com, states, replan_steps, wall, records, "interrupted",
+            replan_every,
+        )  # fmt: skip
         if video is not None and len(frames) > 1:
             _write_video(video, frames, _fps(api.dt))  # the frames so far
         raise
@@ -200,7 +204,8 @@ def run_episode(
             bar.close()
     if video is not None:
         _write_video(video, frames, _fps(api.dt))
-    return _result(planner, api, env, record, com, states, replan_steps, wall, records, stop)
+    return _result(planner, api, env, record, com, states, replan_steps, wall, records, stop,
+                   replan_every)  # fmt: skip
 
 
 def _closed_loop(env, planner, api, steps, replan_every, record, com, states, replan_steps, wall,
@@ -253,8 +258,8 @@ def _check_unchanged(planner: Planner, method: str, before: Any, after: Any) -> 
     )
 
 
-def _result(planner, api, env, record, com, states, replan_steps, wall, records,
-            stop) -> EpisodeResult:  # fmt: skip
+def _result(planner, api, env, record, com, states, replan_steps, wall, records, stop,
+            replan_every) -> EpisodeResult:  # fmt: skip
     # An interrupt can land between a step's appends: keep the steps recorded whole.
     n = min(min(len(v) for v in record.values()), len(com) - 1, len(states) - 1)
     replans = min(len(replan_steps), len(wall), len(records))
@@ -276,6 +281,7 @@ def _result(planner, api, env, record, com, states, replan_steps, wall, records,
         replan_records=records[:replans],
         stop_reason=stop,
         seed_gait=getattr(planner, "seed_", {}).get("gait"),
+        replan_every=int(replan_every),
     )
 
 

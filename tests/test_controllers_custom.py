@@ -212,3 +212,12 @@ def test_evaluate_scores_rollouts_from_one_start_state_each():
         ValueError, match=r"start_com has shape \(3, 3\), expected \(3,\) or \(2, 3\)"
     ):
         evaluate(out, u, np.zeros((3, 3)), d, 0.025, CostWeights())
+
+
+def test_an_episode_result_keeps_its_replan_interval():
+    # realtime_factor needed the replan interval given again, which the result did not keep
+    env = small_env()
+    result = run_episode(env, Restorer(PlannerSettings(horizon=4, knots=2)), 0.1,
+                         replan_every=2, seed=0, progress=False)  # fmt: skip
+    assert result.replan_every == 2
+    assert result.realtime_factor() == result.realtime_factor(2) > 0
