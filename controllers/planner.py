@@ -106,8 +106,9 @@ class Planner(ABC):
     copy). :meth:`plan` has shift-warm-started the plan and reset ``last_`` before calling
     it, and :meth:`action` then reads the plan. What a subclass may use:
 
-    * ``self.plan_``: the :class:`SplinePlan`; update ``plan_.knots`` (K, C), in units of
-      the action bound a, within [-1, 1] (the controls are clipped to it).
+    * ``self.plan_``: the :class:`SplinePlan` (``self._plan`` is it typed as one, raising
+      before :meth:`reset`); update ``plan_.knots`` (K, C), in units of the action bound a,
+      within [-1, 1] (the controls are clipped to it).
     * ``self._evaluate(state, knots)``: R - Λ (an :class:`~controllers.Evaluation`,
       ``objective`` (B,)) of a batch of knots (B, K, C) in one batched rollout, scored with
       the settings' weights and window as the shipped planners score theirs; it counts the
