@@ -198,7 +198,7 @@ class ReducedModel:
         """
     def elastic_stiffness(self, q_e: typing.Any, project: bool = False) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
         """
-        Reduced stiffness -d(elastic_forces)/dq_e = sum_e w_e U_e^T H_e U_e (M + 3, M + 3) by cubature, H_e the element's energy Hessian. project=True clamps each H_e to be PSD first, as the implicit step does.
+        Reduced stiffness -d(elastic_forces)/dq_e = sum_e w_e U_e^T H_e U_e (M + 3, M + 3) by cubature, H_e the element's energy Hessian. project=True clamps each H_e to be PSD first (the implicit step does not: where its Newton matrix is not positive definite it clamps the summed stiffness instead).
         """
     def min_volume_ratio(self, q: typing.Any) -> float:
         """

@@ -508,7 +508,8 @@ KeyboardInterrupt.)doc")
           py::arg("q_e"), py::arg("project") = false,
           "Reduced stiffness -d(elastic_forces)/dq_e = sum_e w_e U_e^T H_e U_e (M + 3, M + 3) by "
           "cubature, H_e the element's energy Hessian. project=True clamps each H_e to be PSD "
-          "first, as the implicit step does.");
+          "first (the implicit step does not: where its Newton matrix is not positive definite "
+          "it clamps the summed stiffness instead).");
 
   m.def(
       "reduced_element_forces",

@@ -5,7 +5,6 @@
 // SOFTROM_KERNELS=baseline asks for the baseline. The two sets compute the same sums and round
 // differently (fused multiply-adds). Other compilers and architectures (arm64, clang, MSVC)
 // build the plain loops for their own baseline. Measured in benchmarks/PROFILE.md (session 13).
-//
 #pragma once
 
 #include <cstddef>

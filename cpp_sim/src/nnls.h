@@ -15,13 +15,13 @@
 
 namespace softrom {
 
-// How the least-squares subproblem on the passive columns is solved.
-//  Qr:   column-pivoted Householder QR of the (rows x p) passive block (the reference);
-//  Gram: through the p x p Gram matrix G_p^T G_p. Lawson-Hanson keeps the passive columns
-//        linearly independent, so the Gram matrix is positive definite. least_distance (the
-//        fast solver) runs it as nnls_cholesky, whose factor grows and shrinks with the set
-//        and never adds a dependent column; nnls() factors it afresh for each subproblem,
-//        p^3 / 6 instead of ~2 rows p^2 for the QR, falling back to QR when that fails.
+// How least_distance solves its NNLS: the least-squares subproblem on the passive columns
+//  Qr:   by a column-pivoted Householder QR of the (rows x p) passive block, factored afresh
+//        for each subproblem (nnls(); the reference solver's);
+//  Gram: through the p x p Gram matrix G_p^T G_p = R^T R (nnls_cholesky(); the fast solver's).
+//        Lawson-Hanson keeps the passive columns linearly independent, so the Gram matrix is
+//        positive definite; its factor grows and shrinks with the set and never adds a
+//        dependent column.
 enum class NnlsSolve { Qr, Gram };
 
 struct NnlsResult {
@@ -29,14 +29,15 @@ struct NnlsResult {
   bool converged = true;  // false when an iteration cap stopped it
 };
 
-// min |G u - d| subject to u >= 0.
+// min |G u - d| subject to u >= 0, each least-squares subproblem by a column-pivoted QR
+// (NnlsSolve::Qr).
 //
 // `guess` (optional, G.cols() entries) warm-starts the passive set with its positive entries:
 // the least-squares solution on that set, pruned until positive, is a valid starting point
 // for Lawson-Hanson, and a good guess (last solve's support) leaves little to do.
 inline NnlsResult nnls(const Eigen::Ref<const Eigen::MatrixXd>& g,
                        const Eigen::Ref<const Eigen::VectorXd>& d, const double* guess = nullptr,
-                       int max_iterations = 0, NnlsSolve how = NnlsSolve::Qr) {
+                       int max_iterations = 0) {
   const Eigen::Index n = g.cols();
   if (max_iterations <= 0) max_iterations = static_cast<int>(3 * n + 10);
   NnlsResult res;
@@ -46,8 +47,7 @@ inline NnlsResult nnls(const Eigen::Ref<const Eigen::MatrixXd>& g,
   std::vector<char> passive(n, 0);
   const double tol = 1e-12 * std::max(1.0, g.cwiseAbs().maxCoeff() * d.cwiseAbs().maxCoeff());
   std::vector<Eigen::Index> idx;
-  Eigen::MatrixXd gp, gram;
-  Eigen::VectorXd rhs;
+  Eigen::MatrixXd gp;
   auto solve_passive = [&]() {
     idx.clear();
     for (Eigen::Index j = 0; j < n; ++j)
@@ -55,19 +55,7 @@ inline NnlsResult nnls(const Eigen::Ref<const Eigen::MatrixXd>& g,
     const Eigen::Index p = static_cast<Eigen::Index>(idx.size());
     gp.resize(g.rows(), p);
     for (Eigen::Index c = 0; c < p; ++c) gp.col(c) = g.col(idx[c]);
-    Eigen::VectorXd zp;
-    bool solved = false;
-    if (how == NnlsSolve::Gram) {
-      gram.resize(p, p);
-      gram.triangularView<Eigen::Lower>() = gp.transpose() * gp;
-      rhs.noalias() = gp.transpose() * d;
-      Eigen::LLT<Eigen::MatrixXd, Eigen::Lower> llt(gram);
-      if (llt.info() == Eigen::Success) {
-        zp = llt.solve(rhs);
-        solved = zp.allFinite();
-      }
-    }
-    if (!solved) zp = gp.colPivHouseholderQr().solve(d);
+    const Eigen::VectorXd zp = gp.colPivHouseholderQr().solve(d);
     z.setZero();
     for (Eigen::Index c = 0; c < p; ++c) z[idx[c]] = zp[c];
   };
@@ -411,7 +399,7 @@ inline bool least_distance(const Eigen::Ref<const Eigen::MatrixXd>& g,
   if (how == NnlsSolve::Gram) {
     converged = nnls_cholesky(g, d, guess, 0, ws, gt, carry) && converged;
   } else {
-    NnlsResult res = nnls(g, d, guess, 0, how);
+    NnlsResult res = nnls(g, d, guess);
     converged = converged && res.converged;
     ws.u = res.u;
   }

@@ -9,6 +9,7 @@
 
 namespace softrom {
 
+// Out of line, where StaggeredProjection is complete (the Workspace owns one by unique_ptr).
 Workspace::Workspace() = default;
 Workspace::~Workspace() = default;
 
@@ -50,11 +51,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 // Penalty ground: a spring on penetration with damping and regularised Coulomb friction,
 // evaluated at the Newton iterate (implicit in position). The default stiffness is sized from
 // the weight it must carry: the body's weight shared by the surface nodes that touch the
-// ground at rest, per kPenaltySink (1 mm) of sink. The earlier default, 0.25 m_i / dt^2 (alone
-// it let the quadruped's feet sink 6 cm), is still added to it, so a resting body sinks a
-// little under 1 mm (0.89 mm for test_solver's block). It is an approximate model, and no longer the fast one: each
-// Newton iteration needs the stiffness (its springs are implicit in position), so with the
-// fast solver it runs at a sixth to a thirteenth of staggered projection's rate (bench_rom.py).
+// ground at rest, per kPenaltySink (1 mm) of sink, plus 0.25 m_i / dt^2 (alone, that term let
+// the quadruped's feet sink 6 cm), so a resting body sinks a little under 1 mm (0.89 mm for
+// test_solver's block). It is an approximate model, and not a fast one: each Newton iteration
+// needs the stiffness (its springs are implicit in position), so with the fast solver it runs
+// at a sixth to a thirteenth of staggered projection's rate (bench_rom.py).
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
                                     VecX& f, MatX& jac) const {
   const Eigen::Index m = basis_cols_;

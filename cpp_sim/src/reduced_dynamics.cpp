@@ -48,8 +48,8 @@ StepInputs ReducedModel::inputs() const {
 
 void ReducedModel::external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const {
   // B_r^T M g: uniform gravity only loads the translation columns, as the rotation (about
-  // the centre of mass) and deformation columns are mass-orthogonal to them. Actuation acts on
-  // the deformation coordinates, never on the rigid ones.
+  // the centre of mass) and deformation columns are mass-orthogonal to them. Actuation
+  // f_r = B_c f_c acts on the deformation coordinates, never on the rigid ones.
   const Eigen::Index m = basis_cols_;
   const int nd = deformation_dim();
   f_ext.setZero(m);
@@ -91,10 +91,11 @@ StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double*
   return step_reference(in, s, fc, ws);
 }
 
-// Newton's method on the residual, the stiffness rebuilt at every iteration (the reference
-// kept as it was, now reporting whether it converged). Penalty contact, whose regularised
-// friction switches sign over a few mm/s, gets a backtracking line search on |r|: without it
-// Newton cycled, and 70-100% of walking steps ended at the iteration cap.
+// Newton's method on the residual, the stiffness rebuilt at every iteration: the reference
+// solver, which the fast step is checked against, and every solver's step with penalty contact
+// (with the fast kernels when solver = fast). Penalty contact, whose regularised friction
+// switches sign over a few mm/s, gets a backtracking line search on |r|: without it Newton
+// cycled, and 70-100% of walking steps ended at the iteration cap.
 StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, const double* fc,
                                       Workspace& ws) const {
   const ReducedConfig& cfg = in.config;
@@ -169,7 +170,7 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
       r -= h * (ws.f_drag + ws.j_drag * (v - s.qdot));
       a -= h * ws.j_drag;
     }
-    if (cfg.contact == ContactModel::Penalty) {
+    if (penalty) {
       penalty_contacts(cfg, s.q + h * v, v, ws.f_pen, ws.j_pen);
       r -= h * ws.f_pen;
       a -= h * ws.j_pen;
@@ -214,18 +215,21 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
 
 // Quasi-Newton on Phi: the first matrix is A_0 = I + (h^2 + h beta) K_0 + h alpha I, the
 // implicit matrix at rest without drag (it needs no stiffness evaluation and is the same for
-// every step of a call), improved by BFGS updates of
-// its inverse from the gradients the line search computes anyway. The stiffness K_r(q) is
+// every step of a call), improved by BFGS updates of its inverse from the gradients the line
+// search computes anyway. The stiffness K_r(q) is
 // evaluated only when the iteration stalls (a step no smaller than half the last), and then
 // replaces K_0. An Armijo backtracking line search on Phi makes every iteration descend; the
 // step is certified (info.converged) by the same test as the reference: max |dv| / sqrt(m)
 // below newton_tolerance.
 StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const double* fc,
                                  Workspace& ws) const {
+  const Eigen::Index m = basis_cols_;
+  // Without A_0^-1 (inputs() found A_0 not positive definite, which a PSD K_0 rules out but
+  // round-off might not), the exact Newton of the reference, on the fast kernels.
+  if (in.rest_newton_inverse.rows() != m) return step_reference(in, s, fc, ws);
   const ReducedConfig& cfg = in.config;
   StepInfo info;
   const double h = cfg.dt;
-  const Eigen::Index m = basis_cols_;
   const int md = elastic_dim();
   const double sqrt_m = std::sqrt(total_mass_);
   const bool swim = cfg.fluid_density > 0.0;
@@ -256,7 +260,6 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
   // that can meet the ground ends with one; a step without one has no contact candidates, so
   // the contact solve does not read it).
   Eigen::LLT<MatX>& a_llt = ws.a_llt;
-  if (in.rest_newton_inverse.rows() != m) return step_reference(in, s, fc, ws);
   MatX& h_inv = ws.h_inv;
   h_inv = in.rest_newton_inverse;
 

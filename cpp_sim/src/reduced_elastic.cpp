@@ -1,6 +1,7 @@
 // Cubature elastic kernels: the reduced energy Psi(q_e) = sum_k w_k V_k psi(F_k), the force
 // f_e = -dPsi/dq_e = -sum_k w_k V_k G_k^T vec P(F_k) and the stiffness
-// K_r = sum_k w_k V_k G_k^T (dP/dF)(F_k) G_k, with vec F_k = vec I + G_k q_e.
+// K_r = sum_k w_k V_k G_k^T (dP/dF)(F_k) G_k, with vec F_k = vec I + G_k q_e, over the K
+// cubature elements k with weights w_k (the paper's w_e) and rest volumes V_k (wvol_).
 #include <algorithm>
 
 #include <Eigen/Dense>
@@ -70,9 +71,9 @@ double ReducedModel::elastic_energy_force(const VecX& qe, VecX& force, Workspace
 // The stiffness as two products on the padded G (grad_fast_; the padding's rows and columns of
 // the product are zero and dropped): H G, element by element, from F and its cofactor without
 // forming H (kernels::snh_element_hg), and the lower triangle of G^T (H G)
-// (kernels::gram_lower_add). They go a few elements at a time, so
-// a group's 9 x mp blocks of H G are still in L1 when the Gram product reads them (the whole
-// H G is ~0.25 MB on the quadruped); the sum is the same, bit for bit, as one Gram product.
+// (kernels::gram_lower_add). They go a few elements at a time, so a group's 9 x mp blocks of
+// H G are still in L1 when the Gram product reads them (the whole H G is ~0.25 MB on the
+// quadruped); the sum is the same, bit for bit, as one Gram product.
 void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace& ws) const {
   constexpr Eigen::Index kGroup = 5;  // 45 rows: the Gram kernel's row chunk
   const Eigen::Index md = qe.size(), mp = grad_fast_.cols();

@@ -1,7 +1,8 @@
-// Reduced-order soft body: q_r in the span of B_r (3 rigid translations, 3 linearised rotations,
+// Reduced-order soft body: x = X + B_r q_r (B_r: 3 rigid translations, 3 linearised rotations,
 // M deformation columns), implicit Euler on the (M + 6)-dimensional system, cubature for the
-// elastic forces, staggered-projection ground contact with Coulomb friction, quadratic fluid
-// drag, and batched rollouts on a persistent thread pool.
+// elastic forces (elements e with weights w_e), actuation f_r = B_c f_c on the deformation
+// coordinates, staggered-projection ground contact with Coulomb friction (normal and friction
+// halves), quadratic fluid drag, and batched rollouts on a persistent thread pool.
 //
 // The implementation is split by job:
 //   reduced_model.cpp     construction, kinematics (positions, centre of mass)
@@ -137,9 +138,9 @@ struct Workspace {
   Eigen::LLT<MatX> a_llt;  // the fast step's factor of A (its last stiffness refresh)
   VecX q_next, impulses_next;  // finish_step's candidate state, swapped in when it is good
   VecX force_lanes;  // snh_force's per-lane partial sums
-  RowMatX hg;
-  MatX k_pad;
-  MatX k_el, a, h_inv, j_drag, j_pen, tmp;
+  RowMatX hg;   // elastic_stiffness_fast's rows of H G for a group of elements ...
+  MatX k_pad;   // ... and the Gram sum G^T H G, padded to a multiple of 4 columns
+  MatX k_el, a, h_inv, j_drag, j_pen;
   VecX f_pen;
   // The drag Jacobian as a factor, J_d = -W W^T (W: M + 6 rows, one column per face advancing
   // into the fluid, drag_cols of them), for the fast solver's matrix-free products; drag_fast
@@ -165,7 +166,7 @@ struct Workspace {
 // running without the GIL never sees another thread's writes to the settings or B_c.
 struct StepInputs {
   ReducedConfig config;
-  MatX control_basis;  // M x C
+  MatX control_basis;  // B_c, M x C (f_r = B_c f_c on the deformation coordinates)
   // (I + (h^2 + h beta) K_0 + h alpha I)^-1, the fast solver's starting inverse: formed once
   // per call, not once per step (empty for the reference solver).
   MatX rest_newton_inverse;
@@ -202,11 +203,13 @@ class ReducedModel {
   StepInputs inputs() const;
 
   ReducedState rest_state() const;
-  // One step under control f_c (C). Never throws on divergence: it is reported in StepInfo.
+  // One step under control f_c (C entries; may be null when C = 0). Never throws on divergence: it is reported in StepInfo.
   StepInfo step(const StepInputs& in, ReducedState& s, const double* fc, Workspace& ws) const;
 
   // Elastic energy / reduced forces / reduced stiffness of the elastic coordinates q_e = q[3:]
-  // (rotations and deformation, M + 3).
+  // (rotations and deformation, M + 3). The energy by the reference kernel, the forces and
+  // the unprojected stiffness by the fast ones; project = true clamps each element's dP/dF
+  // to PSD (reference kernel), which neither solver's step does (they project the summed K_r).
   double elastic_energy(const VecX& qe) const;
   double elastic_energy_fast(const VecX& qe) const;  // the fast kernels' (kernels::snh_force)
   VecX elastic_forces(const VecX& qe) const;
@@ -242,7 +245,9 @@ class ReducedModel {
                const RolloutOutputs& out) const;
 
  private:
-  // Cubature kernels (reduced_elastic.cpp). `fast` selects the fused fixed-size kernels.
+  // Cubature kernels (reduced_elastic.cpp): elastic_reference by per-element Eigen products
+  // (the reference solver's, and the stiffness with per-element projection); the others on
+  // the interleaved / padded copies of G through dense_kernels.h (the fast solver's).
   void elastic_reference(const VecX& qe, bool project, double* energy, VecX* force,
                          MatX* stiff) const;
   void deformation_gradients_fast(const VecX& qe, Workspace& ws) const;
@@ -289,17 +294,19 @@ class ReducedModel {
   int rest_contacts_ = 1;   // surface nodes on the lowest plane at rest (penalty sizing)
   static constexpr double kPenaltySink = 1e-3;  // m of sink per body weight (penalty default)
   Vec3 rest_com_;
-  // Cubature: G = [G_1; ...; G_K] stacked (9K x (M + 3)), G_e = d vec(F_e) / d q_e, and each
-  // element's weight times rest volume. Stacking turns the reduced force and stiffness into
+  // Cubature over K elements (k = 1..K): G = [G_1; ...; G_K] stacked (9K x (M + 3)),
+  // G_k = d vec(F_k) / d q_e, and wvol_[k] = w_k V_k, the element's cubature weight (the
+  // paper's w_e) times its rest volume. Stacking turns the reduced force and stiffness into
   // matrix products instead of K small ones.
   RowMatX grad_;
   // The fast kernels' copy of G, padded with zero columns to a multiple of 4, so every row is
-  // whole AVX2 packets (M + 3 = 23 leaves a scalar tail on each of the 9K rows) for the
-  // kernels of dense_kernels.h (measured in benchmarks/PROFILE.md). The reference kernel
-  // (elastic_reference) keeps grad_; K_r(rest), which both solvers use, comes from this one.
+  // whole AVX2 packets (the quadruped's M + 3 = 23 would leave a scalar tail on each of the
+  // 9K rows) for the kernels of dense_kernels.h (measured in benchmarks/PROFILE.md). The
+  // reference kernel (elastic_reference) keeps grad_; K_r(rest), which both solvers use,
+  // comes from this one.
   RowMatX grad_fast_;
   // G interleaved by elements (dense_kernels.h) for the force's one pass and the stiffness's
-  // deformation gradients, and the cubature weights w_k V_k padded to its groups of four.
+  // deformation gradients, and w_k V_k padded to its groups of four (0 on the padding).
   std::vector<double> grad_lanes_, wvol_lanes_;
   std::vector<double> wvol_;
   StableNeoHookean material_;
@@ -319,7 +326,7 @@ class ReducedModel {
   std::vector<Tet> tets_;  // every tetrahedron, and 1 / (6 V) of each, for min_volume_ratio
   std::vector<double> inv_rest_det_;
   VecX rest_;
-  MatX control_basis_;     // M x C
+  MatX control_basis_;     // B_c, M x C
   MatX k_rest_;            // K_r at rest (cubature), for Rayleigh damping and A_0
 };
 

@@ -44,7 +44,6 @@ class SpdSystem {
   // Numeric factorisation; the symbolic analysis of `kind` happens on its first use only.
   // Throws std::runtime_error when the factorisation breaks down (a zero or negative pivot).
   void factorize(Factorization kind);
-  bool factorized() const { return factorized_; }
   // x = A^{-1} b with the latest factorisation.
   void solve(const VecX& b, VecX& x);
   // Entries of the Cholesky factor of the latest factorisation (fill-in included).

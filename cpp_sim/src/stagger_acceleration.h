@@ -101,8 +101,8 @@ class StaggerExtrapolation {
 // which the loaded set W holds (85-90 % of the staggers after the first on the quadruped,
 // tripod and beam). On such a stagger both halves are small dense problems over W's 3 n
 // impulses, and the velocity is formed once from them: v = v_free + L^-T Y lambda_W with
-//   Y = L^-1 [J_n,W^T  J_t,W^T]   (M + 6 x 3 n; the normal columns are columns of E^T),
-//   D = Y^T Y = J_W A^-1 J_W^T    (W's Delassus matrix),   c = J_W v_free.
+//   Y = L^-1 [J_n,W^T  J_t,W^T]   ((M + 6) x 3 n; the normal columns are columns of E^T),
+//   D = Y^T Y = J_W A^-1 J_W^T    (the Delassus operator on W's rows),   c = J_W v_free.
 // Such a stagger skips NNLS over every candidate and four of the six (M + 6) triangular
 // solves, and factors nothing but the friction half's 2 n x 2 n system. callgrind_step.py (100
 // random steps), instructions per stagger: quadruped 120 k -> 93 k, tripod 119 k -> 84 k, beam

@@ -13,16 +13,18 @@
 // removed per step, instead of a velocity kick that ejects it in one step).
 //
 // Both are solved in the primal, over the M + 6 reduced velocities, not over the 3k contact
-// impulses: k contact rows of rank <= M + 6 make the impulses non-unique (Delassus matrices
-// with condition numbers ~1e6), so Gauss-Seidel on impulses crawls, while the primal problems
-// are strongly convex and small. The normal problem is solved exactly as a least-distance
-// programme, the friction problem (maximal dissipation) by a reweighted least-squares step on
-// |J_t,i v|_eps = sqrt(|J_t,i v|^2 + eps^2). A step that reaches the cap ends with one more
-// normal solve, so the normal constraints hold even then (reported in info). In the fast
-// solver, a stagger whose loaded set is the last one's (most of them) runs both halves over
-// that set's impulses (LoadedRows), falling back to NNLS when a node leaves or joins; where
-// the staggers creep on a held set, Newton on its fixed point (HeldSetNewton) or an Aitken
-// jump (StaggerExtrapolation) shortens them (stagger_acceleration.h).
+// impulses: k contact rows of rank <= M + 6 make the impulses non-unique (the Delassus
+// operator J A^-1 J^T is singular, or nearly: condition numbers ~1e6), so Gauss-Seidel on
+// impulses crawls, while the primal problems are strongly convex and small. (The fast solver
+// forms the Delassus operator only on the loaded set's few rows: LoadedRows.) The normal half
+// is solved exactly as a least-distance programme, the friction half (maximal dissipation) by
+// a reweighted least-squares step on |J_t,i v|_eps = sqrt(|J_t,i v|^2 + eps^2). A step that
+// reaches the cap ends with one more normal solve, so the normal constraints hold even then
+// (reported in info). In the fast solver, a stagger whose loaded set is the last one's (most
+// of them) runs both halves over that set's impulses (LoadedRows), falling back to NNLS when
+// a node leaves or joins; where the staggers creep on a held set, Newton on its fixed point
+// (HeldSetNewton) or an Aitken jump (StaggerExtrapolation) shortens them
+// (stagger_acceleration.h).
 #include "staggered_projection.h"
 
 #include <algorithm>
@@ -161,10 +163,10 @@ void StaggeredProjection::set_up(const RowMatX& surface_rows, const std::vector<
   } else {
     g_.topRows(m) = a_llt.matrixL().solve(jn_.transpose());
   }
-  // x <- L^-T x with A = L L^T. The fast solver applies L^-1 and L^-T as products with
-  // explicit inverses, formed once per step (L^-1's rows by the row-oriented substitution,
-  // an (M + 6)^3 / 6 sum; the ~50 solves of a quadruped step each become a vectorised
-  // product); the reference solves by substitution.
+  // The fast solver applies L^-1 and L^-T (A = L L^T) as products with explicit inverses,
+  // formed once per step (L^-1's rows by the row-oriented substitution, an (M + 6)^3 / 6 sum;
+  // the ~50 solves of a quadruped step each become a vectorised product); the reference
+  // solves by substitution.
   solve_tmp_.resize(m);
   if (fast) {
     l_inv_t_.setIdentity(m, m);  // row-major L^-1 is column-major L^-T
@@ -189,7 +191,7 @@ void StaggeredProjection::set_up(const RowMatX& surface_rows, const std::vector<
   hess_.resize(m, m);
   wjt_.resize(2 * k, m);
   loaded_.clear();
-  // The loaded nodes' tangent rows J_t,l (2 nl x M + 6, column-major), gathered when the loaded
+  // The loaded nodes' tangent rows J_t,l (2 nl x (M + 6), column-major), gathered when the loaded
   // set changes, so that their tangential velocities are one product (fast solver).
   jt_l_.resize(0, m);
   jt_l_set_.clear();
@@ -219,6 +221,7 @@ void StaggeredProjection::times(const Matrix& a, const Vector& x, ScratchVec& ou
   }
 }
 
+// x <- L^-T x with A = L L^T: the product with L^-T (fast), substitution on U = L^T (reference).
 void StaggeredProjection::upper_solve(ScratchVec& x) {
   if (fast_) {
     kernels::cols_times(l_inv_t_.data(), m_, m_, x.data(), solve_tmp_.data());
@@ -249,17 +252,14 @@ const ScratchVec& StaggeredProjection::velocity_after(const ScratchMat& j, const
   const Eigen::Index m = m_;
   if (fast_) {
     // Only loaded nodes carry impulses (~7 of 64 candidates on a walker): J^T lambda from
-    // their rows, not a product over every row.
+    // their rows, not a product over every row; then A^-1 = L^-T L^-1 as two products.
     response_.setZero();
     for (Eigen::Index i = 0; i < lam.size(); ++i)
       if (lam[i] != 0.0) response_.noalias() += lam[i] * j.row(i).transpose();
-  } else {
-    response_.noalias() = j.transpose() * lam;
-  }
-  if (fast_) {
     kernels::cols_times(l_inv_.data(), m, m, response_.data(), solve_tmp_.data());
     kernels::cols_times(l_inv_t_.data(), m, m, solve_tmp_.data(), response_.data());
   } else {
+    response_.noalias() = j.transpose() * lam;
     a_llt_->solveInPlace(response_);
   }
   response_ += v_free_;
