@@ -636,7 +636,7 @@ def _kernel_cols_times_pair(a: typing.Annotated[numpy.typing.NDArray[numpy.float
     """
 def _least_distance_sequence(e: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], fs: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.f_contiguous"], solver: str = 'fast') -> list:
     """
-    The least-distance programmes min |x| s.t. E x >= f for each row f of fs, solved in sequence as the staggered projection's normal half solves them (warm-started, and with the fast solver the NNLS factor carried over): a list of (x, lambda, feasible, converged) (for its tests).
+    The least-distance programmes min |x| s.t. E x >= f for each row f of fs, solved in sequence as the staggered projection's normal half solves them (warm-started, and with the fast solver the NNLS factor carried over): a list of (x, lambda, feasible, converged), x NaN where infeasible (for its tests).
     """
 def kernel_instruction_set() -> str:
     """

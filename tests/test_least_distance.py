@@ -81,3 +81,15 @@ def test_least_distance_sequence_validates_its_input():
         cpp_sim._core._least_distance_sequence(e, np.zeros((3, 9)))
     with pytest.raises(ValueError, match="solver must be 'fast' or 'reference', got 'qr'"):
         cpp_sim._core._least_distance_sequence(e, np.zeros((1, 10)), "qr")
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_least_distance_sequence_gives_no_x_for_an_infeasible_programme(solver):
+    # x >= 1 and -x >= 1 have no solution; x >= 0.5, x <= 2 has x = 0.5. An infeasible call's
+    # x was the buffer's leftover (the last feasible x, or uninitialised memory at the start).
+    e = np.array([[1.0], [-1.0]])
+    fs = np.array([[1.0, 1.0], [0.5, -2.0], [1.0, 1.0]])
+    results = cpp_sim._core._least_distance_sequence(e, fs, solver)
+    assert [feasible for _, _, feasible, _ in results] == [False, True, False]
+    assert np.isnan(results[0][0]).all() and np.isnan(results[2][0]).all()
+    np.testing.assert_allclose(results[1][0], [0.5])

@@ -677,6 +677,8 @@ KeyboardInterrupt.)doc")
           g.row(m) = fs.row(s);
           gt.col(m) = fs.row(s).transpose();
           bool converged = true;
+          // least_distance writes x only when the programme is feasible.
+          x.setConstant(std::numeric_limits<double>::quiet_NaN());
           const bool ok = least_distance(g, x, lambda, converged,
                                          fast ? NnlsSolve::Gram : NnlsSolve::Qr, ws,
                                          fast ? gt.data() : nullptr, fast);
@@ -688,5 +690,5 @@ KeyboardInterrupt.)doc")
       "The least-distance programmes min |x| s.t. E x >= f for each row f of fs, solved in "
       "sequence as the staggered projection's normal half solves them (warm-started, and "
       "with the fast solver the NNLS factor carried over): a list of (x, lambda, feasible, "
-      "converged) (for its tests).");
+      "converged), x NaN where infeasible (for its tests).");
 }

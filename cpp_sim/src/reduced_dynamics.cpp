@@ -121,6 +121,18 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
   Eigen::LDLT<MatX> ldlt(m);
   info.converged = false;
   const bool penalty = cfg.contact == ContactModel::Penalty;
+  // The implicit-Euler residual at velocity w, given the elastic force f_e and (with penalty
+  // contact) the penalty force f_p at q_n + h w (K_0 acting on w's elastic coordinates):
+  //   r(w) = w - v_n - h (f_ext + f_e + f_drag + J_d (w - v_n) + f_p) + h alpha w + h beta K_0 w.
+  auto residual = [&](const VecX& w, const VecX& f_e, const VecX& f_p, VecX& out) {
+    out = w - s.qdot;
+    out -= h * f_ext;
+    out.tail(md) -= h * f_e;
+    if (cfg.damping_alpha > 0.0) out += h * cfg.damping_alpha * w;
+    if (cfg.damping_beta > 0.0) out.tail(md) += (h * cfg.damping_beta) * (k_rest_ * w.tail(md));
+    if (swim) out -= h * (ws.f_drag + ws.j_drag * (w - s.qdot));
+    if (penalty) out -= h * f_p;
+  };
   // |r(w)| for the penalty line search (forces only, no stiffness).
   VecX r_trial(m), f_trial(md), v_trial(m);
   auto residual_norm = [&](const VecX& w) {
@@ -130,15 +142,10 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     } else {
       elastic_reference(qe, false, nullptr, &f_trial, nullptr);
     }
-    r_trial = w - s.qdot - h * f_ext;
-    r_trial.tail(md) -= h * f_trial;
-    if (cfg.damping_alpha > 0.0) r_trial += h * cfg.damping_alpha * w;
-    if (cfg.damping_beta > 0.0) r_trial.tail(md) += (h * cfg.damping_beta) * (k_rest_ * w.tail(md));
-    if (swim) r_trial -= h * (ws.f_drag + ws.j_drag * (w - s.qdot));
     MatX unused;
     VecX f_pen;
     penalty_contacts(cfg, s.q + h * w, w, f_pen, unused);
-    r_trial -= h * f_pen;
+    residual(w, f_trial, f_pen, r_trial);
     return r_trial.norm();
   };
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
@@ -153,28 +160,15 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
       elastic_reference(qe, false, nullptr, &f_el, &k_el);
     }
     ++info.stiffness_evaluations;
-    r = v - s.qdot;
-    r -= h * f_ext;
-    r.tail(md) -= h * f_el;
+    if (penalty) penalty_contacts(cfg, s.q + h * v, v, ws.f_pen, ws.j_pen);
+    residual(v, f_el, ws.f_pen, r);
+    // A = dr/dv = I + h^2 K_r + h alpha I + h beta K_0 - h J_d - h J_pen.
     a.setIdentity(m, m);
     a.bottomRightCorner(md, md) += (h * h) * k_el;
-    if (cfg.damping_alpha > 0.0) {
-      r += h * cfg.damping_alpha * v;
-      a.diagonal().array() += h * cfg.damping_alpha;
-    }
-    if (cfg.damping_beta > 0.0) {
-      r.tail(md) += (h * cfg.damping_beta) * (k_rest_ * v.tail(md));
-      a.bottomRightCorner(md, md) += (h * cfg.damping_beta) * k_rest_;
-    }
-    if (swim) {
-      r -= h * (ws.f_drag + ws.j_drag * (v - s.qdot));
-      a -= h * ws.j_drag;
-    }
-    if (penalty) {
-      penalty_contacts(cfg, s.q + h * v, v, ws.f_pen, ws.j_pen);
-      r -= h * ws.f_pen;
-      a -= h * ws.j_pen;
-    }
+    if (cfg.damping_alpha > 0.0) a.diagonal().array() += h * cfg.damping_alpha;
+    if (cfg.damping_beta > 0.0) a.bottomRightCorner(md, md) += (h * cfg.damping_beta) * k_rest_;
+    if (swim) a -= h * ws.j_drag;
+    if (penalty) a -= h * ws.j_pen;
     ldlt.compute(a);
     if (ldlt.info() != Eigen::Success || !ldlt.isPositive() ||
         (ldlt.vectorD().array() <= 0.0).any()) {
