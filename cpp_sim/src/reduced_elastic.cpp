@@ -47,11 +47,12 @@ void ReducedModel::elastic_reference(const VecX& qe, bool project, double* energ
   }
 }
 
-// G q_e into ws.fall (vec F_k - vec I for every element), from the interleaved G.
+// G q_e into ws.f_minus_i (vec F_k - vec I for every element), from the interleaved G.
 void ReducedModel::deformation_gradients_fast(const VecX& qe, Workspace& ws) const {
   const Eigen::Index nk = static_cast<Eigen::Index>(wvol_.size());
-  ws.fall.resize(9 * nk);
-  kernels::interleaved_deformation(grad_lanes_.data(), nk, qe.size(), qe.data(), ws.fall.data());
+  ws.f_minus_i.resize(9 * nk);
+  kernels::interleaved_deformation(grad_lanes_.data(), nk, qe.size(), qe.data(),
+                                   ws.f_minus_i.data());
 }
 
 // Energy and force in one pass over the interleaved G (kernels::snh_force): each group of four
@@ -86,7 +87,8 @@ void ReducedModel::elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace
   for (Eigen::Index k0 = 0; k0 < nk; k0 += kGroup) {
     const Eigen::Index k1 = std::min(k0 + kGroup, nk);
     for (Eigen::Index k = k0; k < k1; ++k) {
-      Eigen::Map<Mat3> f(ws.fall.data() + 9 * k);
+      Eigen::Map<Mat3> f(ws.f_minus_i.data() + 9 * k);
+      // (F - I becomes F in place: the buffer is not read again before the next G q_e.)
       f.diagonal().array() += 1.0;
       const Mat3 cof = StableNeoHookean::cofactor(f);
       const double w = wvol_[k];

@@ -133,15 +133,24 @@ struct Workspace {
   Workspace(const Workspace&) = delete;
   Workspace& operator=(const Workspace&) = delete;
 
-  VecX fall, f_el, f_ext, f_drag, r, g, g_trial, v_trial, dv, s, y, hy;
+  // The step's loads (step_loads, penalty_contacts): f_ext (gravity + B_c f_c), the drag force
+  // and its Jacobian J_d, the penalty force and its Jacobian.
+  VecX f_ext, f_drag, f_pen;
+  MatX j_drag, j_pen;
+  // The Newton iteration (reduced_dynamics.cpp): elastic force f_e and stiffness K_r at the
+  // iterate, the implicit matrix A, the residual r (reference) or the gradient g of Phi
+  // (fast), the step dv; the fast step's inverse estimate H, its line search's trial point
+  // and BFGS pair s = v_trial - v, y = g_trial - g (and H y).
+  VecX f_el, r, g, g_trial, v_trial, dv, s, y, hy;
+  MatX k_el, a, h_inv;
   VecX v, tmp_e;  // the fast step's velocity iterate and elastic coordinates
   Eigen::LLT<MatX> a_llt;  // the fast step's factor of A (its last stiffness refresh)
   VecX q_next, impulses_next;  // finish_step's candidate state, swapped in when it is good
+  // The fast elastic kernels' scratch (reduced_elastic.cpp).
+  VecX f_minus_i;    // vec F_k - vec I of every cubature element (the stiffness's)
   VecX force_lanes;  // snh_force's per-lane partial sums
   RowMatX hg;   // elastic_stiffness_fast's rows of H G for a group of elements ...
   MatX k_pad;   // ... and the Gram sum G^T H G, padded to a multiple of 4 columns
-  MatX k_el, a, h_inv, j_drag, j_pen;
-  VecX f_pen;
   // The drag Jacobian as a factor, J_d = -W W^T (W: M + 6 rows, one column per face advancing
   // into the fluid, drag_cols of them), for the fast solver's matrix-free products; drag_fast
   // pads its rows with zeros to a multiple of 4.
@@ -264,6 +273,8 @@ class ReducedModel {
   bool finish_step(const StepInputs& in, ReducedState& s, VecX& v, const MatX& a,
                    const Eigen::LLT<MatX>& a_llt, Workspace& ws, StepInfo& info) const;
 
+  // True when a surface node is a contact candidate at (q, v); leaves N q and N v in ws for
+  // solve_contacts.
   bool near_ground(const ReducedConfig& cfg, const VecX& q, const VecX& v, Workspace& ws) const;
   // Surface node c's height above the ground, from z_c = (N q)_c (N: normal_rows_).
   double ground_gap(const ReducedConfig& cfg, Eigen::Index c, double z_c) const {
