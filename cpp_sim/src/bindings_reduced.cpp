@@ -527,13 +527,11 @@ KeyboardInterrupt.)doc")
           for (Eigen::Index s = 0; s < p.rows(); ++s) {
             const VecX x = fem.mesh().rest + b * p.row(s).transpose();
             for (int e = 0; e < nt; ++e) {
-              const Tet& t = fem.mesh().tets[e];
-              Eigen::Matrix<double, 12, Eigen::Dynamic> u(12, md);
-              for (int a = 0; a < 4; ++a) u.middleRows<3>(3 * a) = b.middleRows(3 * t[a], 3);
               const Mat3 f = fem.mesh().deformation_gradient(e, x);
               const Mat3 pk = fem.material().pk1(f);
               const VecX g = -fem.mesh().volume[e] *
-                             ((dfdx(fem.mesh().dm_inv[e]) * u).transpose() *
+                             ((dfdx(fem.mesh().dm_inv[e]) * element_rows(fem.mesh().tets[e], b))
+                                  .transpose() *
                               Eigen::Map<const Vec9>(pk.data()));
               std::copy(g.data(), g.data() + md, o + (s * nt + e) * md);
             }

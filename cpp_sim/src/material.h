@@ -110,4 +110,17 @@ inline Eigen::Matrix<double, 9, 12> dfdx(const Mat3& dm_inv) {
   return d;
 }
 
+// The 12 rows of U (3N x cols, a basis or a block of one) that a tet's four nodes `tet` take,
+// U_e, so that G_e = d vec(F_e) / dq = dfdx(D_m^-1) U_e for positions x = X + U q. The
+// cubature's element gradients (ReducedModel) and its training data (reduced_element_forces)
+// both gather them here. (Each call site keeps its own product dfdx * U_e, inside its own
+// expression: returning the product from here changed reduced_element_forces' results in
+// the last bit.)
+template <class Nodes, class Basis>
+Eigen::Matrix<double, 12, Eigen::Dynamic> element_rows(const Nodes& tet, const Basis& u) {
+  Eigen::Matrix<double, 12, Eigen::Dynamic> rows(12, u.cols());
+  for (int a = 0; a < 4; ++a) rows.template middleRows<3>(3 * a) = u.middleRows(3 * tet[a], 3);
+  return rows;
+}
+
 }  // namespace softrom

@@ -34,10 +34,9 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
   wvol_.reserve(nk);
   for (Eigen::Index k = 0; k < nk; ++k) {
     const int e = cubature_elements[k];
-    const Tet& t = mesh.tets[e];
-    Eigen::Matrix<double, 12, Eigen::Dynamic> u(12, md);
-    for (int a = 0; a < 4; ++a) u.middleRows<3>(3 * a) = basis.block(3 * t[a], kTranslations, 3, md);
-    grad_.middleRows(9 * k, 9) = dfdx(mesh.dm_inv[e]) * u;
+    // B_r's columns past the translations (rotations and deformation: q_e's).
+    grad_.middleRows(9 * k, 9) =
+        dfdx(mesh.dm_inv[e]) * element_rows(mesh.tets[e], basis.rightCols(md));
     wvol_.push_back(cubature_weights[k] * mesh.volume[e]);
   }
   grad_fast_.setZero(9 * nk, (md + 3) / 4 * 4);  // a multiple of 4: dense_kernels.h
