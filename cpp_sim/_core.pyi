@@ -190,7 +190,7 @@ class ReducedModel:
         """
     def elastic_energy(self, q_e: typing.Any) -> float:
         """
-        Elastic energy E(X + B_e q_e) in J by cubature (sum_e w_e E_e), q_e = q[3:] (M + 3,): the rotations and deformation coordinates; translations store no energy.
+        Elastic energy E(X + B_e q_e) in J by cubature (sum_k w_k E_k over the cubature elements k), q_e = q[3:] (M + 3,): the rotations and deformation coordinates; translations store no energy.
         """
     def elastic_forces(self, q_e: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """
@@ -198,7 +198,7 @@ class ReducedModel:
         """
     def elastic_stiffness(self, q_e: typing.Any, project: bool = False) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
         """
-        Reduced stiffness -d(elastic_forces)/dq_e = sum_e w_e U_e^T H_e U_e (M + 3, M + 3) by cubature, H_e the element's energy Hessian. project=True clamps each H_e to be PSD first (the implicit step does not: where its Newton matrix is not positive definite it clamps the summed stiffness instead).
+        Reduced stiffness -d(elastic_forces)/dq_e = sum_k w_k U_k^T H_k U_k (M + 3, M + 3) by cubature, H_k element k's energy Hessian. project=True clamps each H_k to be PSD first (the implicit step does not: where its Newton matrix is not positive definite it clamps the summed stiffness instead).
         """
     def min_volume_ratio(self, q: typing.Any) -> float:
         """

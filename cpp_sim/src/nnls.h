@@ -383,8 +383,9 @@ inline bool nnls_cholesky(const Eigen::Ref<const Eigen::MatrixXd>& g,
 // Least-distance programme: min |x| subject to E x >= f, solved as the NNLS of
 // [E^T; f^T] u ~ e_{m+1}. The caller passes g = [E^T; f^T] ((m + 1) x k) so that a constant E
 // is copied once. Returns false if infeasible. On success x = E^T lambda with multipliers
-// lambda >= 0 (complementary to E x - f). `lambda` on entry (if sized k) warm-starts the
-// active set. `converged` is cleared when NNLS stopped at its iteration cap. `ws` is scratch
+// lambda >= 0 (complementary to E x - f). `lambda` must hold k entries (an Eigen::Ref cannot
+// resize, and the multipliers are written back into it): on entry they warm-start the active
+// set (zeros: no warm start). `converged` is cleared when NNLS stopped at its iteration cap. `ws` is scratch
 // (the NNLS solution u is left in ws.u); the Qr variant (the reference) still allocates its
 // own. `gt` (optional, Gram variant) is g^T's memory, as for nnls_cholesky. x has m entries.
 inline bool least_distance(const Eigen::Ref<const Eigen::MatrixXd>& g,
@@ -395,7 +396,7 @@ inline bool least_distance(const Eigen::Ref<const Eigen::MatrixXd>& g,
   ScratchVec& d = ws.d;
   d.setZero(m + 1);
   d[m] = 1.0;
-  const double* guess = lambda.size() == k ? lambda.data() : nullptr;
+  const double* guess = lambda.data();
   if (how == NnlsSolve::Gram) {
     converged = nnls_cholesky(g, d, guess, 0, ws, gt, carry) && converged;
   } else {
