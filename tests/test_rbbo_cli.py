@@ -213,7 +213,16 @@ def _error(capsys, argv):
 @pytest.mark.parametrize(
     ("argv", "match"),
     [
-        ([], "the following arguments are required: command"),
+        ([], "no COMMAND given: one of optimize, resume, confirm, report, rollout, baselines"),
+        # options are taken as spelled: a prefix argparse would have taken gets its full name
+        (
+            ["optimize", "synthetic", "--iter", "3"],
+            "unrecognized arguments: --iter 3 (did you mean --iterations for --iter? rbbo optimize",
+        ),
+        (
+            ["resume", "run", "--wrkers=2", "extra"],
+            "(did you mean --workers for --wrkers? rbbo resume --help lists",
+        ),
         (["optimize", "synthetic", "--budget", "5q"], "invalid duration '5q'"),
         (["optimize", "synthetic", "--budget", "0m"], "duration must be positive"),
         (["optimize", "synthetic", "--budget", "-5m"], "duration must be positive, got '-5m'"),
@@ -1051,7 +1060,7 @@ def test_report_of_several_runs_reports_every_good_one_and_names_each_bad_one(tm
     )
 
 
-def test_report_and_resume_help_say_what_the_command_does_and_what_its_arguments_are(capsys):
+def test_each_commands_help_says_what_it_does_and_what_its_arguments_are(capsys):
     # their --help printed no description, a bare DIR, and a --budget without its format or
     # that a new limit replaces both stored ones (a run's --iterations limit is dropped)
     for command, wanted in (
@@ -1059,6 +1068,12 @@ def test_report_and_resume_help_say_what_the_command_does_and_what_its_arguments
                     "the others are still reported"]),
         ("resume", ["Continue a run from its directory", "DIR the run directory", "e.g. 30m, 2h",
                     "replaces both of the run's stored limits"]),
+        # (as were those of optimize, confirm, rollout, baselines and reproduce)
+        ("optimize", ["Optimise B_c for an env", "then measures R_init", "rbbo resume, report"]),
+        ("confirm", ["Measure R_init and R* of a finished run again", "DIR the run directory"]),
+        ("rollout", ["Replay the best B_c with MPC: one episode", "DIR the run directory"]),
+        ("baselines", ["PPO and SAC (Stable-Baselines3) beside the MPC: trains", "[rl] extra"]),
+        ("reproduce", ["Reproduce the paper's results", "resumes every part"]),
     ):  # fmt: skip
         with pytest.raises(SystemExit) as exit_:
             main([command, "--help"])

@@ -8,6 +8,7 @@ added by :func:`rbbo.reproduce.cli.add_parser`.
 from __future__ import annotations
 
 import argparse
+import difflib
 import re
 
 from .arguments import (
@@ -36,7 +37,30 @@ class _Parser(argparse.ArgumentParser):
         self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([hms][\d.hms]*)?$")
 
     def error(self, message: str):  # one line, not argparse's usage block
+        if message.endswith("required: COMMAND"):  # (plain `rbbo`: say what to type)
+            sub = next(a for a in self._actions if isinstance(a, argparse._SubParsersAction))
+            commands = list(sub.choices)
+            message = (f"no COMMAND given: one of {', '.join(commands)} (rbbo COMMAND --help "
+                       "says what it takes)")  # fmt: skip
         raise UsageError(message)
+
+    def parse_known_args(self, args=None, namespace=None):
+        # A subcommand reports its own unknown options: argparse leaves them to the top
+        # parser, whose one line could not say which command's --help lists the right ones,
+        # and a prefix that argparse would have taken (--iter) deserves its full name.
+        known, extras = super().parse_known_args(args, namespace)
+        if extras and self._subparsers is None:
+            options = [o for action in self._actions for o in action.option_strings]
+            meant = []
+            for word in (w.split("=")[0] for w in extras if w.startswith("--")):
+                match = [o for o in options if o.startswith(word)]
+                match = match or difflib.get_close_matches(word, options, n=1)
+                if match:
+                    meant.append(f"{match[0]} for {word}")
+            hint = f"did you mean {', '.join(meant)}? " if meant else ""
+            raise UsageError(f"unrecognized arguments: {' '.join(extras)} ({hint}"
+                             f"{self.prog} --help lists the options)")  # fmt: skip
+        return known, extras
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -44,9 +68,16 @@ def _parser() -> argparse.ArgumentParser:
 
     # (the docstring's reST quotes are not for a terminal)
     parser = _Parser(prog="rbbo", description=overview.split("\n\n")[0].replace("``", ""))
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True,
+                                parser_class=_Parser)  # fmt: skip
 
-    opt = sub.add_parser("optimize", help="optimise B_c for an env (or a synthetic objective)")
+    about = "optimise B_c for an env (or a synthetic objective)"
+    opt = sub.add_parser("optimize", help=about,
+                         description=f"{about[0].upper()}{about[1:]}: RBBO searches the "
+                         "control spaces of ENV_ID within --budget or --iterations, then "
+                         "measures R_init (the identity basis) and R* (the recommendation) on "
+                         "fresh seeds. The run directory (--out) keeps everything: rbbo "
+                         "resume, report, confirm and rollout take it.")  # fmt: skip
     opt.add_argument("env_id", metavar="ENV_ID",
                      help="a registered Gymnasium id (CrossWalk-v0 is short for "
                      "softrom_gym/CrossWalk-v0), or synthetic[:key=value,...] (keys seed, "
@@ -131,9 +162,14 @@ def _parser() -> argparse.ArgumentParser:
     res.add_argument("--address", help="Ray cluster address (with --executor ray)")
     res.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    con = sub.add_parser("confirm", help="measure R_init and R* of a finished run again "
-                         "(after an upgrade, or on another machine)")  # fmt: skip
-    con.add_argument("run_dir", type=user_path, metavar="DIR")
+    about = ("measure R_init and R* of a finished run again (after an upgrade, or on another "
+             "machine)")  # fmt: skip
+    con = sub.add_parser("confirm", help=about,
+                         description=f"{about[0].upper()}{about[1:]}, on the run's own "
+                         "confirmation seeds, and print its table; the new measurement is "
+                         "appended to the run.")  # fmt: skip
+    con.add_argument("run_dir", type=user_path, metavar="DIR",
+                     help="the run directory (rbbo optimize's --out)")  # fmt: skip
     con.add_argument(
         "--workers", type=_positive_int, help="evaluations run at once (default: the run's)"
     )
@@ -148,8 +184,13 @@ def _parser() -> argparse.ArgumentParser:
                      help="a run directory (several: one row each)")  # fmt: skip
     rep.add_argument("--png", type=user_path, help="plot path (default DIR/convergence.png)")
 
-    rol = sub.add_parser("rollout", help="replay the best B_c with MPC")
-    rol.add_argument("run_dir", type=user_path, metavar="DIR")
+    about = "replay the best B_c with MPC"
+    rol = sub.add_parser("rollout", help=about,
+                         description=f"{about[0].upper()}{about[1:]}: one episode with the run's "
+                         "recommendation (its current one, said so, if the run has not "
+                         "finished), printing R; --video records it.")  # fmt: skip
+    rol.add_argument("run_dir", type=user_path, metavar="DIR",
+                     help="the run directory (rbbo optimize's --out)")  # fmt: skip
     rol.add_argument("--video", type=user_path, help="write an mp4 of the rollout")
     rol.add_argument("--seconds", type=_positive_float,
                      help="episode (and video) length, s (default the run's T_max); R is "
@@ -158,7 +199,13 @@ def _parser() -> argparse.ArgumentParser:
     rol.add_argument("--seed", type=_nonnegative_int, default=12345,
                      help="the MPC seed (default 12345)")  # fmt: skip
 
-    bas = sub.add_parser("baselines", help="PPO and SAC (Stable-Baselines3) beside the MPC")
+    about = "PPO and SAC (Stable-Baselines3) beside the MPC"
+    bas = sub.add_parser("baselines", help=about,
+                         description=f"{about}: trains each --algo in each --control-basis, "
+                         "evaluates every checkpoint as the MPC is evaluated, and writes "
+                         "OUT/baselines.{csv,md}; the same command again continues from the "
+                         "latest checkpoints. Needs stable-baselines3 (the [rl] "
+                         "extra).")  # fmt: skip
     bas.add_argument("env_id", metavar="ENV_ID", help="a registered Gymnasium id")
     bas.add_argument("--algo", default="ppo,sac", help="comma list of ppo, sac (default both)")
     bas.add_argument("--steps", type=rl_steps_arg, default=20_000,

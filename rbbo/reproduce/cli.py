@@ -96,9 +96,14 @@ class _NoBudget(argparse.Action):
 
 def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.ArgumentParser:
     """Add the ``reproduce`` subcommand to ``sub`` (rbbo.cli.parser's subparsers)."""
-    p = sub.add_parser("reproduce", help="the paper's results (Table I, BO vs BOCA, "
-                       "directions, studies of C, transfer to a larger M, perturbations, RL "
-                       "baselines) into one directory with a REPORT.md")  # fmt: skip
+    about = (
+        "the paper's results (Table I, BO vs BOCA, directions, studies of C, transfer to "
+        "a larger M, perturbations, RL baselines) into one directory with a REPORT.md"
+    )
+    p = sub.add_parser("reproduce", help=about,
+                       description=f"Reproduce {about}. The same command again resumes every part; "
+                       "--stages picks parts, --status shows progress and runs "
+                       "nothing.")  # fmt: skip
     defaults = ReproducePlan()
     p.add_argument("--benchmarks", type=_names(BENCHMARKS), default=list(BENCHMARKS),
                    help="comma list (default: all five)")  # fmt: skip
