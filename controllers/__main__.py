@@ -63,8 +63,9 @@ def _parser() -> argparse.ArgumentParser:
                    "cycle)")  # fmt: skip
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                    type=parse_env_kwarg,
-                   help="a gym.make keyword, repeatable; VALUE is read as JSON, else as a "
-                   "string (e.g. --env-kwarg robot=my_robot.stl, task=swim)")  # fmt: skip
+                   help="a gym.make keyword, one per option; VALUE is read as JSON, else as "
+                   "a string (e.g. --env-kwarg robot=my_robot.stl --env-kwarg "
+                   "task=swim)")  # fmt: skip
     p.add_argument("--planner", choices=sorted(PLANNERS), default="mppi",
                    help="the MPC planner (default mppi)")  # fmt: skip
     p.add_argument("--seconds", type=float, default=10.0,

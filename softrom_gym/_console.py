@@ -9,6 +9,7 @@ command lines, so it lives in the lowest of them.
 from __future__ import annotations
 
 import argparse
+import difflib
 import sys
 import warnings
 from typing import NoReturn
@@ -28,6 +29,19 @@ class OneLineArgumentParser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
+        if message.startswith("unrecognized arguments: "):
+            # without argparse's usage block, point at the option meant (a prefix argparse
+            # would have taken, --second, or a typo) and at --help
+            options = [o for action in self._actions for o in action.option_strings]
+            meant = []
+            for word in message.split(": ", 1)[1].split():
+                word = word.split("=")[0]
+                match = [o for o in options if o.startswith(word)] if word[:2] == "--" else []
+                match = match or difflib.get_close_matches(word, options, n=1)
+                if word[:2] == "--" and match:
+                    meant.append(f"{match[0]} for {word}")
+            hint = f"did you mean {', '.join(meant)}? " if meant else ""
+            message += f" ({hint}{self.prog} --help lists the options)"
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 

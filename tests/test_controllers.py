@@ -26,6 +26,7 @@ from controllers import (
     planner_for,
     run_episode,
 )
+from controllers.__main__ import _parser as cli_parser
 from controllers.__main__ import main as cli_main
 from controllers.cost import evaluate
 
@@ -856,8 +857,13 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
     with pytest.raises(SystemExit) as exc:
         cli_main(["BeamWalk-v0", "--second", "1"])
     assert exc.value.code == 2
-    err = "python -m controllers: error: unrecognized arguments: --second 1\n"
+    err = "python -m controllers: error: unrecognized arguments: --second 1 (did you mean "
+    err += "--seconds for --second? python -m controllers --help lists the options)\n"
     assert capsys.readouterr().err == err
+    # one KEY=VALUE per --env-kwarg: its help showed two joined by a comma, which sets robot
+    # to "my_robot.stl,task=swim"
+    help_ = " ".join(cli_parser().format_help().split())
+    assert "--env-kwarg robot=my_robot.stl --env-kwarg task=swim" in help_
     with pytest.raises(SystemExit) as exc:
         cli_main([])
     assert exc.value.code == 2

@@ -301,7 +301,9 @@ def test_demo_drops_a_robot_and_names_bad_arguments(capsys):
     for bad, message in ((["--seconds", "inf"], "--seconds must be a positive number, got inf"),
                          (["--dt", "0"], "--dt must be a positive number, got 0.0"),
                          (["--dt", "1"], "--dt 1.0 is longer than --seconds 0.5: no step to take"),
-                         (["--second", "1"], "unrecognized arguments: --second 1")):  # fmt: skip
+                         (["--second", "1"], "unrecognized arguments: --second 1 (did you "
+                          "mean --seconds for --second? softrom-demo --help lists the "
+                          "options)")):  # fmt: skip
         with pytest.raises(SystemExit) as exc:
             main(bad)
         assert exc.value.code == 2
