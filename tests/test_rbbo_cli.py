@@ -1074,9 +1074,11 @@ def test_each_commands_help_says_what_it_does_and_what_its_arguments_are(capsys)
         ("rollout", ["Replay the best B_c with MPC: one episode", "DIR the run directory"]),
         ("baselines", ["PPO and SAC (Stable-Baselines3) beside the MPC: trains", "[rl] extra"]),
         ("reproduce", ["Reproduce the paper's results", "resumes every part"]),
+        # and `rbbo --help` listed the commands only: the overview's examples close it now
+        (None, ["examples: rbbo optimize softrom_gym/CrossWalk-v0", "rbbo resume runs/"]),
     ):  # fmt: skip
         with pytest.raises(SystemExit) as exit_:
-            main([command, "--help"])
+            main([command, "--help"] if command else ["--help"])
         assert exit_.value.code == 0
         out = " ".join(capsys.readouterr().out.split())
         for text in wanted:

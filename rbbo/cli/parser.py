@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import difflib
 import re
+import textwrap
 
 from .arguments import (
     _env_kwarg,
@@ -66,8 +67,12 @@ class _Parser(argparse.ArgumentParser):
 def _parser() -> argparse.ArgumentParser:
     from . import __doc__ as overview  # the package's docstring, the command line's overview
 
-    # (the docstring's reST quotes are not for a terminal)
-    parser = _Parser(prog="rbbo", description=overview.split("\n\n")[0].replace("``", ""))
+    # (the docstring's reST quotes are not for a terminal); its examples close `rbbo --help`,
+    # so that a first look shows a whole session, not only the command names
+    parts = overview.split("\n\n")
+    parser = _Parser(prog="rbbo", description=parts[0].replace("``", ""),
+                     epilog="examples:\n" + textwrap.indent(textwrap.dedent(parts[2]), "  "),
+                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True,
                                 parser_class=_Parser)  # fmt: skip
 
