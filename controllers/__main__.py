@@ -3,7 +3,7 @@
 Runs one closed-loop episode with the benchmark's defaults (:mod:`controllers.defaults`)
 and prints a one-line summary: distance between t = 2 s and the end (m and body lengths),
 the task reward R, the mean tilt |theta|, the sideways path length, the mean effort, and the
-wall time per replan.
+wall time per replan; ``--video`` records the episode.
 """
 
 from __future__ import annotations
@@ -54,9 +54,10 @@ def _registered(env_id: str, given: str) -> str:
 def _parser() -> argparse.ArgumentParser:
     # options only as spelled, as `rbbo` takes them: a prefix such as --sample would start
     # meaning another option the day one is added, and a script that ran would mean another run
-    p = OneLineArgumentParser(
-        prog="python -m controllers", description=__doc__.split("\n")[0].replace("``", "")
-    )
+    # the docstring's first two paragraphs: what runs and what the printed line holds
+    about = " ".join(" ".join(__doc__.split("\n\n")[:2]).split())
+    about = about.replace(":mod:", "").replace("`", "")  # (reST is not for a terminal)
+    p = OneLineArgumentParser(prog="python -m controllers", description=about)
     p.add_argument("env_id", help=f"a benchmark ({', '.join(sorted(DEFAULTS))}: tuned "
                    "defaults) or another softrom env, e.g. SoftRobot-v0 with --env-kwarg "
                    "robot=my_robot.stl (shared defaults; the gait seed picks a 2, 3 or 4 Hz "
