@@ -1069,7 +1069,8 @@ def test_each_commands_help_says_what_it_does_and_what_its_arguments_are(capsys)
         ("resume", ["Continue a run from its directory", "DIR the run directory", "e.g. 30m, 2h",
                     "replaces both of the run's stored limits"]),
         # (as were those of optimize, confirm, rollout, baselines and reproduce)
-        ("optimize", ["Optimise B_c for an env", "then measures R_init", "rbbo resume, report"]),
+        ("optimize", ["Optimise B_c for an env", "then measures R_init", "rbbo resume, report",
+                      "with --budget too, the first limit reached ends it"]),
         ("confirm", ["Measure R_init and R* of a finished run again", "DIR the run directory"]),
         ("rollout", ["Replay the best B_c with MPC: one episode", "DIR the run directory"]),
         ("baselines", ["PPO and SAC (Stable-Baselines3) beside the MPC: trains", "[rl] extra"]),

@@ -98,7 +98,9 @@ def _parser() -> argparse.ArgumentParser:
                      "repeatable; stored with the run)")  # fmt: skip
     opt.add_argument("--budget", type=parse_duration,
                      help="wall time, e.g. 30m, 2h (default 30m without --iterations)")  # fmt: skip
-    opt.add_argument("--iterations", type=_positive_int, help="number of evaluations")
+    opt.add_argument("--iterations", type=_positive_int,
+                     help="number of evaluations in the search (R_init and R* are measured "
+                     "after it; with --budget too, the first limit reached ends it)")  # fmt: skip
     opt.add_argument("--fidelity", choices=["bo", "boca"], default="bo",
                      help="bo: every episode T_max long; boca: BOCA picks T in [--t-min, "
                      "--t-max] (default bo)")  # fmt: skip
