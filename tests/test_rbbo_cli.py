@@ -269,6 +269,12 @@ def test_env_without_controllers_names_the_missing_piece(capsys, monkeypatch):
 
 def test_run_directory_errors(tmp_path, capsys):
     assert "is not an RBBO run directory" in _error(capsys, ["resume", str(tmp_path)])
+    (tmp_path / "reproduce.json").write_text("{}")  # a reproduction's folder says what to do
+    assert (
+        f"rbbo reproduce directory: rerun rbbo reproduce --out {tmp_path} to go on, or name "
+        f"one of its runs, {tmp_path / 'runs'}/<run>" in _error(capsys, ["resume", str(tmp_path)])
+    )
+    (tmp_path / "reproduce.json").unlink()
     assert "is not a directory" in _error(capsys, ["report", str(tmp_path / "missing")])
     run = tmp_path / "run"
     main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",

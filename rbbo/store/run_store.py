@@ -117,7 +117,11 @@ class RunStore:
         if not path.is_dir():
             raise RunDirectoryError(f"{path} is not a directory")
         if not (path / CONFIG).is_file():
-            raise RunDirectoryError(f"{path} is not an RBBO run directory (no {CONFIG})")
+            # (`rbbo resume` of a reproduction's folder is a natural first guess)
+            whose = (f"; it is an rbbo reproduce directory: rerun rbbo reproduce --out {path} "
+                     f"to go on, or name one of its runs, {path / 'runs'}/<run>"
+                     if (path / "reproduce.json").is_file() else "")  # fmt: skip
+            raise RunDirectoryError(f"{path} is not an RBBO run directory (no {CONFIG}){whose}")
         try:
             config = json.loads((path / CONFIG).read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
