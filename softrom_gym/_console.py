@@ -34,11 +34,11 @@ class OneLineArgumentParser(argparse.ArgumentParser):
             # would have taken, --second, or a typo) and at --help
             options = [o for action in self._actions for o in action.option_strings]
             meant = []
-            for word in message.split(": ", 1)[1].split():
-                word = word.split("=")[0]
-                match = [o for o in options if o.startswith(word)] if word[:2] == "--" else []
+            words = message.split(": ", 1)[1].split()
+            for word in (w.split("=")[0] for w in words if w.startswith("--")):
+                match = [o for o in options if o.startswith(word)]
                 match = match or difflib.get_close_matches(word, options, n=1)
-                if word[:2] == "--" and match:
+                if match:
                     meant.append(f"{match[0]} for {word}")
             hint = f"did you mean {', '.join(meant)}? " if meant else ""
             message += f" ({hint}{self.prog} --help lists the options)"
