@@ -324,11 +324,17 @@ def test_a_lowered_limit_given_to_resume_is_the_runs_from_then_on(tmp_path, caps
     err = capsys.readouterr().err
     assert "its limit is now 5 evaluations (was 10 evaluations), stored in config.json" in err
     assert "has reached its limit (5 evaluations; it has 5 evaluations" in err
+    # its confirmation was never run: it is said to be measured now, and it is
+    assert "nothing more to search; measuring R_init and R* (not finished before)" in err
+    assert "resumed for" in err
+    assert any(h["kind"].startswith("confirm") for h in _history(tmp_path / "run"))
     settings = json.loads((tmp_path / "run" / "config.json").read_text())["rbbo"]
     assert (settings["max_evaluations"], settings["budget_s"]) == (5, None)
     # a later plain resume keeps to it, instead of searching on to the old 10
     assert main(argv) == 0
-    assert "has reached its limit (5 evaluations;" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "has reached its limit (5 evaluations;" in err
+    assert "nothing more to search; give a larger --budget or --iterations to go on" in err
     assert len([h for h in _history(tmp_path / "run") if not h["kind"].startswith("confirm")]) == 5
 
 

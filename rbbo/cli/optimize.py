@@ -194,10 +194,12 @@ def cmd_resume(args) -> int:
         nothing_to_do = at_limit and opt.finished
         if at_limit:
             done = len(opt.evaluations)
+            then = ("give a larger --budget or --iterations to go on" if nothing_to_do else
+                    "measuring R_init and R* (not finished before); a larger --budget or "
+                    "--iterations would search on")  # fmt: skip
             print(f"{store.path} has reached its limit ({_limits_text(iterations, budget)}; it "
                   f"has {done} evaluations, {_duration_text(opt.elapsed_s)}): nothing more to "
-                  "search; give a larger --budget or --iterations to go on",
-                  file=sys.stderr)  # fmt: skip
+                  f"search; {then}", file=sys.stderr)  # fmt: skip
     except BaseException:
         executor.shutdown(wait=False)
         raise
