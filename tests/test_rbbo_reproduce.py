@@ -377,6 +377,20 @@ def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys)
     assert not (tmp_path / "x").exists()
 
 
+def test_an_rbbo_run_directory_is_no_reproduction_folder(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", "--sim-dim", "6", "--control-dim", "2", "--init", "2",
+                 "--confirm-seeds", "2", "--iterations", "3", "--executor", "serial",
+                 "--no-progress", "--out", str(run)]) == 0  # fmt: skip
+    before = sorted(p.name for p in run.iterdir())
+    capsys.readouterr()
+    assert main([*TINY, "--out", str(run)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"rbbo: error: {run} is an RBBO run directory (rbbo optimize's --out); give "
+                   "the reproduction a folder of its own with --out"]  # fmt: skip
+    assert sorted(p.name for p in run.iterdir()) == before  # (nothing written into the run)
+
+
 @pytest.mark.parametrize("flag", ["--status", "--report-only", "--no-progress"])
 @pytest.mark.parametrize("text", ['{"plan": {"newthing": 1}, "sessions": []}', "{"])
 def test_an_unreadable_record_is_a_usage_error_for_status_report_only_and_a_rerun(

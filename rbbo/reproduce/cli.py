@@ -329,6 +329,10 @@ def command(args, usage_error: type[Exception]) -> int:
         raise usage_error(str(exc)) from exc
     if args.status:
         return _status(args, plan, usage_error)
+    if (args.out / "config.json").is_file() and not (args.out / "reproduce.json").exists():
+        # its files and a reproduction's (runs/, REPORT.md, reproduce.json) would share a folder
+        raise usage_error(f"{args.out} is an RBBO run directory (rbbo optimize's --out); give "
+                          "the reproduction a folder of its own with --out")  # fmt: skip
     searching = [s for s in plan.ordered_stages() if s in ("table", "bo", "directions")]
     if (
         not args.report_only
