@@ -179,3 +179,30 @@ def test_the_env_docstring_names_every_attribute_the_planners_use():
     for name in ("get_state", "set_state", "rollout", "action_bound", "dt", "direction",
                  "center_of_mass", "body_length"):  # fmt: skip
         assert f"``{name}" in section, name
+
+
+def test_rollouts_continue_from_final_states_as_one_longer_rollout():
+    # Multiple shooting: two segments of 3 steps, the second from the first's final states,
+    # are one rollout of 6 steps to the last bit (the contact impulses carried over too).
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    env.reset(seed=0)
+    rollout = env.get_wrapper_attr("rollout")
+    final_states = env.get_wrapper_attr("final_states")
+    start = env.get_wrapper_attr("get_state")()
+    controls = np.random.default_rng(1).uniform(-1, 1, (2, 6, 3)) * env.get_wrapper_attr(
+        "action_bound"
+    )
+    whole = rollout(start, controls)
+    first = rollout(start, controls[:, :3])
+    middle = final_states(first)
+    assert len(middle) == 2
+    second = rollout(middle, controls[:, 3:])
+    np.testing.assert_array_equal(np.hstack([first["rewards"], second["rewards"]]),
+                                  whole["rewards"])  # fmt: skip
+    for name in ("q", "qdot", "impulses"):
+        np.testing.assert_array_equal(second[name], whole[name], err_msg=name)
+    with pytest.raises(TypeError, match="result must be the dict rollout\\(\\) returned"):
+        final_states({"q": whole["q"]})
+    with pytest.raises(ValueError, match=r"expected \(B, 26\) each"):
+        final_states({**whole, "q": whole["q"][:, :5]})
+    env.close()

@@ -133,8 +133,10 @@ class SoftRobotEnv(gym.Env):
     ## For model-predictive control
     ``get_state()`` / ``set_state(state)`` copy the full simulation state, and
     ``rollout(state, controls)`` runs B control sequences (B, H, C) of H env steps from a
-    state through the batched C++ path (see :meth:`rollout`), returning the per-step terms a
-    planner needs (COM, orientation vector, R, Λ's terms, lost steps after a divergence).
+    state (or one state per sequence) through the batched C++ path (see :meth:`rollout`),
+    returning the per-step terms a planner needs (COM, orientation vector, R, Λ's terms, lost
+    steps after a divergence); ``final_states(result)`` makes its B final states states to
+    roll out from again.
     ``center_of_mass(state)`` is a state's COM (m) and ``direction`` the task direction d (a
     unit 3-vector in the ground plane): R of a rollout is d · (com_H - center_of_mass(state)),
     as the planners score it. Through ``gym.make``'s wrappers reach them, and
@@ -563,3 +565,27 @@ class SoftRobotEnv(gym.Env):
         if observe is not None:
             result["observed"] = observed[..., n_orient:]
         return result
+
+    def final_states(self, result: Mapping[str, np.ndarray]) -> list[cpp_sim.ReducedState]:
+        """The B final states of a :meth:`rollout` result, as states to start from again.
+
+        ``rollout`` returns them as arrays (``q``, ``qdot``, ``impulses``); a planner that
+        continues rollouts from where others ended (multiple shooting, a tree of plans, a
+        forward pass in segments) passes these to ``rollout`` or ``set_state``. Each is what
+        :meth:`get_state` would return after the same steps, the contact impulses that
+        warm-start the next step included, so continuing from it matches one longer rollout to
+        the last bit.
+        """
+        try:
+            q, qdot, impulses = (np.asarray(result[key]) for key in ("q", "qdot", "impulses"))
+        except (KeyError, TypeError):
+            raise TypeError("result must be the dict rollout() returned, with its final states "
+                            "'q', 'qdot' and 'impulses'") from None  # fmt: skip
+        dim = self.model.dim
+        if q.ndim != 2 or q.shape[1] != dim or qdot.shape != q.shape or len(impulses) != len(q):
+            raise ValueError(
+                f"result's final states have shapes q {q.shape}, qdot {qdot.shape}, impulses "
+                f"{impulses.shape}: expected (B, {dim}) each and B rows of impulses, as this "
+                "env's rollout() returns"
+            )
+        return [cpp_sim.ReducedState(q[i], qdot[i], impulses[i]) for i in range(len(q))]
