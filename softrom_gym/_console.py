@@ -30,19 +30,26 @@ class OneLineArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         if message.startswith("unrecognized arguments: "):
-            # without argparse's usage block, point at the option meant (a prefix argparse
-            # would have taken, --second, or a typo) and at --help
-            options = [o for action in self._actions for o in action.option_strings]
-            meant = []
-            words = message.split(": ", 1)[1].split()
-            for word in (w.split("=")[0] for w in words if w.startswith("--")):
-                match = [o for o in options if o.startswith(word)]
-                match = match or difflib.get_close_matches(word, options, n=1)
-                if match:
-                    meant.append(f"{match[0]} for {word}")
-            hint = f"did you mean {', '.join(meant)}? " if meant else ""
-            message += f" ({hint}{self.prog} --help lists the options)"
+            # without argparse's usage block, point at the option meant and at --help
+            message += unknown_option_hint(self, message.split(": ", 1)[1].split())
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def unknown_option_hint(parser: argparse.ArgumentParser, words: list[str]) -> str:
+    """What follows "unrecognized arguments: ..." on one line: for each unknown ``--option``
+    among ``words``, the option of ``parser`` meant (one it is a prefix of, which argparse
+    would have taken were abbreviations allowed, or a close spelling), and where the options
+    are listed: ``" (did you mean --seconds for --second? PROG --help lists the options)"``.
+    """
+    options = [o for action in parser._actions for o in action.option_strings]
+    meant = []
+    for word in (w.split("=")[0] for w in words if w.startswith("--")):
+        match = [o for o in options if o.startswith(word)]
+        match = match or difflib.get_close_matches(word, options, n=1)
+        if match:
+            meant.append(f"{match[0]} for {word}")
+    hint = f"did you mean {', '.join(meant)}? " if meant else ""
+    return f" ({hint}{parser.prog} --help lists the options)"
 
 
 def say_warnings_as(who: str) -> None:

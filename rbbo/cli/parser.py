@@ -8,9 +8,10 @@ added by :func:`rbbo.reproduce.cli.add_parser`.
 from __future__ import annotations
 
 import argparse
-import difflib
 import re
 import textwrap
+
+from softrom_gym._console import unknown_option_hint
 
 from .arguments import (
     _env_kwarg,
@@ -51,16 +52,8 @@ class _Parser(argparse.ArgumentParser):
         # and a prefix that argparse would have taken (--iter) deserves its full name.
         known, extras = super().parse_known_args(args, namespace)
         if extras and self._subparsers is None:
-            options = [o for action in self._actions for o in action.option_strings]
-            meant = []
-            for word in (w.split("=")[0] for w in extras if w.startswith("--")):
-                match = [o for o in options if o.startswith(word)]
-                match = match or difflib.get_close_matches(word, options, n=1)
-                if match:
-                    meant.append(f"{match[0]} for {word}")
-            hint = f"did you mean {', '.join(meant)}? " if meant else ""
-            raise UsageError(f"unrecognized arguments: {' '.join(extras)} ({hint}"
-                             f"{self.prog} --help lists the options)")  # fmt: skip
+            raise UsageError(f"unrecognized arguments: {' '.join(extras)}"
+                             f"{unknown_option_hint(self, extras)}")  # fmt: skip
         return known, extras
 
 
