@@ -5,13 +5,17 @@ and the cubature rule, minutes for a new robot) is built."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from ..robots import ROBOTS, Robot, from_mesh
+
+if TYPE_CHECKING:
+    from gymnasium.envs.registration import EnvSpec
 
 __all__ = [
     "check_on_ground",
@@ -20,6 +24,7 @@ __all__ = [
     "is_trimesh",
     "make_robot",
     "read_basis",
+    "spec_with_control_basis",
     "task_direction",
 ]
 
@@ -106,6 +111,25 @@ def checked_control_basis(
     b = np.array(b, dtype=float, copy=True)
     b.flags.writeable = False
     return b
+
+
+def spec_with_control_basis(
+    spec: EnvSpec | None,
+    given: npt.ArrayLike | os.PathLike,
+    used: np.ndarray,
+    orthonormalize: bool,
+) -> EnvSpec | None:
+    """A new ``spec`` whose kwargs make an env with the control space B_c ``used`` (None
+    stays None), after a swap to ``given``: a path stays a path (the spec stays
+    JSON-serialisable), with ``orthonormalize`` as given; an array is held as ``used`` (a
+    copy), with ``orthonormalize=False``. ``spec`` itself is left as it was."""
+    if spec is None:
+        return None
+    if isinstance(given, (str, os.PathLike)):
+        kwargs: dict[str, Any] = {"control_basis": given, "orthonormalize": bool(orthonormalize)}
+    else:
+        kwargs = {"control_basis": used.copy(), "orthonormalize": False}
+    return dataclasses.replace(spec, kwargs={**spec.kwargs, **kwargs})
 
 
 def _checked_basis(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import warnings
 from collections.abc import Mapping
@@ -23,6 +22,7 @@ from .arguments import (
     dimensions,
     make_robot,
     read_basis,
+    spec_with_control_basis,
     task_direction,
 )
 
@@ -420,13 +420,7 @@ class SoftRobotEnv(gym.Env):
         b = checked_control_basis(read_basis(control_basis), m, c, orthonormalize)
         self.model.control_basis = b
         self.control_basis = b
-        if self.spec is not None:
-            if isinstance(control_basis, (str, os.PathLike)):
-                given: dict[str, Any] = {"control_basis": control_basis,
-                                         "orthonormalize": bool(orthonormalize)}  # fmt: skip
-            else:
-                given = {"control_basis": b.copy(), "orthonormalize": False}
-            self.spec = dataclasses.replace(self.spec, kwargs={**self.spec.kwargs, **given})
+        self.spec = spec_with_control_basis(self.spec, control_basis, b, orthonormalize)
 
     # ---------------------------------------------------------------- MPC API
     def get_state(self) -> cpp_sim.ReducedState:

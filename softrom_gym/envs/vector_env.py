@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any, cast
 
 import numpy as np
@@ -14,6 +15,7 @@ from gymnasium.vector.utils import batch_space
 import cpp_sim
 
 from .._validate import real_array
+from .arguments import spec_with_control_basis
 from .soft_robot_env import SoftRobotEnv
 
 __all__ = ["SoftRobotVectorEnv"]
@@ -41,6 +43,11 @@ class SoftRobotVectorEnv(VectorEnv):
     * ``AutoresetMode.DISABLED``: nothing is reset by ``step``; reset the robots whose
       episode ended with ``reset(options={"reset_mask": terminated | truncated})``. Stepping
       one that was not is a ``gymnasium.error.ResetNeeded`` naming it.
+
+    ``set_control_basis(control_basis)`` swaps the control space B_c of every robot at once
+    (they share one reduced model), as :meth:`SoftRobotEnv.set_control_basis` does one env's:
+    the same C, each robot keeping its state, and ``spec`` following, so ``gym.make_vec(spec)``
+    makes a vector env with the new B_c. ``control_basis`` is the B_c in use (read-only).
 
     Create it with ``gym.make_vec(id, num_envs=n, vectorization_mode="vector_entry_point")``;
     ``max_episode_steps`` (default 400), ``threads`` and ``autoreset_mode`` (an
@@ -123,6 +130,48 @@ class SoftRobotVectorEnv(VectorEnv):
         # each robot's last observation: what a reset_mask reset returns for those it skips
         self._last_obs = np.zeros(self.observation_space.shape, dtype=np.float32)
         self._rngs = [seeding.np_random()[0] for _ in range(num_envs)]
+
+    @property
+    def control_basis(self) -> np.ndarray:
+        """The control space B_c (M x C) every robot is actuated in: a read-only array."""
+        return self.env.control_basis
+
+    def set_control_basis(
+        self, control_basis: np.ndarray | str | os.PathLike, orthonormalize: bool = False
+    ) -> None:
+        """Swap the control space B_c of every robot, keeping their states and episodes.
+
+        The robots share one reduced model, whose B_c is swapped by
+        :meth:`SoftRobotEnv.set_control_basis`: the same checks, errors and results, and the
+        robots then step as single envs swapped to (or made with) this B_c would. The action
+        space is unchanged: a basis of another C is refused, as the single env refuses it.
+
+        Parameters
+        ----------
+        control_basis : (M, C) array, or str or os.PathLike
+            The new B_c, or the path of a ``.npy`` file holding it (a run's
+            ``best_basis.npy``).
+        orthonormalize : bool, default False
+            Accept any full-rank matrix, replaced by the Q of its QR.
+
+        Raises
+        ------
+        ValueError
+            For a wrong shape, non-finite entries or a basis that is not orthonormal to 1e-8
+            (naming it); nothing changes then.
+        FileNotFoundError
+            For a path to no file.
+
+        Notes
+        -----
+        ``spec`` (set by ``gym.make_vec``) follows, as the single env's does: its
+        ``control_basis`` becomes this one (a path stays a path, an array is held as the B_c
+        now used) in a new ``EnvSpec``; one read earlier is left as it was.
+        """
+        self.env.set_control_basis(control_basis, orthonormalize)
+        self.spec = spec_with_control_basis(
+            self.spec, control_basis, self.env.control_basis, orthonormalize
+        )
 
     def _reset_one(self, i: int, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         env = self.env
