@@ -5,10 +5,43 @@ import numpy as np
 import pytest
 
 import softrom_gym  # noqa: F401  (registers the envs)
+from softrom_gym.envs import set_control_basis
 
 
 def _basis(seed: int, columns: int = 3) -> np.ndarray:
     return np.linalg.qr(np.random.default_rng(seed).standard_normal((20, columns)))[0]
+
+
+def test_a_wrapped_env_s_spec_follows_a_swapped_basis():
+    # Guards: gym.make's wrappers keep the spec of their first read, so env.spec read before
+    # env.unwrapped.set_control_basis(B) kept the old B_c afterwards, and gym.make(env.spec)
+    # made an env with another control space than this one's.
+    basis = _basis(1)
+    env = gym.make("softrom_gym/BeamWalk-v0")
+    assert "control_basis" not in env.spec.kwargs
+    env.unwrapped.set_control_basis(basis)
+    # the method cannot reach the wrappers above the env: their spec stays (documented) ...
+    assert "control_basis" not in env.spec.kwargs
+    np.testing.assert_array_equal(env.unwrapped.spec.kwargs["control_basis"], basis)
+    # ... the module function, given the wrapped env, refreshes every wrapper's
+    set_control_basis(env, basis)
+    np.testing.assert_array_equal(env.spec.kwargs["control_basis"], basis)
+    assert env.spec.max_episode_steps == 400  # (the wrappers' own part of the spec is kept)
+    again = gym.make(env.spec)
+    np.testing.assert_array_equal(again.unwrapped.control_basis, basis)
+    action = np.array([0.5, -0.3, 0.2], dtype=np.float32) * env.unwrapped.action_bound
+    for e in (env, again):
+        e.reset(seed=0)
+    np.testing.assert_array_equal(env.step(action)[0], again.step(action)[0])
+    # a refused basis changes neither the env nor any spec
+    with pytest.raises(ValueError, match="control_basis is not orthonormal"):
+        set_control_basis(env, 2.0 * basis)
+    np.testing.assert_array_equal(env.spec.kwargs["control_basis"], basis)
+    # a bare env, and an env that is neither, are named
+    set_control_basis(again.unwrapped, basis[:, ::-1])
+    np.testing.assert_array_equal(again.unwrapped.control_basis, basis[:, ::-1])
+    with pytest.raises(TypeError, match="env must be a softrom_gym env .* got CartPoleEnv"):
+        set_control_basis(gym.make("CartPole-v1"), basis)
 
 
 def test_vector_env_swaps_the_control_basis_of_every_robot():
@@ -33,8 +66,9 @@ def test_vector_env_swaps_the_control_basis_of_every_robot():
             o, r, *_ = env.step(actions[i])
             np.testing.assert_array_equal(obs[i], o)
             assert rewards[i] == r
-    # mid-episode too: the robots go on from where they are
+    # mid-episode too, through the module function: the robots go on from where they are
     venv.set_control_basis(basis[:, ::-1])
+    set_control_basis(venv, basis[:, ::-1])
     for env in singles:
         env.unwrapped.set_control_basis(basis[:, ::-1])
     actions = rng.uniform(-bound, bound, (n, 3)).astype(np.float32)

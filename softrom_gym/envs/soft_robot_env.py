@@ -413,8 +413,12 @@ class SoftRobotEnv(gym.Env):
         env it describes. A path stays a path (the spec stays JSON-serialisable), with
         ``orthonormalize`` as given; an array is held as the B_c now used (a copy), with
         ``orthonormalize=False``. The spec is a new ``EnvSpec``: one read earlier is left as
-        it was, and so is ``env.spec`` of a wrapper that read it before the swap (Gymnasium's
-        wrappers keep a copy of the spec from their first read), so read the spec after it.
+        it was. This method cannot reach the wrappers around the env, and Gymnasium's keep
+        the copy of the spec they made at their first read of ``env.spec``: when ``env`` from
+        ``gym.make`` was asked for its spec before the swap, ``env.spec`` still names the old
+        B_c after it (``env.unwrapped.spec`` does not). To swap B_c with the wrappers'
+        specs following, call :func:`softrom_gym.envs.set_control_basis` with the wrapped
+        env: ``set_control_basis(env, control_basis)``.
         """
         m, c = self.control_basis.shape
         b = checked_control_basis(read_basis(control_basis), m, c, orthonormalize)
