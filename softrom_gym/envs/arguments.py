@@ -1,17 +1,22 @@
 """The arguments of :class:`~softrom_gym.envs.soft_robot_env.SoftRobotEnv`, checked and turned
-into what the env is built from: the robot, the task direction d, the control space B_c and the
-dimensions (M, C). Each function raises naming the value it refuses, before anything slow (B_r
-and the cubature rule, minutes for a new robot) is built."""
+into what the env is built from: the robot, the task direction d, the control space B_c, the
+dimensions (M, C) and the model's settings. Each function raises naming the value it refuses,
+before anything slow (B_r and the cubature rule, minutes for a new robot) is built. Also the
+spec of an env whose B_c was swapped (:func:`spec_with_control_basis`)."""
 
 from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
+import cpp_sim
+
+from .._validate import real
 from ..robots import ROBOTS, Robot, from_mesh
 
 if TYPE_CHECKING:
@@ -19,10 +24,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     "check_on_ground",
+    "check_sizes_and_scales",
     "checked_control_basis",
     "dimensions",
     "is_trimesh",
     "make_robot",
+    "model_settings",
     "read_basis",
     "spec_with_control_basis",
     "task_direction",
@@ -93,6 +100,66 @@ def dimensions(
                          "column per control direction (is it transposed?)")  # fmt: skip
     return (shape[0] if sim_dim is None else sim_dim,
             shape[1] if control_dim is None else control_dim)  # fmt: skip
+
+
+def check_sizes_and_scales(
+    sim_dim: int,
+    control_dim: int,
+    frame_skip: int,
+    action_scale: float,
+    reset_noise_scale: float,
+    orthonormalize: bool,
+    material: Mapping[str, float] | None,
+) -> tuple[float, float]:
+    """``action_scale`` and ``reset_noise_scale`` as floats, once M, C and ``frame_skip`` are
+    positive integers with C <= M, the scales finite (the first > 0, the second >= 0),
+    ``orthonormalize`` a bool and ``material`` a mapping or None."""
+    for name, value in (("control_dim", control_dim), ("sim_dim", sim_dim),
+                        ("frame_skip", frame_skip)):  # fmt: skip
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if control_dim > sim_dim:
+        raise ValueError(f"control_dim = {control_dim} exceeds sim_dim = {sim_dim}")
+    action_scale = real("action_scale", action_scale)
+    reset_noise_scale = real("reset_noise_scale", reset_noise_scale)
+    if not (np.isfinite(action_scale) and action_scale > 0):
+        raise ValueError(f"action_scale must be > 0, got {action_scale}")
+    if not (np.isfinite(reset_noise_scale) and reset_noise_scale >= 0):
+        raise ValueError(f"reset_noise_scale must be finite and >= 0, got {reset_noise_scale}")
+    if not isinstance(orthonormalize, (bool, np.bool_)):
+        raise TypeError(f"orthonormalize must be True or False, got {orthonormalize!r}")
+    if material is not None and not isinstance(material, Mapping):
+        raise TypeError(
+            "material must be a dict of youngs_modulus, poisson_ratio and density, got "
+            f"{material!r}"
+        )
+    return action_scale, reset_noise_scale
+
+
+def model_settings(
+    task: str,
+    dt: float,
+    direction: np.ndarray,
+    contact: str,
+    friction: float,
+    fluid_density: float,
+) -> dict[str, Any]:
+    """The reduced model's settings for ``task`` (a swimmer has no contact and no gravity),
+    each checked by the C++ core's config."""
+    settings: dict[str, Any] = {"dt": dt, "direction": direction}
+    swim = {"fluid_density": fluid_density}
+    walk = {"contact": contact, "friction": friction}
+    if task == "swim":
+        settings.update(contact="none", gravity=[0.0, 0.0, 0.0], **swim)
+    else:
+        settings.update(walk)
+    # Checked before B_r and the cubature are built (minutes for a new robot), the other
+    # task's settings too: they do nothing here (a swimmer has no ground, a walker no
+    # fluid), but a bad value is named rather than silently accepted.
+    check = cpp_sim.ReducedConfig()
+    for name, value in {**settings, **walk, **swim}.items():
+        setattr(check, name, value)
+    return settings
 
 
 def checked_control_basis(

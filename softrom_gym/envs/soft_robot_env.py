@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import os
-import warnings
-from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -13,18 +11,21 @@ from gymnasium import spaces
 
 import cpp_sim
 
-from .._validate import real, real_array
 from ..robots import Robot
 from ..rom import build_reduced_model, build_subspace
 from .arguments import (
     check_on_ground,
+    check_sizes_and_scales,
     checked_control_basis,
     dimensions,
     make_robot,
+    model_settings,
     read_basis,
     spec_with_control_basis,
     task_direction,
 )
+from .observations import Observations, orientation_rows
+from .planning import PlanningAPI
 
 if TYPE_CHECKING:
     from ..rendering import SoftwareRenderer
@@ -35,15 +36,7 @@ TASKS = ("walk", "swim")
 G = 9.81
 
 
-def _first_frozen_substep(rewards: np.ndarray, com: np.ndarray) -> int:
-    """The sub-step at which a diverged rollout froze: from the diverging step on, the C++
-    core keeps the last good state (the COM stops, bit for bit) and pays zero reward."""
-    frozen = (rewards == 0.0) & np.all(com == com[-1], axis=1)
-    moving = np.flatnonzero(~frozen)
-    return int(moving[-1]) + 1 if moving.size else 0
-
-
-class SoftRobotEnv(gym.Env):
+class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
     r"""A finite-element soft robot that walks or swims, actuated in a control space B_c.
 
     The robot is simulated in the reduced simulation space B_r (``sim_dim`` = M deformation
@@ -153,9 +146,6 @@ class SoftRobotEnv(gym.Env):
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 40}  # noqa: RUF012
     action_space: spaces.Box
     observation_space: spaces.Box
-    # Set by the first inverted element this env reports (the warning is said once); a class
-    # default, so an env pickled before it existed unpickles with it.
-    _inversion_warned: bool = False
 
     def __init__(
         self,
@@ -187,25 +177,10 @@ class SoftRobotEnv(gym.Env):
             )
         b_c = read_basis(control_basis)
         sim_dim, control_dim = dimensions(b_c, sim_dim, control_dim)
-        for name, value in (("control_dim", control_dim), ("sim_dim", sim_dim),
-                            ("frame_skip", frame_skip)):  # fmt: skip
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if control_dim > sim_dim:
-            raise ValueError(f"control_dim = {control_dim} exceeds sim_dim = {sim_dim}")
-        action_scale = real("action_scale", action_scale)
-        reset_noise_scale = real("reset_noise_scale", reset_noise_scale)
-        if not (np.isfinite(action_scale) and action_scale > 0):
-            raise ValueError(f"action_scale must be > 0, got {action_scale}")
-        if not (np.isfinite(reset_noise_scale) and reset_noise_scale >= 0):
-            raise ValueError(f"reset_noise_scale must be finite and >= 0, got {reset_noise_scale}")
-        if not isinstance(orthonormalize, (bool, np.bool_)):
-            raise TypeError(f"orthonormalize must be True or False, got {orthonormalize!r}")
-        if material is not None and not isinstance(material, Mapping):
-            raise TypeError(
-                "material must be a dict of youngs_modulus, poisson_ratio and density, got "
-                f"{material!r}"
-            )
+        action_scale, reset_noise_scale = check_sizes_and_scales(
+            sim_dim, control_dim, frame_skip, action_scale, reset_noise_scale, orthonormalize,
+            material,
+        )  # fmt: skip
         self.render_mode = render_mode
         self.task = task
         self.frame_skip = int(frame_skip)
@@ -214,21 +189,7 @@ class SoftRobotEnv(gym.Env):
             check_on_ground(self.robot)
         self.direction = task_direction(direction)
         self.control_basis = checked_control_basis(b_c, sim_dim, control_dim, orthonormalize)
-
-        settings: dict[str, Any] = {"dt": dt, "direction": self.direction}
-        swim = {"fluid_density": fluid_density}
-        walk = {"contact": contact, "friction": friction}
-        if task == "swim":
-            settings.update(contact="none", gravity=[0.0, 0.0, 0.0], **swim)
-        else:
-            settings.update(walk)
-        # Checked before B_r and the cubature are built (minutes for a new robot), the other
-        # task's settings too: they do nothing here (a swimmer has no ground, a walker no
-        # fluid), but a bad value is named rather than silently accepted.
-        check = cpp_sim.ReducedConfig()
-        for name, value in {**settings, **walk, **swim}.items():
-            setattr(check, name, value)
-
+        settings = model_settings(task, dt, self.direction, contact, friction, fluid_density)
         # verbose: a new robot or M takes seconds to minutes to build, once; say so on stderr
         self.subspace = build_subspace(self.robot, sim_dim, verbose=True)
         self.model = build_reduced_model(
@@ -237,13 +198,7 @@ class SoftRobotEnv(gym.Env):
         )  # fmt: skip
         mass = self.robot.fem_model().mass
         self._sqrt_m = float(np.sqrt(mass.sum()))
-        # Linearised orientation: the rotation vector theta whose infinitesimal rotation
-        # A theta (A = [e_k x (X - c)]) best fits x - X in the mass norm,
-        # theta = (A^T M A)^-1 A^T M B_r q_r; exact on B_r's rotation columns.
-        r = self.robot.nodes - mass @ self.robot.nodes / mass.sum()
-        a = np.column_stack([np.cross(e, r).ravel() for e in np.eye(3)])
-        ma = a * np.repeat(mass, 3)[:, None]
-        self._orientation = np.linalg.solve(a.T @ ma, ma.T @ self.subspace.basis)
+        self._orientation = orientation_rows(self.robot.nodes, mass, self.subspace.basis)
         self.action_bound = float(action_scale * self._sqrt_m * G)
         c = control_dim
         m = sim_dim
@@ -256,53 +211,6 @@ class SoftRobotEnv(gym.Env):
         fps = max(1, round(1.0 / (self.model.dt * self.frame_skip)))
         self.metadata = {**self.metadata, "render_fps": fps}
         self._renderer: SoftwareRenderer | None = None
-
-    def render(self) -> np.ndarray | None:
-        """An RGB frame (height, width, 3) when ``render_mode="rgb_array"``: the shaded robot
-        surface on a ground grid, the task direction as a red arrow, the camera following the
-        centre of mass. Software-rendered with numpy: no display or OpenGL needed."""
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
-            return None
-        if self._renderer is None:
-            from ..rendering import SoftwareRenderer, ground_cell
-
-            size = float(np.ptp(self.robot.nodes, axis=0).max())
-            # the ground scales with the robot as the camera does (a fixed 10 cm checker
-            # was one grey line under a 6 mm robot, a moire under a 4 m one)
-            self._renderer = SoftwareRenderer(distance=2.2 * size, cell=ground_cell(size))
-        positions = self.model.positions(self._state.q)
-        com = self.model.com(self._state.q)
-        return self._renderer.render(
-            positions, self.robot.surface_faces, target=com, arrow=self.direction,
-            ground=self.task == "walk",
-        )  # fmt: skip
-
-    # ---------------------------------------------------------------- observations
-    def _obs(self, state: cpp_sim.ReducedState) -> np.ndarray:
-        q, qdot = state.q, state.qdot
-        com = self.model.com(q)
-        return np.concatenate(
-            [
-                [com[2] - self.model.ground_height],
-                qdot[:3] / self._sqrt_m,
-                self._orientation @ q,
-                self._orientation @ qdot,
-                q[6:],
-                qdot[6:],
-            ]
-        ).astype(np.float32)
-
-    def _check_action(self, action: np.ndarray) -> np.ndarray:
-        a = real_array("action", action)
-        if a.shape != self.action_space.shape:
-            raise ValueError(
-                f"action has shape {a.shape}, expected {self.action_space.shape} "
-                f"(control_dim = {self.action_space.shape[0]})"
-            )
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action contains non-finite values: {a}")
-        return np.clip(a, -self.action_bound, self.action_bound)
 
     # ---------------------------------------------------------------- gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -331,36 +239,6 @@ class SoftRobotEnv(gym.Env):
             raise ValueError(f"reset takes the option 'state' only (a ReducedState from "
                              f"get_state()), got {unknown}")  # fmt: skip
         return self._checked_state(options["state"])
-
-    def _info(
-        self, state, lateral: float, effort: float, diverged: bool, orientation: float | None = None
-    ) -> dict[str, Any]:
-        com = self.model.com(state.q)
-        if orientation is None:
-            orientation = float(np.linalg.norm(self._orientation @ state.q))
-        volume_ratio = float(self.model.min_volume_ratio(state.q))
-        if volume_ratio <= 0.0 and not self._inversion_warned:
-            # Stable Neo-Hookean is defined for inverted elements and restores them, so the step
-            # goes on, but while det F <= 0 the motion is not a physical one: say so once.
-            self._inversion_warned = True
-            warnings.warn(
-                f"{self.robot.name}: a tetrahedron is inverted (det F = "
-                f"{volume_ratio:.3g}): the material (youngs_modulus = "
-                f"{self.robot.youngs_modulus:g} Pa) is too soft for actions up to "
-                f"{self.action_bound:.3g}, and the motion is not physical while "
-                'info["min_volume_ratio"] <= 0; raise youngs_modulus or lower action_scale',
-                stacklevel=3,
-            )
-        return {
-            "distance": float(self.direction @ (com - self._com0)),
-            "orientation": orientation,
-            "lateral": lateral,
-            "effort": effort,
-            "com": com,
-            "diverged": diverged,
-            "min_volume_ratio": volume_ratio,
-            "contact": self.model.contact,
-        }
 
     def step(self, action):
         f_c = self._check_action(action)
@@ -425,165 +303,3 @@ class SoftRobotEnv(gym.Env):
         self.model.control_basis = b
         self.control_basis = b
         self.spec = spec_with_control_basis(self.spec, control_basis, b, orthonormalize)
-
-    # ---------------------------------------------------------------- MPC API
-    def get_state(self) -> cpp_sim.ReducedState:
-        """A copy of the full simulation state (q_r, qdot_r and contact warm-start)."""
-        return self._state.copy()
-
-    def set_state(self, state: cpp_sim.ReducedState) -> None:
-        """Restore a state returned by :meth:`get_state`."""
-        self._state = self._checked_state(state)
-
-    def _checked_state(self, state: cpp_sim.ReducedState) -> cpp_sim.ReducedState:
-        """A copy of ``state``, or an error naming why it is not a state of this env."""
-        if not isinstance(state, cpp_sim.ReducedState):
-            raise TypeError(f"state must be a ReducedState from get_state(), got {type(state)}")
-        if state.q.shape != (self.model.dim,):
-            raise ValueError(f"state has dimension {state.q.shape[0]}, expected {self.model.dim}")
-        impulses = 3 * len(self.model.surface_nodes)  # (the next step's would refuse others)
-        if state.impulses.shape != (impulses,):
-            raise ValueError(f"state has {state.impulses.size} contact impulses, expected "
-                             f"{impulses} (3 per surface node of this env's robot)")  # fmt: skip
-        return state.copy()
-
-    def center_of_mass(self, state: cpp_sim.ReducedState | None = None) -> np.ndarray:
-        """The centre of mass (3,) of ``state`` (default: the current state), m."""
-        return self.model.com((self._state if state is None else state).q)
-
-    @property
-    def dt(self) -> float:
-        """The control period: seconds of simulated time per env step (frame_skip * dt)."""
-        return self.frame_skip * float(self.model.dt)
-
-    @property
-    def body_length(self) -> float:
-        """The robot's largest horizontal extent at rest (m): the unit of locomotion distance."""
-        return float(np.ptp(self.robot.nodes[:, :2], axis=0).max())
-
-    def rollout(
-        self,
-        state: cpp_sim.ReducedState | list[cpp_sim.ReducedState],
-        controls: np.ndarray,
-        threads: int | None = None,
-        observe: np.ndarray | None = None,
-    ) -> dict[str, np.ndarray]:
-        """Run B control sequences of H env steps from ``state`` (batched, in C++).
-
-        ``H`` calls of :meth:`step` with the same actions from the same state give the same
-        rewards, terms and states to the last bit, whatever the actions' dtype: both paths
-        clip f_c to the action bound and round it to the action space's float32.
-
-        Parameters
-        ----------
-        state : ReducedState or list of B ReducedState
-            One start state shared by all rollouts, or one per rollout.
-        controls : (B, H, C) array
-            f_c per env step (each held for ``frame_skip`` simulation steps), clipped to the
-            action bound, then rounded to float32.
-        threads : int, optional
-            C++ worker threads (default: the CPUs this process may run on, its affinity).
-            Results do not depend on it.
-        observe : (P, M + 6) array, optional
-            Linear observables of q_r to return after every env step (``observed``).
-
-        Returns
-        -------
-        dict of arrays, per env step t = 1..H (the value at the end of step t):
-
-        * ``rewards`` (B, H): the paper's R per step, d · (com_t - com_{t-1}) (m).
-        * ``com`` (B, H, 3): centre of mass (m).
-        * ``theta`` (B, H, 3): linearised orientation, the rotation vector vs. rest (rad);
-          ``orientation`` (B, H) is its norm.
-        * ``lateral`` (B, H): |motion orthogonal to d in the ground plane| this step (m).
-        * ``effort`` (B, H): |f_c / a|^2 (dimensionless).
-        * ``lost`` (B, H): 1.0 on the step a rollout diverges and on every step after it,
-          else 0.0. A diverged rollout keeps its last good state and earns zero reward from
-          then on, so a planner must price these steps (a controller's Λ charges a weight in
-          metres per lost step) or a blow-up would beat a trajectory that goes backwards.
-        * ``diverged`` (B,): whether the rollout diverged.
-        * ``observed`` (B, H, P): ``observe @ q_r``, only when ``observe`` is given.
-        * ``q``, ``qdot`` (B, M + 6), ``impulses``: the final states.
-        """
-        if not isinstance(state, (cpp_sim.ReducedState, list, tuple)):
-            raise TypeError(f"state must be a ReducedState (env.get_state()) or a list of B "
-                            f"of them, got {type(state).__name__}")  # fmt: skip
-        u = real_array("controls", controls)
-        if u.ndim != 3 or u.shape[2] != self.action_space.shape[0] or 0 in u.shape[:2]:
-            raise ValueError(f"controls has shape {u.shape}, expected (B, H, "
-                             f"{self.action_space.shape[0]}) with B, H >= 1")  # fmt: skip
-        if not np.all(np.isfinite(u)):
-            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(u))[0])
-            raise ValueError(f"controls contains non-finite values, e.g. {u[bad]} at "
-                             f"(rollout, step, dimension) = {bad}")  # fmt: skip
-        # The same rounding as a float32 action through step(): a plan replays bit for bit.
-        u = np.clip(u, -self.action_bound, self.action_bound).astype(np.float32).astype(float)
-        b, h, _ = u.shape
-        k = self.frame_skip
-        n_orient = self._orientation.shape[0]
-        rows = self._orientation
-        if observe is not None:
-            extra = np.asarray(observe, dtype=np.float64)
-            if extra.ndim != 2 or extra.shape[1] != self.model.dim:
-                raise ValueError(f"observe has shape {extra.shape}, expected (P, {self.model.dim})")
-            if not np.all(np.isfinite(extra)):
-                # named here: the core sees observe under the orientation rows, n_orient lower
-                bad = tuple(int(i) for i in np.argwhere(~np.isfinite(extra))[0])
-                raise ValueError(f"observe contains a non-finite value ({extra[bad]}) at {bad}")
-            rows = np.vstack([rows, extra])
-        out = self.model.rollout(state, np.repeat(u, k, axis=1), threads=threads, observe=rows)
-        com = out["com"].reshape(b, h, k, 3)[:, :, -1]
-        states = [state] if isinstance(state, cpp_sim.ReducedState) else list(state)
-        start = np.array([self.model.com(s.q) for s in states]).reshape(-1, 1, 3)
-        prev = np.concatenate([np.broadcast_to(start, (b, 1, 3)), com[:, :-1]], axis=1)
-        delta = (com - prev)[..., :2]
-        d2 = self.direction[:2]
-        lateral = np.linalg.norm(delta - (delta @ d2)[..., None] * d2, axis=-1)
-        observed = out["observed"].reshape(b, h, k, -1)[:, :, -1]
-        theta = observed[..., :n_orient]
-        rewards = out["rewards"].reshape(b, h, k)
-        # The C++ core zeroes the reward of every sub-step from the diverging one on; a step
-        # is lost when any of its sub-steps is.
-        lost = np.zeros((b, h))
-        for i in np.flatnonzero(out["diverged"]):
-            lost[i, _first_frozen_substep(rewards[i].ravel(), out["com"][i]) // k :] = 1.0
-        result = {
-            "rewards": rewards.sum(axis=2),
-            "com": com,
-            "theta": theta,
-            "orientation": np.linalg.norm(theta, axis=-1),
-            "lateral": lateral,
-            "effort": np.sum((u / self.action_bound) ** 2, axis=-1),
-            "lost": lost,
-            "diverged": out["diverged"],
-            "q": out["q"],
-            "qdot": out["qdot"],
-            "impulses": out["impulses"],
-        }
-        if observe is not None:
-            result["observed"] = observed[..., n_orient:]
-        return result
-
-    def final_states(self, result: Mapping[str, np.ndarray]) -> list[cpp_sim.ReducedState]:
-        """The B final states of a :meth:`rollout` result, as states to start from again.
-
-        ``rollout`` returns them as arrays (``q``, ``qdot``, ``impulses``); a planner that
-        continues rollouts from where others ended (multiple shooting, a tree of plans, a
-        forward pass in segments) passes these to ``rollout`` or ``set_state``. Each is what
-        :meth:`get_state` would return after the same steps, the contact impulses that
-        warm-start the next step included, so continuing from it matches one longer rollout to
-        the last bit.
-        """
-        try:
-            q, qdot, impulses = (np.asarray(result[key]) for key in ("q", "qdot", "impulses"))
-        except (KeyError, TypeError):
-            raise TypeError("result must be the dict rollout() returned, with its final states "
-                            "'q', 'qdot' and 'impulses'") from None  # fmt: skip
-        dim = self.model.dim
-        if q.ndim != 2 or q.shape[1] != dim or qdot.shape != q.shape or len(impulses) != len(q):
-            raise ValueError(
-                f"result's final states have shapes q {q.shape}, qdot {qdot.shape}, impulses "
-                f"{impulses.shape}: expected (B, {dim}) each and B rows of impulses, as this "
-                "env's rollout() returns"
-            )
-        return [cpp_sim.ReducedState(q[i], qdot[i], impulses[i]) for i in range(len(q))]

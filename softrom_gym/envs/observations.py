@@ -1,0 +1,131 @@
+"""What :class:`~softrom_gym.envs.soft_robot_env.SoftRobotEnv` reports of a state: the
+observation vector, the step info (Λ's terms, a warning for an inverted element), the rendered
+frame; and the action checked on its way in."""
+
+from __future__ import annotations
+
+import warnings
+from typing import TYPE_CHECKING, Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+import cpp_sim
+
+from .._validate import real_array
+from ..robots import Robot
+
+if TYPE_CHECKING:
+    from ..rendering import SoftwareRenderer
+
+__all__ = ["Observations", "orientation_rows"]
+
+
+def orientation_rows(nodes: np.ndarray, mass: np.ndarray, b_r: np.ndarray) -> np.ndarray:
+    """The (3, M + 6) matrix taking q_r to the linearised orientation of a robot whose rest
+    ``nodes`` (N, 3) have lumped ``mass`` (N,), simulated in B_r ``b_r`` (3N, M + 6)."""
+    # Linearised orientation: the rotation vector theta whose infinitesimal rotation
+    # A theta (A = [e_k x (X - c)]) best fits x - X in the mass norm,
+    # theta = (A^T M A)^-1 A^T M B_r q_r; exact on B_r's rotation columns.
+    r = nodes - mass @ nodes / mass.sum()
+    a = np.column_stack([np.cross(e, r).ravel() for e in np.eye(3)])
+    ma = a * np.repeat(mass, 3)[:, None]
+    return np.linalg.solve(a.T @ ma, ma.T @ b_r)
+
+
+class Observations:
+    """The observation, info and frame of :class:`SoftRobotEnv`, mixed into it (which sets
+    the attributes below)."""
+
+    model: cpp_sim.ReducedModel
+    robot: Robot
+    task: str
+    direction: np.ndarray
+    action_bound: float
+    action_space: spaces.Box
+    render_mode: str | None
+    _orientation: np.ndarray  # (3, M + 6): q_r -> linearised orientation (rotation vector)
+    _sqrt_m: float
+    _com0: np.ndarray
+    _state: cpp_sim.ReducedState
+    _renderer: SoftwareRenderer | None
+    # Set by the first inverted element this env reports (the warning is said once); a class
+    # default, so an env pickled before it existed unpickles with it.
+    _inversion_warned: bool = False
+
+    def _obs(self, state: cpp_sim.ReducedState) -> np.ndarray:
+        q, qdot = state.q, state.qdot
+        com = self.model.com(q)
+        return np.concatenate(
+            [
+                [com[2] - self.model.ground_height],
+                qdot[:3] / self._sqrt_m,
+                self._orientation @ q,
+                self._orientation @ qdot,
+                q[6:],
+                qdot[6:],
+            ]
+        ).astype(np.float32)
+
+    def _check_action(self, action: np.ndarray) -> np.ndarray:
+        a = real_array("action", action)
+        if a.shape != self.action_space.shape:
+            raise ValueError(
+                f"action has shape {a.shape}, expected {self.action_space.shape} "
+                f"(control_dim = {self.action_space.shape[0]})"
+            )
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action contains non-finite values: {a}")
+        return np.clip(a, -self.action_bound, self.action_bound)
+
+    def _info(
+        self, state, lateral: float, effort: float, diverged: bool, orientation: float | None = None
+    ) -> dict[str, Any]:
+        com = self.model.com(state.q)
+        if orientation is None:
+            orientation = float(np.linalg.norm(self._orientation @ state.q))
+        volume_ratio = float(self.model.min_volume_ratio(state.q))
+        if volume_ratio <= 0.0 and not self._inversion_warned:
+            # Stable Neo-Hookean is defined for inverted elements and restores them, so the step
+            # goes on, but while det F <= 0 the motion is not a physical one: say so once.
+            self._inversion_warned = True
+            warnings.warn(
+                f"{self.robot.name}: a tetrahedron is inverted (det F = "
+                f"{volume_ratio:.3g}): the material (youngs_modulus = "
+                f"{self.robot.youngs_modulus:g} Pa) is too soft for actions up to "
+                f"{self.action_bound:.3g}, and the motion is not physical while "
+                'info["min_volume_ratio"] <= 0; raise youngs_modulus or lower action_scale',
+                stacklevel=3,
+            )
+        return {
+            "distance": float(self.direction @ (com - self._com0)),
+            "orientation": orientation,
+            "lateral": lateral,
+            "effort": effort,
+            "com": com,
+            "diverged": diverged,
+            "min_volume_ratio": volume_ratio,
+            "contact": self.model.contact,
+        }
+
+    def render(self) -> np.ndarray | None:
+        """An RGB frame (height, width, 3) when ``render_mode="rgb_array"``: the shaded robot
+        surface on a ground grid, the task direction as a red arrow, the camera following the
+        centre of mass. Software-rendered with numpy: no display or OpenGL needed."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
+            return None
+        if self._renderer is None:
+            from ..rendering import SoftwareRenderer, ground_cell
+
+            size = float(np.ptp(self.robot.nodes, axis=0).max())
+            # the ground scales with the robot as the camera does (a fixed 10 cm checker
+            # was one grey line under a 6 mm robot, a moire under a 4 m one)
+            self._renderer = SoftwareRenderer(distance=2.2 * size, cell=ground_cell(size))
+        positions = self.model.positions(self._state.q)
+        com = self.model.com(self._state.q)
+        return self._renderer.render(
+            positions, self.robot.surface_faces, target=com, arrow=self.direction,
+            ground=self.task == "walk",
+        )  # fmt: skip
