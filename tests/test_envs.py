@@ -974,6 +974,9 @@ def test_set_control_basis_updates_the_spec_so_the_spec_makes_this_env(tmp_path)
     # a refused basis changes neither the env nor its spec
     with pytest.raises(ValueError, match="control_basis is not orthonormal"):
         env.unwrapped.set_control_basis(skew)
+    # (a non-bool orthonormalize, truthy as a string, was taken as True and orthonormalised)
+    with pytest.raises(TypeError, match="orthonormalize must be True or False, got 'no'"):
+        env.unwrapped.set_control_basis(skew, orthonormalize="no")
     assert env.unwrapped.spec.kwargs["control_basis"] == str(tmp_path / "b.npy")
 
 

@@ -171,6 +171,10 @@ def checked_control_basis(
     A matrix that is not orthonormal to 1e-8 is refused, or with ``orthonormalize`` replaced
     by the Q of its QR (each column keeping its orientation) when it has full rank.
     """
+    # Checked here as well as in __init__: set_control_basis comes here alone, and a string
+    # such as "no" would be truthy and orthonormalise silently.
+    if not isinstance(orthonormalize, (bool, np.bool_)):
+        raise TypeError(f"orthonormalize must be True or False, got {orthonormalize!r}")
     b = _checked_basis(b_c, sim_dim, control_dim, orthonormalize)
     # Never the caller's array (np.asarray does not copy a float64 one), and read-only: the
     # C++ model holds a copy, so a write into either would leave the env's B_c and the
