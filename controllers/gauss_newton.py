@@ -128,6 +128,7 @@ class GaussNewtonShooting(Planner):
 
     name = "gn"
     settings: GaussNewtonSettings
+    settings_class = GaussNewtonSettings
 
     def __init__(
         self, settings: GaussNewtonSettings | None = None, *, dt: float | None = None
@@ -152,18 +153,18 @@ class GaussNewtonShooting(Planner):
         grad_reward : (K C,) dR/dx
         jac_residuals : (n, K C) dr/dx
         """
-        x = (self._plan.knots if knots is None else knots).ravel()
+        x = (self.spline.knots if knots is None else knots).ravel()
         h = self.settings.fd_step
         steps = np.where(x + h <= 1.0, h, -h)  # stay inside the bound
         batch = np.repeat(x[None], x.size + 1, axis=0)
         batch[1:] += np.diag(steps)
-        ev = self._evaluate(state, batch.reshape(-1, *self._plan.knots.shape))
+        ev = self.evaluate_knots(state, batch.reshape(-1, *self.spline.knots.shape))
         grad = (ev.reward[1:] - ev.reward[0]) / steps
         jac = ((ev.residuals[1:] - ev.residuals[0]) / steps[:, None]).T
         return ev, grad, jac
 
-    def _optimise(self, state: Any) -> None:
-        s, plan = self.settings, self._plan
+    def optimise(self, state: Any) -> None:
+        s, plan = self.settings, self.spline
         shape = plan.knots.shape
         if s.restart_damping:
             self.damping_ = float(s.damping)
@@ -192,7 +193,7 @@ class GaussNewtonShooting(Planner):
                     noise *= np.minimum(1.0, s.max_step / largest)
                 candidates.extend(np.clip(x[None] + noise, -1.0, 1.0))
             trials = np.stack(candidates)
-            trial = self._evaluate(state, trials.reshape(-1, *shape))
+            trial = self.evaluate_knots(state, trials.reshape(-1, *shape))
             best = int(np.argmax(trial.objective))
             if trial.objective[best] > j0:
                 plan.knots = trials[best].reshape(shape)

@@ -99,6 +99,7 @@ class MPPI(Planner):
 
     name = "mppi"
     settings: MPPISettings
+    settings_class = MPPISettings
 
     def __init__(self, settings: MPPISettings | None = None, *, dt: float | None = None) -> None:
         settings = MPPISettings() if settings is None else settings
@@ -106,8 +107,8 @@ class MPPI(Planner):
             raise TypeError(f"settings must be MPPISettings, got {type(settings).__name__}")
         super().__init__(settings, dt=dt)
 
-    def _optimise(self, state: Any) -> None:
-        s, plan = self.settings, self._plan
+    def optimise(self, state: Any) -> None:
+        s, plan = self.settings, self.spline
         # (a scalar for a scalar noise, so the draws are those of before per-dimension noise)
         noise = s.noise if not isinstance(s.noise, tuple) else np.asarray(s.noise)
         history = []
@@ -116,7 +117,7 @@ class MPPI(Planner):
             eps = sigma * self.rng_.standard_normal((s.samples, *plan.knots.shape))
             eps[0] = 0.0
             samples = np.clip(plan.knots[None] + eps, -1.0, 1.0)
-            ev = self._evaluate(state, samples)
+            ev = self.evaluate_knots(state, samples)
             j = ev.objective
             spread = float(j.max() - j.min())
             if spread > 0:

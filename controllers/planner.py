@@ -20,8 +20,9 @@ from __future__ import annotations
 import copy
 import math
 import time
+import warnings
 from abc import ABC, abstractmethod
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -87,7 +88,7 @@ class Planner(ABC):
         refuses an env that steps another (its gait would run at another frequency).
         :func:`controllers.planner_for` sets it; None leaves it unchecked.
 
-    Subclasses implement :meth:`_optimise` (one replan's update of ``self.plan_``'s knots); see
+    Subclasses implement :meth:`optimise` (one replan's update of :attr:`spline`'s knots); see
     "Writing a planner" below. After :meth:`plan`, ``last_`` holds the replan's record:
     ``objective_start`` (J of the warm-started plan), ``objective_best`` (Gauss-Newton: J of the
     plan it adopts; MPPI: J of its best sample, since the weighted mean it adopts is not rolled
@@ -100,16 +101,16 @@ class Planner(ABC):
     Writing a planner
     -----------------
     Subclass :class:`Planner` (and :class:`PlannerSettings`, a frozen dataclass, for settings
-    of its own: ``from_shared`` copies a benchmark default's plan and objective into them),
-    set ``name`` (it labels :class:`~controllers.EpisodeResult` and the progress bar) and
-    implement ``_optimise(state)``, one replan from ``state`` (the env's, a ``ReducedState``
-    copy). :meth:`plan` has shift-warm-started the plan and reset ``last_`` before calling
-    it, and :meth:`action` then reads the plan. What a subclass may use:
+    of its own: ``from_shared`` copies a benchmark default's plan and objective into them; name
+    it in ``settings_class``), set ``name`` (it labels :class:`~controllers.EpisodeResult` and
+    the progress bar) and implement :meth:`optimise`, one replan from ``state`` (the env's, a
+    ``ReducedState`` copy). :meth:`plan` has shift-warm-started the plan and reset ``last_``
+    before calling it, and :meth:`action` then reads the plan. What a subclass may use:
 
-    * ``self.plan_``: the :class:`SplinePlan` (``self._plan`` is it typed as one, raising
-      before :meth:`reset`); update ``plan_.knots`` (K, C), in units of the action bound a,
-      within [-1, 1] (the controls are clipped to it).
-    * ``self._evaluate(state, knots)``: R - Λ (an :class:`~controllers.Evaluation`,
+    * ``self.spline``: the :class:`SplinePlan` (``plan_``, typed as one and raising before
+      :meth:`reset`); update ``spline.knots`` (K, C), in units of the action bound a, within
+      [-1, 1] (the controls are clipped to it).
+    * ``self.evaluate_knots(state, knots)``: R - Λ (an :class:`~controllers.Evaluation`,
       ``objective`` (B,)) of a batch of knots (B, K, C) in one batched rollout, scored with
       the settings' weights and window as the shipped planners score theirs; it counts the
       rollouts in ``last_["rollouts"]``.
@@ -124,10 +125,39 @@ class Planner(ABC):
     Leave the env's state as it was: try plans with ``rollout``, not ``step`` (which also
     counts against the env's time limit); :func:`~controllers.run_episode` raises
     RuntimeError if ``plan`` or ``action`` moved it. ``examples/cem_planner.py`` is a
-    cross-entropy method written this way.
+    cross-entropy method written this way; :func:`controllers.register_planner` (or the
+    import path ``package.module:ClassName``) lets ``python -m controllers --planner``,
+    :func:`controllers.planner_for` and ``rbbo optimize --controller`` choose it by name.
+
+    The names of before (``_optimise``, ``_evaluate``, ``_plan``) still work for this release
+    with a DeprecationWarning naming their successor.
     """
 
     name = "planner"
+    #: The settings' class: what a planner chosen by name (:func:`controllers.planner_for`)
+    #: is made with. A planner with settings of its own names their class here.
+    settings_class: ClassVar[type[PlannerSettings]] = PlannerSettings
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        # The hook was private before it was public: a planner written then overrides
+        # _optimise, and plan() now calls optimise. Forward to it (for one release), named.
+        legacy = vars(cls).get("_optimise")
+        if legacy is not None and "optimise" not in vars(cls):
+            warnings.warn(
+                f"{cls.__qualname__} overrides Planner._optimise, which is deprecated: "
+                "rename it optimise(self, state), the public hook plan() calls (_optimise "
+                "stops being called in the next release)",
+                DeprecationWarning,
+                stacklevel=3,  # (the class statement: this, then ABCMeta.__new__)
+            )
+
+            def optimise(self: Planner, state: Any) -> None:
+                legacy(self, state)
+
+            optimise.__doc__ = f"Forwards to {cls.__qualname__}._optimise (deprecated)."
+            optimise._forwards_to_optimise_ = True  # type: ignore[attr-defined]
+            cls.optimise = optimise  # type: ignore[method-assign]
 
     def __init__(self, settings: PlannerSettings, *, dt: float | None = None) -> None:
         if not isinstance(settings, PlannerSettings):
@@ -142,11 +172,19 @@ class Planner(ABC):
         self.last_: dict[str, Any] = {}
 
     @property
-    def _plan(self) -> SplinePlan:
-        """``plan_``, which :meth:`reset` makes."""
+    def spline(self) -> SplinePlan:
+        """The plan being optimised (``plan_``, which :meth:`reset` makes), typed as a
+        :class:`SplinePlan`: raises RuntimeError before :meth:`reset`."""
         if self.plan_ is None:
             raise RuntimeError(f"{type(self).__name__}.reset(env, seed) must be called first")
         return self.plan_
+
+    @property
+    def _plan(self) -> SplinePlan:
+        """Deprecated name of :attr:`spline`."""
+        warnings.warn("Planner._plan is deprecated: use Planner.spline", DeprecationWarning,
+                      stacklevel=2)  # fmt: skip
+        return self.spline
 
     # ----------------------------------------------------------------- interface
     def reset(self, env: Any, seed: int | None = None) -> None:
@@ -192,15 +230,15 @@ class Planner(ABC):
         start = time.perf_counter()
         state = self.api_.get_state()
         self.last_ = {"rollouts": 0}
-        self._plan.rebase()  # an open plan's knots move to the steps since the last replan
-        self._optimise(state)
+        self.spline.rebase()  # an open plan's knots move to the steps since the last replan
+        self.optimise(state)
         self.last_["wall_s"] = time.perf_counter() - start
 
     def action(self, env: Any) -> np.ndarray:
         """f_c (C,) for the env's current step; the plan's clock then advances one step."""
         self._require_reset(env)
-        f_c = self.api_.bound * np.clip(self._plan.value(0.0), -1.0, 1.0)
-        self._plan.shift(1)
+        f_c = self.api_.bound * np.clip(self.spline.value(0.0), -1.0, 1.0)
+        self.spline.shift(1)
         return f_c
 
     def predict(self, env: Any) -> dict[str, Any]:
@@ -214,7 +252,7 @@ class Planner(ABC):
         self._require_reset(env)
         # step by step as action() reads the plan, on a copy (the batched spline matrix
         # differs from it by round-off, and then so would the course)
-        plan = copy.deepcopy(self._plan)
+        plan = copy.deepcopy(self.spline)
         u = np.empty((1, plan.horizon, plan.control_dim))
         for t in range(plan.horizon):
             u[0, t] = np.clip(plan.value(0.0), -1.0, 1.0)
@@ -227,27 +265,38 @@ class Planner(ABC):
                 "rewards": np.asarray(out["rewards"][0]),
                 "objective": float(ev.objective[0])}  # fmt: skip
 
-    # ----------------------------------------------------------------- helpers
+    # ----------------------------------------------------------------- for subclasses
     @abstractmethod
-    def _optimise(self, state: Any) -> None: ...
+    def optimise(self, state: Any) -> None:
+        """One replan from ``state`` (the env's, a ``ReducedState`` copy): update
+        ``self.spline.knots`` and add ``objective_start`` / ``objective_best`` to ``last_``.
 
-    def _require_reset(self, env: Any = None) -> None:
-        self._plan  # noqa: B018  (raises before reset)
-        # The plan lives in the env it was reset on: planning another env's state from it
-        # would be silently wrong.
-        if env is not None and getattr(env, "unwrapped", env) is not self.api_.unwrapped:
-            raise ValueError(
-                f"{type(self).__name__} was reset on another env: call reset(env, seed) first"
-            )
+        The hook a planner implements; :meth:`plan` calls it after the warm start (see
+        "Writing a planner" in the class docstring). Leave the env's state as it was.
+        """
 
-    def _evaluate(self, state: Any, knots: np.ndarray, horizon: int | None = None) -> Evaluation:
+    def _optimise(self, state: Any) -> None:
+        """Deprecated name of :meth:`optimise` (``super()._optimise(state)`` of a planner
+        written before it runs its base's :meth:`optimise`)."""
+        warnings.warn("Planner._optimise is deprecated: call Planner.optimise",
+                      DeprecationWarning, stacklevel=2)  # fmt: skip
+        for klass in type(self).__mro__:
+            hook = vars(klass).get("optimise")
+            if hook is not None and not getattr(hook, "_forwards_to_optimise_", False):
+                hook(self, state)
+                return
+
+    def evaluate_knots(
+        self, state: Any, knots: np.ndarray, horizon: int | None = None
+    ) -> Evaluation:
         """R - Λ of a batch of knots (B, K, C) from ``state``, in one batched rollout.
 
         ``knots`` are in units of the action bound (clipped to [-1, 1] with the controls);
-        ``horizon`` (default: the plan's) rolls each out over that many env steps. Counts the
+        ``horizon`` (default: the plan's) rolls each out over that many env steps. Scored with
+        the settings' weights and window, as the shipped planners score theirs; counts the
         rollouts in ``last_["rollouts"]``.
         """
-        plan = self._plan
+        plan = self.spline
         knots = np.asarray(knots, dtype=float)
         expected = (plan.num_knots, plan.control_dim)
         # (named here: the env would name the spline's controls, not the knots given)
@@ -258,8 +307,24 @@ class Planner(ABC):
             )
         if horizon is not None and horizon != plan.horizon:
             plan = SplinePlan(horizon, plan.num_knots, plan.control_dim, plan.kind, plan.period)
-            plan.offset = self._plan.offset
+            plan.offset = self.spline.offset
         return self._evaluate_controls(state, np.clip(plan.controls(knots), -1.0, 1.0), horizon)
+
+    def _evaluate(self, state: Any, knots: np.ndarray, horizon: int | None = None) -> Evaluation:
+        """Deprecated name of :meth:`evaluate_knots`."""
+        warnings.warn("Planner._evaluate is deprecated: use Planner.evaluate_knots",
+                      DeprecationWarning, stacklevel=2)  # fmt: skip
+        return self.evaluate_knots(state, knots, horizon)
+
+    # ----------------------------------------------------------------- helpers
+    def _require_reset(self, env: Any = None) -> None:
+        self.spline  # noqa: B018  (raises before reset)
+        # The plan lives in the env it was reset on: planning another env's state from it
+        # would be silently wrong.
+        if env is not None and getattr(env, "unwrapped", env) is not self.api_.unwrapped:
+            raise ValueError(
+                f"{type(self).__name__} was reset on another env: call reset(env, seed) first"
+            )
 
     def _evaluate_controls(self, state: Any, u: np.ndarray, horizon: int | None) -> Evaluation:
         """R - Λ of controls u (B, H, C) in units of the bound, in one batched rollout."""
@@ -274,7 +339,7 @@ class Planner(ABC):
     def _seed_gait(self) -> None:
         """Replace the knots by the best sinusoid at the period's frequency (or at one of
         ``seed_periods``', whose cycle the plan then takes)."""
-        s, plan = self.settings, self._plan
+        s, plan = self.settings, self.spline
         assert s.period is not None  # (gait_seed needs one: the settings check it)
         horizon = s.seed_horizon or plan.horizon
         candidates, controls = [], []

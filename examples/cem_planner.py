@@ -47,16 +47,17 @@ class CEM(Planner):
 
     name = "cem"
     settings: CEMSettings
+    settings_class = CEMSettings
 
-    def _optimise(self, state: Any) -> None:
-        s, plan = self.settings, self._plan
+    def optimise(self, state: Any) -> None:
+        s, plan = self.settings, self.spline
         mean, std = plan.knots.copy(), np.full(plan.knots.shape, s.noise)
         best = -np.inf
         for i in range(s.iterations):
             samples = mean + std * self.rng_.standard_normal((s.samples, *mean.shape))
             samples[0] = mean  # the warm start competes: a replan can keep it
             samples = np.clip(samples, -1.0, 1.0)
-            j = self._evaluate(state, samples).objective
+            j = self.evaluate_knots(state, samples).objective
             if i == 0:
                 self.last_["objective_start"] = float(j[0])
             best = max(best, float(j.max()))

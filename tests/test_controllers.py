@@ -63,8 +63,8 @@ def test_fd_jacobian_matches_central_differences(swimmer):
     h = 1e-3
     plus = np.repeat(x[None], x.size, 0) + h * np.eye(x.size)
     minus = np.repeat(x[None], x.size, 0) - h * np.eye(x.size)
-    ep = gn._evaluate(state, plus.reshape(-1, 2, 3))
-    em = gn._evaluate(state, minus.reshape(-1, 2, 3))
+    ep = gn.evaluate_knots(state, plus.reshape(-1, 2, 3))
+    em = gn.evaluate_knots(state, minus.reshape(-1, 2, 3))
     ref_grad = (ep.reward - em.reward) / (2 * h)
     ref_jac = ((ep.residuals - em.residuals) / (2 * h)).T
     assert np.abs(ref_grad).max() > 1e-7  # the knots do move the swimmer
@@ -80,7 +80,7 @@ def test_fd_jacobian_matches_central_differences(swimmer):
     pair = np.repeat(knots[None], 2, 0)
     pair[0, 1, 0] += 4e-4
     pair[1, 1, 0] -= 4e-4
-    ev = gn._evaluate(state, pair)
+    ev = gn.evaluate_knots(state, pair)
     slope = (ev.reward[0] - ev.reward[1]) / 8e-4
     rows = (ev.residuals[0] - ev.residuals[1]) / 8e-4
     assert abs(slope) > 1e-7
@@ -91,18 +91,18 @@ def test_fd_jacobian_matches_central_differences(swimmer):
 def _plan_recording_rollouts(planner, env) -> list[tuple[np.ndarray, np.ndarray]]:
     """``planner.plan(env)``, returning the knots and objectives of each batched rollout."""
     calls = []
-    real = planner._evaluate
+    real = planner.evaluate_knots
 
     def record(state, knots, horizon=None):
         ev = real(state, knots, horizon)
         calls.append((knots.copy(), ev.objective.copy()))
         return ev
 
-    planner._evaluate = record
+    planner.evaluate_knots = record
     try:
         planner.plan(env)
     finally:
-        del planner._evaluate
+        del planner.evaluate_knots
     return calls
 
 
@@ -140,7 +140,7 @@ def test_gauss_newton_iterations_never_lower_the_objective(walker):
     # the record: J of the warm start and of the plan adopted after the last iteration
     assert gn.last_["objective_start"] == starts[0] and gn.last_["objective_best"] == ends[-1]
     state = walker.get_wrapper_attr("get_state")()
-    again = gn._evaluate(state, gn.plan_.knots[None])
+    again = gn.evaluate_knots(state, gn.plan_.knots[None])
     assert again.objective[0] == ends[-1]
 
 
@@ -348,7 +348,7 @@ def test_mppi_beats_zero_control_on_a_short_horizon(walker):
     assert mppi.last_["objective_best"] == max(j.max() for _, j in rounds)
     assert mppi.last_["effective_samples"] == pytest.approx(1 / np.sum(weights**2), rel=1e-12)
     state = walker.get_wrapper_attr("get_state")()
-    ev = mppi._evaluate(state, np.stack([mppi.plan_.knots, np.zeros_like(mppi.plan_.knots)]))
+    ev = mppi.evaluate_knots(state, np.stack([mppi.plan_.knots, np.zeros_like(mppi.plan_.knots)]))
     assert ev.objective[0] > ev.objective[1] + 1e-3
 
 
@@ -383,7 +383,7 @@ def test_mppi_objective_best_is_the_best_sample_of_all_rounds(walker, monkeypatc
     # best of every round's (the last round's best would understate it)
     mppi = MPPI(MPPISettings(horizon=6, knots=3, samples=4, iterations=3))
     mppi.reset(walker, seed=0)
-    evaluate = mppi._evaluate
+    evaluate = mppi.evaluate_knots
     bests = []
 
     def later_rounds_worse(state, knots, horizon=None):
@@ -392,7 +392,7 @@ def test_mppi_objective_best_is_the_best_sample_of_all_rounds(walker, monkeypatc
         bests.append(float(ev.objective.max()))
         return ev
 
-    monkeypatch.setattr(mppi, "_evaluate", later_rounds_worse)
+    monkeypatch.setattr(mppi, "evaluate_knots", later_rounds_worse)
     mppi.plan(walker)
     assert len(bests) == 3 and mppi.last_["objective_best"] == bests[0] > bests[-1]
 
@@ -609,7 +609,7 @@ def test_damping_after_a_rejected_step_is_ten_times_the_largest_tried(walker, mo
     settings = GaussNewtonSettings(horizon=4, knots=2, line_search=(100.0, 1.0), damping=0.5)
     gn = GaussNewtonShooting(settings)
     gn.reset(walker, seed=0)
-    evaluate = gn._evaluate
+    evaluate = gn.evaluate_knots
 
     def every_trial_worse(state, knots, horizon=None):
         ev = evaluate(state, knots, horizon)
@@ -617,7 +617,7 @@ def test_damping_after_a_rejected_step_is_ten_times_the_largest_tried(walker, mo
             ev = dataclasses.replace(ev, objective=ev.objective - 1.0)
         return ev
 
-    monkeypatch.setattr(gn, "_evaluate", every_trial_worse)
+    monkeypatch.setattr(gn, "evaluate_knots", every_trial_worse)
     gn.plan(walker)
     assert gn.last_["accepted"] == ["none"]
     assert gn.damping_ == pytest.approx(0.5 * 100.0 * 10.0)
@@ -1157,7 +1157,7 @@ def test_predict_is_what_the_plan_then_does_and_changes_nothing():
     # over the whole horizon it would be another number than the one the planner maximises)
     state = env.get_wrapper_attr("get_state")()
     assert planner.settings.window < h
-    scored = planner._evaluate(state, planner.plan_.knots[None]).objective[0]
+    scored = planner.evaluate_knots(state, planner.plan_.knots[None]).objective[0]
     assert predicted["objective"] == pytest.approx(scored, rel=1e-9, abs=1e-12)
     # the plan played out step by step is the prediction, to the bit (one simulator)
     for t in range(3):

@@ -25,7 +25,7 @@ class Stepper(Planner):
 
     name = "stepper"
 
-    def _optimise(self, state: Any) -> None:
+    def optimise(self, state: Any) -> None:
         self.api_.unwrapped.step(np.ones(self.api_.control_dim))
 
 
@@ -41,7 +41,7 @@ class Restorer(Planner):
 
     name = "restorer"
 
-    def _optimise(self, state: Any) -> None:
+    def optimise(self, state: Any) -> None:
         env = self.api_.unwrapped
         env.step(np.ones(self.api_.control_dim))
         env.set_state(state)
@@ -55,10 +55,10 @@ def test_run_episode_accepts_a_planner_that_restores_the_env_state():
 
 
 class Unbatched(Planner):
-    """Scores its plan's knots (K, C) without the batch axis _evaluate takes."""
+    """Scores its plan's knots (K, C) without the batch axis evaluate_knots takes."""
 
-    def _optimise(self, state: Any) -> None:
-        self._evaluate(state, self._plan.knots)
+    def optimise(self, state: Any) -> None:
+        self.evaluate_knots(state, self.spline.knots)
 
 
 def test_evaluate_names_knots_without_their_batch_axis():
@@ -221,3 +221,60 @@ def test_an_episode_result_keeps_its_replan_interval():
                          replan_every=2, seed=0, progress=False)  # fmt: skip
     assert result.replan_every == 2
     assert result.realtime_factor() == result.realtime_factor(2) > 0
+
+
+def test_a_planner_written_against_the_private_hooks_still_plans_with_a_warning():
+    # Before the hook was public a planner overrode _optimise and used _evaluate and _plan:
+    # it keeps working for a release, and each old name says which one replaces it.
+    with pytest.warns(DeprecationWarning, match=r"Legacy overrides Planner\._optimise.*"
+                      r"rename it optimise") as caught:  # fmt: skip
+
+        class Legacy(Planner):
+            name = "legacy"
+
+            def _optimise(self, state: Any) -> None:
+                knots = self._plan.knots
+                j = self._evaluate(state, np.stack([knots, np.zeros_like(knots)])).objective
+                self._plan.knots = np.zeros_like(knots) if j[1] > j[0] else knots
+                self.last_.update(objective_start=float(j[0]), objective_best=float(j.max()))
+
+    # (pointing at the class statement, not at the library)
+    assert caught[0].filename == __file__
+    env = small_env()
+    planner = Legacy(PlannerSettings(horizon=4, knots=2))
+    planner.reset(env, seed=0)
+    with pytest.warns(DeprecationWarning) as caught:
+        planner.plan(env)
+    said = {str(w.message) for w in caught}
+    assert "Planner._plan is deprecated: use Planner.spline" in said
+    assert "Planner._evaluate is deprecated: use Planner.evaluate_knots" in said
+    assert planner.last_["rollouts"] == 2
+    assert planner.last_["objective_best"] >= planner.last_["objective_start"]
+
+
+def test_a_shipped_planner_extended_through_the_private_hook_still_runs_its_base():
+    from controllers import MPPI, MPPISettings
+
+    with pytest.warns(DeprecationWarning, match="Polished overrides Planner._optimise"):
+
+        class Polished(MPPI):
+            def _optimise(self, state: Any) -> None:
+                super()._optimise(state)  # MPPI's replan, then a step of its own
+                self.last_["polished"] = True
+
+    env = small_env()
+    settings = MPPISettings(horizon=4, knots=2, samples=4)
+    planner, reference = Polished(settings), MPPI(settings)
+    planner.reset(env, seed=0)
+    reference.reset(env, seed=0)
+    with pytest.warns(DeprecationWarning, match="call Planner.optimise"):
+        planner.plan(env)
+    reference.plan(env)
+    assert planner.last_["polished"] and planner.last_["rollouts"] == 4
+    np.testing.assert_array_equal(planner.spline.knots, reference.spline.knots)
+
+
+def test_the_plan_is_typed_and_named_before_reset():
+    planner = Restorer(PlannerSettings(horizon=4, knots=2))
+    with pytest.raises(RuntimeError, match=r"Restorer\.reset\(env, seed\) must be called"):
+        planner.spline  # noqa: B018
