@@ -148,7 +148,10 @@ def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
 def main(argv: list[str] | None = None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("env_ids", nargs="*", default=IDS)
-    p.add_argument("--planners", nargs="+", choices=["mppi", "gn"], default=["mppi", "gn"])
+    p.add_argument("--planners", nargs="+", default=["mppi", "gn"], metavar="NAME",
+                   help="mppi, gn, or a planner of your own as an import path "
+                   "package.module:ClassName, e.g. examples.cem_planner:CEM (default: mppi "
+                   "gn)")  # fmt: skip
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--start", type=float, default=2.0, help="distance counts from this time (s)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0])

@@ -3,7 +3,9 @@
 One planner interface (:class:`Planner`: ``reset``, ``plan``, ``action``), two planners
 (:class:`MPPI`, :class:`GaussNewtonShooting`) over a shared :class:`SplinePlan`
 (F_c = S F~_c), the objective R - Λ (:mod:`controllers.cost`), an episode runner
-(:func:`run_episode`) and per-benchmark defaults (:func:`default_planner`).
+(:func:`run_episode`) and per-benchmark defaults (:func:`default_planner`). A planner of
+one's own is chosen by name once registered (:func:`register_planner`), or by its import path
+``package.module:ClassName``.
 Planners use only the env's public MPC API (``get_state``, ``rollout``, ``action_bound``,
 ``dt``, ``direction``, ``center_of_mass``) and its action space.
 
@@ -25,6 +27,7 @@ from .gaits import SinusoidGait, gait_grid, phase_orders
 from .gauss_newton import GaussNewtonSettings, GaussNewtonShooting
 from .mppi import MPPI, MPPISettings
 from .planner import Planner, PlannerSettings
+from .registry import PlannerEntry, register_planner, registered_planners, resolve_planner
 from .spline import SplinePlan
 
 __all__ = [
@@ -39,6 +42,7 @@ __all__ = [
     "GaussNewtonShooting",
     "MPPISettings",
     "Planner",
+    "PlannerEntry",
     "PlannerSettings",
     "SinusoidGait",
     "SplinePlan",
@@ -49,5 +53,8 @@ __all__ = [
     "has_defaults",
     "phase_orders",
     "planner_for",
+    "register_planner",
+    "registered_planners",
+    "resolve_planner",
     "run_episode",
 ]

@@ -1,4 +1,5 @@
-"""Watch a planner walk: ``python -m controllers ENV_ID --planner mppi|gn --seconds 10``.
+"""Watch a planner walk: ``python -m controllers ENV_ID --planner mppi|gn --seconds 10``
+(``--planner package.module:ClassName`` runs a planner of one's own).
 
 Runs one closed-loop episode with the benchmark's defaults (:mod:`controllers.defaults`)
 and prints a one-line summary: distance between t = 2 s and the end (m and body lengths),
@@ -9,6 +10,7 @@ wall time per replan; ``--video`` records the episode.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -18,8 +20,9 @@ from typing import Any
 from softrom_gym._console import OneLineArgumentParser, say_warnings_as
 from softrom_gym.registration import control_period, parse_env_kwarg
 
-from .defaults import DEFAULTS, PLANNERS, parse_changes, planner_for
+from .defaults import DEFAULTS, parse_changes, planner_for
 from .planner import EnvAPI
+from .registry import registered_planners, resolve_planner
 
 
 def _window(text: str) -> int | None:
@@ -67,8 +70,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="a gym.make keyword, one per option; VALUE is read as JSON, else as "
                    "a string (e.g. --env-kwarg robot=my_robot.stl --env-kwarg "
                    "task=swim)")  # fmt: skip
-    p.add_argument("--planner", choices=sorted(PLANNERS), default="mppi",
-                   help="the MPC planner (default mppi)")  # fmt: skip
+    p.add_argument("--planner", default="mppi", metavar="NAME",
+                   help=f"the MPC planner: {', '.join(registered_planners())}, or a planner "
+                   "of your own as an import path package.module:ClassName (a Planner "
+                   "subclass, e.g. examples.cem_planner:CEM run from the repository; default "
+                   "mppi)")  # fmt: skip
     p.add_argument("--seconds", type=float, default=10.0,
                    help="simulated time of the episode, s (default 10; the env's time limit "
                    "is raised to it)")  # fmt: skip
@@ -112,6 +118,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seconds must be a positive number, got {args.seconds}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
+    try:  # before the env is made (minutes for a new robot)
+        planner_entry = resolve_planner(args.planner)
+    except (ValueError, TypeError) as exc:
+        parser.error(f"--planner: {exc}")
     # before gym.make, which builds a new robot's B_r and cubature (minutes) first
     if args.replan_every is not None and args.replan_every < 1:
         parser.error(f"--replan-every must be >= 1, got {args.replan_every}")
@@ -145,8 +155,10 @@ def main(argv: list[str] | None = None) -> int:
     if hasattr(args, "window"):
         changes["window"] = args.window  # (None: 'all')
     try:
-        if args.planner != "mppi" and "samples" in changes:
-            raise ValueError("--samples applies to --planner mppi only")
+        settings_fields = {f.name for f in dataclasses.fields(planner_entry.settings_class)}
+        if "samples" in changes and "samples" not in settings_fields:
+            raise ValueError(f"--samples applies to a planner with samples (mppi), not "
+                             f"{args.planner}")  # fmt: skip
         env_id = _registered(env_id, args.env_id)
         # the registered time limit (env steps) must not cut the seconds asked for short
         period = control_period(env_id, **kwargs)

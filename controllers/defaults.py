@@ -15,6 +15,7 @@ from .cost import CostWeights
 from .gauss_newton import GaussNewtonSettings, GaussNewtonShooting
 from .mppi import MPPI, MPPISettings
 from .planner import Planner, PlannerSettings
+from .registry import PlannerEntry, _PlannerTable, register_planner, resolve_planner
 
 __all__ = [
     "DEFAULTS",
@@ -32,7 +33,10 @@ __all__ = [
 # dt = 1/200 s.
 TUNED_DT = 0.025
 
-PLANNERS = {"mppi": (MPPI, MPPISettings), "gn": (GaussNewtonShooting, GaussNewtonSettings)}
+# {name: (planner class, settings class)} of the registered planners, as a read-only view that
+# follows controllers.register_planner (an import path package.module:ClassName is accepted
+# besides them: controllers.resolve_planner)
+PLANNERS = _PlannerTable()
 
 # Shared by every benchmark, with why:
 _COMMON: dict[str, Any] = {
@@ -111,6 +115,8 @@ _PLANNER: dict[str, dict[str, Any]] = {
     # a 0.1 trust region (0.16, 0.89), a 2 s horizon (0.99, 0.88).
     "gn": {"iterations": 1, "fd_step": 0.1, "damping": 0.01, "explore": 8},
 }
+register_planner("mppi", MPPI, MPPISettings, defaults=_PLANNER["mppi"])
+register_planner("gn", GaussNewtonShooting, GaussNewtonSettings, defaults=_PLANNER["gn"])
 
 
 def _benchmark(env_id: str) -> str:
@@ -130,21 +136,23 @@ def _benchmark(env_id: str) -> str:
 def default_settings(
     env_id: str, planner: str, *, dt: float | None = None
 ) -> tuple[PlannerSettings, int]:
-    """The default settings of ``planner`` ("mppi" or "gn") on a benchmark, and its
-    replan interval (env steps); ``dt`` as in :func:`default_planner`."""
-    if planner not in PLANNERS:
-        raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
-    return _settings(planner, DEFAULTS[_benchmark(env_id)], dt, {})
+    """The default settings of ``planner`` ("mppi", "gn", another registered name or an
+    import path ``package.module:ClassName``, as in :func:`default_planner`) on a benchmark,
+    and its replan interval (env steps); ``dt`` as in :func:`default_planner`."""
+    entry = resolve_planner(planner)
+    return _settings(entry, DEFAULTS[_benchmark(env_id)], dt, {})
 
 
 def _settings(
-    planner: str, row: dict[str, Any], dt: float | None, changes: dict[str, Any]
+    entry: PlannerEntry, row: dict[str, Any], dt: float | None, changes: dict[str, Any]
 ) -> tuple[PlannerSettings, int]:
-    """The settings of ``planner`` from a table row, its times in env steps of ``dt``, and its
-    replan interval; ``changes`` (env steps of ``dt``) applied."""
+    """The settings of a planner from a table row, its times in env steps of ``dt``, and its
+    replan interval; ``changes`` (env steps of ``dt``) applied. Every planner, registered or
+    shipped, plans the row's gait with the shared objective; ``entry.defaults`` set its own
+    settings."""
     times = _rescaled({**_COMMON, **row}, dt, changes)
     replan_every = times.pop("replan_every")
-    settings = PLANNERS[planner][1](**times, **_PLANNER[planner], weights=_WEIGHTS)
+    settings = entry.settings_class(**times, **entry.defaults, weights=_WEIGHTS)
     return _changed(settings, changes), replan_every
 
 
@@ -199,6 +207,12 @@ def default_planner(
     """A planner with the benchmark's defaults (``changes`` override settings) and its replan
     interval.
 
+    ``planner`` is "mppi", "gn", a name given to :func:`controllers.register_planner`, or an
+    import path ``package.module:ClassName`` of a :class:`~controllers.Planner` subclass
+    (:func:`controllers.resolve_planner`). Every planner plans the benchmark's gait with the
+    shared objective (its row of :data:`DEFAULTS`); a registered planner's own settings take
+    the tuned ``defaults`` it was registered with, an import path's its settings class's own.
+
     Times (horizon, period, window, seed_horizon, the replan interval) are tuned in env steps
     of the benchmarks' 40 Hz control period (:data:`TUNED_DT`). ``dt``, the env's control
     period in seconds (``env.get_wrapper_attr("dt")``), keeps them the same in seconds for an
@@ -208,10 +222,9 @@ def default_planner(
     ``rbbo`` runs one planner per worker process): ``threads=None`` uses every CPU of this
     process's affinity.
     """
-    if planner not in PLANNERS:
-        raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
-    settings, replan_every = _settings(planner, DEFAULTS[_benchmark(env_id)], dt, changes)
-    return PLANNERS[planner][0](settings, dt=_control_period(dt)), replan_every
+    entry = resolve_planner(planner)
+    settings, replan_every = _settings(entry, DEFAULTS[_benchmark(env_id)], dt, changes)
+    return entry.planner_class(settings, dt=_control_period(dt)), replan_every
 
 
 def _changed(settings: PlannerSettings, changes: dict[str, Any]) -> PlannerSettings:
@@ -306,8 +319,7 @@ def planner_for(
     cycle (:data:`GENERIC`),
     ``changes`` applied. ``dt`` is the env's control period, s, as in :func:`default_planner`.
     Returns the planner and its replan interval (env steps)."""
-    if planner not in PLANNERS:
-        raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
+    entry = resolve_planner(planner)
     row = DEFAULTS[_benchmark(env_id)] if has_defaults(env_id) else GENERIC
-    settings, replan_every = _settings(planner, row, dt, changes)
-    return PLANNERS[planner][0](settings, dt=_control_period(dt)), replan_every
+    settings, replan_every = _settings(entry, row, dt, changes)
+    return entry.planner_class(settings, dt=_control_period(dt)), replan_every

@@ -744,7 +744,7 @@ def test_invalid_weights_and_inputs_raise_clear_errors(walker):
         run_episode(walker, MPPI(), 1.0, replan_every=0)
     with pytest.raises(ValueError, match="no defaults for 'softrom_gym/SoftRobot-v0'"):
         default_settings("softrom_gym/SoftRobot-v0", "mppi")
-    with pytest.raises(ValueError, match=r"unknown planner 'ilqr'; valid: \['gn', 'mppi'\]"):
+    with pytest.raises(ValueError, match=r"unknown planner 'ilqr'; registered: gn, mppi"):
         default_planner("CrossWalk-v0", "ilqr")
     with pytest.raises(TypeError, match="planners need a softrom_gym env"):
         MPPI().reset(gym.make("CartPole-v1"))
@@ -1277,7 +1277,11 @@ def test_cli_names_more_bad_arguments_and_takes_an_unversioned_id_and_replan_int
     for argv, message in (
         (["--seed", "-1"], "--seed must be >= 0, got -1"),
         (["--window", "x"], "argument --window: expected a number of env steps or 'all', got 'x'"),
-        (["--planner", "gn", "--samples", "4"], "--samples applies to --planner mppi only"),
+        (["--planner", "gn", "--samples", "4"],
+         "--samples applies to a planner with samples (mppi), not gn"),
+        (["--planner", "ilqr"], "--planner: unknown planner 'ilqr'; registered: gn, mppi "
+         "(controllers.register_planner adds one), or an import path package.module:ClassName "
+         "naming a Planner subclass"),
     ):  # fmt: skip
         with pytest.raises(SystemExit) as exc:
             cli_main(["BeamWalk-v0", *argv])
@@ -1316,7 +1320,7 @@ def test_run_episode_names_bad_arguments(walker, tmp_path):
         GaussNewtonShooting(MPPISettings())
     with pytest.raises(TypeError, match="env_id must be a str .*, got 3"):
         default_settings(3, "mppi")
-    with pytest.raises(ValueError, match=r"unknown planner 'ilqr'; valid: \['gn', 'mppi'\]"):
+    with pytest.raises(ValueError, match=r"unknown planner 'ilqr'; registered: gn, mppi"):
         default_settings("CrossWalk-v0", "ilqr")
 
 

@@ -278,3 +278,136 @@ def test_the_plan_is_typed_and_named_before_reset():
     planner = Restorer(PlannerSettings(horizon=4, knots=2))
     with pytest.raises(RuntimeError, match=r"Restorer\.reset\(env, seed\) must be called"):
         planner.spline  # noqa: B018
+
+
+@dataclass(frozen=True)
+class HalverSettings(PlannerSettings):
+    shrink: float = 0.5
+
+
+class Halver(Planner):
+    """Keeps its knots or shrinks them, whichever scores better. Its settings class is named
+    by the annotation alone (no settings_class), as planners were written before it."""
+
+    name = "halver"
+    settings: HalverSettings
+
+    def optimise(self, state: Any) -> None:
+        knots = self.spline.knots
+        both = np.stack([knots, self.settings.shrink * knots])
+        j = self.evaluate_knots(state, both).objective
+        self.spline.knots = both[int(np.argmax(j))]
+        self.last_.update(objective_start=float(j[0]), objective_best=float(j.max()))
+
+
+@pytest.fixture
+def registry(monkeypatch):
+    """The planner registry as shipped, restored after the test."""
+    from controllers import registry
+
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    return registry
+
+
+def test_a_registered_planner_is_chosen_by_name_with_the_benchmarks_plan(registry):
+    from controllers import default_planner, planner_for, register_planner, registered_planners
+    from controllers.defaults import PLANNERS
+
+    register_planner("halver", Halver, defaults={"shrink": 0.25})
+    assert registered_planners() == ("gn", "halver", "mppi")
+    assert PLANNERS["halver"] == (Halver, HalverSettings)  # (the old table follows it)
+    mppi, mppi_every = default_settings("softrom_gym/BeamWalk-v0", "mppi")
+    planner, every = default_planner("softrom_gym/BeamWalk-v0", "halver")
+    # the benchmark's gait, objective and replan interval, its own tuned setting
+    assert isinstance(planner, Halver) and every == mppi_every == 30
+    assert planner.settings == HalverSettings.from_shared(mppi, shrink=0.25)
+    # a robot of your own: the shared row; changes as for any planner
+    planner, every = planner_for("softrom_gym/SoftRobot-v0", "halver", shrink=0.9, horizon=60)
+    assert (planner.settings.shrink, planner.settings.horizon, every) == (0.9, 60, 20)
+    env = small_env()
+    planner, every = planner_for("softrom_gym/SoftRobot-v0", "halver", horizon=4, window=4,
+                                 knots=2, gait_seed=False, seed_periods=(),
+                                 dt=env.get_wrapper_attr("dt"))  # fmt: skip
+    result = run_episode(env, planner, 0.1, replan_every=2, seed=0, progress=False)
+    assert result.planner == "halver" and result.replan_records[0]["rollouts"] == 2
+
+
+def test_a_planner_name_is_registered_once_and_checked(registry):
+    from controllers import MPPI, register_planner
+
+    register_planner("halver", Halver)
+    with pytest.raises(ValueError, match=r"'halver' is already registered, to .*:Halver"):
+        register_planner("halver", Halver)
+    with pytest.raises(ValueError, match=r"'mppi' is already registered, to "
+                       r"controllers\.mppi:MPPI: choose another name"):  # fmt: skip
+        register_planner("mppi", Halver)
+    with pytest.raises(ValueError, match="a ':' marks an import path"):
+        register_planner("my:planner", Halver)
+    with pytest.raises(TypeError, match="planner_class for 'x' must be a Planner subclass"):
+        register_planner("x", HalverSettings)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match=r"controllers\.planner:Planner does not implement "
+                       "optimise"):  # fmt: skip
+        register_planner("x", Planner)
+    with pytest.raises(TypeError, match="settings_class for 'x' must be a PlannerSettings"):
+        register_planner("x", MPPI, dict)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="defaults for 'x': unknown HalverSettings setting "
+                       "'shrnk'"):  # fmt: skip
+        register_planner("x", Halver, defaults={"shrnk": 0.1})
+    assert "x" not in registry._REGISTRY
+
+
+def test_an_unknown_planner_name_lists_the_registered_ones_and_the_import_path_form():
+    from controllers import planner_for
+
+    with pytest.raises(ValueError) as exc:
+        planner_for("softrom_gym/BeamWalk-v0", "ilqr")
+    assert str(exc.value) == (
+        "unknown planner 'ilqr'; registered: gn, mppi (controllers.register_planner adds "
+        "one), or an import path package.module:ClassName naming a Planner subclass"
+    )
+
+
+def test_an_import_path_chooses_a_planner_without_registering_it():
+    from controllers import default_planner, planner_for
+
+    mppi, _ = default_settings("softrom_gym/BeamWalk-v0", "mppi")
+    planner, every = planner_for("softrom_gym/BeamWalk-v0", f"{__name__}:Halver")
+    # its settings class found by the annotation, with that class's own defaults
+    assert type(planner) is Halver and every == 30
+    assert planner.settings == HalverSettings.from_shared(mppi)
+    planner, _ = default_planner("softrom_gym/BeamWalk-v0", "examples.cem_planner:CEM")
+    assert type(planner).__name__ == "CEM" and planner.settings.samples == 8
+    # a shipped planner by its path is the registered one, tuned defaults included
+    planner, _ = planner_for("softrom_gym/BeamWalk-v0", "controllers.mppi:MPPI")
+    assert planner.settings == mppi
+    for path, error, message in (
+        ("no_such_module_here:X", ValueError, "no module named 'no_such_module_here' on "
+         "sys.path or in the current directory"),
+        (f"{__name__}:Nope", ValueError, f"module '{__name__}' has no 'Nope'"),
+        (f"{__name__}:HalverSettings", TypeError, "must be a Planner subclass"),
+        ("controllers.planner:Planner", TypeError, "does not implement optimise"),
+        ("my planners:CEM", ValueError, "neither registered .* nor an import path"),
+    ):  # fmt: skip
+        with pytest.raises(error, match=message):
+            planner_for("softrom_gym/BeamWalk-v0", path)
+
+
+def test_an_import_path_is_found_in_the_current_directory(tmp_path, monkeypatch):
+    # (rbbo's console script does not put the current directory on sys.path, as python -m does)
+    import os
+    import sys
+
+    from controllers import resolve_planner
+
+    (tmp_path / "own_planners_here.py").write_text(
+        f"from {__name__} import Halver\n\n\nclass Mine(Halver):\n    name = 'mine'\n"
+    )
+    here = {os.getcwd(), str(tmp_path), ""}
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in here])
+    monkeypatch.chdir(tmp_path)
+    try:
+        entry = resolve_planner("own_planners_here:Mine")
+        assert entry.planner_class.name == "mine" and entry.settings_class is HalverSettings
+        assert sys.path[-1] == str(tmp_path)  # (after the installed packages)
+    finally:
+        sys.modules.pop("own_planners_here", None)

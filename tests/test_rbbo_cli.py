@@ -252,6 +252,15 @@ def _error(capsys, argv):
         # without BOCA, --t-min is unused and not checked: the next check speaks
         (["optimize", "Nope-v0", "--t-min=1", "--settle-time=2"], "unknown ENV_ID 'Nope-v0'"),
         (["report", "a", "b", "--png", "p.png"], "--png names one plot: give one DIR"),
+        (
+            ["optimize", "CrossWalk-v0", "--controller", "ilqr"],
+            "unknown planner 'ilqr'; registered: gn, mppi (controllers.register_planner adds "
+            "one), or an import path package.module:ClassName naming a Planner subclass",
+        ),
+        (
+            ["optimize", "CrossWalk-v0", "--controller", "no_such_planners:CEM"],
+            "planner 'no_such_planners:CEM': no module named 'no_such_planners'",
+        ),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(capsys, argv, match):
@@ -1096,3 +1105,51 @@ def test_each_commands_help_says_what_it_does_and_what_its_arguments_are(capsys)
         out = " ".join(capsys.readouterr().out.split())
         for text in wanted:
             assert " ".join(text.split()) in out, (command, text, out)
+
+
+_OWN_PLANNER = """
+import numpy as np
+
+from controllers import Planner
+
+
+class KeepOrRest(Planner):
+    name = "keep-or-rest"
+
+    def optimise(self, state):
+        knots = self.spline.knots
+        both = np.stack([knots, np.zeros_like(knots)])
+        j = self.evaluate_knots(state, both).objective
+        self.spline.knots = both[int(np.argmax(j))]
+        self.last_.update(objective_start=float(j[0]), objective_best=float(j.max()))
+"""
+
+
+def test_optimize_and_resume_with_a_planner_of_ones_own_in_worker_processes(
+    tmp_path, capsys, monkeypatch
+):
+    """--controller module:Class from the directory that holds the module (the console
+    script does not put it on sys.path): the spawned worker imports it by the recorded name,
+    and resume finds it again."""
+    (tmp_path / "own_rbbo_planner.py").write_text(_OWN_PLANNER)
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in ("", os.getcwd())])
+    monkeypatch.chdir(tmp_path)
+    run = tmp_path / "run"
+    mpc = "horizon=4,window=4,knots=2,seed_horizon=4,threads=1"
+    argv = ["optimize", "softrom_gym/SoftRobot-v0", "--env-kwarg", "robot=beam",
+            "--env-kwarg", "task=swim", "--env-kwarg", "resolution=6", "--sim-dim", "6",
+            "--control-dim", "2", "--controller", "own_rbbo_planner:KeepOrRest", "--mpc", mpc,
+            "--t-max", "0.1", "--settle-time", "0", "--init", "1", "--iterations", "2",
+            "--confirm-seeds", "1", "--workers", "1", "--no-progress",
+            "--out", str(run)]  # fmt: skip
+    try:
+        assert main(argv) == 0, capsys.readouterr()
+        objective = json.loads((run / "config.json").read_text())["objective"]
+        assert objective["controller"] == "own_rbbo_planner:KeepOrRest"
+        assert objective["planner"]["name"] == "keep-or-rest"
+        history = _history(run)
+        assert history and all(h["status"] == "ok" for h in history), history
+        assert main(["resume", str(run), "--iterations", "3", "--no-progress"]) == 0
+        assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == 3
+    finally:
+        sys.modules.pop("own_rbbo_planner", None)

@@ -121,8 +121,11 @@ def test_env_objective_pickles_without_its_env(controllers):
 
 
 def test_env_objective_rejects_bad_input():
-    with pytest.raises(ValueError, match=r"unknown controller 'ilqr'; valid: \['mppi', 'gn'\]"):
+    with pytest.raises(ValueError, match=r"unknown planner 'ilqr'; registered: gn, mppi .*"
+                       "or an import path package.module:ClassName"):  # fmt: skip
         EnvObjective("x", 20, 3, controller="ilqr")
+    with pytest.raises(TypeError, match="controller must be a planner name"):
+        EnvObjective("x", 20, 3, controller=None)
     with pytest.raises(ValueError, match="settle_time must be >= 0, got -1"):
         EnvObjective("x", 20, 3, settle_time=-1)
     assert EnvObjective("x", 20, 3, settle_time=0).settle_time == 0  # R from the first step
@@ -395,3 +398,28 @@ def test_an_env_without_a_simulation_space_is_built_once_to_learn_it(monkeypatch
     assert objective.simulation_space() is None
     objective.spec()
     assert len(built) == 1
+
+
+def test_a_planner_of_ones_own_by_import_path_is_recorded_and_found_again():
+    """The run records the import path (config.json), a worker process unpickles the
+    objective and imports it by itself, and a resume finds the same planner."""
+    from rbbo.objective import PlannerMismatch
+
+    env_kwargs = {"robot": "beam", "task": "swim", "resolution": 6}
+    tiny = {"horizon": 4, "window": 4, "knots": 2, "gait_seed": False, "seed_periods": (),
+            "samples": 4, "elites": 2, "iterations": 1}  # fmt: skip
+    cem = "examples.cem_planner:CEM"
+    objective = EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller=cem, settle_time=0.0,
+                             env_kwargs=env_kwargs, planner_kwargs=tiny)  # fmt: skip
+    spec = json.loads(json.dumps(objective.spec()))
+    assert spec["controller"] == cem
+    assert spec["planner"]["name"] == "cem" and spec["planner"]["settings"]["elites"] == 2
+    resumed = make_objective(spec, 6, 2)
+    assert resumed.controller == cem
+    worker = pickle.loads(pickle.dumps(resumed))
+    basis = np.eye(6)[:, :2]
+    assert worker(basis, 0.1, seed=0) == objective(basis, 0.1, seed=0)
+    with pytest.raises(PlannerMismatch, match="changed: elites"):
+        make_objective({**spec, "planner_kwargs": {**tiny, "elites": 3}}, 6, 2)
+    with pytest.raises(ValueError, match="module 'examples.cem_planner' has no 'CME'"):
+        make_objective({**spec, "controller": "examples.cem_planner:CME"}, 6, 2)

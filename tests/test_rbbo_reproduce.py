@@ -480,7 +480,7 @@ def test_plan_validates_and_round_trips():
         ({"cost_cs": [0, 1]}, r"cost_cs must be integers in 1..20, got \[0, 1\]"),
         ({"cost_cs": [1, 21]}, r"cost_cs must be integers in 1..20, got \[1, 21\]"),
         ({"reward_cs": []}, r"reward_cs must be integers in 1..20, got \[\]"),
-        ({"controller": "ilqr"}, "controller must be 'mppi' or 'gn', got 'ilqr'"),
+        ({"controller": "ilqr"}, "unknown planner 'ilqr'; registered: gn, mppi .*import path"),
         ({"executor": "dask"}, "unknown executor 'dask'"),
     ],
 )  # fmt: skip

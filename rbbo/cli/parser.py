@@ -83,8 +83,11 @@ def _parser() -> argparse.ArgumentParser:
                      "simulator")  # fmt: skip
     opt.add_argument("--control-dim", type=_positive_int, default=3, help="C (default 3)")
     opt.add_argument("--sim-dim", type=_positive_int, default=20, help="M (default 20)")
-    opt.add_argument("--controller", choices=["mppi", "gn"], default="mppi",
-                     help="the MPC planner (default mppi)")  # fmt: skip
+    opt.add_argument("--controller", default="mppi", metavar="NAME",
+                     help="the MPC planner: mppi, gn, or a planner of your own as an import "
+                     "path package.module:ClassName (a controllers.Planner subclass, "
+                     "importable here or from the current directory; recorded with the run, "
+                     "so resume from where it imports; default mppi)")  # fmt: skip
     opt.add_argument("--mpc", type=mpc_changes_arg, action="append", default=[],
                      metavar="KEY=VALUE[,...]",
                      help="planner setting overrides, e.g. samples=32,noise=0.2 (env steps; "

@@ -64,7 +64,11 @@ class EnvObjective:
     sim_dim, control_dim : int
         M and C.
     controller : str
-        "mppi" or "gn" (Gauss-Newton shooting).
+        The planner: "mppi", "gn" (Gauss-Newton shooting), a name registered with
+        ``controllers.register_planner``, or an import path ``package.module:ClassName`` of a
+        ``controllers.Planner`` subclass. The string is what a run records (config.json) and
+        what worker processes and ``rbbo resume`` find the planner by: they import an import
+        path themselves, but know a registered name only if the code registering it runs there.
     settle_time : float
         t_settle, seconds.
     env_kwargs, planner_kwargs : dict
@@ -82,15 +86,19 @@ class EnvObjective:
     env_kwargs: dict = field(default_factory=dict)
     planner_kwargs: dict = field(default_factory=dict)
 
-    CONTROLLERS = ("mppi", "gn")
+    CONTROLLERS = ("mppi", "gn")  # the shipped planners (any the controllers resolve is taken)
 
     def __post_init__(self) -> None:
         # (numpy's integers as Python's: spec() goes into config.json)
         self.sim_dim, self.control_dim = _check_dims(self.sim_dim, self.control_dim)
+        if not isinstance(self.controller, str):
+            raise TypeError(f"controller must be a planner name (str), got {self.controller!r}")
         if self.controller not in self.CONTROLLERS:
-            raise ValueError(
-                f"unknown controller {self.controller!r}; valid: {list(self.CONTROLLERS)}"
-            )
+            import controllers
+
+            # a registered name or an import path: unknown ones are named with the registered
+            # names and the import-path form, here rather than in every evaluation
+            controllers.resolve_planner(self.controller)
         settle = self.settle_time
         if isinstance(settle, bool) or not isinstance(settle, (int, float, np.number)):
             raise ValueError(f"settle_time must be a number of seconds >= 0, got {settle!r}")

@@ -125,8 +125,10 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
                    "for an older evaluation)")  # fmt: skip
     p.add_argument("--executor", choices=["process", "serial", "ray"], default="process",
                    help="where evaluations run (default process)")  # fmt: skip
-    p.add_argument("--controller", choices=["mppi", "gn"], default=defaults.controller,
-                   help=f"the MPC planner (default {defaults.controller})")  # fmt: skip
+    p.add_argument("--controller", default=defaults.controller, metavar="NAME",
+                   help="the MPC planner: mppi, gn, or a planner of your own as an import "
+                   "path package.module:ClassName (a controllers.Planner subclass; default "
+                   f"{defaults.controller})")  # fmt: skip
     p.add_argument("--sim-dim", type=positive_int, default=defaults.sim_dim,
                    help=f"M (default {defaults.sim_dim})")  # fmt: skip
     p.add_argument("--control-dim", type=positive_int, default=defaults.control_dim,

@@ -101,7 +101,8 @@ class ReproducePlan:
     executor : str
         "process" (default), "serial" or "ray".
     controller : str
-        Low-level MPC, "mppi" or "gn".
+        Low-level MPC: "mppi", "gn", another name registered with
+        ``controllers.register_planner`` or an import path ``package.module:ClassName``.
     sim_dim, control_dim : int
         M and C.
     t_min, t_max, settle_time : float
@@ -242,8 +243,14 @@ class ReproducePlan:
             cs = getattr(self, name)
             if not cs or any(not isinstance(c, int) or not 1 <= c <= self.sim_dim for c in cs):
                 raise ValueError(f"{name} must be integers in 1..{self.sim_dim}, got {cs!r}")
+        if not isinstance(self.controller, str):
+            raise TypeError(f"controller must be a planner name (str), got {self.controller!r}")
         if self.controller not in ("mppi", "gn"):
-            raise ValueError(f"controller must be 'mppi' or 'gn', got {self.controller!r}")
+            import controllers
+
+            # a registered name or an import path package.module:ClassName; an unknown one
+            # is named with the registered names and the import-path form
+            controllers.resolve_planner(self.controller)
         if self.executor not in ("process", "serial", "ray"):
             raise ValueError(f"unknown executor {self.executor!r}")
 

@@ -1,0 +1,237 @@
+"""Planners chosen by name: what ``planner_for``, ``python -m controllers --planner`` and
+``rbbo optimize --controller`` accept.
+
+A name is either registered (the shipped "mppi" and "gn", or one given to
+:func:`register_planner`) or an import path ``package.module:ClassName`` naming a
+:class:`~controllers.Planner` subclass, imported when asked for. A process that finds planners
+by name alone (``rbbo``'s worker processes, ``rbbo resume``, which read it from a run's
+config.json) imports an import path by itself; a registered name exists there only if the
+code that registers it runs there too (at the top level of an imported module), so for a
+planner of one's own from a command line the import path is the form that always works.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import importlib.util
+import inspect
+import os
+import sys
+import typing
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from .planner import Planner
+from .settings import PlannerSettings
+
+__all__ = ["PlannerEntry", "register_planner", "registered_planners", "resolve_planner"]
+
+
+@dataclass(frozen=True)
+class PlannerEntry:
+    """A planner as a name chooses it.
+
+    Attributes
+    ----------
+    name : str
+        The registered name, or the import path it was found by.
+    planner_class : type of Planner
+        Made as ``planner_class(settings, dt=dt)``.
+    settings_class : type of PlannerSettings
+        Made with a benchmark's plan and objective (:func:`controllers.planner_for`), then
+        ``defaults``, then the caller's changes.
+    defaults : mapping
+        Tuned values of the planner's own settings (MPPI's samples, Gauss-Newton's fd_step);
+        empty: the settings class's own defaults.
+    """
+
+    name: str
+    planner_class: type[Planner]
+    settings_class: type[PlannerSettings]
+    defaults: Mapping[str, Any] = field(default_factory=dict)
+
+
+_REGISTRY: dict[str, PlannerEntry] = {}
+
+
+def register_planner(
+    name: str,
+    planner_class: type[Planner],
+    settings_class: type[PlannerSettings] | None = None,
+    *,
+    defaults: Mapping[str, Any] | None = None,
+) -> None:
+    """Let ``name`` choose ``planner_class`` wherever "mppi" and "gn" are accepted.
+
+    Parameters
+    ----------
+    name : str
+        A new name (letters, digits, ``_``, ``-`` and ``.``; no ``:``, which marks an import
+        path). A name already registered is refused: unregistering is not offered, so a
+        planner chosen by name is the same one for the whole process.
+    planner_class : type of Planner
+        A concrete subclass (it implements :meth:`~controllers.Planner.optimise`).
+    settings_class : type of PlannerSettings, optional
+        Its settings (default: ``planner_class.settings_class``).
+    defaults : mapping, optional
+        Tuned values of settings of the planner's own, applied on every benchmark. A benchmark's
+        plan and objective (horizon, period, window, knots, gait seed, weights; or the shared
+        :data:`controllers.GENERIC` row on a robot without one) come from
+        :data:`controllers.DEFAULTS` for every planner, registered or shipped; without
+        ``defaults`` the rest are the settings class's own defaults.
+
+    Register at the top level of a module that the processes planning import: ``rbbo``'s
+    workers know only the names registered where they run (an import path
+    ``package.module:ClassName`` needs no registering).
+    """
+    if not isinstance(name, str) or not name or not all(c.isalnum() or c in "_-." for c in name):
+        raise ValueError(
+            f"planner name must be a non-empty string of letters, digits, '_', '-' and '.', "
+            f"got {name!r} (a ':' marks an import path, package.module:ClassName)"
+        )
+    if name in _REGISTRY:
+        raise ValueError(
+            f"planner name {name!r} is already registered, to "
+            f"{_qualified(_REGISTRY[name].planner_class)}: choose another name"
+        )
+    _check_planner_class(planner_class, f"planner_class for {name!r}")
+    if settings_class is None:
+        settings_class = _settings_class_of(planner_class)
+    if not (isinstance(settings_class, type) and issubclass(settings_class, PlannerSettings)):
+        raise TypeError(f"settings_class for {name!r} must be a PlannerSettings subclass, got "
+                        f"{settings_class!r}")  # fmt: skip
+    defaults = dict(defaults or {})
+    known = {f.name for f in dataclasses.fields(settings_class)}
+    unknown = sorted(set(defaults) - known)
+    if unknown:
+        raise TypeError(f"defaults for {name!r}: unknown {settings_class.__name__} setting "
+                        f"{', '.join(map(repr, unknown))}")  # fmt: skip
+    _REGISTRY[name] = PlannerEntry(name, planner_class, settings_class, defaults)
+
+
+def registered_planners() -> tuple[str, ...]:
+    """The registered planner names, sorted (an import path is accepted besides them)."""
+    return tuple(sorted(_REGISTRY))
+
+
+def resolve_planner(name: str) -> PlannerEntry:
+    """The planner ``name`` chooses: a registered name, or an import path
+    ``package.module:ClassName`` of a :class:`~controllers.Planner` subclass.
+
+    An import path's module is imported from ``sys.path``; one that is not found there is
+    looked for in the current directory too (which is then appended to ``sys.path``), as
+    ``python -m`` finds it, so that ``rbbo optimize ... --controller my_planners:CEM`` run
+    next to ``my_planners.py`` finds it, and so do its spawned workers. A class that is also
+    registered gets its registered defaults.
+
+    Raises
+    ------
+    ValueError
+        For an unknown name (listing the registered ones and the import-path form) or an
+        import path that names no module or attribute.
+    TypeError
+        For a name that is not a string, or an import path that names no concrete Planner
+        subclass.
+    """
+    if not isinstance(name, str):
+        raise TypeError(f"planner must be a name (str), got {name!r}")
+    entry = _REGISTRY.get(name)
+    if entry is not None:
+        return entry
+    if ":" not in name:
+        raise ValueError(unknown_planner_message(name))
+    cls = _imported(name)
+    for entry in _REGISTRY.values():
+        if entry.planner_class is cls:
+            return dataclasses.replace(entry, name=name)
+    return PlannerEntry(name, cls, _settings_class_of(cls))
+
+
+def unknown_planner_message(name: str) -> str:
+    """What an unknown planner name is told: the registered names and the import-path form."""
+    return (
+        f"unknown planner {name!r}; registered: {', '.join(registered_planners())} "
+        "(controllers.register_planner adds one), or an import path "
+        "package.module:ClassName naming a Planner subclass"
+    )
+
+
+class _PlannerTable(Mapping[str, tuple[type[Planner], type[PlannerSettings]]]):
+    """The registered planners as ``{name: (planner class, settings class)}``, a read-only
+    view that follows :func:`register_planner` (``controllers.defaults.PLANNERS``)."""
+
+    def __getitem__(self, name: str) -> tuple[type[Planner], type[PlannerSettings]]:
+        entry = _REGISTRY[name]
+        return entry.planner_class, entry.settings_class
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(_REGISTRY)
+
+    def __len__(self) -> int:
+        return len(_REGISTRY)
+
+
+def _qualified(cls: type) -> str:
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def _check_planner_class(cls: Any, what: str) -> None:
+    if not (isinstance(cls, type) and issubclass(cls, Planner)):
+        raise TypeError(f"{what} must be a Planner subclass, got {cls!r}")
+    if inspect.isabstract(cls):
+        missing = ", ".join(sorted(getattr(cls, "__abstractmethods__", ())))
+        raise TypeError(f"{what}: {_qualified(cls)} does not implement {missing}")
+
+
+def _settings_class_of(cls: type[Planner]) -> type[PlannerSettings]:
+    """``cls.settings_class``; for a planner that does not set it, the class of its
+    ``settings`` annotation (``settings: CEMSettings``, as the shipped planners write it)."""
+    named = cls.settings_class
+    if named is not PlannerSettings:
+        return named
+    try:
+        hint = typing.get_type_hints(cls).get("settings")
+    except Exception:  # an annotation that names what its module imports only for mypy
+        return named
+    if isinstance(hint, type) and issubclass(hint, PlannerSettings):
+        return hint
+    return named
+
+
+def _imported(path: str) -> type[Planner]:
+    """The class an import path ``package.module:ClassName`` names."""
+    module_name, _, attribute = path.partition(":")
+    parts_ok = all(p.isidentifier() for p in module_name.split(".")) and all(
+        p.isidentifier() for p in attribute.split(".")
+    )
+    if not parts_ok:
+        raise ValueError(
+            f"planner {path!r} is neither registered ({', '.join(registered_planners())}) nor "
+            "an import path package.module:ClassName"
+        )
+    top = module_name.split(".")[0]
+    here = os.getcwd()
+    on_path = {os.path.abspath(p or os.curdir) for p in sys.path}
+    if top not in sys.modules and here not in on_path and importlib.util.find_spec(top) is None:
+        sys.path.append(here)  # (after the installed packages: it shadows none of them)
+        importlib.invalidate_caches()
+    try:
+        obj: Any = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name is None or not f"{module_name}.".startswith(f"{exc.name}."):
+            raise  # a module that the planner's module imports is missing: its own error
+        raise ValueError(
+            f"planner {path!r}: no module named {exc.name!r} on sys.path or in the current "
+            f"directory ({here}); run from the directory that holds it, or add that to "
+            "PYTHONPATH"
+        ) from None
+    for part in attribute.split("."):
+        try:
+            obj = getattr(obj, part)
+        except AttributeError:
+            raise ValueError(f"planner {path!r}: module {module_name!r} has no "
+                             f"{attribute!r}") from None  # fmt: skip
+    _check_planner_class(obj, f"planner {path!r}")
+    return typing.cast(type[Planner], obj)
