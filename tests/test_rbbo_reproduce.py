@@ -492,6 +492,14 @@ def test_a_plan_names_each_bad_setting(kwargs, match):
         ReproducePlan.from_dict({**ReproducePlan().to_dict(), **kwargs})
 
 
+def test_a_plan_takes_a_planner_of_ones_own_by_its_import_path():
+    # (the runs' objectives and the reward study find it by this name, as rbbo optimize's do)
+    plan = ReproducePlan(controller="examples.cem_planner:CEM")
+    assert ReproducePlan.from_dict(plan.to_dict()).controller == "examples.cem_planner:CEM"
+    with pytest.raises(ValueError, match="module 'examples.cem_planner' has no 'CME'"):
+        ReproducePlan(controller="examples.cem_planner:CME")
+
+
 def test_deterministic_reaches_each_optimisation_run_its_record_and_the_report(
     tmp_path, monkeypatch
 ):
