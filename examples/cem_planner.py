@@ -7,6 +7,12 @@ Each replan samples knots around the sampling mean (the warm-started plan, kept 
 scores them in one batched rollout, and refits the mean and standard deviation to the best
 ``elites``; the plan takes the last mean. ``Planner`` supplies the rest: the spline, the warm
 start, the gait seed at reset, the seeded random stream and the objective R - Λ.
+
+A planner chosen by its import path runs wherever "mppi" and "gn" do, with the benchmark's
+plan and objective and its settings class's own defaults (from the repository's root)::
+
+    python -m controllers CrossSwim-v0 --planner examples.cem_planner:CEM --seconds 2
+    rbbo optimize CrossSwim-v0 --controller examples.cem_planner:CEM --budget 10m
 """
 
 from __future__ import annotations
