@@ -138,7 +138,12 @@ def run_episode(
     replan_every : int
         Env steps between replans (1: every control period).
     seed : int or None
-        Seeds both ``env.reset`` and the planner.
+        Seeds both ``env.reset`` and the planner. Both make their generator from the same
+        integer as ``numpy.random.default_rng(seed)`` does, so their streams are the same
+        bits: the planner's first draws are correlated with the reset's velocity noise (a
+        uniform draw there, a normal one here). Kept so that recorded episodes and runs
+        repeat; a planner that needs an independent stream can draw one from
+        ``np.random.SeedSequence(seed).spawn``.
     progress : bool
         Show a tqdm progress bar.
     video : path, optional
