@@ -57,10 +57,10 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 // needs the stiffness (its springs are implicit in position), so with the fast solver it runs
 // at a sixth to a thirteenth of staggered projection's rate (bench_rom.py).
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
-                                    VecX& f, MatX& jac) const {
+                                    VecX& f, MatX* jac) const {
   const Eigen::Index m = basis_cols_;
   f.setZero(m);
-  jac.setZero(m, m);  // d f / d v (the position terms through q = q_n + h v: times h here)
+  if (jac) jac->setZero(m, m);  // d f / d v (the position terms through q = q_n + h v: times h)
   const double h = cfg.dt;
   const VecX xs = surface_rest_ + surface_rows_ * q;
   const VecX vs = surface_rows_ * v;
@@ -79,16 +79,17 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
     const auto rows = surface_rows_.middleRows(3 * c, 3);
     f += fn * rows.row(2).transpose();
     // Stiffness (through z = z0 + h v_z) and damping, both on the normal row.
-    jac.noalias() -= (k * h + damp) * rows.row(2).transpose() * rows.row(2);
+    if (jac) jac->noalias() -= (k * h + damp) * rows.row(2).transpose() * rows.row(2);
     const Eigen::Vector2d vt(vs[3 * c], vs[3 * c + 1]);
     const double eps = 1e-3;
     const double s = std::sqrt(vt.squaredNorm() + eps * eps);
     const double scale = cfg.friction * fn / s;
     f -= scale * (rows.topRows(2).transpose() * vt);
+    if (!jac) continue;
     // Exact Jacobian of -mu f_n v_t / |v_t|_eps in v_t: (mu f_n / s)(I - v_t v_t^T / s^2).
     const Eigen::Matrix2d dt_dv =
         scale * (Eigen::Matrix2d::Identity() - vt * vt.transpose() / (s * s));
-    jac.noalias() -= rows.topRows(2).transpose() * dt_dv * rows.topRows(2);
+    jac->noalias() -= rows.topRows(2).transpose() * dt_dv * rows.topRows(2);
   }
 }
 

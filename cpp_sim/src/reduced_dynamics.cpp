@@ -133,7 +133,7 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     if (swim) out -= h * (ws.f_drag + ws.j_drag * (w - s.qdot));
     if (penalty) out -= h * f_p;
   };
-  // |r(w)| for the penalty line search (forces only, no stiffness).
+  // |r(w)| for the penalty line search (forces only: no stiffness, no penalty Jacobian).
   VecX r_trial(m), f_trial(md), v_trial(m);
   auto residual_norm = [&](const VecX& w) {
     const VecX qe = s.q.tail(md) + h * w.tail(md);
@@ -142,9 +142,8 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     } else {
       elastic_reference(qe, false, nullptr, &f_trial, nullptr);
     }
-    MatX unused;
     VecX f_pen;
-    penalty_contacts(cfg, s.q + h * w, w, f_pen, unused);
+    penalty_contacts(cfg, s.q + h * w, w, f_pen, nullptr);
     residual(w, f_trial, f_pen, r_trial);
     return r_trial.norm();
   };
@@ -160,7 +159,7 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
       elastic_reference(qe, false, nullptr, &f_el, &k_el);
     }
     ++info.stiffness_evaluations;
-    if (penalty) penalty_contacts(cfg, s.q + h * v, v, ws.f_pen, ws.j_pen);
+    if (penalty) penalty_contacts(cfg, s.q + h * v, v, ws.f_pen, &ws.j_pen);
     residual(v, f_el, ws.f_pen, r);
     // A = dr/dv = I + h^2 K_r + h alpha I + h beta K_0 - h J_d - h J_pen.
     a.setIdentity(m, m);

@@ -296,8 +296,10 @@ class ReducedModel {
   int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                      const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses, Workspace& ws,
                      StepInfo& info) const;
+  // Penalty ground force f at (q, v), and its velocity Jacobian when jac is not null (the
+  // Newton matrix needs it; the line search's residuals do not).
   void penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
-                        MatX& jac) const;
+                        MatX* jac) const;
 
   int num_nodes_ = 0;
   Eigen::Index basis_cols_ = 0;
