@@ -213,6 +213,41 @@ def test_fast_step_refreshes_its_stiffness_when_it_stalls(beam_robot):
     assert np.mean(iterations) < 8
 
 
+def test_a_change_of_dt_or_damping_reaches_the_next_fast_step(beam_robot):
+    # The fast step starts from A_0^-1, which depends on dt, damping_alpha and damping_beta;
+    # the model keeps the last one it formed and forms it again when one of them changes, by a
+    # property or by a whole config. So after each change a step is the step of a model built
+    # with the new settings, to the bit (an A_0^-1 left from the old settings would start the
+    # quasi-Newton iteration elsewhere, and it would stop elsewhere within its tolerance).
+    kw = {"control_basis": np.eye(20)[:, :3], "contact": "none"}
+    model = build_reduced_model(beam_robot, **kw)
+    state = lifted(model, 0.05)
+    u = 2.0 * gait(model, 10)[-1]
+    model.step(state, u)  # forms A_0^-1 for the default settings
+    changes = [
+        {"damping_beta": 0.02},
+        {"damping_alpha": 0.5},
+        {"dt": 1.0 / 400.0},
+        {"dt": 1.0 / 200.0, "damping_alpha": 0.0, "damping_beta": 0.005},  # back to the defaults
+    ]
+    keys = ("dt", "damping_alpha", "damping_beta")
+    for by_config, change in itertools.product((False, True), changes):
+        if by_config:
+            config = model.config
+            for name, value in change.items():
+                setattr(config, name, value)
+            model.config = config
+        else:
+            for name, value in change.items():
+                setattr(model, name, value)
+        fresh = build_reduced_model(beam_robot, **kw, **{k: getattr(model, k) for k in keys})
+        got, got_info = model.step(state, u)
+        want, want_info = fresh.step(state, u)
+        assert got_info == want_info, change
+        np.testing.assert_array_equal(got.q, want.q)
+        np.testing.assert_array_equal(got.qdot, want.qdot)
+
+
 def test_fast_step_converges_from_strongly_deformed_states(beam_robot):
     # Far from rest the quasi-Newton step from A_0 overshoots; the Armijo line search on the
     # incremental potential keeps every iteration descending, so from random deformed,

@@ -31,19 +31,31 @@ void newton_direction(const MatX& h_inv, const VecX& g, VecX& dv) {
 }  // namespace
 
 StepInputs ReducedModel::inputs() const {
-  StepInputs in{config, control_basis_, MatX()};
-  if (config.solver == Solver::Fast) {
-    const Eigen::Index m = basis_cols_;
-    const int md = elastic_dim();
-    const double h = config.dt;
-    MatX a = MatX::Identity(m, m);
-    a.bottomRightCorner(md, md) += (h * h + h * config.damping_beta) * k_rest_;
-    if (config.damping_alpha > 0.0) a.diagonal().array() += h * config.damping_alpha;
-    Eigen::LLT<MatX> llt(a);
-    // K_0 is positive semi-definite, so A_0 is positive definite for any valid setting.
-    if (llt.info() == Eigen::Success) in.rest_newton_inverse = llt.solve(MatX::Identity(m, m));
-  }
+  StepInputs in{config, control_basis_, nullptr};
+  if (uses_fast_step(config)) in.rest_newton_inverse = rest_newton_inverse(config);
   return in;
+}
+
+std::shared_ptr<const MatX> ReducedModel::rest_newton_inverse(const ReducedConfig& cfg) const {
+  std::lock_guard<std::mutex> lock(rest_newton_mutex_);
+  RestNewtonCache& cache = rest_newton_cache_;
+  // (== on the settings: they are finite, and a -0.0 for 0.0 forms the same A_0.)
+  if (cache.formed && cache.dt == cfg.dt && cache.damping_alpha == cfg.damping_alpha &&
+      cache.damping_beta == cfg.damping_beta)
+    return cache.inverse;
+  const Eigen::Index m = basis_cols_;
+  const int md = elastic_dim();
+  const double h = cfg.dt;
+  MatX a = MatX::Identity(m, m);
+  a.bottomRightCorner(md, md) += (h * h + h * cfg.damping_beta) * k_rest_;
+  if (cfg.damping_alpha > 0.0) a.diagonal().array() += h * cfg.damping_alpha;
+  Eigen::LLT<MatX> llt(a);
+  // K_0 is positive semi-definite, so A_0 is positive definite for any valid setting.
+  std::shared_ptr<const MatX> inverse;
+  if (llt.info() == Eigen::Success)
+    inverse = std::make_shared<const MatX>(llt.solve(MatX::Identity(m, m)));
+  cache = {true, cfg.dt, cfg.damping_alpha, cfg.damping_beta, inverse};
+  return inverse;
 }
 
 void ReducedModel::external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const {
@@ -84,10 +96,7 @@ void ReducedModel::step_loads(const StepInputs& in, const ReducedState& s, const
 StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double* fc,
                             Workspace& ws) const {
   ws.ground_rows_ready = false;
-  // Penalty contact is not a potential force (damping, friction), so it keeps the Newton
-  // solve on the residual; it still gets the fast kernels when solver = fast.
-  if (in.config.solver == Solver::Fast && in.config.contact != ContactModel::Penalty)
-    return step_fast(in, s, fc, ws);
+  if (uses_fast_step(in.config)) return step_fast(in, s, fc, ws);
   return step_reference(in, s, fc, ws);
 }
 
@@ -208,18 +217,18 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
 
 // Quasi-Newton on Phi: the first matrix is A_0 = I + (h^2 + h beta) K_0 + h alpha I, the
 // implicit matrix at rest without drag (it needs no stiffness evaluation and is the same for
-// every step of a call), improved by BFGS updates of its inverse from the gradients the line
-// search computes anyway. The stiffness K_r(q) is
-// evaluated only when the iteration stalls (a step no smaller than half the last), and then
-// replaces K_0. An Armijo backtracking line search on Phi makes every iteration descend; the
-// step is certified (info.converged) by the same test as the reference: max |dv| / sqrt(m)
-// below newton_tolerance.
+// every step with the same dt and damping), improved by BFGS updates of its inverse from the
+// gradients the line search computes anyway. The stiffness K_r(q) is evaluated only when the
+// iteration stalls (a step no smaller than half the last), and then replaces K_0. An Armijo
+// backtracking line search on Phi makes every iteration descend; the step is certified
+// (info.converged) by the same test as the reference: max |dv| / sqrt(m) below
+// newton_tolerance.
 StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const double* fc,
                                  Workspace& ws) const {
   const Eigen::Index m = basis_cols_;
   // Without A_0^-1 (inputs() found A_0 not positive definite, which a PSD K_0 rules out but
   // round-off might not), the exact Newton of the reference, on the fast kernels.
-  if (in.rest_newton_inverse.rows() != m) return step_reference(in, s, fc, ws);
+  if (!in.rest_newton_inverse) return step_reference(in, s, fc, ws);
   const ReducedConfig& cfg = in.config;
   StepInfo info;
   const double h = cfg.dt;
@@ -233,9 +242,9 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
 
   // A = I + h^2 K + h beta K_0 + h alpha I - h J_d for a stiffness K. The quasi-Newton solve
   // starts from the inverse of A_0 (K = K_0, without the drag term): only a preconditioner, it
-  // is formed once per call (StepInputs), and the potential applies J_d = -W W^T as two thin
-  // products, never forming it. The Newton matrices that must be exact (a refresh, the
-  // contact metric) include J_d.
+  // is formed once per setting of dt and damping (StepInputs), and the potential applies
+  // J_d = -W W^T as two thin products, never forming it. The Newton matrices that must be
+  // exact (a refresh, the contact metric) include J_d.
   MatX& a = ws.a;
   auto build_a = [&](const MatX& k) {
     a.setIdentity(m, m);
@@ -254,7 +263,7 @@ StepInfo ReducedModel::step_fast(const StepInputs& in, ReducedState& s, const do
   // the contact solve does not read it).
   Eigen::LLT<MatX>& a_llt = ws.a_llt;
   MatX& h_inv = ws.h_inv;
-  h_inv = in.rest_newton_inverse;
+  h_inv = *in.rest_newton_inverse;
 
   VecX& tmp_e = ws.tmp_e;
   tmp_e.resize(md);

@@ -20,6 +20,7 @@
 #include <chrono>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -176,9 +177,10 @@ struct Workspace {
 struct StepInputs {
   ReducedConfig config;
   MatX control_basis;  // B_c, M x C (f_r = B_c f_c on the deformation coordinates)
-  // (I + (h^2 + h beta) K_0 + h alpha I)^-1, the fast solver's starting inverse: formed once
-  // per call, not once per step (empty for the reference solver).
-  MatX rest_newton_inverse;
+  // A_0^-1 = (I + (h^2 + h beta) K_0 + h alpha I)^-1, the fast step's starting inverse, shared
+  // with the model's cache (ReducedModel::rest_newton_inverse; never written once made). Null
+  // where the step does not start from it (the reference solver, penalty contact).
+  std::shared_ptr<const MatX> rest_newton_inverse;
 };
 
 class ReducedModel {
@@ -210,6 +212,12 @@ class ReducedModel {
   void set_control_basis(const MatX& bc) { control_basis_ = bc; }  // M x C, validated by caller
   const MatX& control_basis() const { return control_basis_; }
   StepInputs inputs() const;
+  // Whether step() takes the fast quasi-Newton path (step_fast), which starts from A_0^-1.
+  static bool uses_fast_step(const ReducedConfig& cfg) {
+    // Penalty contact is not a potential force (damping, friction), so it keeps the Newton
+    // solve on the residual; it still gets the fast kernels when solver = fast.
+    return cfg.solver == Solver::Fast && cfg.contact != ContactModel::Penalty;
+  }
 
   ReducedState rest_state() const;
   // One step under control f_c (C entries; may be null when C = 0). Never throws on divergence: it is reported in StepInfo.
@@ -263,6 +271,9 @@ class ReducedModel {
   double elastic_energy_force(const VecX& qe, VecX& force, Workspace& ws) const;
   void elastic_stiffness_fast(const VecX& qe, MatX& stiff, Workspace& ws) const;
 
+  // A_0^-1 for cfg's dt, damping_alpha and damping_beta, from the cache below (formed when one
+  // of them differs from the last call's); null where A_0 has no Cholesky factor.
+  std::shared_ptr<const MatX> rest_newton_inverse(const ReducedConfig& cfg) const;
   StepInfo step_reference(const StepInputs& in, ReducedState& s, const double* fc,
                           Workspace& ws) const;
   StepInfo step_fast(const StepInputs& in, ReducedState& s, const double* fc,
@@ -341,6 +352,19 @@ class ReducedModel {
   VecX rest_;
   MatX control_basis_;     // B_c, M x C
   MatX k_rest_;            // K_r at rest (cubature), for Rayleigh damping and A_0
+  // The last A_0^-1 that inputs() formed, and the settings it was formed for: A_0 depends on
+  // dt, damping_alpha and damping_beta alone (K_0 is fixed with the model, and B_c does not
+  // enter it), so a Python step or rollout forms it again only when one of them has changed,
+  // however the settings were written (a property, a whole config). Keyed by the values, not
+  // invalidated by the setters: equal values form the same bits. The mutex makes inputs() safe
+  // to call from several threads, as a const method should be.
+  struct RestNewtonCache {
+    bool formed = false;
+    double dt = 0.0, damping_alpha = 0.0, damping_beta = 0.0;
+    std::shared_ptr<const MatX> inverse;
+  };
+  mutable std::mutex rest_newton_mutex_;
+  mutable RestNewtonCache rest_newton_cache_;
 };
 
 }  // namespace softrom
