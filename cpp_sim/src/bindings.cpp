@@ -16,21 +16,8 @@ namespace py = pybind11;
 using namespace softrom;
 namespace v = softrom::validate;
 
-namespace {
-
-py::object to_csr(const SpMat& k) {
-  // K is symmetric, so its column-compressed arrays are also its row-compressed ones.
-  const py::ssize_t nnz = k.nonZeros();
-  py::array_t<double> data(nnz);
-  py::array_t<int32_t> indices(nnz);
-  py::array_t<int32_t> indptr(k.outerSize() + 1);
-  std::copy(k.valuePtr(), k.valuePtr() + nnz, data.mutable_data());
-  std::copy(k.innerIndexPtr(), k.innerIndexPtr() + nnz, indices.mutable_data());
-  std::copy(k.outerIndexPtr(), k.outerIndexPtr() + k.outerSize() + 1, indptr.mutable_data());
-  py::object csr = py::module_::import("scipy.sparse").attr("csr_matrix");
-  return csr(py::make_tuple(data, indices, indptr), py::arg("shape") = py::make_tuple(k.rows(), k.cols()));
-}
-
+// FEMModel(nodes, tets, E, nu, rho), validated: the binding's constructor, and the reduced
+// model's (bindings_reduced.cpp), which builds its mesh and masses through it.
 std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, double youngs_modulus,
                                    double poisson_ratio, double density) {
   VecX x = v::real_matrix(nodes, "nodes", -1, 3);
@@ -48,6 +35,21 @@ std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, double you
   } catch (const std::invalid_argument& e) {
     throw py::value_error(e.what());
   }
+}
+
+namespace {
+
+py::object to_csr(const SpMat& k) {
+  // K is symmetric, so its column-compressed arrays are also its row-compressed ones.
+  const py::ssize_t nnz = k.nonZeros();
+  py::array_t<double> data(nnz);
+  py::array_t<int32_t> indices(nnz);
+  py::array_t<int32_t> indptr(k.outerSize() + 1);
+  std::copy(k.valuePtr(), k.valuePtr() + nnz, data.mutable_data());
+  std::copy(k.innerIndexPtr(), k.innerIndexPtr() + nnz, indices.mutable_data());
+  std::copy(k.outerIndexPtr(), k.outerIndexPtr() + k.outerSize() + 1, indptr.mutable_data());
+  py::object csr = py::module_::import("scipy.sparse").attr("csr_matrix");
+  return csr(py::make_tuple(data, indices, indptr), py::arg("shape") = py::make_tuple(k.rows(), k.cols()));
 }
 
 constexpr std::pair<FEMSolver, const char*> kSolverNames[] = {

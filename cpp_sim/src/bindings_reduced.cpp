@@ -25,6 +25,9 @@ namespace py = pybind11;
 using namespace softrom;
 namespace v = softrom::validate;
 
+std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, double youngs_modulus,
+                                   double poisson_ratio, double density);  // bindings.cpp
+
 namespace {
 
 py::array_t<double> vec_out(const VecX& x) {
@@ -123,9 +126,8 @@ std::unique_ptr<ReducedModel> make_reduced(py::handle nodes, py::handle tets, do
                                            py::handle cub_weights, py::handle surface_nodes,
                                            py::handle surface_faces) {
   // Reuse the FEM model's validation and rest data.
-  py::object fem_cls = py::module_::import("cpp_sim._core").attr("FEMModel");
-  py::object fem_obj = fem_cls(nodes, tets, e, nu, rho);
-  const FEMModel& fem = fem_obj.cast<const FEMModel&>();
+  const std::unique_ptr<FEMModel> fem_model = make_fem(nodes, tets, e, nu, rho);
+  const FEMModel& fem = *fem_model;
   const int n = fem.mesh().num_nodes;
   MatX b = matrix_in(basis, "basis", 3 * n, -1);
   if (b.cols() < ReducedModel::kRigid + 1)
