@@ -323,8 +323,8 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
             const StepInputs in = r.inputs();  // copied while the GIL is held
             {
               py::gil_scoped_release release;
-              thread_local Workspace ws;
-              info = r.step(in, out, fp, ws);
+              const ReducedModel::WorkspaceLease ws = r.lend_workspace();
+              info = r.step(in, out, fp, *ws);
             }
             py::dict d;
             d["newton_iterations"] = info.newton_iterations;

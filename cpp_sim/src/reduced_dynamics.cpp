@@ -10,6 +10,7 @@
 // (identity reduced mass; K_0 the rest stiffness for Rayleigh damping; drag linearised in v
 // at the start of the step), followed by the contact projection.
 #include <algorithm>
+#include <cassert>
 #include <cmath>
 #include <limits>
 
@@ -95,6 +96,7 @@ void ReducedModel::step_loads(const StepInputs& in, const ReducedState& s, const
 
 StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double* fc,
                             Workspace& ws) const {
+  assert(ws.lender == this && "a Workspace serves the model that lent it (reduced_model.h)");
   ws.ground_rows_ready = false;
   if (uses_fast_step(in.config)) return step_fast(in, s, fc, ws);
   return step_reference(in, s, fc, ws);

@@ -97,6 +97,26 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
   k_rest_ = elastic_stiffness(VecX::Zero(md), false);
 }
 
+ReducedModel::WorkspaceLease ReducedModel::lend_workspace() const {
+  {
+    std::lock_guard<std::mutex> lock(workspace_mutex_);
+    if (!idle_workspaces_.empty()) {
+      std::unique_ptr<Workspace> ws = std::move(idle_workspaces_.back());
+      idle_workspaces_.pop_back();
+      return WorkspaceLease(*this, std::move(ws));
+    }
+  }
+  auto ws = std::make_unique<Workspace>();
+  ws->lender = this;
+  return WorkspaceLease(*this, std::move(ws));
+}
+
+ReducedModel::WorkspaceLease::~WorkspaceLease() {
+  std::lock_guard<std::mutex> lock(model_.workspace_mutex_);
+  // (push_back allocates only when more are out at once than ever before.)
+  model_.idle_workspaces_.push_back(std::move(ws_));
+}
+
 ReducedState ReducedModel::rest_state() const {
   ReducedState s;
   s.q = VecX::Zero(basis_cols_);

@@ -123,16 +123,28 @@ class ScopedTimer {
 
 class StaggeredProjection;  // the contact solve and its buffers (staggered_projection.h)
 
-// Per-thread scratch memory, reused from step to step by a rollout worker (one per thread, as
-// MuJoCo's rollout gives each thread its own mjData): the dynamics' buffers, the contact
-// solve's and its least-distance (NNLS) programmes'. The contact buffers change size with each
-// step's candidates and loaded sets, so they keep their memory as they shrink (scratch.h): once
-// a worker has seen its largest sizes, the fast solver's step allocates nothing.
+class ReducedModel;
+
+// Scratch memory for one model's steps, reused from step to step by one caller at a time (a
+// Python step, a rollout's worker: as MuJoCo's rollout gives each thread its own mjData): the
+// dynamics' buffers, the contact solve's and its least-distance (NNLS) programmes'. The
+// contact buffers change size with each step's candidates and loaded sets, so they keep their
+// memory as they shrink (scratch.h): once a workspace has seen its largest sizes, the fast
+// solver's step allocates nothing.
+//
+// A workspace serves the model that lent it (ReducedModel::lend_workspace) and no other
+// (step() asserts it in debug builds). Its buffers carry no data from one step to the next (a
+// step sizes and writes each before it reads it), but they keep their sizes, which are that
+// model's: shared by two models, a workspace would reallocate at every switch between them,
+// and a buffer read before it was sized would hold the other model's data. The model keeps
+// the workspaces it lends, so they go with it.
 struct Workspace {
   Workspace();
   ~Workspace();
   Workspace(const Workspace&) = delete;
   Workspace& operator=(const Workspace&) = delete;
+
+  const ReducedModel* lender = nullptr;  // the model whose steps it serves (lend_workspace)
 
   // The step's loads (step_loads, penalty_contacts): f_ext (gravity + B_c f_c), the drag force
   // and its Jacobian J_d, the penalty force and its Jacobian.
@@ -220,7 +232,28 @@ class ReducedModel {
   }
 
   ReducedState rest_state() const;
-  // One step under control f_c (C entries; may be null when C = 0). Never throws on divergence: it is reported in StepInfo.
+
+  // A workspace of this model's, lent until the lease ends (it must not outlive the model):
+  // one it lent before and got back when there is one (its buffers warm), else a new one. As
+  // many exist as callers have held at once. Safe to call from several threads.
+  class WorkspaceLease {
+   public:
+    ~WorkspaceLease();  // gives the workspace back
+    WorkspaceLease(const WorkspaceLease&) = delete;
+    WorkspaceLease& operator=(const WorkspaceLease&) = delete;
+    Workspace& operator*() const { return *ws_; }
+
+   private:
+    friend class ReducedModel;
+    WorkspaceLease(const ReducedModel& model, std::unique_ptr<Workspace> ws)
+        : model_(model), ws_(std::move(ws)) {}
+    const ReducedModel& model_;
+    std::unique_ptr<Workspace> ws_;
+  };
+  WorkspaceLease lend_workspace() const;
+
+  // One step under control f_c (C entries; may be null when C = 0), in a workspace this model
+  // lent. Never throws on divergence: it is reported in StepInfo.
   StepInfo step(const StepInputs& in, ReducedState& s, const double* fc, Workspace& ws) const;
 
   // Elastic energy / reduced forces / reduced stiffness of the elastic coordinates q_e = q[3:]
@@ -365,6 +398,9 @@ class ReducedModel {
   };
   mutable std::mutex rest_newton_mutex_;
   mutable RestNewtonCache rest_newton_cache_;
+  // The workspaces lent and given back, for the next lend_workspace.
+  mutable std::mutex workspace_mutex_;
+  mutable std::vector<std::unique_ptr<Workspace>> idle_workspaces_;
 };
 
 }  // namespace softrom

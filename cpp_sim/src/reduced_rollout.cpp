@@ -26,10 +26,11 @@ void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>
     last_poll = std::chrono::steady_clock::now();
     if (!stop.load(std::memory_order_relaxed) && (*out.interrupt)()) stop.store(true);
   };
-  // Each rollout is computed start to finish by one worker, with that thread's own scratch,
-  // so results do not depend on the thread count or the schedule.
+  // Each rollout is computed start to finish by one worker, in a workspace it holds for the
+  // rollout, so results do not depend on the thread count or the schedule.
   auto run = [&](int b) {
-    thread_local Workspace ws;
+    const WorkspaceLease lease = lend_workspace();
+    Workspace& ws = *lease;
     ReducedState s = starts[starts.size() == 1 ? 0 : b];
     bool bad = false, converged = true;
     const bool polls = out.interrupt && std::this_thread::get_id() == caller;
