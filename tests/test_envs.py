@@ -821,7 +821,7 @@ def test_a_shorter_export_removes_the_earlier_export_s_later_frames_and_nothing_
     frames = tmp_path / "frames"
     softrom_gym.export_trajectory([robot.nodes] * 4, frames / "walk.ply", robot=robot)
     others = ["walk_0005.obj", "walk_00003.ply", "walk_0002_x.ply", "run_0003.ply",
-              "walk_notes.txt", "walk_12a4.ply"]  # fmt: skip
+              "walk_notes.txt", "walk_12a4.ply", "walk_0003.ply.bak"]  # fmt: skip
     for name in others:  # not frames of this sequence: another format, stem or numbering
         (frames / name).write_text("the user's")
     (frames / "walk_0009.ply").mkdir()  # a folder is never removed
