@@ -887,6 +887,7 @@ def test_vector_env_autoresets_in_the_same_step_as_gymnasium_s_vector_envs():
     plain = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
                          vectorization_mode="vector_entry_point")  # fmt: skip
     assert plain.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
+    assert ours.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP  # (each its own)
     as_text = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, autoreset_mode="SameStep",
                            vectorization_mode="vector_entry_point")  # fmt: skip
     assert as_text.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
@@ -919,6 +920,12 @@ def test_vector_env_without_autoreset_resets_by_mask_and_names_ended_envs_it_is_
     assert step[3].tolist() == [False, True]
     with pytest.raises(ResetNeeded, match=r"sub-environment\(s\) \[1\] ended .* "
                        r"reset\(options=\{'reset_mask': mask\}\)"):  # fmt: skip
+        ours.step(zero)
+    # resetting another robot leaves robot 1's episode ended: it is still refused, not
+    # stepped on from where its episode ended
+    ours.reset(options={"reset_mask": np.array([True, False])})
+    sync.reset(options={"reset_mask": np.array([True, False])})
+    with pytest.raises(ResetNeeded, match=r"sub-environment\(s\) \[1\] ended"):
         ours.step(zero)
     ours.reset(options={"reset_mask": np.array([False, True])})
     sync.reset(options={"reset_mask": np.array([False, True])})
