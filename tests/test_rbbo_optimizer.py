@@ -1307,6 +1307,51 @@ def test_allow_objective_change_goes_on_and_keeps_the_objective_it_replaced(tmp_
     assert bare.run(new, max_evaluations=2).evaluations == 2
 
 
+def test_every_objective_a_confirmed_run_replaced_is_kept_and_confirm_again_checks_it(tmp_path):
+    # A replaced objective's history_lines counts the lines of history.jsonl evaluated under
+    # it, its confirmations too; a second change keeps the first one's record beside its own;
+    # confirm_again refuses another objective as run does (it mixed two objectives' R*), and
+    # so does a closed RBBO.
+    from rbbo.objective import ObjectiveMismatch
+
+    def lines():
+        return len((run / "history.jsonl").read_text().splitlines())
+
+    class WithoutNoise(SyntheticObjective):
+        def spec(self):
+            return {k: v for k, v in super().spec().items() if k != "noise"}
+
+    run = tmp_path / "run"
+    first = SyntheticObjective(6, 2, noise=0.01)
+    config = RBBOConfig(6, 2, n_init=2, max_evaluations=3, n_confirm=2, **FAST)
+    with RBBO.create(run, config, objective_spec=first.spec()) as opt:
+        opt.run(first)
+    confirmed = lines()
+    assert confirmed > len(opt.evaluations) == 3  # (R_init and R* are lines too)
+    second = SyntheticObjective(6, 2, noise=0.02)
+    with RBBO.resume(run) as opt:
+        with pytest.raises(ObjectiveMismatch, match=r"noise 0.02 \(recorded 0.01\)"):
+            opt.confirm_again(SerialExecutor(second))
+        # (a setting the record has and the objective's spec() lacks is a difference too)
+        with pytest.raises(ObjectiveMismatch, match=r"noise absent \(recorded 0.01\)"):
+            opt.run(WithoutNoise(6, 2, noise=0.01))
+        assert lines() == confirmed  # nothing evaluated
+        opt.confirm_again(SerialExecutor(second), allow_objective_change=True)
+    confirmed_again = lines()
+    assert confirmed_again > confirmed
+    third = SyntheticObjective(6, 2, noise=0.03)
+    with RBBO.resume(run) as opt:
+        opt.run(third, max_evaluations=4, allow_objective_change=True)
+    stored = json.loads((run / "config.json").read_text())
+    assert stored["objective"] == third.spec()
+    assert stored["replaced_objectives"] == [
+        {"objective": first.spec(), "history_lines": confirmed},
+        {"objective": second.spec(), "history_lines": confirmed_again},
+    ]
+    with pytest.raises(ValueError, match=f"RBBO of {run} is closed"):
+        opt.confirm_again(SerialExecutor(third))
+
+
 def test_close_releases_the_run_directory_and_a_closed_rbbo_refuses_to_go_on(tmp_path):
     # an RBBO held its run directory's lock until it was garbage-collected: a second
     # RBBO.resume of the run in the same program after `del` or a finished `with` depended on
