@@ -54,6 +54,44 @@ def test_run_episode_accepts_a_planner_that_restores_the_env_state():
     assert result.stop_reason == "time" and result.planner == "restorer"
 
 
+class ActionStepper(Restorer):
+    """Plans as Restorer does, then steps the env in action(): the robot moves between the
+    episode's steps as surely as when plan() steps it."""
+
+    name = "action-stepper"
+
+    def action(self, env: Any) -> np.ndarray:
+        env.unwrapped.step(np.ones(self.api_.control_dim))
+        return super().action(env)
+
+
+class HalfRestorer(Planner):
+    """Steps the env to evaluate, then restores the positions q only (velocities zeroed): the
+    robot is where it was, but not moving as it was."""
+
+    name = "half-restorer"
+
+    def optimise(self, state: Any) -> None:
+        import cpp_sim
+
+        env = self.api_.unwrapped
+        env.step(np.ones(self.api_.control_dim))
+        env.set_state(cpp_sim.ReducedState(state.q, np.zeros_like(state.qdot), state.impulses))
+
+
+@pytest.mark.parametrize(
+    ("planner", "method"), [("ActionStepper", "action"), ("HalfRestorer", "plan")]
+)
+def test_run_episode_refuses_a_planner_that_moves_the_env_in_action_or_drops_its_velocity(
+    planner, method
+):
+    # the check after action() (as after plan()) and on qdot and impulses (not q alone)
+    env = small_env()
+    with pytest.raises(RuntimeError, match=rf"{planner}\.{method} changed the env's state"):
+        run_episode(env, globals()[planner](PlannerSettings(horizon=4, knots=2)), 0.1,
+                    replan_every=2, seed=0, progress=False)  # fmt: skip
+
+
 class Unbatched(Planner):
     """Scores its plan's knots (K, C) without the batch axis evaluate_knots takes."""
 
