@@ -3,6 +3,7 @@
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -1075,6 +1076,15 @@ def test_report_of_several_runs_reports_every_good_one_and_names_each_bad_one(tm
                       f"rbbo: error: {missing} is not a directory",
                       "rbbo: error: 2 of 4 run directories could not be reported"]  # fmt: skip
     assert all(f"{run}: plot " in err for run in good)
+    # the status is the worst of them: a read the system refused (1) after a directory that
+    # cannot be used (2) leaves it 2, and alone it is 1
+    broken = tmp_path / "broken"
+    shutil.copytree(good[0], broken)
+    (broken / "history.jsonl").unlink()
+    (broken / "history.jsonl").mkdir()
+    assert main(["report", str(empty), str(broken)]) == 2
+    assert main(["report", str(broken)]) == 1
+    capsys.readouterr()
     # one bad directory alone is a one-line usage error, as before
     assert _error(capsys, ["report", str(missing)]) == (
         f"rbbo: error: {missing} is not a directory\n"
