@@ -1982,3 +1982,38 @@ def test_a_hand_edited_session_record_is_named_for_status_report_only_and_a_reru
         assert len(err) == 1 and "reproduce.json is not a reproduce plan" in err[0]
         assert match in err[0]
         assert (tmp_path / "reproduce.json").read_text() == text  # kept for its owner to mend
+
+
+def test_an_optimisation_run_stopped_by_an_error_releases_its_run_directory(tmp_path):
+    # optimise() left the run's lock to the garbage collector: while the error that stopped
+    # it was being handled (its traceback holds the run), another process, such as an
+    # `rbbo resume DIR` started from the message, was refused as "in use"
+    import subprocess
+    import sys
+
+    from rbbo import SyntheticObjective
+    from rbbo.reproduce.optimisation_runs import optimise
+
+    class Named(SyntheticObjective):
+        env_id = "synthetic"
+
+        def node_count(self):
+            return 0
+
+    plan = ReproducePlan(sim_dim=6, control_dim=2, cost_cs=[1, 2], reward_cs=[1, 2], n_init=2,
+                         iterations=3, confirm_seeds=2, executor="serial")  # fmt: skip
+
+    def heartbeat():
+        raise RuntimeError("stopped after the first evaluation")
+
+    run = tmp_path / "run"
+    # (`stopped` holds the traceback, and through it optimise()'s run, as a handler would)
+    with pytest.raises(RuntimeError, match="stopped after the first evaluation") as stopped:
+        optimise(run, plan, Named(6, 2, t_max=plan.t_max), "bo", 60.0, False, lambda line: None,
+                 heartbeat=heartbeat)  # fmt: skip
+    assert stopped.tb is not None
+    code = "import sys; from rbbo import RBBO; print(len(RBBO.resume(sys.argv[1]).history))"
+    child = subprocess.run([sys.executable, "-c", code, str(run)], capture_output=True,
+                           text=True, timeout=120)  # fmt: skip
+    assert child.returncode == 0, child.stderr
+    assert child.stdout.strip() == "1"
