@@ -122,6 +122,15 @@ def test_reset_starts_from_a_state_given_as_its_option():
     # (the vector env's reset also takes Gymnasium's reset_mask, and says so)
     with pytest.raises(ValueError, match=r"reset takes the options 'state' .* and 'reset_mask'"):
         venv.reset(options={"x": 1})
+    # a bad state is named before any robot is reset or reseeded: the streams go on as if the
+    # refused reset had not been called
+    twin = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2,
+                        vectorization_mode="vector_entry_point")  # fmt: skip
+    twin.reset(seed=0, options={"state": mid})
+    with pytest.raises(TypeError, match="state must be a ReducedState from get_state()"):
+        venv.reset(seed=7, options={"state": mid.q})
+    np.testing.assert_array_equal(venv.reset()[0], twin.reset()[0])
+    assert venv.np_random.random() == twin.np_random.random()
     venv.close()
 
 
