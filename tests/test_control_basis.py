@@ -37,6 +37,11 @@ def test_a_wrapped_env_s_spec_follows_a_swapped_basis():
     with pytest.raises(ValueError, match="control_basis is not orthonormal"):
         set_control_basis(env, 2.0 * basis)
     np.testing.assert_array_equal(env.spec.kwargs["control_basis"], basis)
+    # orthonormalize reaches the env: the spec holds the B_c used
+    set_control_basis(env, 2.0 * basis[:, ::-1], orthonormalize=True)
+    np.testing.assert_allclose(env.unwrapped.control_basis, basis[:, ::-1], atol=1e-12)
+    np.testing.assert_array_equal(env.spec.kwargs["control_basis"], env.unwrapped.control_basis)
+    set_control_basis(env, basis)
     # a bare env, and an env that is neither, are named
     set_control_basis(again.unwrapped, basis[:, ::-1])
     np.testing.assert_array_equal(again.unwrapped.control_basis, basis[:, ::-1])
@@ -116,6 +121,11 @@ def test_vector_env_spec_follows_the_swapped_basis(tmp_path):
     again = gym.make_vec(venv.spec)
     np.testing.assert_array_equal(again.control_basis, basis)
     assert again.num_envs == 2 and again.max_episode_steps == 7
+    # a matrix orthonormalised on the way: the spec holds the B_c used, so it makes this env
+    venv.set_control_basis(3.0 * basis[:, ::-1], orthonormalize=True)
+    assert venv.spec.kwargs["orthonormalize"] is False
+    np.testing.assert_array_equal(venv.spec.kwargs["control_basis"], venv.control_basis)
+    np.testing.assert_array_equal(gym.make_vec(venv.spec).control_basis, venv.control_basis)
     # a path stays a path (the spec stays JSON), orthonormalize as given
     np.save(tmp_path / "b.npy", 2.0 * basis)
     venv.set_control_basis(str(tmp_path / "b.npy"), orthonormalize=True)
