@@ -285,7 +285,9 @@ def main(argv=None) -> None:
     parser.add_argument("--confirm-seeds", type=int, default=3, help="(b) fresh MPC seeds")
     parser.add_argument("--sim-dim", type=int, default=20, help="(b) M")
     parser.add_argument("--control-dim", type=int, default=3, help="(b) C")
-    parser.add_argument("--controller", choices=["mppi", "gn"], default="mppi", help="(b)")
+    parser.add_argument("--controller", default="mppi", metavar="NAME",
+                        help="(b): mppi, gn, a registered planner, or an import path "
+                        "package.module:ClassName")  # fmt: skip
     parser.add_argument("--n-init", type=int, default=3, help="(b) RBBO's random initial points")
     parser.add_argument(
         "--png-real",

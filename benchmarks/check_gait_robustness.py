@@ -106,7 +106,12 @@ def deformation(env: gym.Env, states: list) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--env-id", default="softrom_gym/CrossWalk-v0")
-    p.add_argument("--planner", choices=["mppi", "gn"], default="mppi")
+    p.add_argument(
+        "--planner",
+        default="mppi",
+        metavar="NAME",
+        help="mppi, gn, a registered planner, or an import path package.module:ClassName",
+    )
     p.add_argument("--cs", type=int, nargs="+", default=[3, 4])
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--seconds", type=float, default=10.0)

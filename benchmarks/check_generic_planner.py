@@ -42,7 +42,12 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--robots", nargs="+", default=list(ROBOTS), choices=list(ROBOTS))
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--planner", default="mppi", choices=["mppi", "gn"])
+    p.add_argument(
+        "--planner",
+        default="mppi",
+        metavar="NAME",
+        help="mppi, gn, a registered planner, or an import path package.module:ClassName",
+    )
     p.add_argument("--periods", type=float, nargs="*", default=[40 / 3, 10.0],
                    help="seed_periods of the second column (env steps; 3 and 4 Hz)")  # fmt: skip
     args = p.parse_args()

@@ -29,7 +29,12 @@ from _results import plot_lines, write_csv
 def main(argv: list[str] | None = None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--env-id", default="softrom_gym/CrossWalk-v0")
-    p.add_argument("--planner", choices=["mppi", "gn"], default="mppi")
+    p.add_argument(
+        "--planner",
+        default="mppi",
+        metavar="NAME",
+        help="mppi, gn, a registered planner, or an import path package.module:ClassName",
+    )
     p.add_argument("--cs", type=int, nargs="+", default=list(range(1, 11)))
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--seconds", type=float, default=10.0)
