@@ -27,7 +27,14 @@ from .gaits import SinusoidGait, gait_grid, phase_orders
 from .gauss_newton import GaussNewtonSettings, GaussNewtonShooting
 from .mppi import MPPI, MPPISettings
 from .planner import Planner, PlannerSettings
-from .registry import PlannerEntry, register_planner, registered_planners, resolve_planner
+from .registry import (
+    PlannerEntry,
+    planner_from_source,
+    planner_source,
+    register_planner,
+    registered_planners,
+    resolve_planner,
+)
 from .spline import SplinePlan
 
 __all__ = [
@@ -53,6 +60,8 @@ __all__ = [
     "has_defaults",
     "phase_orders",
     "planner_for",
+    "planner_from_source",
+    "planner_source",
     "register_planner",
     "registered_planners",
     "resolve_planner",

@@ -134,7 +134,7 @@ def _benchmark(env_id: str) -> str:
 
 
 def default_settings(
-    env_id: str, planner: str, *, dt: float | None = None
+    env_id: str, planner: str | PlannerEntry, *, dt: float | None = None
 ) -> tuple[PlannerSettings, int]:
     """The default settings of ``planner`` ("mppi", "gn", another registered name or an
     import path ``package.module:ClassName``, as in :func:`default_planner`) on a benchmark,
@@ -202,14 +202,15 @@ def _control_period(dt: Any) -> float:
 
 
 def default_planner(
-    env_id: str, planner: str, *, dt: float | None = None, **changes: Any
+    env_id: str, planner: str | PlannerEntry, *, dt: float | None = None, **changes: Any
 ) -> tuple[Planner, int]:
     """A planner with the benchmark's defaults (``changes`` override settings) and its replan
     interval.
 
     ``planner`` is "mppi", "gn", a name given to :func:`controllers.register_planner`, or an
     import path ``package.module:ClassName`` of a :class:`~controllers.Planner` subclass
-    (:func:`controllers.resolve_planner`). Every planner plans the benchmark's gait with the
+    (:func:`controllers.resolve_planner`; or the :class:`~controllers.PlannerEntry` it gives, or
+    :func:`controllers.planner_from_source`). Every planner plans the benchmark's gait with the
     shared objective (its row of :data:`DEFAULTS`); a registered planner's own settings take
     the tuned ``defaults`` it was registered with, an import path's its settings class's own.
 
@@ -312,7 +313,7 @@ GENERIC: dict[str, Any] = {"period": 20, "horizon": 40, "window": 20, "replan_ev
 
 
 def planner_for(
-    env_id: str, planner: str, *, dt: float | None = None, **changes: Any
+    env_id: str, planner: str | PlannerEntry, *, dt: float | None = None, **changes: Any
 ) -> tuple[Planner, int]:
     """The benchmark's tuned planner (:func:`default_planner`) where ``env_id`` has defaults;
     elsewhere (a robot of your own) the shared defaults, whose gait seed picks a 2, 3 or 4 Hz

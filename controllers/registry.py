@@ -6,8 +6,12 @@ A name is either registered (the shipped "mppi" and "gn", or one given to
 :class:`~controllers.Planner` subclass, imported when asked for. A process that finds planners
 by name alone (``rbbo``'s worker processes, ``rbbo resume``, which read it from a run's
 config.json) imports an import path by itself; a registered name exists there only if the
-code that registers it runs there too (at the top level of an imported module), so for a
-planner of one's own from a command line the import path is the form that always works.
+code that registers it runs there too. So ``rbbo`` records with a registered name its
+:func:`planner_source` (the import paths of its classes and its defaults), and a process
+without the registration chooses the same planner by :func:`planner_from_source`: a class
+registered in a notebook or in a script's ``if __name__ == "__main__":`` block is found
+there, as long as it is defined in a module of its own (one defined in ``__main__`` or inside
+a function cannot be imported elsewhere, and ``rbbo`` refuses it up front).
 """
 
 from __future__ import annotations
@@ -23,10 +27,19 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from .planner import Planner
 from .settings import PlannerSettings
 
-__all__ = ["PlannerEntry", "register_planner", "registered_planners", "resolve_planner"]
+__all__ = [
+    "PlannerEntry",
+    "planner_from_source",
+    "planner_source",
+    "register_planner",
+    "registered_planners",
+    "resolve_planner",
+]
 
 
 @dataclass(frozen=True)
@@ -82,9 +95,12 @@ def register_planner(
         :data:`controllers.DEFAULTS` for every planner, registered or shipped; without
         ``defaults`` the rest are the settings class's own defaults.
 
-    Register at the top level of a module that the processes planning import: ``rbbo``'s
-    workers know only the names registered where they run (an import path
-    ``package.module:ClassName`` needs no registering).
+    Registering in a notebook or a script is enough for ``rbbo``: its objective records the
+    classes' import paths and ``defaults`` with the name (:func:`planner_source`), and its
+    worker processes and ``rbbo resume`` choose the planner by them. That needs classes
+    defined in a module (not in ``__main__`` nor inside a function) and ``defaults`` of plain
+    values (numbers, strings, booleans, None, tuples of them). An import path
+    ``package.module:ClassName`` needs no registering.
     """
     if not isinstance(name, str) or not name or not all(c.isalnum() or c in "_-." for c in name):
         raise ValueError(
@@ -102,7 +118,9 @@ def register_planner(
     if not (isinstance(settings_class, type) and issubclass(settings_class, PlannerSettings)):
         raise TypeError(f"settings_class for {name!r} must be a PlannerSettings subclass, got "
                         f"{settings_class!r}")  # fmt: skip
-    defaults = dict(defaults or {})
+    # numpy's numbers and arrays as Python's numbers and tuples: a run records the settings
+    # as JSON, where np.int64(4) was its repr, and a resume (which reads 4) another planner
+    defaults = {k: _python(v) for k, v in (defaults or {}).items()}
     known = {f.name for f in dataclasses.fields(settings_class)}
     unknown = sorted(set(defaults) - known)
     if unknown:
@@ -116,9 +134,10 @@ def registered_planners() -> tuple[str, ...]:
     return tuple(sorted(_REGISTRY))
 
 
-def resolve_planner(name: str) -> PlannerEntry:
+def resolve_planner(name: str | PlannerEntry) -> PlannerEntry:
     """The planner ``name`` chooses: a registered name, or an import path
-    ``package.module:ClassName`` of a :class:`~controllers.Planner` subclass.
+    ``package.module:ClassName`` of a :class:`~controllers.Planner` subclass (a
+    :class:`PlannerEntry`, such as :func:`planner_from_source` gives, is returned as it is).
 
     An import path's module is imported from ``sys.path``; one that is not found there is
     looked for in the current directory too (which is then appended to ``sys.path``), as
@@ -135,6 +154,8 @@ def resolve_planner(name: str) -> PlannerEntry:
         For a name that is not a string, or an import path that names no concrete Planner
         subclass.
     """
+    if isinstance(name, PlannerEntry):
+        return name
     if not isinstance(name, str):
         raise TypeError(f"planner must be a name (str), got {name!r}")
     entry = _REGISTRY.get(name)
@@ -147,6 +168,85 @@ def resolve_planner(name: str) -> PlannerEntry:
         if entry.planner_class is cls:
             return dataclasses.replace(entry, name=name)
     return PlannerEntry(name, cls, _settings_class_of(cls))
+
+
+def planner_source(name: str) -> dict[str, Any]:
+    """What lets a process where ``name`` is not registered choose the planner it chooses here:
+    the import paths of its planner and settings classes and its registered defaults, as JSON.
+
+    ``rbbo`` records it with a registered name (the objective's spec, config.json), so that
+    its spawned workers and a later ``rbbo resume``, where the code that registered the name
+    did not run (a script's ``if __name__ == "__main__":`` block, a notebook), find the same
+    planner with :func:`planner_from_source`.
+
+    Returns
+    -------
+    dict
+        ``{"planner_class": "package.module:ClassName", "settings_class": ...,
+        "defaults": {...}}``, the defaults with numpy's numbers and arrays and tuples as
+        Python's numbers and lists.
+
+    Raises
+    ------
+    ValueError
+        For a name that is not registered; a class that another process cannot import by
+        its path (defined in ``__main__``, a script run directly or a notebook, or inside a
+        function), saying so and what to do; defaults that JSON cannot hold.
+    """
+    entry = _REGISTRY.get(name)
+    if entry is None:
+        raise ValueError(unknown_planner_message(name))
+    paths = {}
+    for key, cls in (("planner_class", entry.planner_class),
+                     ("settings_class", entry.settings_class)):  # fmt: skip
+        why = _not_importable(cls)
+        if why is not None:
+            raise ValueError(
+                f"planner {name!r} is registered to {_qualified(cls)}, {why}: another process "
+                "(rbbo's worker processes, a later rbbo resume) cannot import it, so it could "
+                "not find this planner by its name. Define the class in a module of its own "
+                "(my_planners.py, imported where you register it), or choose it by its import "
+                "path (my_planners:ClassName)"
+            )
+        paths[key] = _qualified(cls)
+    defaults = {}
+    for key, value in entry.defaults.items():
+        plain = _json_plain(value)
+        if plain is _NOT_JSON:
+            raise ValueError(f"planner {name!r}: its default {key} = {value!r} is not a plain "
+                             "value (numbers, strings, booleans, None, lists of them) that a "
+                             "run's config.json can record")  # fmt: skip
+        defaults[key] = plain
+    return {**paths, "defaults": defaults}
+
+
+def planner_from_source(name: str, source: Mapping[str, Any]) -> PlannerEntry:
+    """The planner that a registered ``name`` chose where :func:`planner_source` gave
+    ``source``: its classes imported by their paths, with its defaults (lists as tuples, as
+    settings hold them). Pass it to :func:`controllers.planner_for` in place of the name.
+
+    Raises
+    ------
+    ValueError
+        For a ``source`` that is not what :func:`planner_source` gives, or a path that names
+        no module or attribute.
+    TypeError
+        For paths that name no concrete Planner or PlannerSettings subclass.
+    """
+    if not (isinstance(source, Mapping)
+            and set(source) == {"planner_class", "settings_class", "defaults"}
+            and isinstance(source["defaults"], Mapping)):  # fmt: skip
+        raise ValueError(f"the source of planner {name!r} must be a dict with planner_class, "
+                         f"settings_class and defaults (controllers.planner_source), got "
+                         f"{source!r}")  # fmt: skip
+    planner_class = _imported(str(source["planner_class"]))
+    settings_path = str(source["settings_class"])
+    settings_class: Any = _attribute(settings_path)
+    if not (isinstance(settings_class, type) and issubclass(settings_class, PlannerSettings)):
+        raise TypeError(f"settings_class of planner {name!r}: {settings_path!r} is not a "
+                        "PlannerSettings subclass")  # fmt: skip
+    defaults = {k: _tuples(v) for k, v in source["defaults"].items()}
+    return PlannerEntry(name, planner_class, settings_class, defaults)
 
 
 def unknown_planner_message(name: str) -> str:
@@ -177,6 +277,53 @@ def _qualified(cls: type) -> str:
     return f"{cls.__module__}:{cls.__qualname__}"
 
 
+def _not_importable(cls: type) -> str | None:
+    """Why another process cannot import ``cls`` by :func:`_qualified`; None where it can."""
+    if cls.__module__ in ("__main__", "__mp_main__"):
+        return "a class defined in __main__ (a script run directly, or a notebook)"
+    if "<locals>" in cls.__qualname__:
+        return "a class defined inside a function"
+    module = sys.modules.get(cls.__module__)
+    found: Any = module
+    for part in cls.__qualname__.split("."):
+        found = getattr(found, part, None)
+    if found is not cls:
+        return f"which its module {cls.__module__!r} does not hold by that name"
+    return None
+
+
+_NOT_JSON = object()
+
+
+def _json_plain(value: Any) -> Any:
+    """``value`` as JSON holds it (numpy's numbers and arrays and tuples as Python's numbers
+    and lists), or ``_NOT_JSON``."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        items = [_json_plain(v) for v in value]
+        return _NOT_JSON if any(v is _NOT_JSON for v in items) else items
+    if isinstance(value, np.generic):
+        value = value.item()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return _NOT_JSON
+
+
+def _python(value: Any) -> Any:
+    """numpy's numbers and arrays as Python's numbers and tuples (anything else as it is)."""
+    if isinstance(value, np.ndarray):
+        return _tuples(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _tuples(value: Any) -> Any:
+    """JSON's lists as the tuples that settings hold."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
 def _check_planner_class(cls: Any, what: str) -> None:
     if not (isinstance(cls, type) and issubclass(cls, Planner)):
         raise TypeError(f"{what} must be a Planner subclass, got {cls!r}")
@@ -202,6 +349,13 @@ def _settings_class_of(cls: type[Planner]) -> type[PlannerSettings]:
 
 def _imported(path: str) -> type[Planner]:
     """The class an import path ``package.module:ClassName`` names."""
+    obj = _attribute(path)
+    _check_planner_class(obj, f"planner {path!r}")
+    return typing.cast(type[Planner], obj)
+
+
+def _attribute(path: str) -> Any:
+    """What an import path ``package.module:Name`` names."""
     module_name, _, attribute = path.partition(":")
     parts_ok = all(p.isidentifier() for p in module_name.split(".")) and all(
         p.isidentifier() for p in attribute.split(".")
@@ -233,5 +387,4 @@ def _imported(path: str) -> type[Planner]:
         except AttributeError:
             raise ValueError(f"planner {path!r}: module {module_name!r} has no "
                              f"{attribute!r}") from None  # fmt: skip
-    _check_planner_class(obj, f"planner {path!r}")
-    return typing.cast(type[Planner], obj)
+    return obj

@@ -394,6 +394,46 @@ def test_a_planner_name_is_registered_once_and_checked(registry):
     assert "x" not in registry._REGISTRY
 
 
+def test_a_registered_planner_is_chosen_again_by_its_source_where_it_is_not_registered(
+    registry,
+):
+    """planner_source (what rbbo records with a registered name) names the classes by import
+    path and the defaults as JSON; planner_from_source, in a process without the registration
+    (a worker, a resume), makes the same entry: the same planner for planner_for."""
+    import json
+
+    from controllers import planner_for, planner_from_source, planner_source, register_planner
+
+    # numpy's values are stored as Python's (a run records them as JSON: np.float64(0.25)
+    # was a repr there, and a resume reading 0.25 another planner)
+    register_planner("halver", Halver, defaults={"shrink": np.float64(0.25)})
+    entry = registry.resolve_planner("halver")
+    assert entry.defaults == {"shrink": 0.25} and type(entry.defaults["shrink"]) is float
+    source = json.loads(json.dumps(planner_source("halver")))
+    assert source == {"planner_class": f"{__name__}:Halver",
+                      "settings_class": f"{__name__}:HalverSettings",
+                      "defaults": {"shrink": 0.25}}  # fmt: skip
+    again = planner_from_source("halver", source)
+    assert again == entry
+    by_name, every = planner_for("softrom_gym/BeamWalk-v0", "halver")
+    by_source, every_again = planner_for("softrom_gym/BeamWalk-v0", again)
+    assert by_source.settings == by_name.settings and every_again == every
+    # an array as the tuple that settings hold, a list in JSON, a tuple again
+    register_planner("amplitudes", Halver, defaults={"seed_amplitudes": np.array([0.5, 1.0])})
+    entry = registry.resolve_planner("amplitudes")
+    assert entry.defaults == {"seed_amplitudes": (0.5, 1.0)}
+    source = json.loads(json.dumps(planner_source("amplitudes")))
+    assert source["defaults"] == {"seed_amplitudes": [0.5, 1.0]}
+    assert planner_from_source("amplitudes", source) == entry
+    with pytest.raises(ValueError, match="unknown planner 'nobody'"):
+        planner_source("nobody")
+    with pytest.raises(ValueError, match="the source of planner 'halver' must be a dict with "
+                       "planner_class, settings_class and defaults"):  # fmt: skip
+        planner_from_source("halver", {"planner_class": f"{__name__}:Halver"})
+    with pytest.raises(TypeError, match=f"'{__name__}:Halver' is not a PlannerSettings"):
+        planner_from_source("halver", {**source, "settings_class": f"{__name__}:Halver"})
+
+
 def test_an_unknown_planner_name_lists_the_registered_ones_and_the_import_path_form():
     from controllers import planner_for
 
