@@ -16,6 +16,7 @@ from rbbo.objective import (
     EnvObjective,
     SyntheticObjective,
     make_objective,
+    objective_differences,
     parse_objective_spec,
     settled_reward_rate,
     settled_step,
@@ -412,7 +413,7 @@ def test_a_planner_of_ones_own_by_import_path_is_recorded_and_found_again():
     objective = EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller=cem, settle_time=0.0,
                              env_kwargs=env_kwargs, planner_kwargs=tiny)  # fmt: skip
     spec = json.loads(json.dumps(objective.spec()))
-    assert spec["controller"] == cem
+    assert spec["controller"] == cem and "registered_planner" not in spec  # (as before)
     assert spec["planner"]["name"] == "cem" and spec["planner"]["settings"]["elites"] == 2
     resumed = make_objective(spec, 6, 2)
     assert resumed.controller == cem
@@ -423,3 +424,107 @@ def test_a_planner_of_ones_own_by_import_path_is_recorded_and_found_again():
         make_objective({**spec, "planner_kwargs": {**tiny, "elites": 3}}, 6, 2)
     with pytest.raises(ValueError, match="module 'examples.cem_planner' has no 'CME'"):
         make_objective({**spec, "controller": "examples.cem_planner:CME"}, 6, 2)
+
+
+@pytest.fixture
+def planner_registry(monkeypatch):
+    """The planner registry as shipped, restored after the test (registrations are for the
+    whole process)."""
+    from controllers import registry
+
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    return registry
+
+
+_SMALL_SWIM = {"robot": "beam", "task": "swim", "resolution": 6}
+_TINY_CEM = {"horizon": 4, "window": 4, "knots": 2, "gait_seed": False, "seed_periods": (),
+             "elites": 2, "iterations": 1}  # fmt: skip
+
+
+def test_a_name_registered_only_here_is_found_by_the_workers_and_a_resume(planner_registry,
+                                                                          monkeypatch):  # fmt: skip
+    """A planner registered in the user's session only (a notebook, a script's __main__
+    block): the spawned worker processes, which never ran that registration, evaluate with it,
+    and a resume without the registration finds the same planner with the same defaults.
+    Before the objective recorded the class's import path, every worker evaluation failed
+    with "unknown planner 'parent-cem'"."""
+    import controllers
+    from examples.cem_planner import CEM, CEMSettings
+    from rbbo import RBBO, RBBOConfig
+
+    controllers.register_planner("parent-cem", CEM, defaults={"samples": np.int64(4),
+                                                              "noise": 0.2})  # fmt: skip
+    objective = EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller="parent-cem",
+                             settle_time=0.0, env_kwargs=_SMALL_SWIM,
+                             planner_kwargs=_TINY_CEM)  # fmt: skip
+    spec = json.loads(json.dumps(objective.spec()))
+    assert spec["controller"] == "parent-cem"
+    assert spec["registered_planner"] == {
+        "planner_class": "examples.cem_planner:CEM",
+        "settings_class": "examples.cem_planner:CEMSettings",
+        "defaults": {"samples": 4, "noise": 0.2},
+    }
+    assert spec["planner"]["settings"]["samples"] == 4
+    config = RBBOConfig(6, 2, n_init=1, max_evaluations=1, n_confirm=0, t_min=0.1, t_max=0.2,
+                        acq_random=16, acq_starts=1, gp_restarts=0)  # fmt: skip
+    opt = RBBO(config, objective_spec=spec)
+    opt.run(objective, workers=1, timeout_s=120, confirm=False)  # (a spawned worker)
+    [evaluation] = opt.history
+    assert evaluation.status == "ok", evaluation.error
+    # a resume in a process without the registration (rbbo resume): the recorded source
+    monkeypatch.setattr(planner_registry, "_REGISTRY", {
+        k: v for k, v in planner_registry._REGISTRY.items() if k != "parent-cem"})  # fmt: skip
+    resumed = make_objective(spec, 6, 2)  # (its planner record checked: the same settings)
+    planner, _ = resumed.planner()
+    assert type(planner) is CEM and type(planner.settings) is CEMSettings
+    assert (planner.settings.samples, planner.settings.noise) == (4, 0.2)
+    assert json.loads(json.dumps(resumed.spec())) == spec
+    basis = np.eye(6)[:, :2]
+    assert resumed(basis, 0.1, seed=0) == objective(basis, 0.1, seed=0)
+    # a spec recorded before the source was: without the registration unknown, as before
+    old = {k: v for k, v in spec.items() if k != "registered_planner"}
+    with pytest.raises(ValueError, match="unknown planner 'parent-cem'; registered: gn, mppi"):
+        make_objective(old, 6, 2)
+    # with it, the same objective (the key it lacks is no difference: no ObjectiveMismatch)
+    controllers.register_planner("parent-cem", CEM, defaults={"samples": 4, "noise": 0.2})
+    assert objective_differences(old, make_objective(old, 6, 2)) == []
+    assert objective_differences(spec, make_objective(old, 6, 2)) == []
+
+
+def test_a_registered_class_no_other_process_can_import_is_refused_up_front(planner_registry):
+    """A class defined in __main__ or inside a function cannot be found by a worker or a
+    resume: EnvObjective says so, and what to do, instead of every evaluation failing."""
+    import controllers
+    from examples.cem_planner import CEM
+
+    class Local(CEM):
+        pass
+
+    in_main = type("Scripted", (CEM,), {"__module__": "__main__"})
+    controllers.register_planner("local-cem", Local)
+    controllers.register_planner("main-cem", in_main)
+    for name, where, why in (
+        ("local-cem", rf"{__name__}:.*<locals>\.Local", "a class defined inside a function"),
+        ("main-cem", "__main__:Scripted", r"a class defined in __main__ \(a script run "
+         r"directly, or a notebook\)"),
+    ):  # fmt: skip
+        with pytest.raises(ValueError, match=(
+            rf"planner '{name}' is registered to {where}, {why}: another process \(rbbo's "
+            r"worker processes, a later rbbo resume\) cannot import it, .* Define the class "
+            r"in a module of its own .* or choose it by its import path")):  # fmt: skip
+            EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller=name)
+    controllers.register_planner("odd-cem", CEM, defaults={"noise": object()})
+    with pytest.raises(ValueError, match="planner 'odd-cem': its default noise = <object"):
+        EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller="odd-cem")
+
+
+def test_the_shipped_planners_specs_are_as_before(controllers):
+    """The specs of "mppi" and "gn" runs get no new key: a resumed run's recorded spec is
+    compared with its objective's (an ObjectiveMismatch names any key it lacks)."""
+    for name in EnvObjective.CONTROLLERS:
+        spec = EnvObjective("rbbo_test/StandIn-v0", 20, 3, controller=name).spec()
+        assert set(spec) == {"kind", "env_id", "sim_dim", "control_dim", "controller",
+                             "settle_time", "env_kwargs", "planner_kwargs", "planner"}  # fmt: skip
+    with pytest.raises(ValueError, match="registered_planner is recorded for a registered "
+                       "planner name, not for 'gn'"):  # fmt: skip
+        EnvObjective("rbbo_test/StandIn-v0", 20, 3, controller="gn", registered_planner={})

@@ -68,7 +68,10 @@ class EnvObjective:
         ``controllers.register_planner``, or an import path ``package.module:ClassName`` of a
         ``controllers.Planner`` subclass. The string is what a run records (config.json) and
         what worker processes and ``rbbo resume`` find the planner by: they import an import
-        path themselves, but know a registered name only if the code registering it runs there.
+        path themselves, and a registered name by ``registered_planner`` where the code
+        registering it does not run there. A registered name whose class another process
+        cannot import (defined in ``__main__``, a script or a notebook, or inside a function)
+        is refused here with a ValueError: define the class in a module.
     settle_time : float
         t_settle, seconds.
     env_kwargs, planner_kwargs : dict
@@ -76,6 +79,13 @@ class EnvObjective:
         ``changes``). For a registered env id the keywords' names are checked and the
         planner is made once here, so a keyword the env does not take or a setting the
         planner refuses raises its ValueError or TypeError now, not in every evaluation.
+    registered_planner : dict or None
+        For a registered name other than "mppi" and "gn", filled in here: where the planner's
+        classes are imported from and the defaults it was registered with
+        (``controllers.planner_source``), which the spec records. A process where the name is
+        not registered (a worker, ``rbbo resume``) chooses the planner by it; where it is
+        registered, the registration is used (and recorded). Leave it None: a recorded spec
+        gives it back (one without it, from before, needs the name registered as before).
     """
 
     env_id: str
@@ -85,20 +95,14 @@ class EnvObjective:
     settle_time: float = 2.0
     env_kwargs: dict = field(default_factory=dict)
     planner_kwargs: dict = field(default_factory=dict)
+    registered_planner: dict | None = None
 
     CONTROLLERS = ("mppi", "gn")  # the shipped planners (any the controllers resolve is taken)
 
     def __post_init__(self) -> None:
         # (numpy's integers as Python's: spec() goes into config.json)
         self.sim_dim, self.control_dim = _check_dims(self.sim_dim, self.control_dim)
-        if not isinstance(self.controller, str):
-            raise TypeError(f"controller must be a planner name (str), got {self.controller!r}")
-        if self.controller not in self.CONTROLLERS:
-            import controllers
-
-            # a registered name or an import path: unknown ones are named with the registered
-            # names and the import-path form, here rather than in every evaluation
-            controllers.resolve_planner(self.controller)
+        self._check_controller()
         settle = self.settle_time
         if isinstance(settle, bool) or not isinstance(settle, (int, float, np.number)):
             raise ValueError(f"settle_time must be a number of seconds >= 0, got {settle!r}")
@@ -116,6 +120,46 @@ class EnvObjective:
         self._signature: list[float] | None = None
         self._signature_read = False  # an env without a signature is asked once, not per call
         self._check_keywords()
+
+    def _check_controller(self) -> None:
+        """Find the planner now, so that an unknown name (named with the registered names and
+        the import-path form) or a registered class no worker could import is an error here,
+        not in every evaluation; fill in ``registered_planner`` for a registered name."""
+        name, source = self.controller, self.registered_planner
+        if not isinstance(name, str):
+            raise TypeError(f"controller must be a planner name (str), got {name!r}")
+        if source is not None and not isinstance(source, dict):
+            raise TypeError(f"registered_planner must be a dict (controllers.planner_source) or "
+                            f"None, got {type(source).__name__}")  # fmt: skip
+        shipped_or_path = name in self.CONTROLLERS or ":" in name
+        if shipped_or_path and source is not None:
+            raise ValueError(f"registered_planner is recorded for a registered planner name, "
+                             f"not for {name!r}")  # fmt: skip
+        if name in self.CONTROLLERS:
+            return
+        import controllers
+
+        if shipped_or_path:
+            controllers.resolve_planner(name)
+        elif name in controllers.registered_planners():
+            # (the registration here wins over a recorded source: a class moved since shows
+            # as a difference from the run's recorded spec)
+            self.registered_planner = controllers.planner_source(name)
+        elif source is not None:
+            controllers.planner_from_source(name, source)
+        else:
+            controllers.resolve_planner(name)  # (unknown here: its ValueError)
+
+    def _planner_choice(self) -> Any:
+        """The name to plan with, or where the name is not registered in this process (a
+        worker, a resume) the planner its recorded ``registered_planner`` names."""
+        if self.registered_planner is None:
+            return self.controller
+        import controllers
+
+        if self.controller in controllers.registered_planners():
+            return self.controller
+        return controllers.planner_from_source(self.controller, self.registered_planner)
 
     def _check_keywords(self) -> None:
         """Check the env keywords by name and make the planner once (when there are planner
@@ -226,8 +270,8 @@ class EnvObjective:
         from softrom_gym.registration import control_period
 
         dt = control_period(self.env_id, **self.env_kwargs)
-        planner, replan_every = controllers.planner_for(self.env_id, self.controller, dt=dt,
-                                                        **self.planner_kwargs)  # fmt: skip
+        planner, replan_every = controllers.planner_for(self.env_id, self._planner_choice(),
+                                                        dt=dt, **self.planner_kwargs)  # fmt: skip
         check = getattr(getattr(planner, "settings", None), "check_control_dim", None)
         if callable(check):  # controllers.PlannerSettings
             # (a per-dimension setting of another length fails here, not in every evaluation)
@@ -289,6 +333,11 @@ class EnvObjective:
             "env_kwargs": self.env_kwargs,
             "planner_kwargs": self.planner_kwargs,
             "planner": self.planner_record(),
+            **(
+                {}
+                if self.registered_planner is None
+                else {"registered_planner": self.registered_planner}
+            ),
             **({} if signature is None else {"simulation_space": signature}),
         }
 
