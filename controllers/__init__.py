@@ -29,6 +29,7 @@ from .mppi import MPPI, MPPISettings
 from .planner import Planner, PlannerSettings
 from .registry import (
     PlannerEntry,
+    PlannerNotImportable,
     planner_from_source,
     planner_source,
     register_planner,
@@ -50,6 +51,7 @@ __all__ = [
     "MPPISettings",
     "Planner",
     "PlannerEntry",
+    "PlannerNotImportable",
     "PlannerSettings",
     "SinusoidGait",
     "SplinePlan",

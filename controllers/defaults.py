@@ -115,8 +115,6 @@ _PLANNER: dict[str, dict[str, Any]] = {
     # a 0.1 trust region (0.16, 0.89), a 2 s horizon (0.99, 0.88).
     "gn": {"iterations": 1, "fd_step": 0.1, "damping": 0.01, "explore": 8},
 }
-register_planner("mppi", MPPI, MPPISettings, defaults=_PLANNER["mppi"])
-register_planner("gn", GaussNewtonShooting, GaussNewtonSettings, defaults=_PLANNER["gn"])
 
 
 def _benchmark(env_id: str) -> str:
@@ -324,3 +322,8 @@ def planner_for(
     row = DEFAULTS[_benchmark(env_id)] if has_defaults(env_id) else GENERIC
     settings, replan_every = _settings(entry, row, dt, changes)
     return entry.planner_class(settings, dt=_control_period(dt)), replan_every
+
+
+# (last: register_planner checks their defaults against the shared rows above)
+register_planner("mppi", MPPI, MPPISettings, defaults=_PLANNER["mppi"])
+register_planner("gn", GaussNewtonShooting, GaussNewtonSettings, defaults=_PLANNER["gn"])

@@ -34,12 +34,18 @@ from .settings import PlannerSettings
 
 __all__ = [
     "PlannerEntry",
+    "PlannerNotImportable",
     "planner_from_source",
     "planner_source",
     "register_planner",
     "registered_planners",
     "resolve_planner",
 ]
+
+
+class PlannerNotImportable(ValueError):
+    """A registered planner's class that another process cannot import by its path (defined
+    in ``__main__`` or inside a function): :func:`planner_source` cannot record it."""
 
 
 @dataclass(frozen=True)
@@ -126,7 +132,28 @@ def register_planner(
     if unknown:
         raise TypeError(f"defaults for {name!r}: unknown {settings_class.__name__} setting "
                         f"{', '.join(map(repr, unknown))}")  # fmt: skip
+    shared = sorted(set(defaults) & _shared_settings())
+    if shared:
+        # (planner_for passes the benchmark's values of these beside the defaults: a
+        # duplicate keyword there, and a planner that plans another gait than its rivals)
+        raise TypeError(
+            f"defaults for {name!r} set {', '.join(map(repr, shared))}, which belong to the "
+            "benchmark's plan and objective that every planner shares (controllers.DEFAULTS); "
+            "change "
+            "them per call instead (planner_for(env_id, name, horizon=...), or rbbo's "
+            "planner_kwargs)"
+        )
     _REGISTRY[name] = PlannerEntry(name, planner_class, settings_class, defaults)
+
+
+def _shared_settings() -> set[str]:
+    """The settings a benchmark's row sets for every planner (plan, gait seed, weights)."""
+    from .defaults import _COMMON, DEFAULTS, GENERIC
+
+    keys = set(_COMMON) | set(GENERIC) | {"weights"}
+    for row in DEFAULTS.values():
+        keys |= set(row)
+    return keys
 
 
 def registered_planners() -> tuple[str, ...]:
@@ -188,10 +215,12 @@ def planner_source(name: str) -> dict[str, Any]:
 
     Raises
     ------
+    PlannerNotImportable
+        A ValueError, for a class that another process cannot import by its path (defined in
+        ``__main__``, a script run directly or a notebook, or inside a function), saying so
+        and what to do.
     ValueError
-        For a name that is not registered; a class that another process cannot import by
-        its path (defined in ``__main__``, a script run directly or a notebook, or inside a
-        function), saying so and what to do; defaults that JSON cannot hold.
+        For a name that is not registered, or defaults that JSON cannot hold.
     """
     entry = _REGISTRY.get(name)
     if entry is None:
@@ -201,7 +230,7 @@ def planner_source(name: str) -> dict[str, Any]:
                      ("settings_class", entry.settings_class)):  # fmt: skip
         why = _not_importable(cls)
         if why is not None:
-            raise ValueError(
+            raise PlannerNotImportable(
                 f"planner {name!r} is registered to {_qualified(cls)}, {why}: another process "
                 "(rbbo's worker processes, a later rbbo resume) cannot import it, so it could "
                 "not find this planner by its name. Define the class in a module of its own "

@@ -321,6 +321,7 @@ def test_the_plan_is_typed_and_named_before_reset():
 @dataclass(frozen=True)
 class HalverSettings(PlannerSettings):
     shrink: float = 0.5
+    levels: tuple[float, ...] = ()  # (a tuple setting, recorded as a JSON list)
 
 
 class Halver(Planner):
@@ -391,6 +392,10 @@ def test_a_planner_name_is_registered_once_and_checked(registry):
     with pytest.raises(TypeError, match="defaults for 'x': unknown HalverSettings setting "
                        "'shrnk'"):  # fmt: skip
         register_planner("x", Halver, defaults={"shrnk": 0.1})
+    # (a shared setting in defaults reached planner_for twice: "got multiple values")
+    with pytest.raises(TypeError, match="defaults for 'x' set 'horizon', 'weights', which "
+                       "belong to the benchmark's plan"):  # fmt: skip
+        register_planner("x", Halver, defaults={"weights": None, "horizon": 30})
     assert "x" not in registry._REGISTRY
 
 
@@ -419,11 +424,11 @@ def test_a_registered_planner_is_chosen_again_by_its_source_where_it_is_not_regi
     by_source, every_again = planner_for("softrom_gym/BeamWalk-v0", again)
     assert by_source.settings == by_name.settings and every_again == every
     # an array as the tuple that settings hold, a list in JSON, a tuple again
-    register_planner("amplitudes", Halver, defaults={"seed_amplitudes": np.array([0.5, 1.0])})
+    register_planner("amplitudes", Halver, defaults={"levels": np.array([0.5, 1.0])})
     entry = registry.resolve_planner("amplitudes")
-    assert entry.defaults == {"seed_amplitudes": (0.5, 1.0)}
+    assert entry.defaults == {"levels": (0.5, 1.0)}
     source = json.loads(json.dumps(planner_source("amplitudes")))
-    assert source["defaults"] == {"seed_amplitudes": [0.5, 1.0]}
+    assert source["defaults"] == {"levels": [0.5, 1.0]}
     assert planner_from_source("amplitudes", source) == entry
     with pytest.raises(ValueError, match="unknown planner 'nobody'"):
         planner_source("nobody")

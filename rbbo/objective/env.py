@@ -8,6 +8,7 @@ and checks the simulation space B_r and the planner a run's evaluations used.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -71,7 +72,8 @@ class EnvObjective:
         path themselves, and a registered name by ``registered_planner`` where the code
         registering it does not run there. A registered name whose class another process
         cannot import (defined in ``__main__``, a script or a notebook, or inside a function)
-        is refused here with a ValueError: define the class in a module.
+        gets a UserWarning here: it runs in this process (the serial executor) only, so
+        define the class in a module for worker processes and ``rbbo resume``.
     settle_time : float
         t_settle, seconds.
     env_kwargs, planner_kwargs : dict
@@ -144,7 +146,17 @@ class EnvObjective:
         elif name in controllers.registered_planners():
             # (the registration here wins over a recorded source: a class moved since shows
             # as a difference from the run's recorded spec)
-            self.registered_planner = controllers.planner_source(name)
+            try:
+                self.registered_planner = controllers.planner_source(name)
+            except controllers.PlannerNotImportable as exc:
+                # Still a planner this process can run (a notebook's, with the serial
+                # executor), so a warning, not a refusal: only other processes lack it.
+                warnings.warn(
+                    f"{exc}. Until then it plans in this process only: rbbo's serial executor "
+                    "runs it, while worker processes and rbbo resume will call it unknown",
+                    UserWarning,
+                    stacklevel=4,  # (the EnvObjective(...) call: this, __post_init__, __init__)
+                )
         elif source is not None:
             controllers.planner_from_source(name, source)
         else:
