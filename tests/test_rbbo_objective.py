@@ -518,6 +518,13 @@ def test_a_registered_class_no_other_process_can_import_is_named_up_front(planne
         assert caught[0].filename == __file__  # (pointing at the caller's line)
         assert objective.registered_planner is None and "registered_planner" not in objective.spec()
         assert type(objective.planner()[0]).__name__ in ("Local", "Scripted")  # (it runs here)
+    with pytest.warns(UserWarning, match=r"controller '__main__:Scripted' names a class of "
+                      r"__main__ .* plans in this process only"):  # fmt: skip
+        sys.modules["__main__"].Scripted = in_main  # type: ignore[attr-defined]
+        try:
+            EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller="__main__:Scripted")
+        finally:
+            del sys.modules["__main__"].Scripted  # type: ignore[attr-defined]
     controllers.register_planner("odd-cem", CEM, defaults={"noise": object()})
     with pytest.raises(ValueError, match="planner 'odd-cem': its default noise = <object"):
         EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller="odd-cem")

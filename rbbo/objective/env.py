@@ -143,6 +143,15 @@ class EnvObjective:
 
         if shipped_or_path:
             controllers.resolve_planner(name)
+            if name.partition(":")[0] == "__main__":
+                warnings.warn(
+                    f"controller {name!r} names a class of __main__ (this script or notebook): "
+                    "it plans in this process only, with rbbo's serial executor, while worker "
+                    "processes and rbbo resume have another __main__ and will not find it; "
+                    "define the class in a module and name it by that module's path",
+                    UserWarning,
+                    stacklevel=4,
+                )
         elif name in controllers.registered_planners():
             # (the registration here wins over a recorded source: a class moved since shows
             # as a difference from the run's recorded spec)
