@@ -5,6 +5,7 @@ core, with the per-step terms a planner scores."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -174,6 +175,33 @@ class PlanningAPI:
         if observe is not None:
             result["observed"] = observed[..., n_orient:]
         return result
+
+    def _step_once(self, f_c: np.ndarray) -> tuple[cpp_sim.ReducedState, dict[str, Any]]:
+        """One env step from the current state with ``f_c`` (C,), already checked and clipped:
+        :meth:`rollout` for B = H = 1 without its checks and batch bookkeeping, the per-step
+        path ``step`` takes millions of times under RL. Returns the new state and the terms
+        ``step`` reports, each computed as ``rollout`` computes it (the same numpy operations
+        on arrays of the same layout, so a plan replays through ``step`` to the last bit)."""
+        # rollout()'s rounding of a control (its clip is done: f_c is within the bound)
+        u = f_c.astype(np.float32).astype(float)
+        k = self.frame_skip
+        state = self._state
+        out = self.model.rollout(state, np.repeat(u[None, None, :], k, axis=1), threads=1,
+                                 observe=self._orientation)  # fmt: skip
+        # (1, 1, n) views, as rollout()'s (B, H, n) arrays: matmul and norm see one layout
+        delta = (out["com"][:, -1:] - self.model.com(state.q))[..., :2]
+        d2 = self.direction[:2]
+        lateral = np.linalg.norm(delta - (delta @ d2)[..., None] * d2, axis=-1)
+        theta = out["observed"][:, -1:]
+        terms = {
+            "reward": float(out["rewards"][0].sum()),
+            "orientation": float(np.linalg.norm(theta, axis=-1)[0, 0]),
+            "lateral": float(lateral[0, 0]),
+            "effort": float(np.sum((u / self.action_bound) ** 2, axis=-1)),
+            "diverged": bool(out["diverged"][0]),
+        }
+        new = cpp_sim.ReducedState(out["q"][0], out["qdot"][0], out["impulses"][0])
+        return new, terms
 
     def final_states(self, result: Mapping[str, np.ndarray]) -> list[cpp_sim.ReducedState]:
         """The B final states of a :meth:`rollout` result, as states to start from again.

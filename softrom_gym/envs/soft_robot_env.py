@@ -242,14 +242,11 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
 
     def step(self, action):
         f_c = self._check_action(action)
-        out = self.rollout(self._state, f_c[None, None, :], threads=1)
-        diverged = bool(out["diverged"][0])
-        self._state = cpp_sim.ReducedState(out["q"][0], out["qdot"][0], out["impulses"][0])
-        reward = float(out["rewards"][0, 0])
-        # The terms as rollout() computed them: a planner's prediction is what step reports.
-        info = self._info(self._state, float(out["lateral"][0, 0]), float(out["effort"][0, 0]),
-                          diverged, float(out["orientation"][0, 0]))  # fmt: skip
-        return self._obs(self._state), reward, diverged, False, info
+        self._state, terms = self._step_once(f_c)
+        # The terms as rollout() computes them: a planner's prediction is what step reports.
+        info = self._info(self._state, terms["lateral"], terms["effort"], terms["diverged"],
+                          terms["orientation"])  # fmt: skip
+        return self._obs(self._state), terms["reward"], terms["diverged"], False, info
 
     # ---------------------------------------------------------------- copying
     def __getstate__(self) -> dict[str, Any]:
