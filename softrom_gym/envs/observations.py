@@ -54,9 +54,11 @@ class Observations:
     # default, so an env pickled before it existed unpickles with it.
     _inversion_warned: bool = False
 
-    def _obs(self, state: cpp_sim.ReducedState) -> np.ndarray:
+    def _obs(self, state: cpp_sim.ReducedState, com: np.ndarray | None = None) -> np.ndarray:
+        """The observation of ``state``; ``com`` is its centre of mass when the caller has it."""
         q, qdot = state.q, state.qdot
-        com = self.model.com(q)
+        if com is None:
+            com = self.model.com(q)
         return np.concatenate(
             [
                 [com[2] - self.model.ground_height],
@@ -75,17 +77,26 @@ class Observations:
                 f"action has shape {a.shape}, expected {self.action_space.shape} "
                 f"(control_dim = {self.action_space.shape[0]})"
             )
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError(f"action contains non-finite values: {a}")
-        return np.clip(a, -self.action_bound, self.action_bound)
+        return a.clip(-self.action_bound, self.action_bound)
 
     def _info(
-        self, state, lateral: float, effort: float, diverged: bool, orientation: float | None = None
+        self,
+        state: cpp_sim.ReducedState,
+        lateral: float,
+        effort: float,
+        diverged: bool,
+        orientation: float | None = None,
+        com: np.ndarray | None = None,
     ) -> dict[str, Any]:
-        com = self.model.com(state.q)
+        """The step info of ``state``; ``com`` is its centre of mass when the caller has it."""
+        q = state.q
+        if com is None:
+            com = self.model.com(q)
         if orientation is None:
-            orientation = float(np.linalg.norm(self._orientation @ state.q))
-        volume_ratio = float(self.model.min_volume_ratio(state.q))
+            orientation = float(np.linalg.norm(self._orientation @ q))
+        volume_ratio = float(self.model.min_volume_ratio(q))
         if volume_ratio <= 0.0 and not self._inversion_warned:
             # Stable Neo-Hookean is defined for inverted elements and restores them, so the step
             # goes on, but while det F <= 0 the motion is not a physical one: say so once.

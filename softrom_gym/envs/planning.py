@@ -191,13 +191,16 @@ class PlanningAPI:
         # (1, 1, n) views, as rollout()'s (B, H, n) arrays: matmul and norm see one layout
         delta = (out["com"][:, -1:] - self.model.com(state.q))[..., :2]
         d2 = self.direction[:2]
-        lateral = np.linalg.norm(delta - (delta @ d2)[..., None] * d2, axis=-1)
+        # sqrt(add.reduce(x * x)) and add.reduce: what np.linalg.norm(x, axis=-1) and np.sum
+        # compute, without their Python layers
+        off = delta - (delta @ d2)[..., None] * d2
+        lateral = np.sqrt(np.add.reduce(off * off, axis=-1))
         theta = out["observed"][:, -1:]
         terms = {
             "reward": float(out["rewards"][0].sum()),
-            "orientation": float(np.linalg.norm(theta, axis=-1)[0, 0]),
+            "orientation": float(np.sqrt(np.add.reduce(theta * theta, axis=-1))[0, 0]),
             "lateral": float(lateral[0, 0]),
-            "effort": float(np.sum((u / self.action_bound) ** 2, axis=-1)),
+            "effort": float(np.add.reduce((u / self.action_bound) ** 2, axis=-1)),
             "diverged": bool(out["diverged"][0]),
         }
         new = cpp_sim.ReducedState(out["q"][0], out["qdot"][0], out["impulses"][0])

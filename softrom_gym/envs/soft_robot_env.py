@@ -243,10 +243,11 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
     def step(self, action):
         f_c = self._check_action(action)
         self._state, terms = self._step_once(f_c)
+        com = self.model.com(self._state.q)
         # The terms as rollout() computes them: a planner's prediction is what step reports.
         info = self._info(self._state, terms["lateral"], terms["effort"], terms["diverged"],
-                          terms["orientation"])  # fmt: skip
-        return self._obs(self._state), terms["reward"], terms["diverged"], False, info
+                          terms["orientation"], com)  # fmt: skip
+        return self._obs(self._state, com), terms["reward"], terms["diverged"], False, info
 
     # ---------------------------------------------------------------- copying
     def __getstate__(self) -> dict[str, Any]:
