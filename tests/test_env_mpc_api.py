@@ -147,6 +147,33 @@ def test_divergence_is_marked_as_lost_steps_from_the_diverging_step_on():
     np.testing.assert_array_equal(out["rewards"][1, 3:], 0.0)
 
 
+@pytest.mark.filterwarnings("ignore:.*a tetrahedron is inverted")
+def test_a_diverging_step_reports_what_rollout_predicts_for_it():
+    # step() has its own single-step path: the step that diverges part-way through its
+    # sub-steps (paid up to there) must still report rollout's terms and frozen state
+    env = gym.make("softrom_gym/BeamWalk-v0", action_scale=1e3)
+    env.reset(seed=0)
+    bound = env.get_wrapper_attr("action_bound")
+    start = env.get_wrapper_attr("get_state")()
+    controls = np.random.default_rng(1).uniform(-1.0, 1.0, (1, 4, 3)) * bound
+    out = env.get_wrapper_attr("rollout")(start, controls)
+    assert out["diverged"][0] and out["lost"][0, 0] == 0.0  # diverges after a good step
+    for t in range(controls.shape[1]):
+        _, reward, terminated, _, info = env.step(controls[0, t].astype(np.float32))
+        assert reward == out["rewards"][0, t]
+        np.testing.assert_array_equal(info["com"], out["com"][0, t])
+        for key in ("orientation", "lateral", "effort"):
+            assert info[key] == out[key][0, t], key
+        assert terminated == info["diverged"] == bool(out["lost"][0, t])
+        if terminated:
+            break
+    assert terminated and 0.0 < abs(reward)  # the diverging step paid its good sub-steps
+    state = env.get_wrapper_attr("get_state")()
+    for name in ("q", "qdot", "impulses"):
+        np.testing.assert_array_equal(getattr(state, name), out[name][0], err_msg=name)
+    env.close()
+
+
 def test_control_basis_is_swapped_in_place_and_validated(tmp_path):
     env = gym.make("softrom_gym/BeamWalk-v0")
     base = env.unwrapped
