@@ -318,6 +318,56 @@ def test_the_plan_is_typed_and_named_before_reset():
         planner.spline  # noqa: B018
 
 
+def test_a_planner_that_keeps_its_old_hook_beside_optimise_plans_with_optimise():
+    # A planner renamed to optimise that keeps _optimise for its old callers is no legacy
+    # planner: no warning, and plan() calls its own optimise (a forwarder to _optimise,
+    # which calls optimise, would recurse).
+    class Migrated(Halver):
+        def optimise(self, state: Any) -> None:
+            super().optimise(state)
+            self.last_["hook"] = "optimise"
+
+        def _optimise(self, state: Any) -> None:  # (kept for callers of the old name)
+            self.optimise(state)
+
+    assert Migrated.optimise is vars(Migrated)["optimise"]
+    env = small_env()
+    planner = Migrated(HalverSettings(horizon=4, knots=2))
+    planner.reset(env, seed=0)
+    planner.plan(env)
+    assert planner.last_["hook"] == "optimise" and planner.last_["rollouts"] == 2
+
+
+def test_knots_scored_over_another_horizon_start_at_the_plans_clock():
+    """evaluate_knots(..., horizon) (and the deprecated _evaluate, which forwards it) rolls
+    out the plan from its clock over that many steps: a periodic plan's first H controls are
+    those of the plan's own horizon."""
+    env = small_env()
+    planner = Restorer(PlannerSettings(horizon=4, knots=2, period=6.0, gait_seed=False))
+    planner.reset(env, seed=0)
+    c = planner.api_.control_dim
+    planner.spline.knots = np.stack([np.linspace(-0.5, 0.5, c), np.linspace(0.6, -0.2, c)])
+    planner.spline.shift(2)  # (the clock two steps on, as after two actions)
+    sent = []
+    rollout = planner.api_.rollout
+
+    def recording(state: Any, controls: np.ndarray, **kwargs: Any) -> Any:
+        sent.append(np.array(controls))
+        return rollout(state, controls, **kwargs)
+
+    planner.api_.rollout = recording
+    state = planner.api_.get_state()
+    knots = np.stack([planner.spline.knots, 0.5 * planner.spline.knots])
+    planner.evaluate_knots(state, knots)
+    planner.evaluate_knots(state, knots, horizon=7)
+    with pytest.warns(DeprecationWarning, match="_evaluate is deprecated"):
+        planner._evaluate(state, knots, 7)
+    own, longer, deprecated = sent
+    assert own.shape == (2, 4, c) and longer.shape == (2, 7, c)
+    np.testing.assert_allclose(longer[:, :4], own, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(deprecated, longer)
+
+
 @dataclass(frozen=True)
 class HalverSettings(PlannerSettings):
     shrink: float = 0.5
