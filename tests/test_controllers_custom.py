@@ -544,3 +544,54 @@ def test_an_import_path_is_found_in_the_current_directory(tmp_path, monkeypatch)
         assert sys.path[-1] == str(tmp_path)  # (after the installed packages)
     finally:
         sys.modules.pop("own_planners_here", None)
+
+
+class Holder:
+    class Nested(Halver):
+        """A planner class inside a class: its import path is by its qualified name."""
+
+        name = "nested"
+
+
+def test_a_registered_class_inside_a_class_is_recorded_by_its_qualified_name(registry):
+    import json
+
+    from controllers import planner_from_source, planner_source, register_planner
+
+    register_planner("nested", Holder.Nested)
+    source = json.loads(json.dumps(planner_source("nested")))
+    assert source["planner_class"] == f"{__name__}:Holder.Nested"
+    assert planner_from_source("nested", source) == registry.resolve_planner("nested")
+
+
+def test_the_current_directory_is_appended_only_for_a_module_not_found_elsewhere(
+    tmp_path, monkeypatch
+):
+    # (an import path found on sys.path, or already imported, leaves sys.path as it was; a
+    # class of __main__, whose __spec__ is None in a script, is not looked for: find_spec
+    # raised ValueError for it)
+    import os
+    import sys
+
+    from controllers import resolve_planner
+
+    lib, work = tmp_path / "lib", tmp_path / "work"
+    lib.mkdir()
+    work.mkdir()
+    (lib / "own_planners_on_path.py").write_text(
+        f"from {__name__} import Halver\n\n\nclass Mine(Halver):\n    name = 'mine'\n"
+    )
+    here = {os.getcwd(), str(work), ""}
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in here] + [str(lib)])
+    monkeypatch.chdir(work)
+    before = list(sys.path)
+    try:
+        assert resolve_planner(f"{__name__}:Halver").planner_class is Halver
+        assert sys.path == before
+        monkeypatch.setattr(sys.modules["__main__"], "Scripted", Halver, raising=False)
+        assert resolve_planner("__main__:Scripted").planner_class is Halver
+        assert sys.path == before
+        assert resolve_planner("own_planners_on_path:Mine").planner_class.name == "mine"
+        assert sys.path == before
+    finally:
+        sys.modules.pop("own_planners_on_path", None)
