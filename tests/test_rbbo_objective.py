@@ -540,3 +540,33 @@ def test_the_shipped_planners_specs_are_as_before(controllers):
     with pytest.raises(ValueError, match="registered_planner is recorded for a registered "
                        "planner name, not for 'gn'"):  # fmt: skip
         EnvObjective("rbbo_test/StandIn-v0", 20, 3, controller="gn", registered_planner={})
+    # (an import path is recorded by itself: a source beside it is refused as for a shipped one)
+    cem = "examples.cem_planner:CEM"
+    with pytest.raises(ValueError, match="registered_planner is recorded for a registered "
+                       f"planner name, not for '{cem}'"):  # fmt: skip
+        EnvObjective("rbbo_test/StandIn-v0", 20, 3, controller=cem, registered_planner={})
+
+
+def test_a_recorded_source_is_checked_up_front_and_a_registration_here_wins(planner_registry):
+    """A name not registered here plans with its recorded source, which a wrong path makes
+    an error at once, not in every evaluation; a name registered here plans with its
+    registration, even where that class cannot be recorded and the recorded source names
+    another."""
+    import controllers
+    from examples.cem_planner import CEM
+
+    source = {"planner_class": "examples.cem_planner:CME",
+              "settings_class": "examples.cem_planner:CEMSettings", "defaults": {}}  # fmt: skip
+    with pytest.raises(ValueError, match="module 'examples.cem_planner' has no 'CME'"):
+        EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller="gone-cem",
+                     registered_planner=source)  # fmt: skip
+
+    class Local(CEM):
+        pass
+
+    controllers.register_planner("gone-cem", Local)
+    with pytest.warns(UserWarning, match="plans in this process only"):
+        objective = EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller="gone-cem",
+                                 registered_planner={**source, "planner_class":
+                                                     "examples.cem_planner:CEM"})  # fmt: skip
+    assert type(objective.planner()[0]) is Local
