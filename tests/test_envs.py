@@ -984,6 +984,8 @@ def test_set_control_basis_updates_the_spec_so_the_spec_makes_this_env(tmp_path)
     # (a non-bool orthonormalize, truthy as a string, was taken as True and orthonormalised)
     with pytest.raises(TypeError, match="orthonormalize must be True or False, got 'no'"):
         env.unwrapped.set_control_basis(skew, orthonormalize="no")
+    with pytest.raises(TypeError, match="orthonormalize must be True or False, got 1"):
+        env.unwrapped.set_control_basis(skew, orthonormalize=1)  # (as the constructor)
     assert env.unwrapped.spec.kwargs["control_basis"] == str(tmp_path / "b.npy")
 
 
