@@ -485,6 +485,8 @@ def test_a_registered_planner_is_chosen_again_by_its_source_where_it_is_not_regi
     with pytest.raises(ValueError, match="the source of planner 'halver' must be a dict with "
                        "planner_class, settings_class and defaults"):  # fmt: skip
         planner_from_source("halver", {"planner_class": f"{__name__}:Halver"})
+    with pytest.raises(ValueError, match="the source of planner 'halver' must be a dict"):
+        planner_from_source("halver", {**source, "seed": 1})  # (a key it would not use)
     with pytest.raises(TypeError, match=f"'{__name__}:Halver' is not a PlannerSettings"):
         planner_from_source("halver", {**source, "settings_class": f"{__name__}:Halver"})
 
@@ -595,3 +597,30 @@ def test_the_current_directory_is_appended_only_for_a_module_not_found_elsewhere
         assert sys.path == before
     finally:
         sys.modules.pop("own_planners_on_path", None)
+
+
+def test_a_class_its_module_does_not_hold_by_its_name_is_not_recorded(registry):
+    # (made by type() in a function, or shadowed by another object of that name: another
+    # process importing the path would find nothing, or something else)
+    from controllers import PlannerNotImportable, planner_source, register_planner
+
+    register_planner("ghost", type("Ghost", (Halver,), {"__module__": __name__}))
+    with pytest.raises(PlannerNotImportable, match=f"which its module '{__name__}' does "
+                       "not hold by that name"):  # fmt: skip
+        planner_source("ghost")
+
+
+def test_a_module_missing_what_it_imports_raises_its_own_error(tmp_path, monkeypatch):
+    # (not "no module named 'no_such_dependency_here' on sys.path or in the current
+    # directory", which would send the user looking for the dependency in the wrong place)
+    import sys
+
+    from controllers import resolve_planner
+
+    (tmp_path / "own_planners_broken.py").write_text("import no_such_dependency_here\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    try:
+        with pytest.raises(ModuleNotFoundError, match="'no_such_dependency_here'"):
+            resolve_planner("own_planners_broken:Mine")
+    finally:
+        sys.modules.pop("own_planners_broken", None)
