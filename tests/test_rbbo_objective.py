@@ -5,7 +5,7 @@ import pickle
 import sys
 import types
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -519,12 +519,13 @@ def test_a_registered_class_no_other_process_can_import_is_named_up_front(planne
         assert objective.registered_planner is None and "registered_planner" not in objective.spec()
         assert type(objective.planner()[0]).__name__ in ("Local", "Scripted")  # (it runs here)
     with pytest.warns(UserWarning, match=r"controller '__main__:Scripted' names a class of "
-                      r"__main__ .* plans in this process only"):  # fmt: skip
+                      r"__main__ .* plans in this process only") as caught:  # fmt: skip
         sys.modules["__main__"].Scripted = in_main  # type: ignore[attr-defined]
         try:
             EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller="__main__:Scripted")
         finally:
             del sys.modules["__main__"].Scripted  # type: ignore[attr-defined]
+    assert caught[0].filename == __file__
     controllers.register_planner("odd-cem", CEM, defaults={"noise": object()})
     with pytest.raises(ValueError, match="planner 'odd-cem': its default noise = <object"):
         EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller="odd-cem")
@@ -555,6 +556,10 @@ def test_a_recorded_source_is_checked_up_front_and_a_registration_here_wins(plan
     import controllers
     from examples.cem_planner import CEM
 
+    listed: Any = ["examples.cem_planner:CEM"]
+    with pytest.raises(TypeError, match="registered_planner must be a dict .* got list"):
+        EnvObjective("softrom_gym/SoftRobot-v0", 6, 2, controller="gone-cem",
+                     registered_planner=listed)  # fmt: skip
     source = {"planner_class": "examples.cem_planner:CME",
               "settings_class": "examples.cem_planner:CEMSettings", "defaults": {}}  # fmt: skip
     with pytest.raises(ValueError, match="module 'examples.cem_planner' has no 'CME'"):
