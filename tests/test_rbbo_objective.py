@@ -575,3 +575,10 @@ def test_a_recorded_source_is_checked_up_front_and_a_registration_here_wins(plan
                                  registered_planner={**source, "planner_class":
                                                      "examples.cem_planner:CEM"})  # fmt: skip
     assert type(objective.planner()[0]) is Local
+    # (the recorded source named another class: a resume with this one is another objective)
+    assert objective.registered_planner is None
+    recorded = {**objective.spec(), "registered_planner": {**source, "planner_class":
+                                                           "examples.cem_planner:CEM"}}  # fmt: skip
+    (difference,) = objective_differences(recorded, objective)
+    assert difference.startswith("registered_planner absent (recorded {'planner_class': "
+                                 "'examples.cem_planner:CEM'")  # fmt: skip

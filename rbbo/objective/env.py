@@ -166,6 +166,9 @@ class EnvObjective:
                     UserWarning,
                     stacklevel=4,  # (the EnvObjective(...) call: this, __post_init__, __init__)
                 )
+                # A recorded source names an importable class, so not this one: dropped, the
+                # spec then lacks it, and a resume names "registered_planner absent".
+                self.registered_planner = None
         elif source is not None:
             controllers.planner_from_source(name, source)
         else:
