@@ -397,14 +397,19 @@ def _attribute(path: str) -> Any:
     top = module_name.split(".")[0]
     here = os.getcwd()
     on_path = {os.path.abspath(p or os.curdir) for p in sys.path}
+    appended = False
     if top not in sys.modules and here not in on_path and importlib.util.find_spec(top) is None:
         sys.path.append(here)  # (after the installed packages: it shadows none of them)
         importlib.invalidate_caches()
+        appended = True
     try:
         obj: Any = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
         if exc.name is None or not f"{module_name}.".startswith(f"{exc.name}."):
             raise  # a module that the planner's module imports is missing: its own error
+        if appended and top not in sys.modules:
+            # (not here either, as a mistyped name: the process's path stays as it was)
+            sys.path.remove(here)
         raise ValueError(
             f"planner {path!r}: no module named {exc.name!r} on sys.path or in the current "
             f"directory ({here}); run from the directory that holds it, or add that to "

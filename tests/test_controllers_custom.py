@@ -595,6 +595,11 @@ def test_the_current_directory_is_appended_only_for_a_module_not_found_elsewhere
         assert sys.path == before
         assert resolve_planner("own_planners_on_path:Mine").planner_class.name == "mine"
         assert sys.path == before
+        # (a module found nowhere, a typo: the current directory was tried, and is taken off
+        # again, so sys.path is the process's as before)
+        with pytest.raises(ValueError, match="no module named 'own_planners_nowhere'"):
+            resolve_planner("own_planners_nowhere:Mine")
+        assert sys.path == before
     finally:
         sys.modules.pop("own_planners_on_path", None)
 
