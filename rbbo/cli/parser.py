@@ -57,6 +57,19 @@ class _Parser(argparse.ArgumentParser):
         return known, extras
 
 
+def _command(sub, name: str, about: str, details: str) -> argparse.ArgumentParser:
+    """A subcommand: ``about`` is its line in ``rbbo --help``, and begins its own --help's
+    description (first letter raised; the rest as written, B_c stays B_c), ``details`` after.
+    (A subcommand's help is shown in ``rbbo --help`` only: its own --help needs a
+    description.)"""
+    return sub.add_parser(name, help=about, description=f"{about[0].upper()}{about[1:]}{details}")
+
+
+def _run_dir(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run_dir", type=user_path, metavar="DIR",
+                        help="the run directory (rbbo optimize's --out)")  # fmt: skip
+
+
 def _parser() -> argparse.ArgumentParser:
     from . import __doc__ as overview  # the package's docstring, the command line's overview
 
@@ -70,8 +83,7 @@ def _parser() -> argparse.ArgumentParser:
                                 parser_class=_Parser)  # fmt: skip
 
     about = "optimise B_c for an env (or a synthetic objective)"
-    opt = sub.add_parser("optimize", help=about,
-                         description=f"{about[0].upper()}{about[1:]}: RBBO searches the "
+    opt = _command(sub, "optimize", about, ": RBBO searches the "
                          "control spaces of ENV_ID within --budget or --iterations, then "
                          "measures R_init (the identity basis) and R* (the recommendation) on "
                          "fresh seeds. The run directory (--out) keeps everything: rbbo "
@@ -138,14 +150,11 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--out", type=user_path, help="run directory (default runs/<env>-<time>)")
     opt.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    # (a subcommand's help is shown in `rbbo --help` only: its own --help needs a description)
     about = "continue a run from its directory"
-    res = sub.add_parser("resume", help=about,
-                         description=f"{about.capitalize()}: it searches on to its limits "
+    res = _command(sub, "resume", about, ": it searches on to its limits "
                          "(the stored ones unless --budget or --iterations is given), then "
                          "measures R_init and R* on fresh seeds.")  # fmt: skip
-    res.add_argument("run_dir", type=user_path, metavar="DIR",
-                     help="the run directory (rbbo optimize's --out)")  # fmt: skip
+    _run_dir(res)
     new_limit = ("; replaces both of the run's stored limits, and is stored for later "
                  "resumes")  # fmt: skip
     res.add_argument("--budget", type=parse_duration,
@@ -167,19 +176,16 @@ def _parser() -> argparse.ArgumentParser:
 
     about = ("measure R_init and R* of a finished run again (after an upgrade, or on another "
              "machine)")  # fmt: skip
-    con = sub.add_parser("confirm", help=about,
-                         description=f"{about[0].upper()}{about[1:]}, on the run's own "
+    con = _command(sub, "confirm", about, ", on the run's own "
                          "confirmation seeds, and print its table; the new measurement is "
                          "appended to the run.")  # fmt: skip
-    con.add_argument("run_dir", type=user_path, metavar="DIR",
-                     help="the run directory (rbbo optimize's --out)")  # fmt: skip
+    _run_dir(con)
     con.add_argument(
         "--workers", type=_positive_int, help="evaluations run at once (default: the run's)"
     )
 
     about = "print the table and write convergence.png"
-    rep = sub.add_parser("report", help=about,
-                         description=f"{about.capitalize()} of each run (R_init, R* and the "
+    rep = _command(sub, "report", about, " of each run (R_init, R* and the "
                          "improvement, as the paper's Table I). A DIR that cannot be read is "
                          "named in an error and the others are still reported; the exit "
                          "status is then non-zero.")  # fmt: skip
@@ -188,12 +194,10 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--png", type=user_path, help="plot path (default DIR/convergence.png)")
 
     about = "replay the best B_c with MPC"
-    rol = sub.add_parser("rollout", help=about,
-                         description=f"{about[0].upper()}{about[1:]}: one episode with the run's "
+    rol = _command(sub, "rollout", about, ": one episode with the run's "
                          "recommendation (its current one, said so, if the run has not "
                          "finished), printing R; --video records it.")  # fmt: skip
-    rol.add_argument("run_dir", type=user_path, metavar="DIR",
-                     help="the run directory (rbbo optimize's --out)")  # fmt: skip
+    _run_dir(rol)
     rol.add_argument("--video", type=user_path, help="write an mp4 of the rollout")
     rol.add_argument("--seconds", type=_positive_float,
                      help="episode (and video) length, s (default the run's T_max); R is "
@@ -203,8 +207,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="the MPC seed (default 12345)")  # fmt: skip
 
     about = "PPO and SAC (Stable-Baselines3) beside the MPC"
-    bas = sub.add_parser("baselines", help=about,
-                         description=f"{about}: trains each --algo in each --control-basis, "
+    bas = _command(sub, "baselines", about, ": trains each --algo in each --control-basis, "
                          "evaluates every checkpoint as the MPC is evaluated, and writes "
                          "OUT/baselines.{csv,md}; the same command again continues from the "
                          "latest checkpoints. Needs stable-baselines3 (the [rl] "
