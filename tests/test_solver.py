@@ -763,10 +763,11 @@ def test_actuated_free_flight_gains_angular_momentum_at_second_order_only(beam_r
 
 
 @pytest.mark.xfail(
-    reason="B_r has linearised rotations and no floating frame: with M = 20 modes, internal "
-    "forces of a deformed body exert a spurious torque, so actuated free flight gains angular "
-    "momentum (measured on the beam: |L| reaches 62% of sum m |x - c| |v|). A floating frame "
-    "would fix it; see the README's limits.",
+    reason="the modal actuation is a force field fixed in the world (torque-free only at rest: "
+    "the full space under this stroke gains |L| to 94% of the scale) and B_r's rotations are "
+    "linearised (elastic forces alone: |L| to 15%, the full space 0.43%); measured on the beam "
+    "here, |L| reaches 62%. A floating frame with body-frame actuation keeps L (a prototype: "
+    "1e-11). benchmarks/study_angular_momentum.py, the README's known limits.",
     strict=True,
 )
 def test_actuation_conserves_angular_momentum_in_free_flight(beam_robot):

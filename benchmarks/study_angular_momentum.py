@@ -1,0 +1,310 @@
+"""Study: angular momentum in free flight, and what a floating frame would change.
+
+Issue #8 asks for a test that actuation conserves angular momentum in free flight; with
+linearised rotations the reduced model does not (``tests/test_solver.py``, a strict xfail).
+This study asks which part of that is the reduced model's fault. One robot floats free (no
+gravity, ground, drag or damping; dt = 5 ms by default) for ``--seconds``, and each model's angular
+momentum about its centre of mass is compared with its start against its scale,
+max |L - L_0| / sum m |x - c| |v|:
+
+* ``actuated``: the xfail's stroke (a 2 Hz travelling wave of ``--stroke`` body weights in
+  the first three modes, from rest) on the linear reduced model and on its full-space
+  counterpart, whose actuation is the same modal force field M B_d B_c f_c
+  (:meth:`FullSpaceModel.matching`): fixed in the world, so it has no net force, and no
+  torque at rest, but a torque once the body has deformed or turned;
+* ``unactuated``: elastic forces only, from a state moving in the first three modes at
+  ``--speed`` (RMS node speed, m/s), and optionally spinning at ``--spin`` rad/s about y. Here
+  the full space keeps L but for implicit Euler's drift, and each model's nodes are also
+  compared with the full space's (RMS distance over the robot's RMS radius).
+
+The models: ``full space`` (:class:`FullSpaceModel`), ``linear`` (the package's reduced model,
+x = X + B_r q), ``linear, projected`` (the same with its internal forces projected so they
+exert no torque on the reduced state: the component of B_r^T f along T(q)^T is removed, with
+T(q) qdot = L; a constrained Galerkin projection) and ``floating frame``, a Python prototype
+of x = c + R (X + U z) (U: B_r's deformation columns; L-exact implicit Euler, below). The
+last two are studies, not package features. ``--stroke`` on the floating frame acts on z
+in the body frame, so it is internal and L stays exact; its line is there for that and for
+where the prototype's Newton fails.
+
+    python benchmarks/study_angular_momentum.py [--robot beam] [--seconds 1] [--speed 0.2]
+        [--spin 3] [--stroke 0.8] [--dt 0.005]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+import cpp_sim
+from softrom_gym.full_space import FullSpaceModel, FullSpaceState
+from softrom_gym.robots import ROBOTS
+from softrom_gym.rom import build_reduced_model, build_subspace
+
+G = 9.81
+DT = 0.005  # the default step of every model here
+
+
+def newton(residual: Callable[[np.ndarray], np.ndarray], x: np.ndarray, tol: float
+           ) -> tuple[np.ndarray, bool]:  # fmt: skip
+    """Newton's method with a forward-difference Jacobian and a backtracking line search on
+    |residual|; returns the root and whether |residual| fell below ``tol``."""
+    n = x.size
+    for _ in range(40):
+        r = residual(x)
+        norm = np.linalg.norm(r)
+        if norm < tol:
+            return x, True
+        jac = np.empty((n, n))
+        for k in range(n):
+            dx = np.zeros(n)
+            dx[k] = 1e-7
+            jac[:, k] = (residual(x + dx) - r) / 1e-7
+        step = np.linalg.solve(jac, r)
+        t = 1.0
+        while t > 1e-4 and np.linalg.norm(residual(x - t * step)) > (1.0 - 1e-4 * t) * norm:
+            t *= 0.5
+        x = x - t * step
+    return x, bool(np.linalg.norm(residual(x)) < tol)
+
+
+class ProjectedLinearModel:
+    """The linear reduced model, x = X + B_r q with M_r = I, whose internal forces (elastic
+    and actuation) are projected off T(q)^T, T(q) = sum_i m_i [x_i - c]_x B_i (3 x (M + 6)),
+    so that they leave T(q) qdot = L unchanged: qddot = P(q) (f_el + f_a), P = I - T^T (T T^T)^-1 T.
+    Implicit Euler, Newton on qdot_{n+1}."""
+
+    def __init__(self, model: cpp_sim.ReducedModel, basis: np.ndarray, nodes: np.ndarray,
+                 mass: np.ndarray) -> None:  # fmt: skip
+        self.model = model
+        self.dt = float(model.dt)
+        n = len(mass)
+        self.b = basis.reshape(n, 3, -1)
+        rest = nodes - mass @ nodes / mass.sum()
+        eps = np.zeros((3, 3, 3))
+        eps[0, 1, 2] = eps[1, 2, 0] = eps[2, 0, 1] = 1.0
+        eps[0, 2, 1] = eps[2, 1, 0] = eps[1, 0, 2] = -1.0
+        # T(q) = T0 + sum_j q_j T1_j ((a x b)_c = eps_cab a_a b_b)
+        self.t0 = np.einsum("cab,i,ia,ibk->ck", eps, mass, rest, self.b)
+        self.t1 = np.einsum("cab,i,iaj,ibk->jck", eps, mass, self.b, self.b)
+
+    def internal(self, q: np.ndarray, fa: np.ndarray) -> np.ndarray:
+        f = np.zeros(q.size)
+        f[3:] = self.model.elastic_forces(q[3:])
+        f[6 : 6 + fa.size] += fa
+        t = self.t0 + np.einsum("j,jck->ck", q, self.t1)
+        return f - t.T @ np.linalg.solve(t @ t.T, t @ f)
+
+    def step(self, q: np.ndarray, qdot: np.ndarray, fa: np.ndarray) -> tuple[np.ndarray, ...]:
+        h = self.dt
+        v, ok = newton(lambda w: w - qdot - h * self.internal(q + h * w, fa), qdot, 1e-10)
+        if not ok:
+            raise FloatingPointError("Newton did not converge")
+        return q + h * v, v
+
+
+class FloatingFramePrototype:
+    """x_i = c + R r_i, r_i = X_i + U_i z (X about the centre of mass; U: B_r's M deformation
+    columns, mass-orthonormal and mass-orthogonal to the rigid modes at rest, so c stays the
+    centre of mass and the frame is the linear mean-axis frame). Velocities u = c', omega (body
+    frame), w = z'. Kinetic energy T = 1/2 m |u|^2 + 1/2 sum_i m_i |omega x r_i + U_i w|^2,
+    elastic energy E(z) by the package's cubature (rotation-invariant: it sees X + U z only).
+
+    Momentum-form implicit Euler, with c' = c + h u', R' = R exp(h omega'), z' = z + h w':
+      m (u' - u) = h F_ext,
+      Pi' = exp(-h omega') Pi                      (R' Pi' = R Pi: world L exactly kept),
+      p_z' - p_z = h (dT/dz' - dE/dz' + f_a),
+    with Pi = dT/d omega = sum m r x (omega x r + U w) and p_z = dT/dw. Actuation f_a acts on
+    z, in the body frame: internal, so it cannot change L either."""
+
+    def __init__(self, model: cpp_sim.ReducedModel, basis: np.ndarray, nodes: np.ndarray,
+                 mass: np.ndarray) -> None:  # fmt: skip
+        self.model = model
+        self.dt = float(model.dt)
+        self.mass = mass
+        self.total = float(mass.sum())
+        self.com = mass @ nodes / self.total
+        self.rest = nodes - self.com
+        self.u = basis[:, 6:].reshape(len(mass), 3, -1)
+        self.dim = self.u.shape[2]
+
+    def _body(self, z: np.ndarray, om: np.ndarray, w: np.ndarray):
+        r = self.rest + self.u @ z
+        rel = np.cross(om, r) + self.u @ w  # omega x r + U w, body frame
+        pi = np.sum(self.mass[:, None] * np.cross(r, rel), axis=0)
+        pz = np.einsum("i,iaj,ia->j", self.mass, self.u, rel)
+        return r, rel, pi, pz
+
+    def _dt_dz(self, om: np.ndarray, rel: np.ndarray) -> np.ndarray:
+        om_u = np.cross(om[None, :, None], self.u, axisa=1, axisb=1, axisc=1)
+        return np.einsum("i,iaj,ia->j", self.mass, om_u, rel)
+
+    def step(self, state: tuple, fa: np.ndarray) -> tuple:
+        c, rot, z, u, om, w = state
+        h, n = self.dt, self.dim
+        _, _, pi0, pz0 = self._body(z, om, w)
+        f_a = np.zeros(n)
+        f_a[: fa.size] = fa
+
+        def residual(x: np.ndarray) -> np.ndarray:
+            u1, om1, w1 = x[:3], x[3:6], x[6:]
+            z1 = z + h * w1
+            _, rel, pi, pz = self._body(z1, om1, w1)
+            elastic = self.model.elastic_forces(np.concatenate([np.zeros(3), z1]))[3:]
+            return np.concatenate([
+                self.total * (u1 - u),
+                pi - Rotation.from_rotvec(-h * om1).as_matrix() @ pi0,
+                pz - pz0 - h * (self._dt_dz(om1, rel) + elastic + f_a),
+            ])  # fmt: skip
+
+        x, ok = newton(residual, np.concatenate([u, om, w]), 1e-10 * max(1.0, self.total))
+        if not ok:
+            raise FloatingPointError(f"Newton did not converge (|omega| {np.linalg.norm(om):.3g})")
+        u1, om1, w1 = x[:3], x[3:6], x[6:]
+        turn = Rotation.from_rotvec(h * om1).as_matrix()
+        return (c + h * u1, rot @ turn, z + h * w1, u1, om1, w1)
+
+    def world(self, state: tuple) -> tuple[np.ndarray, np.ndarray]:
+        c, rot, z, u, om, w = state
+        r, rel, _, _ = self._body(z, om, w)
+        return c + r @ rot.T, u + rel @ rot.T
+
+
+def momentum_ratio(mass: np.ndarray, x: np.ndarray, v: np.ndarray, start: np.ndarray | None = None
+                   ) -> float:  # fmt: skip
+    """|L - L_0| over sum m |x - c| |v|, L the angular momentum about the centre of mass and
+    L_0 ``start`` (default 0)."""
+    r = x - mass @ x / mass.sum()
+    moment = np.sum(mass[:, None] * np.cross(r, v), axis=0)
+    if start is not None:
+        moment = moment - start
+    scale = np.sum(mass * np.linalg.norm(r, axis=1) * np.linalg.norm(v, axis=1))
+    return float(np.linalg.norm(moment) / scale)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--robot", choices=sorted(ROBOTS), default="beam")
+    p.add_argument("--seconds", type=float, default=1.0)
+    p.add_argument("--speed", type=float, default=0.2, help="RMS node speed at the start, m/s")
+    p.add_argument("--spin", type=float, default=3.0, help="a second unactuated run's spin, rad/s")
+    p.add_argument("--stroke", type=float, default=0.8, help="body weights (the xfail's 0.8)")
+    p.add_argument("--dt", type=float, default=DT, help="time step, s")
+    args = p.parse_args(argv)
+    if min(args.seconds, args.speed, args.stroke, args.dt) <= 0:
+        p.error("--seconds, --speed, --stroke and --dt must be positive")
+    dt = args.dt
+    robot = ROBOTS[args.robot]()
+    sub = build_subspace(robot, 20)
+    basis, nodes, mass = sub.basis, robot.nodes, np.asarray(robot.fem_model().mass)
+    n, steps = len(mass), round(args.seconds / dt)
+    m3 = np.repeat(mass, 3)
+    linear = build_reduced_model(
+        robot, subspace=sub, contact="none", gravity=[0, 0, 0],
+        control_basis=np.eye(20)[:, :3], damping_beta=0.0, dt=dt,
+    )  # fmt: skip
+    full = FullSpaceModel(robot, actuation=basis[:, 6:9], dt=dt, gravity=(0.0, 0.0, 0.0),
+                          damping_beta=0.0, ground_height=-1e3, newton_tolerance=1e-10)  # fmt: skip
+    projected = ProjectedLinearModel(linear, basis, nodes, mass)
+    floating = FloatingFramePrototype(linear, basis, nodes, mass)
+    rest = nodes - mass @ nodes / mass.sum()
+    radius = np.sqrt(mass @ (rest**2).sum(1) / mass.sum())
+    print(f"{robot.name}: N = {n}, M = 20, dt = {dt * 1e3:g} ms, {args.seconds:g} s of free flight")
+    head = f"{'case':<34} {'model':<30} {'max |L-L0|/scale':>16}"
+    print(f"{head} {'distance from full, mid / end':>30}")
+    out: dict = {}
+
+    def report(case: str, name: str, ratios: list[float], dist: list[float] | None,
+               failed: str | None = None) -> None:  # fmt: skip
+        # failed: a note after the row (why a model stopped, how fast the frame turned)
+        mid = len(dist) // 2 - 1 if dist else 0
+        d = f"{dist[mid]:.3f} / {dist[-1]:.3f}" if dist and len(dist) == steps else "-"
+        note = f"  ({failed})" if failed else ""
+        print(f"{case:<34} {name:<30} {max(ratios):>16.2e} {d:>30}{note}", flush=True)
+        row = {"max_momentum_ratio": max(ratios), "distance": dist, "note": failed}
+        out[f"{case}: {name}"] = row
+
+    # -- actuated: the xfail's stroke -----------------------------------------------------------
+    amp = args.stroke * np.sqrt(mass.sum()) * G
+    phase = 2.0 * np.pi * np.arange(3) / 3.0
+    strokes = [amp * np.sin(2.0 * np.pi * 2.0 * k * dt - phase) for k in range(steps)]
+    case = f"actuated, {args.stroke:g} body weights"
+    fs, ratios = full.rest_state(), []
+    for u in strokes:
+        fs, _ = full.step(fs, u)
+        ratios.append(momentum_ratio(mass, fs.x, fs.v))
+    report(case, "full space (world-fixed forces)", ratios, None)
+    ls, ratios = linear.rest_state(), []
+    for u in strokes:
+        ls, _ = linear.step(ls, u)
+        ratios.append(momentum_ratio(mass, linear.positions(ls.q), (basis @ ls.qdot).reshape(n, 3)))
+    report(case, "linear", ratios, None)
+    state = (floating.com, np.eye(3), np.zeros(20), np.zeros(3), np.zeros(3), np.zeros(20))
+    ratios, failed, spin_max = [], None, 0.0
+    for k, u in enumerate(strokes):
+        try:
+            state = floating.step(state, u)
+        except FloatingPointError as exc:
+            failed = f"stopped at t = {k * dt:.3f} s: {exc}"
+            break
+        ratios.append(momentum_ratio(mass, *floating.world(state)))
+        spin_max = max(spin_max, float(np.linalg.norm(state[4])))
+    # how fast the frame turned: the slender-axis hazard of docs/FLOATING_FRAME.md
+    spun = f"frame up to {spin_max:.3g} rad/s"
+    report(
+        case, "floating frame (body-frame f)", ratios, None, f"{spun}; {failed}" if failed else spun
+    )
+
+    # -- unactuated: elastic forces alone ---------------------------------------------------------
+    for spin in (0.0, args.spin):
+        w0 = np.zeros(20)
+        w0[:3] = [3.0, -2.0, 1.0]
+        w0 *= args.speed * np.sqrt(mass.sum()) / np.linalg.norm(w0)  # RMS node speed = speed
+        om0 = np.array([0.0, spin, 0.0])
+        v0 = (basis[:, 6:] @ w0).reshape(n, 3) + np.cross(om0, rest)
+        case = f"unactuated, {args.speed:g} m/s" + (f", spin {spin:g} rad/s" if spin else "")
+        zeros = np.zeros(3)
+        fs = FullSpaceState(nodes.copy(), v0.copy(), full.rest_state().impulses)
+        l0 = np.sum(mass[:, None] * np.cross(rest, v0), axis=0)
+        q0, qd0 = np.zeros(basis.shape[1]), basis.T @ (m3 * v0.ravel())  # B_r^T M v: exact here
+        ls = cpp_sim.ReducedState(q0, qd0, linear.rest_state().impulses)
+        pq = (q0.copy(), qd0.copy())
+        fl = (floating.com, np.eye(3), np.zeros(20), np.zeros(3), om0.copy(), w0.copy())
+        names = ("full space", "linear", "linear, projected", "floating frame")
+        ratios_of: dict[str, list[float]] = {k: [] for k in names}
+        dist_of: dict[str, list[float]] = {k: [] for k in names[1:]}
+        failed_of: dict[str, str | None] = dict.fromkeys(names)
+        start = time.perf_counter()
+        for k in range(steps):
+            fs, _ = full.step(fs)
+            ratios_of["full space"].append(momentum_ratio(mass, fs.x, fs.v, l0))
+            ls, _ = linear.step(ls, zeros)
+            at = {"linear": (linear.positions(ls.q), (basis @ ls.qdot).reshape(n, 3))}
+            if failed_of["linear, projected"] is None:
+                try:
+                    pq = projected.step(*pq, zeros)
+                    at["linear, projected"] = (nodes + (basis @ pq[0]).reshape(n, 3),
+                                               (basis @ pq[1]).reshape(n, 3))  # fmt: skip
+                except FloatingPointError as exc:
+                    failed_of["linear, projected"] = f"stopped at t = {k * dt:.3f} s: {exc}"
+            if failed_of["floating frame"] is None:
+                try:
+                    fl = floating.step(fl, zeros)
+                    at["floating frame"] = floating.world(fl)
+                except FloatingPointError as exc:
+                    failed_of["floating frame"] = f"stopped at t = {k * dt:.3f} s: {exc}"
+            for name, (x, v) in at.items():
+                ratios_of[name].append(momentum_ratio(mass, x, v, l0))
+                d = x - fs.x
+                dist_of[name].append(float(np.sqrt(mass @ (d * d).sum(1) / mass.sum()) / radius))
+        for name in names:
+            report(case, name, ratios_of[name], dist_of.get(name), failed_of[name])
+        print(f"  ({time.perf_counter() - start:.0f} s)", flush=True)
+    return out
+
+
+if __name__ == "__main__":
+    main()
