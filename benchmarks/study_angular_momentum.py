@@ -27,7 +27,11 @@ in the body frame, so it is internal and L stays exact; its line is there for th
 where the prototype's Newton fails.
 
     python benchmarks/study_angular_momentum.py [--robot beam] [--seconds 1] [--speed 0.2]
-        [--spin 3] [--stroke 0.8] [--dt 0.005]
+        [--spin 3] [--stroke 0.8] [--dt 0.005] [--step-convergence]
+
+``--step-convergence`` runs only the stroke, on the prototype and the linear model, at dt,
+dt/2 and dt/4, to tell whether the prototype's fast frame spin (docs/FLOATING_FRAME.md) is the
+step's or the model's.
 """
 
 from __future__ import annotations
@@ -185,6 +189,50 @@ def momentum_ratio(mass: np.ndarray, x: np.ndarray, v: np.ndarray, start: np.nda
     return float(np.linalg.norm(moment) / scale)
 
 
+def step_convergence(robot, sub, stroke: float, seconds: float, dt: float) -> dict:
+    """The actuated stroke on the floating-frame prototype and on the linear model at dt, dt/2
+    and dt/4: the frame's peak rate, and how far each model's nodes at mid-run and at the end
+    lie from its own dt/4 run (RMS over the RMS radius)."""
+    basis, nodes, mass = sub.basis, robot.nodes, np.asarray(robot.fem_model().mass)
+    rest = nodes - mass @ nodes / mass.sum()
+    radius = np.sqrt(mass @ (rest**2).sum(1) / mass.sum())
+    amp = stroke * np.sqrt(mass.sum()) * G
+    phase = 2.0 * np.pi * np.arange(3) / 3.0
+    steps_of = {h: round(seconds / h) for h in (dt, dt / 2, dt / 4)}
+    at: dict = {}
+    for h, steps in steps_of.items():
+        linear = build_reduced_model(
+            robot, subspace=sub, contact="none", gravity=[0, 0, 0],
+            control_basis=np.eye(20)[:, :3], damping_beta=0.0, dt=h,
+        )  # fmt: skip
+        floating = FloatingFramePrototype(linear, basis, nodes, mass)
+        state = (floating.com, np.eye(3), np.zeros(20), np.zeros(3), np.zeros(3), np.zeros(20))
+        ls, spin, snaps = linear.rest_state(), 0.0, {}
+        for k in range(steps):
+            u = amp * np.sin(2.0 * np.pi * 2.0 * k * h - phase)
+            state = floating.step(state, u)
+            ls, _ = linear.step(ls, u)
+            spin = max(spin, float(np.linalg.norm(state[4])))
+            if k + 1 in (steps // 2, steps):
+                snaps[k + 1 == steps] = (floating.world(state)[0], linear.positions(ls.q))
+        at[h] = (spin, snaps)
+        print(f"dt = {h * 1e3:g} ms: the floating frame turned at up to {spin:.3g} rad/s",
+              flush=True)  # fmt: skip
+
+    def apart(a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.sqrt(mass @ ((a - b) ** 2).sum(1) / mass.sum()) / radius)
+
+    out = {h: {"peak_frame_rate": at[h][0]} for h in at}
+    finest = at[dt / 4][1]
+    for h in (dt, dt / 2):
+        for which, name in enumerate(("floating frame", "linear")):
+            d = [apart(at[h][1][end][which], finest[end][which]) for end in (False, True)]
+            out[h][name] = d
+            print(f"dt = {h * 1e3:g} ms against dt = {dt / 4 * 1e3:g} ms, {name}: nodes apart by "
+                  f"{d[0]:.3f} (mid-run) / {d[1]:.3f} (end) of the radius")  # fmt: skip
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--robot", choices=sorted(ROBOTS), default="beam")
@@ -193,12 +241,17 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--spin", type=float, default=3.0, help="a second unactuated run's spin, rad/s")
     p.add_argument("--stroke", type=float, default=0.8, help="body weights (the xfail's 0.8)")
     p.add_argument("--dt", type=float, default=DT, help="time step, s")
+    p.add_argument("--step-convergence", action="store_true",
+                   help="only the actuated stroke at dt, dt/2 and dt/4 (the prototype's frame "
+                   "spin against the step)")  # fmt: skip
     args = p.parse_args(argv)
     if min(args.seconds, args.speed, args.stroke, args.dt) <= 0:
         p.error("--seconds, --speed, --stroke and --dt must be positive")
     dt = args.dt
     robot = ROBOTS[args.robot]()
     sub = build_subspace(robot, 20)
+    if args.step_convergence:
+        return step_convergence(robot, sub, args.stroke, args.seconds, dt)
     basis, nodes, mass = sub.basis, robot.nodes, np.asarray(robot.fem_model().mass)
     n, steps = len(mass), round(args.seconds / dt)
     m3 = np.repeat(mass, 3)

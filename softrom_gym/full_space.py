@@ -77,7 +77,10 @@ class FullSpaceModel:
     actuation : (3N, C) array, optional
         Full-space mode shapes of the controls: the force of f_c is M @ actuation @ f_c (N).
         For a reduced model's B_c, ``actuation = B_d @ B_c`` with B_d the deformation columns
-        of B_r (:meth:`matching` builds it).
+        of B_r (:meth:`matching` builds it). The field is fixed in the world: it has no net
+        force (B_d is mass-orthogonal to the translations) and no torque at rest, but a torque
+        once the body has deformed or turned, which the reduced model's linearised rotation
+        columns do not see (``benchmarks/study_angular_momentum.py``).
     dt, gravity, friction, ground_height, contact_margin, contact_tolerance, stabilization,
     damping_alpha, damping_beta, newton_tolerance, max_newton_iterations,
     max_stagger_iterations
