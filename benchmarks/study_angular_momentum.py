@@ -27,11 +27,13 @@ in the body frame, so it is internal and L stays exact; its line is there for th
 where the prototype's Newton fails.
 
     python benchmarks/study_angular_momentum.py [--robot beam] [--seconds 1] [--speed 0.2]
-        [--spin 3] [--stroke 0.8] [--dt 0.005] [--step-convergence]
+        [--spin 3] [--stroke 0.8] [--dt 0.005] [--step-convergence] [--linearised-turns]
 
 ``--step-convergence`` runs only the stroke, on the prototype and the linear model, at dt,
 dt/2 and dt/4, to tell whether the prototype's fast frame spin (docs/FLOATING_FRAME.md) is the
-step's or the model's.
+step's or the model's. ``--linearised-turns`` runs only what a linearised turn costs: the
+elastic pull-back of a pure turn per benchmark robot, and how far each env turns in an episode
+(the figures behind the envs' turn warning, ``LINEARISED_TURN_LIMIT``).
 """
 
 from __future__ import annotations
@@ -233,6 +235,66 @@ def step_convergence(robot, sub, stroke: float, seconds: float, dt: float) -> di
     return out
 
 
+def linearised_turns(angles: tuple[float, ...] = (0.1, 0.2, 0.3, 0.5)) -> dict:
+    """What a linearised turn costs, per benchmark robot: the angular acceleration with which
+    the elastic forces pull back a pure turn by each angle (about the worst axis; the turn's
+    stretch of ~theta^2 / 2, read through the env's orientation rows), against g / L (L the RMS
+    radius); and how far each walking and swimming env turns in one episode under random,
+    sinusoidal and full-bound square-wave actions (2 Hz and 1 Hz, phases 2 pi k / C)."""
+    import gymnasium as gym
+
+    import softrom_gym  # noqa: F401  (registers the envs)
+    from softrom_gym.envs.observations import orientation_rows
+
+    out: dict = {}
+    for name in ("cross", "beam", "quadruped", "tripod"):
+        robot = ROBOTS[name]()
+        sub = build_subspace(robot, 20)
+        mass = np.asarray(robot.fem_model().mass)
+        model = build_reduced_model(robot, subspace=sub, contact="none", gravity=[0, 0, 0])
+        rows = orientation_rows(robot.nodes, mass, sub.basis)
+        rest = robot.nodes - mass @ robot.nodes / mass.sum()
+        radius = float(np.sqrt(mass @ (rest**2).sum(1) / mass.sum()))
+        pull = []
+        for angle in angles:
+            worst = 0.0
+            for axis in range(3):
+                q_e = np.zeros(model.M + 3)  # (rotations, deformation): B_r's columns 3..
+                q_e[:3] = np.linalg.solve(rows[:, 3:6], angle * np.eye(3)[axis])
+                force = model.elastic_forces(q_e)  # M_r = I: the reduced acceleration
+                worst = max(worst, abs(float(rows[axis, 3:6] @ force[:3])))
+            pull.append(worst)
+        out[name] = {"g_over_L": G / radius, "pull": dict(zip(angles, pull, strict=True))}
+        said = ", ".join(f"{a:g} rad {p:,.4g}" for a, p in zip(angles, pull, strict=True))
+        print(f"{name}: a turn pulled back at {said} rad/s^2 (g / L = {G / radius:.0f})",
+              flush=True)  # fmt: skip
+    for env_id in ("CrossSwim-v0", "CrossWalk-v0", "BeamWalk-v0", "QuadrupedWalk-v0",
+                   "TripodWalk-v0"):  # fmt: skip
+        env = gym.make(f"softrom_gym/{env_id}")
+        bound = env.action_space.high
+        phase = 2.0 * np.pi * np.arange(bound.size) / bound.size
+        turned = {}
+        for kind in ("random", "sine", "square"):
+            env.reset(seed=0)
+            rng, most, steps, t, done = np.random.default_rng(0), 0.0, 0, 0.0, False
+            while not done:
+                if kind == "random":
+                    action = rng.uniform(-bound, bound)
+                elif kind == "sine":
+                    action = bound * np.sin(2.0 * np.pi * 2.0 * t - phase)
+                else:
+                    action = bound * np.sign(np.sin(2.0 * np.pi * t - phase))
+                *_, terminated, truncated, info = env.step(action.astype(np.float32))
+                most, steps = max(most, info["orientation"]), steps + 1
+                t, done = steps * env.unwrapped.dt, terminated or truncated
+            turned[kind] = most
+        env.close()
+        out[env_id] = turned
+        said = ", ".join(f"{k} {v:.3f}" for k, v in turned.items())
+        print(f"{env_id}: turned at most {said} rad in an episode of {t:g} s", flush=True)
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--robot", choices=sorted(ROBOTS), default="beam")
@@ -241,6 +303,9 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--spin", type=float, default=3.0, help="a second unactuated run's spin, rad/s")
     p.add_argument("--stroke", type=float, default=0.8, help="body weights (the xfail's 0.8)")
     p.add_argument("--dt", type=float, default=DT, help="time step, s")
+    p.add_argument("--linearised-turns", action="store_true",
+                   help="only what a linearised turn costs (every robot) and how far the "
+                   "envs turn in an episode")  # fmt: skip
     p.add_argument("--step-convergence", action="store_true",
                    help="only the actuated stroke at dt, dt/2 and dt/4 (the prototype's frame "
                    "spin against the step)")  # fmt: skip
@@ -248,6 +313,8 @@ def main(argv: list[str] | None = None) -> dict:
     if min(args.seconds, args.speed, args.stroke, args.dt) <= 0:
         p.error("--seconds, --speed, --stroke and --dt must be positive")
     dt = args.dt
+    if args.linearised_turns:
+        return linearised_turns()
     robot = ROBOTS[args.robot]()
     sub = build_subspace(robot, 20)
     if args.step_convergence:

@@ -148,6 +148,7 @@ def test_divergence_is_marked_as_lost_steps_from_the_diverging_step_on():
 
 
 @pytest.mark.filterwarnings("ignore:.*a tetrahedron is inverted")
+@pytest.mark.filterwarnings("ignore:.*the robot has turned")
 def test_a_diverging_step_reports_what_rollout_predicts_for_it():
     # step() has its own single-step path: the step that diverges part-way through its
     # sub-steps (paid up to there) must still report rollout's terms and frozen state

@@ -553,6 +553,37 @@ def test_a_material_too_soft_for_the_actions_warns_once_that_elements_invert(rec
     env.close()
 
 
+def test_a_turn_past_what_linearised_rotations_model_warns_once(recwarn):
+    from softrom_gym.envs import LINEARISED_TURN_LIMIT
+
+    env = gym.make("softrom_gym/CrossSwim-v0")
+    base = env.unwrapped
+    env.reset(seed=0)
+
+    def turned(angle: float) -> cpp_sim.ReducedState:
+        # a state turned by `angle` about z: B_r's rotation columns, read back exactly by the
+        # env's orientation rows
+        rest = base.get_state()
+        q = np.zeros_like(rest.q)
+        q[3:6] = np.linalg.solve(base._orientation[:, 3:6], [0.0, 0.0, angle])
+        return cpp_sim.ReducedState(q, np.zeros_like(q), rest.impulses)
+
+    zero = np.zeros(env.action_space.shape, dtype=np.float32)
+    env.reset(options={"state": turned(LINEARISED_TURN_LIMIT - 0.1)})
+    *_, info = env.step(zero)
+    assert info["orientation"] == pytest.approx(LINEARISED_TURN_LIMIT - 0.1, abs=0.01)
+    assert not [w for w in recwarn if "turned" in str(w.message)]
+    env.reset(options={"state": turned(LINEARISED_TURN_LIMIT + 0.1)})
+    for _ in range(3):
+        *_, info = env.step(zero)
+        assert info["orientation"] > LINEARISED_TURN_LIMIT
+    said = [w for w in recwarn if "turned" in str(w.message)]
+    assert len(said) == 1  # once, not at every step
+    message = str(said[0].message)
+    assert "Rotations are linearised" in message and "stretches the body by up to 8 %" in message
+    env.close()
+
+
 def test_a_control_basis_from_a_npy_path_steps_as_the_array_and_keeps_the_spec_json(tmp_path):
     import json
 

@@ -379,6 +379,7 @@ class _FullThrottle:
 
 
 @pytest.mark.filterwarnings("ignore:.*a tetrahedron is inverted")
+@pytest.mark.filterwarnings("ignore:.*the robot has turned")
 def test_an_episode_that_diverges_before_the_settle_time_scores_zero():
     # An action scale of 1000 body weights blows the beam up within the first 0.5 s (its
     # elements invert on the way, which the env warns of).

@@ -1,6 +1,6 @@
 """What :class:`~softrom_gym.envs.soft_robot_env.SoftRobotEnv` reports of a state: the
-observation vector, the step info (Λ's terms, a warning for an inverted element), the rendered
-frame; and the action checked on its way in."""
+observation vector, the step info (Λ's terms, a warning for an inverted element or a turn past
+what linearised rotations model), the rendered frame; and the action checked on its way in."""
 
 from __future__ import annotations
 
@@ -19,7 +19,17 @@ from ..robots import Robot
 if TYPE_CHECKING:
     from ..rendering import SoftwareRenderer
 
-__all__ = ["Observations", "orientation_rows"]
+__all__ = ["LINEARISED_TURN_LIMIT", "Observations", "orientation_rows"]
+
+# B_r's rotations are linearised: a turn by theta is a rotation plus a stretch of
+# sqrt(1 + theta^2) - 1 (~theta^2 / 2), which the elastic forces resist as they would a real
+# one, pulling the turn back with an angular acceleration that grows as theta^3. At 0.3 rad
+# it is above g / L (L: the RMS radius) about the worst axis of every benchmark robot: cross
+# 53, tripod 109, quadruped 164, beam 2,130 rad/s^2 (its roll), against g / L = 31-47. Past it
+# the env says once that the motion is not the robot's. Full-bound open-loop actions turn the
+# cross and beam walkers 0.32-0.42 rad in a 10 s episode, random ones 0.05-0.14 rad
+# (benchmarks/study_angular_momentum.py --linearised-turns).
+LINEARISED_TURN_LIMIT = 0.3  # rad
 
 
 def orientation_rows(nodes: np.ndarray, mass: np.ndarray, b_r: np.ndarray) -> np.ndarray:
@@ -53,6 +63,7 @@ class Observations:
     # Set by the first inverted element this env reports (the warning is said once); a class
     # default, so an env pickled before it existed unpickles with it.
     _inversion_warned: bool = False
+    _turn_warned: bool = False  # the same, for the first turn past LINEARISED_TURN_LIMIT
 
     def _obs(self, state: cpp_sim.ReducedState, com: np.ndarray | None = None) -> np.ndarray:
         """The observation of ``state``; ``com`` is its centre of mass when the caller has it."""
@@ -107,6 +118,17 @@ class Observations:
                 f"{self.robot.youngs_modulus:g} Pa) is too soft for actions up to "
                 f"{self.action_bound:.3g}, and the motion is not physical while "
                 'info["min_volume_ratio"] <= 0; raise youngs_modulus or lower action_scale',
+                stacklevel=3,
+            )
+        if orientation > LINEARISED_TURN_LIMIT and not self._turn_warned:
+            self._turn_warned = True
+            warnings.warn(
+                f"{self.robot.name}: the robot has turned {orientation:.2f} rad from rest. "
+                "Rotations are linearised, so a turn this large also stretches the body by "
+                f"up to {100.0 * (np.sqrt(1.0 + orientation**2) - 1.0):.0f} %, which its "
+                "elastic forces resist: past "
+                f'{LINEARISED_TURN_LIMIT} rad (info["orientation"]) the motion is not the '
+                "robot's (the README's 'Rotation is linearised')",
                 stacklevel=3,
             )
         return {

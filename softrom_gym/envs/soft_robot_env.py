@@ -83,7 +83,10 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
     (|f_c / a|^2), plus ``distance`` (along d since reset, m), ``com``, ``diverged``,
     ``min_volume_ratio`` (the smallest det F over the mesh's tetrahedra; at or below 0 one is
     inverted, which a material too soft for the action bound allows, and the env warns once)
-    and ``contact`` (the model's contact setting: "staggered", "penalty" or "none").
+    and ``contact`` (the model's contact setting: "staggered", "penalty" or "none"). Rotations
+    are linearised, so the env also warns once when ``orientation`` passes
+    ``LINEARISED_TURN_LIMIT`` (0.3 rad), past which the turn's stretch makes the motion
+    unphysical.
 
     ## Starting State
     The robot at rest (on the ground for walking), with deformation velocities drawn
