@@ -27,20 +27,24 @@ in the body frame, so it is internal and L stays exact; its line is there for th
 where the prototype's Newton fails.
 
     python benchmarks/study_angular_momentum.py [--robot beam] [--seconds 1] [--speed 0.2]
-        [--spin 3] [--stroke 0.8] [--dt 0.005] [--step-convergence] [--linearised-turns]
+        [--spin 3] [--stroke 0.8] [--dt 0.005] [--step-convergence]
+        [--linearised-turns [--best-bases DIR]]
 
 ``--step-convergence`` runs only the stroke, on the prototype and the linear model, at dt,
 dt/2 and dt/4, to tell whether the prototype's fast frame spin (docs/FLOATING_FRAME.md) is the
 step's or the model's. ``--linearised-turns`` runs only what a linearised turn costs: the
 elastic pull-back of a pure turn per benchmark robot, and how far each env turns in an episode
-(the figures behind the envs' turn warning, ``LINEARISED_TURN_LIMIT``).
+and under MPC with the control spaces the reproduction's runs found (``--best-bases``; the
+figures behind the envs' turn warning, ``LINEARISED_TURN_LIMIT``).
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+import warnings
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -52,6 +56,7 @@ from softrom_gym.rom import build_reduced_model, build_subspace
 
 G = 9.81
 DT = 0.005  # the default step of every model here
+RUNS = Path(__file__).resolve().parent.parent / "docs" / "reproduction-45m" / "runs"
 
 
 def newton(residual: Callable[[np.ndarray], np.ndarray], x: np.ndarray, tol: float
@@ -235,12 +240,14 @@ def step_convergence(robot, sub, stroke: float, seconds: float, dt: float) -> di
     return out
 
 
-def linearised_turns(angles: tuple[float, ...] = (0.1, 0.2, 0.3, 0.5)) -> dict:
+def linearised_turns(best_bases: Path | None, angles: tuple[float, ...] = (0.1, 0.2, 0.3, 0.5)
+                     ) -> dict:  # fmt: skip
     """What a linearised turn costs, per benchmark robot: the angular acceleration with which
     the elastic forces pull back a pure turn by each angle (about the worst axis; the turn's
     stretch of ~theta^2 / 2, read through the env's orientation rows), against g / L (L the RMS
     radius); and how far each walking and swimming env turns in one episode under random,
-    sinusoidal and full-bound square-wave actions (2 Hz and 1 Hz, phases 2 pi k / C)."""
+    sinusoidal and full-bound square-wave actions (2 Hz and 1 Hz, phases 2 pi k / C), and
+    under MPC with the control spaces of ``best_bases`` (:func:`mpc_turns`), when given."""
     import gymnasium as gym
 
     import softrom_gym  # noqa: F401  (registers the envs)
@@ -292,6 +299,39 @@ def linearised_turns(angles: tuple[float, ...] = (0.1, 0.2, 0.3, 0.5)) -> dict:
         out[env_id] = turned
         said = ", ".join(f"{k} {v:.3f}" for k, v in turned.items())
         print(f"{env_id}: turned at most {said} rad in an episode of {t:g} s", flush=True)
+    if best_bases is not None:
+        out["mpc"] = mpc_turns(best_bases)
+    return out
+
+
+def mpc_turns(runs: Path, seconds: float = 10.0) -> dict:
+    """How far MPC (mppi, the benchmark's settings, seed 0) turns each benchmark robot in a
+    ``seconds`` episode with the control space a recorded run found: ``runs/<env>-boca/
+    best_basis.npy`` (docs/reproduction-45m's runs), where there is one."""
+    import gymnasium as gym
+
+    import controllers
+    from controllers.episode import run_episode
+    from softrom_gym.registration import control_period
+
+    out = {}
+    for env_id in ("CrossSwim-v0", "CrossWalk-v0", "BeamWalk-v0", "QuadrupedWalk-v0",
+                   "TripodWalk-v0"):  # fmt: skip
+        path = runs / f"{env_id}-boca" / "best_basis.npy"
+        if not path.is_file():
+            print(f"{env_id}: no {path}, skipped", flush=True)
+            continue
+        full_id = f"softrom_gym/{env_id}"
+        env = gym.make(full_id, control_basis=np.load(path), max_episode_steps=None)
+        planner, every = controllers.planner_for(full_id, "mppi", dt=control_period(full_id))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the turn warning: the figure is printed here
+            result = run_episode(env, planner, seconds, replan_every=every, seed=0,
+                                 progress=False)  # fmt: skip
+        env.close()
+        out[env_id] = float(result.orientation.max())
+        print(f"{env_id}: MPC with {path} turned at most {out[env_id]:.3f} rad in {seconds:g} s "
+              f"(moved {result.distance[-1]:.2f} m)", flush=True)  # fmt: skip
     return out
 
 
@@ -306,6 +346,9 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--linearised-turns", action="store_true",
                    help="only what a linearised turn costs (every robot) and how far the "
                    "envs turn in an episode")  # fmt: skip
+    p.add_argument("--best-bases", default=str(RUNS),
+                   help="--linearised-turns: runs folder of recorded best bases for its MPC "
+                   "episodes ('none': skip them)")  # fmt: skip
     p.add_argument("--step-convergence", action="store_true",
                    help="only the actuated stroke at dt, dt/2 and dt/4 (the prototype's frame "
                    "spin against the step)")  # fmt: skip
@@ -314,7 +357,7 @@ def main(argv: list[str] | None = None) -> dict:
         p.error("--seconds, --speed, --stroke and --dt must be positive")
     dt = args.dt
     if args.linearised_turns:
-        return linearised_turns()
+        return linearised_turns(None if args.best_bases == "none" else Path(args.best_bases))
     robot = ROBOTS[args.robot]()
     sub = build_subspace(robot, 20)
     if args.step_convergence:

@@ -27,7 +27,8 @@ __all__ = ["LINEARISED_TURN_LIMIT", "Observations", "orientation_rows"]
 # it is above g / L (L: the RMS radius) about the worst axis of every benchmark robot: cross
 # 53, tripod 109, quadruped 164, beam 2,130 rad/s^2 (its roll), against g / L = 31-47. Past it
 # the env says once that the motion is not the robot's. Full-bound open-loop actions turn the
-# cross and beam walkers 0.32-0.42 rad in a 10 s episode, random ones 0.05-0.14 rad
+# cross and beam walkers 0.32-0.42 rad in a 10 s episode, random ones 0.05-0.14 rad, MPC with
+# the reproduction's best control spaces 0.12-0.31 rad (the swimmer's past it)
 # (benchmarks/study_angular_momentum.py --linearised-turns).
 LINEARISED_TURN_LIMIT = 0.3  # rad
 
