@@ -10,8 +10,8 @@ tetrahedron), which separates the truncation of B_r from the cubature's error.
     python benchmarks/check_m_convergence.py [ENV_ID ...] [--sim-dims 20 40] [--forces cubature]
         [--full-space]
 
-``--full-space`` adds the walkers' limit M -> 3N: the same gaits, forces and start in
-``softrom_gym.full_space.FullSpaceModel`` (the reduced step and contact with B_r = I).
+``--full-space`` adds the limit M -> 3N: the same gaits, forces and start in
+``softrom_gym.full_space.FullSpaceModel`` (the reduced step, contact and drag with B_r = I).
 """
 
 from __future__ import annotations
@@ -56,7 +56,8 @@ def distances(env_id: str, m: int, forces: str, gaits: list, seconds: float, sta
 def full_space_distances(env_id: str, m: int, gaits: list, seconds: float, start: float,
                          seed: int) -> np.ndarray:  # fmt: skip
     """Body lengths travelled by each gait in the full space (``FullSpaceModel``: the same
-    step and contact with B_r = I), from the M-space env's reset state, the same forces."""
+    step, contact and drag with B_r = I), from the M-space env's reset state, the same
+    forces."""
     env = gym.make(env_id, sim_dim=m)
     u = env.unwrapped
     env.reset(seed=seed)
@@ -96,9 +97,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
                    default=["cubature", "exact"],
                    help="force models (exact, every tetrahedron, is slow at large M)")  # fmt: skip
     p.add_argument("--full-space", action="store_true",
-                   help="also run the three best gaits in the full space (FullSpaceModel, "
-                        "walkers only; slow: the beam's three took 21 min on 2 shared "
-                        "cores)")  # fmt: skip
+                   help="also run the three best gaits in the full space (FullSpaceModel; "
+                        "slow: the beam's three took 21 min on 2 shared cores)")  # fmt: skip
     args = p.parse_args(argv)
     if args.seed < 0:  # gymnasium's reset refuses it, as a traceback
         p.error(f"--seed must be >= 0, got {args.seed}")
@@ -143,12 +143,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
         first = table[(args.sim_dims[0], args.forces[0])]
         best = np.argsort(-np.nan_to_num(first, nan=-np.inf))[:3]
         full = None
-        swims = "Swim" in env_id
-        if args.full_space and not swims:
+        if args.full_space:
             full = full_space_distances(env_id, args.sim_dims[0], [gaits[j] for j in best],
                                         args.seconds, args.start, args.seed)  # fmt: skip
-        elif args.full_space:
-            print(f"{env_id}: no full-space column (the full-space model has no drag)")
         print(f"{env_id} (body lengths, t = {args.start:g}..{args.seconds:g} s, seed {args.seed})")
         names = {"cubature": "cub", "exact": "exact"}
         print(f"  {'gait':<28}" + "".join(

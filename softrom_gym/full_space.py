@@ -1,14 +1,19 @@
-"""The reduced model's walking step in the full space: the M -> 3N limit of a reduced gait.
+"""The reduced model's step in the full space: the M -> 3N limit of a reduced gait.
 
-:class:`FullSpaceModel` steps the same time discretisation and the same contact model as
-:class:`cpp_sim.ReducedModel`'s staggered-projection walk, in nodal coordinates instead of
-B_r's. With x_{n+1} = x_n + h v, the contact-free velocity v* solves the implicit Euler step
+:class:`FullSpaceModel` steps the same time discretisation, the same contact model and the
+same fluid drag as :class:`cpp_sim.ReducedModel`'s staggered-projection walk and its swim, in
+nodal coordinates instead of B_r's. With x_{n+1} = x_n + h v, the contact-free velocity v*
+solves the implicit Euler step
 
-    M (v - v_n) = h (M g + M B_d B_c f_c + f_e(x_n + h v) - alpha M v - beta K_0 v),
+    M (v - v_n) = h (M g + M B_d B_c f_c + f_e(x_n + h v) - alpha M v - beta K_0 v
+                     + f_d + J_d (v - v_n)),
 
 by Newton's method (M lumped, f_e every tetrahedron's stable Neo-Hookean force, K_0 the rest
 stiffness of the Rayleigh term, B_d B_c the actuation's full-space mode shapes, so the same
-f_c is the same force as in the reduced model), and the step's velocity is the staggered
+f_c is the same force as in the reduced model; f_d the quadratic drag on the surface
+triangles advancing into still fluid, f = -1/2 rho C_d A max(n.v, 0)^2 n shared by a
+triangle's three nodes, and J_d its velocity Jacobian, both at the step's start: the reduced
+step's law and linearisation), and the step's velocity is the staggered
 projection of v* in the metric A of the last Newton matrix: the normal problem
 min 1/2 |v - v'|_A^2 s.t. v_z,i >= b_i on every candidate node (b_i = -z_i / h above the
 ground, -beta_s z_i / h for a penetrating node), alternated with one reweighted least-squares
@@ -23,7 +28,7 @@ W = J A^-1 J^T is well conditioned, and both problems are solved over the impuls
 factorisation of A and 3k solves (k candidate nodes) per step, then k-sized dense algebra per
 stagger. The Newton matrix uses each element's Hessian projected on the PSD cone (the reduced
 reference uses the exact one while the matrix stays positive definite; they differ only where an
-element's Hessian is indefinite). Swimming (drag) and penalty contact are not implemented.
+element's Hessian is indefinite). Penalty contact is not implemented.
 
 This is a check, not a simulator to control: a sparse factorisation per Newton iteration
 costs tens of milliseconds per step on the benchmark robots.
@@ -83,9 +88,12 @@ class FullSpaceModel:
         columns do not see (``benchmarks/study_angular_momentum.py``).
     dt, gravity, friction, ground_height, contact_margin, contact_tolerance, stabilization,
     damping_alpha, damping_beta, newton_tolerance, max_newton_iterations,
-    max_stagger_iterations
+    max_stagger_iterations, fluid_density, drag_coefficient
         As the :class:`cpp_sim.ReducedModel` settings of the same names; ``newton_tolerance``
-        bounds the mass-weighted RMS of a Newton update, |dv|_M / sqrt(m) (m/s).
+        bounds the mass-weighted RMS of a Newton update, |dv|_M / sqrt(m) (m/s), and
+        ``fluid_density`` > 0 switches the quadratic drag on (the swimmers'; kg/m^3).
+    contact : {"staggered", "none"}
+        The ground plane with staggered projection (the walkers'), or none (the swimmers').
     project_hessian : bool
         Project each element's Hessian on the PSD cone in the Newton matrix (default), which
         keeps it positive definite under any deformation; False uses the exact Hessian, as
@@ -107,6 +115,9 @@ class FullSpaceModel:
     max_newton_iterations: int = 30
     max_stagger_iterations: int = 60
     project_hessian: bool = True
+    contact: str = "staggered"
+    fluid_density: float = 0.0
+    drag_coefficient: float = 1.0
 
     def __post_init__(self) -> None:
         n = self.robot.num_nodes
@@ -123,6 +134,7 @@ class FullSpaceModel:
         self._total_mass = float(np.sum(self._fem.mass))
         self._k0 = sp.csr_matrix(self._fem.stiffness(self.robot.nodes, project=False))
         self._surface = np.asarray(self.robot.surface_nodes, dtype=np.int64)
+        self._faces = np.asarray(self.robot.surface_faces, dtype=np.int64)
 
     def _check_settings(self) -> np.ndarray:
         """Refuse a setting that is no finite number of the right sign. The model is a
@@ -140,7 +152,10 @@ class FullSpaceModel:
         for name in ("dt", "contact_tolerance", "newton_tolerance"):
             if not real(name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
-        for name in ("friction", "contact_margin", "damping_alpha", "damping_beta"):
+        if self.contact not in ("staggered", "none"):
+            raise ValueError(f"contact must be 'staggered' or 'none', got {self.contact!r}")
+        for name in ("friction", "contact_margin", "damping_alpha", "damping_beta",
+                     "fluid_density", "drag_coefficient"):  # fmt: skip
             if not real(name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         real("ground_height")
@@ -161,15 +176,14 @@ class FullSpaceModel:
     @classmethod
     def matching(cls, model: cpp_sim.ReducedModel, robot: Robot, basis: np.ndarray
                  ) -> FullSpaceModel:  # fmt: skip
-        """The full-space counterpart of a staggered-contact reduced ``model`` of ``robot``
-        with B_r = ``basis`` (3N x (M + 6)): its settings, and its B_c as full-space shapes."""
-        contact = str(model.contact)
-        if "staggered" not in contact.lower():
-            raise ValueError(f"only staggered-projection contact has a full-space counterpart, "
-                             f"the model's contact is {contact!r}")  # fmt: skip
-        if float(model.fluid_density) > 0.0:
-            raise ValueError("the full-space model has no drag: the model swims "
-                             f"(fluid_density = {model.fluid_density!r})")  # fmt: skip
+        """The full-space counterpart of a reduced ``model`` of ``robot`` with staggered or no
+        contact, with B_r = ``basis`` (3N x (M + 6)): its settings (its drag too), and its B_c
+        as full-space shapes."""
+        said = str(model.contact)
+        contact = said.lower()
+        if contact not in ("staggered", "none"):
+            raise ValueError(f"only staggered-projection contact or none has a full-space "
+                             f"counterpart, the model's contact is {said!r}")  # fmt: skip
         if model.num_nodes != robot.num_nodes:
             raise ValueError(f"the model has {model.num_nodes} nodes and the robot "
                              f"{robot.num_nodes}: it was built for another robot")  # fmt: skip
@@ -180,9 +194,11 @@ class FullSpaceModel:
             raise ValueError(f"basis has shape {basis.shape}, expected {expected} for this model")
         names = ("dt", "friction", "ground_height", "contact_margin", "contact_tolerance",
                  "stabilization", "damping_alpha", "damping_beta", "newton_tolerance",
-                 "max_newton_iterations", "max_stagger_iterations")  # fmt: skip
+                 "max_newton_iterations", "max_stagger_iterations", "fluid_density",
+                 "drag_coefficient")  # fmt: skip
         settings = {name: getattr(model, name) for name in names}
-        return cls(robot, basis[:, 6:] @ bc, gravity=tuple(model.gravity), **settings)
+        return cls(robot, basis[:, 6:] @ bc, gravity=tuple(model.gravity), contact=contact,
+                   **settings)  # fmt: skip
 
     # -- states ----------------------------------------------------------------------------
     def rest_state(self) -> FullSpaceState:
@@ -256,6 +272,9 @@ class FullSpaceModel:
             f_ext = f_ext + m3 * (actuation @ fc)
         diag = sp.diags(m3 * (1.0 + h * self.damping_alpha))
         damping = h * self.damping_beta * self._k0
+        drag = None
+        if self.fluid_density > 0.0:  # at the step's start, linearised in v (the reduced step's)
+            drag = self._drag(x_n.reshape(n, 3), v_n.reshape(n, 3))
         v = v_n.copy()
         info = {"newton_iterations": 0, "converged": False}
         scale = np.sqrt(self._total_mass)
@@ -269,6 +288,9 @@ class FullSpaceModel:
                 + h * h * sp.csr_matrix(self._fem.stiffness(x, project=self.project_hessian))
                 + damping
             )
+            if drag is not None:
+                r -= h * (drag[0] + drag[1] @ (v - v_n))
+                a = a - h * drag[1]
             factor = splu(sp.csc_matrix(a))
             dv = -factor.solve(r)
             info["newton_iterations"] = it + 1
@@ -278,10 +300,50 @@ class FullSpaceModel:
             if np.sqrt(np.sum(m3 * dv * dv)) / scale < self.newton_tolerance:
                 info["converged"] = True
                 break
-        v, impulses, contact = self._contacts(x_n, v, factor, warm)
+        if self.contact == "staggered":
+            v, impulses, contact = self._contacts(x_n, v, factor, warm)
+        else:
+            impulses = np.zeros_like(warm)
+            contact = {"stagger_iterations": 0, "contact_converged": True, "active_rows": 0,
+                       "contacts": 0}  # fmt: skip
         info.update(contact)
         new = FullSpaceState((x_n + h * v).reshape(n, 3), v.reshape(n, 3), impulses)
         return new, info
+
+    def _drag(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        """Quadratic drag at positions x and velocities v (N, 3): the force (3N,) and its
+        velocity Jacobian J_d (3N x 3N, symmetric negative semi-definite). Each surface
+        triangle advancing into the fluid (n.v > 0, v the mean of its nodes') takes
+        f = -1/2 rho C_d A (n.v)^2 n, a third on each node, so J_d's 3 x 3 blocks between two
+        of its nodes are -2 (1/2 rho C_d A) (n.v) n n^T / 9 (the reduced model's law)."""
+        f3 = self._faces
+        a, b, d = x[f3[:, 0]], x[f3[:, 1]], x[f3[:, 2]]
+        normal = np.cross(b - a, d - a)
+        twice_area = np.linalg.norm(normal, axis=1)
+        keep = twice_area > 0.0
+        normal[keep] /= twice_area[keep, None]
+        speed = np.einsum("fa,fa->f", normal, (v[f3[:, 0]] + v[f3[:, 1]] + v[f3[:, 2]]) / 3.0)
+        adv = keep & (speed > 0.0)
+        coef = 0.5 * self.fluid_density * self.drag_coefficient * 0.5 * twice_area[adv]
+        n_adv, s_adv, faces = normal[adv], speed[adv], f3[adv]
+        force = np.zeros_like(x)
+        share = -(coef * s_adv**2)[:, None] * n_adv / 3.0
+        for corner in range(3):
+            np.add.at(force, faces[:, corner], share)
+        blocks = (-2.0 / 9.0 * coef * s_adv)[:, None, None] * np.einsum("fa,fb->fab", n_adv, n_adv)
+        rows, cols, vals = [], [], []
+        for i in range(3):
+            for j in range(3):
+                for p in range(3):
+                    for q in range(3):
+                        rows.append(3 * faces[:, i] + p)
+                        cols.append(3 * faces[:, j] + q)
+                        vals.append(blocks[:, p, q])
+        size = x.size
+        jac = sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(size, size)
+        )
+        return force.ravel(), jac
 
     def _contacts(self, x_n: np.ndarray, v: np.ndarray, factor, warm: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, dict]:  # fmt: skip

@@ -71,6 +71,63 @@ def test_is_the_reduced_step_with_a_full_basis(bar):
     np.testing.assert_allclose(fstate.v.ravel(), sub.basis @ state.qdot, atol=1e-4)
 
 
+def test_swims_as_the_reduced_step_with_a_full_basis(bar):
+    """In still water (no gravity, no ground) and actuated in two shapes, the full-space model
+    follows the reduced reference solver whose B_r spans all 3N directions: the same implicit
+    step and the same drag, linearised at the step's start, in other coordinates."""
+    sub = full_basis(bar)
+    bc = np.linalg.qr(np.random.default_rng(1).standard_normal((sub.M, 2)))[0]
+    reduced = build_reduced_model(bar, forces="exact", subspace=sub, control_basis=bc,
+                                  solver="reference", contact="none", gravity=[0, 0, 0],
+                                  fluid_density=1000.0, newton_tolerance=1e-10,
+                                  max_newton_iterations=50)  # fmt: skip
+    full = FullSpaceModel.matching(reduced, bar, sub.basis)
+    assert full.contact == "none" and full.fluid_density == 1000.0
+    full.project_hessian = False  # the reference's exact Hessian
+    bound = 2.0 * np.sqrt(reduced.total_mass) * G
+    state = reduced.rest_state()
+    qdot = np.zeros_like(state.qdot)
+    qdot[:3] = np.array([0.2, 0.0, -0.1]) * np.sqrt(reduced.total_mass)  # coasting
+    state = cpp_sim.ReducedState(state.q, qdot, state.impulses)
+    fstate = full.state_from_reduced(sub.basis, state)
+    gap = 0.0
+    for n in range(120):
+        fc = bound * np.array(
+            [np.sin(2 * np.pi * 3 * n * 0.005), np.cos(2 * np.pi * 2 * n * 0.005)]
+        )
+        state, info = reduced.step(state, fc)
+        fstate, finfo = full.step(fstate, fc)
+        assert info["converged"] and finfo["converged"] and finfo["active_rows"] == 0
+        x = bar.nodes + (sub.basis @ state.q).reshape(-1, 3)
+        gap = max(gap, np.abs(x - fstate.x).max())
+    assert gap < 1e-7
+    np.testing.assert_allclose(fstate.v.ravel(), sub.basis @ state.qdot, atol=1e-6)
+    # the fluid slowed the coasting: the drag acted
+    assert np.linalg.norm(full.com(fstate.v)) < 0.9 * np.linalg.norm([0.2, 0.0, -0.1])
+
+
+def test_drag_on_a_translating_bar_is_its_end_face_s_pressure_drag(bar):
+    # A rigid translation along the bar's axis: only the leading end face (0.1 m x 0.1 m, normal
+    # +x) advances into the fluid, so the drag is -1/2 rho C_d A v^2 along x, and its Jacobian
+    # takes a uniform velocity change d to -rho C_d A v d (the derivative of v^2 / 2).
+    model = FullSpaceModel(bar, contact="none", fluid_density=1000.0, drag_coefficient=0.8)
+    speed = 0.3
+    v = np.tile([speed, 0.0, 0.0], (bar.num_nodes, 1))
+    force, jac = model._drag(bar.nodes, v)
+    total = force.reshape(-1, 3).sum(axis=0)
+    area = 0.1 * 0.1
+    np.testing.assert_allclose(total, [-0.5 * 1000.0 * 0.8 * area * speed**2, 0.0, 0.0],
+                               rtol=1e-12, atol=1e-15)  # fmt: skip
+    uniform = np.tile([1.0, 0.0, 0.0], bar.num_nodes)
+    np.testing.assert_allclose((jac @ uniform).reshape(-1, 3).sum(axis=0),
+                               [-1000.0 * 0.8 * area * speed, 0.0, 0.0], rtol=1e-12)  # fmt: skip
+    # moving backwards, the other end face takes it; at rest, no face does
+    back, _ = model._drag(bar.nodes, -v)
+    np.testing.assert_allclose(back.reshape(-1, 3).sum(axis=0), -total, rtol=1e-12)
+    rest, rest_jac = model._drag(bar.nodes, np.zeros_like(v))
+    assert not rest.any() and not rest_jac.toarray().any()
+
+
 @pytest.mark.parametrize(("theta_deg", "mu"), [(35.0, 0.5), (20.0, 0.6)])
 def test_a_block_slides_with_the_coulomb_acceleration_or_sticks(theta_deg, mu):
     nodes, tets = voxels_to_tets(np.ones((2, 2, 1), dtype=bool), 0.1)
@@ -101,10 +158,10 @@ def test_bad_input_is_named(bar):
     with pytest.raises(ValueError, match=r"controls must be finite with shape \(2,\)"):
         model.step(model.rest_state(), np.ones(3))
     sub = full_basis(bar)
-    swim = build_reduced_model(bar, forces="exact", subspace=sub, contact="none",
-                               fluid_density=1000.0, gravity=[0, 0, 0])  # fmt: skip
-    with pytest.raises(ValueError, match="only staggered-projection contact"):
-        FullSpaceModel.matching(swim, bar, sub.basis)
+    pressed = build_reduced_model(bar, forces="exact", subspace=sub, contact="penalty")
+    with pytest.raises(ValueError, match="only staggered-projection contact or none has a "
+                       "full-space counterpart, the model's contact is 'penalty'"):  # fmt: skip
+        FullSpaceModel.matching(pressed, bar, sub.basis)
     for bad, match in (({"ground_height": float("nan")}, "ground_height must be a finite"),
                        ({"dt": float("inf")}, "dt must be a finite number"),
                        ({"gravity": (0.0, -9.81)}, "gravity must be 3 finite numbers"),
@@ -177,12 +234,14 @@ def test_settings_and_models_without_a_full_space_counterpart_are_named(bar):
             FullSpaceModel(bar, **bad)
     for edge in (0.0, 1.0):  # [0, 1] is closed: guards `<= 1` becoming `< 1`
         assert FullSpaceModel(bar, stabilization=edge).stabilization == edge
+    for bad, match in (({"contact": "penalty"}, "contact must be 'staggered' or 'none', got "
+                                                "'penalty'"),
+                       ({"fluid_density": -1.0}, "fluid_density must be >= 0, got -1.0"),
+                       ({"drag_coefficient": float("nan")}, "drag_coefficient must be a finite"),
+                       ):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            FullSpaceModel(bar, **bad)
     sub = full_basis(bar)
-    # staggered contact with a fluid: the full-space model has no drag
-    wet = build_reduced_model(bar, forces="exact", subspace=sub, fluid_density=500.0,
-                              control_basis=np.eye(sub.M)[:, :2])  # fmt: skip
-    with pytest.raises(ValueError, match=r"no drag: the model swims \(fluid_density = 500"):
-        FullSpaceModel.matching(wet, bar, sub.basis)
     walk = build_reduced_model(bar, forces="exact", subspace=sub,
                                control_basis=np.eye(sub.M)[:, :2])  # fmt: skip
     with pytest.raises(ValueError, match=rf"basis has shape \(48, {sub.M + 5}\), expected "
