@@ -74,7 +74,8 @@ class FullSpaceRollout(TypedDict):
 
 @dataclass
 class FullSpaceModel:
-    """Implicit Euler with staggered-projection ground contact in the full space.
+    """Implicit Euler with staggered-projection ground contact (or none) and quadratic fluid
+    drag (where ``fluid_density`` > 0) in the full space.
 
     Parameters
     ----------
