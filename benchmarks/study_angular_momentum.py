@@ -153,30 +153,55 @@ class FloatingFramePrototype:
         om_u = np.cross(om[None, :, None], self.u, axisa=1, axisb=1, axisc=1)
         return np.einsum("i,iaj,ia->j", self.mass, om_u, rel)
 
-    def step(self, state: tuple, fa: np.ndarray) -> tuple:
+    def step(self, state: tuple, fa: np.ndarray, loads: Callable | None = None) -> tuple:
+        """One step under actuation ``fa`` on z (body frame) and, optionally, ``loads(state)``
+        -> (force on c, world frame; torque about c, body frame; generalised force on z),
+        taken at the step's start and linearised in the velocities (u, omega, w) by forward
+        differences, as the package's step takes its drag."""
         c, rot, z, u, om, w = state
         h, n = self.dt, self.dim
         _, _, pi0, pz0 = self._body(z, om, w)
         f_a = np.zeros(n)
         f_a[: fa.size] = fa
+        v0 = np.concatenate([u, om, w])
+        load0, load_jac = np.zeros(6 + n), np.zeros((6 + n, 6 + n))
+        if loads is not None:
+            load0 = np.concatenate(loads(state))
+            for k in range(6 + n):
+                dv = v0.copy()
+                dv[k] += 1e-7
+                moved = (c, rot, z, dv[:3], dv[3:6], dv[6:])
+                load_jac[:, k] = (np.concatenate(loads(moved)) - load0) / 1e-7
 
         def residual(x: np.ndarray) -> np.ndarray:
             u1, om1, w1 = x[:3], x[3:6], x[6:]
             z1 = z + h * w1
             _, rel, pi, pz = self._body(z1, om1, w1)
             elastic = self.model.elastic_forces(np.concatenate([np.zeros(3), z1]))[3:]
+            load = load0 + load_jac @ (x - v0)
             return np.concatenate([
-                self.total * (u1 - u),
-                pi - Rotation.from_rotvec(-h * om1).as_matrix() @ pi0,
-                pz - pz0 - h * (self._dt_dz(om1, rel) + elastic + f_a),
+                self.total * (u1 - u) - h * load[:3],
+                pi - Rotation.from_rotvec(-h * om1).as_matrix() @ (pi0 + h * load[3:6]),
+                pz - pz0 - h * (self._dt_dz(om1, rel) + elastic + f_a + load[6:]),
             ])  # fmt: skip
 
-        x, ok = newton(residual, np.concatenate([u, om, w]), 1e-10 * max(1.0, self.total))
+        x, ok = newton(residual, v0, 1e-10 * max(1.0, self.total))
         if not ok:
             raise FloatingPointError(f"Newton did not converge (|omega| {np.linalg.norm(om):.3g})")
         u1, om1, w1 = x[:3], x[3:6], x[6:]
         turn = Rotation.from_rotvec(h * om1).as_matrix()
         return (c + h * u1, rot @ turn, z + h * w1, u1, om1, w1)
+
+    def generalised(self, state: tuple, forces: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Nodal forces (N, 3, world frame) at ``state`` as the loads ``step`` takes."""
+        rot, z = state[1], state[2]
+        r = self.rest + self.u @ z
+        body = forces @ rot  # rows R^T f_i
+        return (
+            forces.sum(axis=0),
+            np.cross(r, body).sum(axis=0),
+            np.einsum("iaj,ia->j", self.u, body),
+        )
 
     def world(self, state: tuple) -> tuple[np.ndarray, np.ndarray]:
         c, rot, z, u, om, w = state
@@ -335,6 +360,83 @@ def mpc_turns(runs: Path, seconds: float = 10.0) -> dict:
     return out
 
 
+def swimming(robot, sub, seconds: float, dt: float) -> dict:
+    """Open-loop swims from rest (no damping; the package's drag, ``FullSpaceModel``'s law for
+    the prototype): the centre of mass's displacement and the largest turn of the linear
+    model, the floating-frame prototype with actuation on z (body frame) and with the
+    world-fixed modal forces, and the full space (world-fixed, as ``matching`` builds it)."""
+    from softrom_gym.envs.observations import orientation_rows
+
+    basis, nodes, mass = sub.basis, robot.nodes, np.asarray(robot.fem_model().mass)
+    n = len(mass)
+    linear = build_reduced_model(
+        robot, subspace=sub, contact="none", gravity=[0, 0, 0], fluid_density=1000.0,
+        control_basis=np.eye(20)[:, :3], damping_beta=0.0, dt=dt,
+    )  # fmt: skip
+    full = FullSpaceModel.matching(linear, robot, basis)
+    floating = FloatingFramePrototype(linear, basis, nodes, mass)
+    rows = orientation_rows(nodes, mass, basis)
+    rest = nodes - mass @ nodes / mass.sum()
+    weights = np.sqrt(mass)[:, None]
+
+    def drag(state: tuple) -> tuple[np.ndarray, ...]:
+        x, v = floating.world(state)
+        force, _ = full._drag(x, v, jacobian=False)
+        return floating.generalised(state, force.reshape(n, 3))
+
+    def turned(x: np.ndarray) -> float:  # the best-fit rotation's angle (Kabsch)
+        u_, _, vt = np.linalg.svd(((x - mass @ x / mass.sum()) * weights).T @ (rest * weights))
+        fit = u_ @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u_ @ vt))]) @ vt
+        return float(np.linalg.norm(Rotation.from_matrix(fit).as_rotvec()))
+
+    out: dict = {}
+    steps = round(seconds / dt)
+    weight = np.sqrt(mass.sum()) * G
+    print(f"{robot.name}: open-loop swims of {seconds:g} s from rest, dt = {dt * 1e3:g} ms, "
+          "no damping; centre of mass moved (m) and largest turn (rad)")  # fmt: skip
+    for freq, order, scale in ((2.0, (0, 1, 2), 0.8), (2.0, (2, 1, 0), 0.8), (3.0, (1, 0, 2), 0.5)):
+        phase = 2.0 * np.pi * np.asarray(order) / 3.0
+        forces = [
+            scale * weight * np.sin(2.0 * np.pi * freq * k * dt - phase) for k in range(steps)
+        ]
+        start = time.perf_counter()
+        ls, fs = linear.rest_state(), full.rest_state()
+        rest_frame = (floating.com, np.eye(3), np.zeros(20), np.zeros(3), np.zeros(3), np.zeros(20))
+        body, world = rest_frame, rest_frame
+        most = dict.fromkeys(("linear", "floating, f on z", "floating, world-fixed f", "full"), 0.0)
+        for k, f in enumerate(forces):
+            ls, _ = linear.step(ls, f)
+            fs, _ = full.step(fs, f)
+            body = floating.step(body, f, drag)
+            push = mass[:, None] * (basis[:, 6:9] @ f).reshape(n, 3)  # M U f, world-fixed
+
+            def world_fixed(state: tuple, push: np.ndarray = push) -> tuple[np.ndarray, ...]:
+                extra = floating.generalised(state, push)
+                return tuple(a + b for a, b in zip(drag(state), extra, strict=True))
+
+            world = floating.step(world, np.zeros(3), world_fixed)
+            most["linear"] = max(most["linear"], float(np.linalg.norm(rows @ ls.q)))
+            for key, frame in (("floating, f on z", body), ("floating, world-fixed f", world)):
+                angle = float(np.linalg.norm(Rotation.from_matrix(frame[1]).as_rotvec()))
+                most[key] = max(most[key], angle)
+            if k % 20 == 19:
+                most["full"] = max(most["full"], turned(fs.x))
+        moved = {
+            "linear": linear.com(ls.q) - floating.com,
+            "floating, f on z": body[0] - floating.com,
+            "floating, world-fixed f": world[0] - floating.com,
+            "full": full.com(fs.x) - floating.com,
+        }
+        label = f"{freq:g} Hz {'/'.join(str(120 * o) for o in order)} {scale:g} bw"
+        out[label] = {k: {"moved": moved[k].tolist(), "turned": most[k]} for k in moved}
+        for key in moved:
+            size = np.linalg.norm(moved[key])
+            print(f"  {label:<20} {key:<24} moved {size:6.3f} m {np.round(moved[key], 3)}, "
+                  f"turned up to {most[key]:.3f} rad", flush=True)  # fmt: skip
+        print(f"  ({time.perf_counter() - start:.0f} s)", flush=True)
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--robot", choices=sorted(ROBOTS), default="beam")
@@ -349,6 +451,9 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--best-bases", default=str(RUNS),
                    help="--linearised-turns: runs folder of recorded best bases for its MPC "
                    "episodes ('none': skip them)")  # fmt: skip
+    p.add_argument("--swim", action="store_true",
+                   help="only open-loop swims (--seconds each, 5 s is a fair choice): the "
+                   "linear model, the prototype with drag, and the full space")  # fmt: skip
     p.add_argument("--step-convergence", action="store_true",
                    help="only the actuated stroke at dt, dt/2 and dt/4 (the prototype's frame "
                    "spin against the step)")  # fmt: skip
@@ -362,6 +467,8 @@ def main(argv: list[str] | None = None) -> dict:
     sub = build_subspace(robot, 20)
     if args.step_convergence:
         return step_convergence(robot, sub, args.stroke, args.seconds, dt)
+    if args.swim:
+        return swimming(robot, sub, args.seconds, dt)
     basis, nodes, mass = sub.basis, robot.nodes, np.asarray(robot.fem_model().mass)
     n, steps = len(mass), round(args.seconds / dt)
     m3 = np.repeat(mass, 3)

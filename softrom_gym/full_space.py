@@ -273,9 +273,9 @@ class FullSpaceModel:
             f_ext = f_ext + m3 * (actuation @ fc)
         diag = sp.diags(m3 * (1.0 + h * self.damping_alpha))
         damping = h * self.damping_beta * self._k0
-        drag = None
+        drag_f = drag_j = None
         if self.fluid_density > 0.0:  # at the step's start, linearised in v (the reduced step's)
-            drag = self._drag(x_n.reshape(n, 3), v_n.reshape(n, 3))
+            drag_f, drag_j = self._drag(x_n.reshape(n, 3), v_n.reshape(n, 3))
         v = v_n.copy()
         info = {"newton_iterations": 0, "converged": False}
         scale = np.sqrt(self._total_mass)
@@ -289,9 +289,9 @@ class FullSpaceModel:
                 + h * h * sp.csr_matrix(self._fem.stiffness(x, project=self.project_hessian))
                 + damping
             )
-            if drag is not None:
-                r -= h * (drag[0] + drag[1] @ (v - v_n))
-                a = a - h * drag[1]
+            if drag_f is not None and drag_j is not None:
+                r -= h * (drag_f + drag_j @ (v - v_n))
+                a = a - h * drag_j
             factor = splu(sp.csc_matrix(a))
             dv = -factor.solve(r)
             info["newton_iterations"] = it + 1
@@ -311,7 +311,8 @@ class FullSpaceModel:
         new = FullSpaceState((x_n + h * v).reshape(n, 3), v.reshape(n, 3), impulses)
         return new, info
 
-    def _drag(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+    def _drag(self, x: np.ndarray, v: np.ndarray, jacobian: bool = True
+              ) -> tuple[np.ndarray, sp.csr_matrix | None]:  # fmt: skip
         """Quadratic drag at positions x and velocities v (N, 3): the force (3N,) and its
         velocity Jacobian J_d (3N x 3N, symmetric negative semi-definite). Each surface
         triangle advancing into the fluid (n.v > 0, v the mean of its nodes') takes
@@ -331,6 +332,8 @@ class FullSpaceModel:
         share = -(coef * s_adv**2)[:, None] * n_adv / 3.0
         for corner in range(3):
             np.add.at(force, faces[:, corner], share)
+        if not jacobian:
+            return force.ravel(), None
         blocks = (-2.0 / 9.0 * coef * s_adv)[:, None, None] * np.einsum("fa,fb->fab", n_adv, n_adv)
         rows, cols, vals = [], [], []
         for i in range(3):
