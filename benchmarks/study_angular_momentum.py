@@ -28,14 +28,17 @@ where the prototype's Newton fails.
 
     python benchmarks/study_angular_momentum.py [--robot beam] [--seconds 1] [--speed 0.2]
         [--spin 3] [--stroke 0.8] [--dt 0.005] [--step-convergence]
-        [--linearised-turns [--best-bases DIR]]
+        [--linearised-turns [--best-bases DIR]] [--swim]
 
 ``--step-convergence`` runs only the stroke, on the prototype and the linear model, at dt,
 dt/2 and dt/4, to tell whether the prototype's fast frame spin (docs/FLOATING_FRAME.md) is the
 step's or the model's. ``--linearised-turns`` runs only what a linearised turn costs: the
 elastic pull-back of a pure turn per benchmark robot, and how far each env turns in an episode
 and under MPC with the control spaces the reproduction's runs found (``--best-bases``; the
-figures behind the envs' turn warning, ``LINEARISED_TURN_LIMIT``).
+figures behind the envs' turn warning, ``LINEARISED_TURN_LIMIT``). ``--swim`` runs only
+open-loop swims of ``--robot`` for ``--seconds`` (the cross for 5 s is the swimmer's case; about
+9 min): the linear model, the prototype with the package's drag (actuated on z, and by the
+world-fixed modal forces) and the full space, which swims since FullSpaceModel gained drag.
 """
 
 from __future__ import annotations
