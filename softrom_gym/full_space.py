@@ -335,18 +335,14 @@ class FullSpaceModel:
         if not jacobian:
             return force.ravel(), None
         blocks = (-2.0 / 9.0 * coef * s_adv)[:, None, None] * np.einsum("fa,fb->fab", n_adv, n_adv)
-        rows, cols, vals = [], [], []
-        for i in range(3):
-            for j in range(3):
-                for p in range(3):
-                    for q in range(3):
-                        rows.append(3 * faces[:, i] + p)
-                        cols.append(3 * faces[:, j] + q)
-                        vals.append(blocks[:, p, q])
+        # the 9 coordinates of each face's nodes, and every pair of them: the same 3 x 3 block
+        # between any two of its nodes
+        dofs = (3 * faces[:, :, None] + np.arange(3)).reshape(-1, 9)
+        rows = np.broadcast_to(dofs[:, :, None], (len(faces), 9, 9))
+        cols = np.broadcast_to(dofs[:, None, :], (len(faces), 9, 9))
+        vals = np.tile(blocks, (1, 3, 3))
         size = x.size
-        jac = sp.csr_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(size, size)
-        )
+        jac = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(size, size))
         return force.ravel(), jac
 
     def _contacts(self, x_n: np.ndarray, v: np.ndarray, factor, warm: np.ndarray
