@@ -23,12 +23,14 @@ exert no torque on the reduced state: the component of B_r^T f along T(q)^T is r
 T(q) qdot = L; a constrained Galerkin projection) and ``floating frame``, a Python prototype
 of x = c + R (X + U z) (U: B_r's deformation columns; L-exact implicit Euler, below). The
 last two are studies, not package features. ``--stroke`` on the floating frame acts on z
-in the body frame, so it is internal and L stays exact; its line is there for that and for
-where the prototype's Newton fails.
+in the body frame, so it is internal and L stays exact; its two lines are there for that and
+for where the prototype's Newton fails: ``f on z`` is the generalised force f_a on z itself,
+``torque-free`` the nodal field M R U f_a less the rigid rotation that cancels its torque,
+whose generalised force is (I - S^T I^-1 S) f_a on z (``--follower`` says why it matters).
 
     python benchmarks/study_angular_momentum.py [--robot beam] [--seconds 1] [--speed 0.2]
         [--spin 3] [--stroke 0.8] [--dt 0.005] [--step-convergence]
-        [--linearised-turns [--best-bases DIR]] [--swim]
+        [--linearised-turns [--best-bases DIR]] [--swim] [--follower [--modes 20]]
 
 ``--step-convergence`` runs only the stroke, on the prototype and the linear model, at dt,
 dt/2 and dt/4, to tell whether the prototype's fast frame spin (docs/FLOATING_FRAME.md) is the
@@ -39,6 +41,10 @@ figures behind the envs' turn warning, ``LINEARISED_TURN_LIMIT``). ``--swim`` ru
 open-loop swims of ``--robot`` for ``--seconds`` (the cross for 5 s is the swimmer's case; about
 9 min): the linear model, the prototype with the package's drag (actuated on z, and by the
 world-fixed modal forces) and the full space, which swims since FullSpaceModel gained drag.
+``--follower`` runs only the stroke as a force that follows the body, in the full space (its
+best-fit frame's M R U f_c, torque removed) and on the prototype (f on z; torque-free; the full
+space's nodal field), at dt, dt/2 and dt/4: whether the frame's fast spin is the material's
+(about 4 min per stroke on the beam).
 """
 
 from __future__ import annotations
@@ -156,11 +162,18 @@ class FloatingFramePrototype:
         om_u = np.cross(om[None, :, None], self.u, axisa=1, axisb=1, axisc=1)
         return np.einsum("i,iaj,ia->j", self.mass, om_u, rel)
 
-    def step(self, state: tuple, fa: np.ndarray, loads: Callable | None = None) -> tuple:
+    def step(self, state: tuple, fa: np.ndarray, loads: Callable | None = None,
+             torque_free: bool = False) -> tuple:  # fmt: skip
         """One step under actuation ``fa`` on z (body frame) and, optionally, ``loads(state)``
         -> (force on c, world frame; torque about c, body frame; generalised force on z),
         taken at the step's start and linearised in the velocities (u, omega, w) by forward
-        differences, as the package's step takes its drag."""
+        differences, as the package's step takes its drag.
+
+        ``torque_free``: ``fa`` stands for the nodal field M R U f_a less the rigid-rotation
+        field that cancels its torque about c, whose generalised force is on z alone,
+        (I - S(z)^T I(z)^-1 S(z)) f_a, with I(z) = sum m [r]x^T [r]x the inertia and
+        S(z) = sum m [r]x U (taken at the step's end). Without it the generalised force on z is
+        f_a itself: internal too, but a different field once the body has deformed."""
         c, rot, z, u, om, w = state
         h, n = self.dt, self.dim
         _, _, pi0, pz0 = self._body(z, om, w)
@@ -182,10 +195,17 @@ class FloatingFramePrototype:
             _, rel, pi, pz = self._body(z1, om1, w1)
             elastic = self.model.elastic_forces(np.concatenate([np.zeros(3), z1]))[3:]
             load = load0 + load_jac @ (x - v0)
+            push = f_a
+            if torque_free:
+                r1 = self.rest + self.u @ z1
+                s1 = np.einsum("i,iaj->aj", self.mass, np.cross(r1[:, :, None], self.u, axis=1))
+                i1 = np.einsum("i,ij,ik->jk", self.mass, r1, r1)
+                i1 = np.trace(i1) * np.eye(3) - i1
+                push = f_a - s1.T @ np.linalg.solve(i1, s1 @ f_a)
             return np.concatenate([
                 self.total * (u1 - u) - h * load[:3],
                 pi - Rotation.from_rotvec(-h * om1).as_matrix() @ (pi0 + h * load[3:6]),
-                pz - pz0 - h * (self._dt_dz(om1, rel) + elastic + f_a + load[6:]),
+                pz - pz0 - h * (self._dt_dz(om1, rel) + elastic + push + load[6:]),
             ])  # fmt: skip
 
         x, ok = newton(residual, v0, 1e-10 * max(1.0, self.total))
@@ -363,11 +383,124 @@ def mpc_turns(runs: Path, seconds: float = 10.0) -> dict:
     return out
 
 
+def best_fit_rotation(x: np.ndarray, rest: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """The rotation R minimising sum m |x - c - R X|^2 (Kabsch; X the rest nodes about the
+    centre of mass). It is the prototype's frame exactly: U is mass-orthogonal to the rest
+    rotations, so sum m X x (X + U z) = 0 and sum m (X + U z) X^T is symmetric."""
+    weights = np.sqrt(mass)[:, None]
+    u_, _, vt = np.linalg.svd(((x - mass @ x / mass.sum()) * weights).T @ (rest * weights))
+    return u_ @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u_ @ vt))]) @ vt
+
+
+def follower(robot, sub, stroke: float, seconds: float, dt: float) -> dict:
+    """The stroke as actuation that follows the body, in the full space and on the prototype,
+    at dt, dt/2 and dt/4: is the prototype's fast frame spin (docs/FLOATING_FRAME.md) the
+    material's, or its model's?
+
+    The full space's force is M R U f_c (R: :func:`best_fit_rotation` of its nodes, the frame
+    the prototype's R is) less the rigid-rotation field m (alpha x (x - c)) that cancels its
+    torque about the centre of mass, so it is internal and L stays 0. The prototype runs three
+    times: with f_c on z (its body-frame actuation), with f_c on z made torque-free
+    (``FloatingFramePrototype.step``'s ``torque_free``: the same field, in closed form, at the
+    step's end) and under the full space's nodal force field itself (at the step's start).
+    Each run reports the frame's peak rate (the full space's from R at consecutive steps) and
+    the peak about the long axis (the rest inertia's least axis); each prototype run, the RMS
+    distance of its nodes from the full space's at mid-run and at the end (over the radius)."""
+    basis, nodes, mass = sub.basis, robot.nodes, np.asarray(robot.fem_model().mass)
+    n, m = len(mass), basis.shape[1] - 6
+    rest = nodes - mass @ nodes / mass.sum()
+    radius = np.sqrt(mass @ (rest**2).sum(1) / mass.sum())
+    inertia = np.einsum("i,ij,ik->jk", mass, rest, rest)
+    inertia = np.trace(inertia) * np.eye(3) - inertia
+    moments, axes = np.linalg.eigh(inertia)
+    axis = axes[:, 0]  # the long axis: the least moment
+    u3 = basis[:, 6:9].reshape(n, 3, 3)
+    amp = stroke * np.sqrt(mass.sum()) * G
+    phase = 2.0 * np.pi * np.arange(3) / 3.0
+
+    def following(x: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """Nodal forces (N, 3): m (R U f - alpha x r), torque-free about the centre of mass."""
+        r = x - mass @ x / mass.sum()
+        push = (u3 @ f) @ best_fit_rotation(x, rest, mass).T
+        tau = np.sum(mass[:, None] * np.cross(r, push), axis=0)
+        i_w = np.einsum("i,ij,ik->jk", mass, r, r)
+        alpha = np.linalg.solve(np.trace(i_w) * np.eye(3) - i_w, tau)
+        return mass[:, None] * (push - np.cross(alpha, r))
+
+    per_kg = np.round(moments / mass.sum(), 5)
+    print(f"{robot.name}: M = {m}, {stroke:g} body-weight stroke following the body, "
+          f"{seconds:g} s; rest moments {per_kg} m^2 per kg")  # fmt: skip
+    names = ("full space", "floating, f on z", "floating, f on z torque-free",
+             "floating, same nodal force")  # fmt: skip
+    out: dict = {}
+    for h in (dt, dt / 2, dt / 4):
+        steps = round(seconds / h)
+        full = FullSpaceModel(robot, actuation=np.zeros((3 * n, 1)), dt=h, gravity=(0.0, 0.0, 0.0),
+                              damping_beta=0.0, contact="none", newton_tolerance=1e-10)  # fmt: skip
+        linear = build_reduced_model(
+            robot, subspace=sub, contact="none", gravity=[0, 0, 0],
+            control_basis=np.eye(m)[:, :3], damping_beta=0.0, dt=h,
+        )  # fmt: skip
+        floating = FloatingFramePrototype(linear, basis, nodes, mass)
+        start = (floating.com, np.eye(3), np.zeros(m), np.zeros(3), np.zeros(3), np.zeros(m))
+        states = dict.fromkeys(names[1:], start)
+        fs = full.rest_state()
+        failed: dict = dict.fromkeys(names[1:])
+        peak = {k: [0.0, 0.0] for k in names}
+        apart: dict = {k: [] for k in names[1:]}
+        momentum = 0.0
+
+        def note(name: str, rate: np.ndarray, peak: dict = peak) -> None:
+            was = peak[name]
+            peak[name] = [max(was[0], float(np.linalg.norm(rate))),
+                          max(was[1], abs(float(rate @ axis)))]  # fmt: skip
+
+        for k in range(steps):
+            f = amp * np.sin(2.0 * np.pi * 2.0 * k * h - phase)
+            rot = best_fit_rotation(fs.x, rest, mass)
+            full.actuation = (following(fs.x, f) / mass[:, None]).reshape(-1, 1)
+            fs, _ = full.step(fs, np.ones(1))
+            turn = Rotation.from_matrix(rot.T @ best_fit_rotation(fs.x, rest, mass)).as_rotvec()
+            note("full space", turn / h)  # body frame
+            momentum = max(momentum, momentum_ratio(mass, fs.x, fs.v))
+
+            def loads(
+                state: tuple, f: np.ndarray = f, model: FloatingFramePrototype = floating
+            ) -> tuple[np.ndarray, ...]:
+                return model.generalised(state, following(model.world(state)[0], f))
+
+            for name in names[1:]:
+                if failed[name] is not None:
+                    continue
+                try:
+                    if name.startswith("floating, f on z"):
+                        free = name.endswith("torque-free")
+                        states[name] = floating.step(states[name], f, torque_free=free)
+                    else:
+                        states[name] = floating.step(states[name], np.zeros(3), loads)
+                except FloatingPointError as exc:
+                    failed[name] = f"stopped at t = {k * h:.3f} s: {exc}"
+                    continue
+                note(name, states[name][4])
+                if k + 1 in (steps // 2, steps):
+                    d = floating.world(states[name])[0] - fs.x
+                    apart[name].append(float(np.sqrt(mass @ (d * d).sum(1) / mass.sum()) / radius))
+        out[h] = {"peak": peak, "momentum_full": momentum, "apart": apart, "failed": failed}
+        print(f"dt = {h * 1e3:g} ms (full space max |L|/scale {momentum:.2e}):", flush=True)
+        for name in names:
+            said = " / ".join(f"{a:.3f}" for a in apart.get(name, [])) or "-"
+            print(f"  {name:<28} frame peak {peak[name][0]:7.3g} rad/s, about the long axis "
+                  f"{peak[name][1]:7.3g}; nodes from the full space's {said} (mid / end)"
+                  + (f"; {failed[name]}" if failed.get(name) else ""), flush=True)  # fmt: skip
+    return out
+
+
 def swimming(robot, sub, seconds: float, dt: float) -> dict:
     """Open-loop swims from rest (no damping; the package's drag, ``FullSpaceModel``'s law for
     the prototype): the centre of mass's displacement and the largest turn of the linear
-    model, the floating-frame prototype with actuation on z (body frame) and with the
-    world-fixed modal forces, and the full space (world-fixed, as ``matching`` builds it)."""
+    model, the floating-frame prototype with actuation on z (body frame: f_a itself, and its
+    torque-free law) and with the world-fixed modal forces, and the full space (world-fixed,
+    as ``matching`` builds it)."""
     from softrom_gym.envs.observations import orientation_rows
 
     basis, nodes, mass = sub.basis, robot.nodes, np.asarray(robot.fem_model().mass)
@@ -380,16 +513,14 @@ def swimming(robot, sub, seconds: float, dt: float) -> dict:
     floating = FloatingFramePrototype(linear, basis, nodes, mass)
     rows = orientation_rows(nodes, mass, basis)
     rest = nodes - mass @ nodes / mass.sum()
-    weights = np.sqrt(mass)[:, None]
 
     def drag(state: tuple) -> tuple[np.ndarray, ...]:
         x, v = floating.world(state)
         force, _ = full._drag(x, v, jacobian=False)
         return floating.generalised(state, force.reshape(n, 3))
 
-    def turned(x: np.ndarray) -> float:  # the best-fit rotation's angle (Kabsch)
-        u_, _, vt = np.linalg.svd(((x - mass @ x / mass.sum()) * weights).T @ (rest * weights))
-        fit = u_ @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u_ @ vt))]) @ vt
+    def turned(x: np.ndarray) -> float:  # the best-fit rotation's angle
+        fit = best_fit_rotation(x, rest, mass)
         return float(np.linalg.norm(Rotation.from_matrix(fit).as_rotvec()))
 
     out: dict = {}
@@ -405,12 +536,14 @@ def swimming(robot, sub, seconds: float, dt: float) -> dict:
         start = time.perf_counter()
         ls, fs = linear.rest_state(), full.rest_state()
         rest_frame = (floating.com, np.eye(3), np.zeros(20), np.zeros(3), np.zeros(3), np.zeros(20))
-        body, world = rest_frame, rest_frame
-        most = dict.fromkeys(("linear", "floating, f on z", "floating, world-fixed f", "full"), 0.0)
+        body, free, world = rest_frame, rest_frame, rest_frame
+        keys = ("linear", "floating, f on z", "floating, torque-free", "floating, world-fixed f")
+        most = dict.fromkeys((*keys, "full"), 0.0)
         for k, f in enumerate(forces):
             ls, _ = linear.step(ls, f)
             fs, _ = full.step(fs, f)
             body = floating.step(body, f, drag)
+            free = floating.step(free, f, drag, torque_free=True)
             push = mass[:, None] * (basis[:, 6:9] @ f).reshape(n, 3)  # M U f, world-fixed
 
             def world_fixed(state: tuple, push: np.ndarray = push) -> tuple[np.ndarray, ...]:
@@ -419,7 +552,7 @@ def swimming(robot, sub, seconds: float, dt: float) -> dict:
 
             world = floating.step(world, np.zeros(3), world_fixed)
             most["linear"] = max(most["linear"], float(np.linalg.norm(rows @ ls.q)))
-            for key, frame in (("floating, f on z", body), ("floating, world-fixed f", world)):
+            for key, frame in zip(keys[1:], (body, free, world), strict=True):
                 angle = float(np.linalg.norm(Rotation.from_matrix(frame[1]).as_rotvec()))
                 most[key] = max(most[key], angle)
             if k % 20 == 19:
@@ -427,6 +560,7 @@ def swimming(robot, sub, seconds: float, dt: float) -> dict:
         moved = {
             "linear": linear.com(ls.q) - floating.com,
             "floating, f on z": body[0] - floating.com,
+            "floating, torque-free": free[0] - floating.com,
             "floating, world-fixed f": world[0] - floating.com,
             "full": full.com(fs.x) - floating.com,
         }
@@ -457,16 +591,29 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--swim", action="store_true",
                    help="only open-loop swims (--seconds each, 5 s is a fair choice): the "
                    "linear model, the prototype with drag, and the full space")  # fmt: skip
+    p.add_argument("--follower", action="store_true",
+                   help="only the stroke following the body, full space against the prototype "
+                   "at dt, dt/2 and dt/4 (is the frame spin the material's?)")  # fmt: skip
+    p.add_argument(
+        "--modes",
+        type=int,
+        default=20,
+        help="--follower: the deformation modes M of B_r (the other modes use 20)",
+    )
     p.add_argument("--step-convergence", action="store_true",
                    help="only the actuated stroke at dt, dt/2 and dt/4 (the prototype's frame "
                    "spin against the step)")  # fmt: skip
     args = p.parse_args(argv)
     if min(args.seconds, args.speed, args.stroke, args.dt) <= 0:
         p.error("--seconds, --speed, --stroke and --dt must be positive")
+    if args.modes < 3:
+        p.error(f"--modes must be at least 3 (the stroke drives three), got {args.modes}")
     dt = args.dt
     if args.linearised_turns:
         return linearised_turns(None if args.best_bases == "none" else Path(args.best_bases))
     robot = ROBOTS[args.robot]()
+    if args.follower:
+        return follower(robot, build_subspace(robot, args.modes), args.stroke, args.seconds, dt)
     sub = build_subspace(robot, 20)
     if args.step_convergence:
         return step_convergence(robot, sub, args.stroke, args.seconds, dt)
@@ -515,21 +662,20 @@ def main(argv: list[str] | None = None) -> dict:
         ls, _ = linear.step(ls, u)
         ratios.append(momentum_ratio(mass, linear.positions(ls.q), (basis @ ls.qdot).reshape(n, 3)))
     report(case, "linear", ratios, None)
-    state = (floating.com, np.eye(3), np.zeros(20), np.zeros(3), np.zeros(3), np.zeros(20))
-    ratios, failed, spin_max = [], None, 0.0
-    for k, u in enumerate(strokes):
-        try:
-            state = floating.step(state, u)
-        except FloatingPointError as exc:
-            failed = f"stopped at t = {k * dt:.3f} s: {exc}"
-            break
-        ratios.append(momentum_ratio(mass, *floating.world(state)))
-        spin_max = max(spin_max, float(np.linalg.norm(state[4])))
-    # how fast the frame turned: the slender-axis hazard of docs/FLOATING_FRAME.md
-    spun = f"frame up to {spin_max:.3g} rad/s"
-    report(
-        case, "floating frame (body-frame f)", ratios, None, f"{spun}; {failed}" if failed else spun
-    )
+    for free, name in ((False, "floating frame (f on z)"), (True, "floating frame (torque-free)")):
+        state = (floating.com, np.eye(3), np.zeros(20), np.zeros(3), np.zeros(3), np.zeros(20))
+        ratios, failed, spin_max = [], None, 0.0
+        for k, u in enumerate(strokes):
+            try:
+                state = floating.step(state, u, torque_free=free)
+            except FloatingPointError as exc:
+                failed = f"stopped at t = {k * dt:.3f} s: {exc}"
+                break
+            ratios.append(momentum_ratio(mass, *floating.world(state)))
+            spin_max = max(spin_max, float(np.linalg.norm(state[4])))
+        # how fast the frame turned: the slender-axis hazard of docs/FLOATING_FRAME.md
+        spun = f"frame up to {spin_max:.3g} rad/s"
+        report(case, name, ratios, None, f"{spun}; {failed}" if failed else spun)
 
     # -- unactuated: elastic forces alone ---------------------------------------------------------
     for spin in (0.0, args.spin):
