@@ -59,6 +59,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 import cpp_sim
+from softrom_gym.body_frame import best_fit_rotation, following_forces
 from softrom_gym.full_space import FullSpaceModel, FullSpaceState
 from softrom_gym.robots import ROBOTS
 from softrom_gym.rom import build_reduced_model, build_subspace
@@ -383,23 +384,15 @@ def mpc_turns(runs: Path, seconds: float = 10.0) -> dict:
     return out
 
 
-def best_fit_rotation(x: np.ndarray, rest: np.ndarray, mass: np.ndarray) -> np.ndarray:
-    """The rotation R minimising sum m |x - c - R X|^2 (Kabsch; X the rest nodes about the
-    centre of mass). It is the prototype's frame exactly: U is mass-orthogonal to the rest
-    rotations, so sum m X x (X + U z) = 0 and sum m (X + U z) X^T is symmetric."""
-    weights = np.sqrt(mass)[:, None]
-    u_, _, vt = np.linalg.svd(((x - mass @ x / mass.sum()) * weights).T @ (rest * weights))
-    return u_ @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u_ @ vt))]) @ vt
-
-
 def follower(robot, sub, stroke: float, seconds: float, dt: float) -> dict:
     """The stroke as actuation that follows the body, in the full space and on the prototype,
     at dt, dt/2 and dt/4: is the prototype's fast frame spin (docs/FLOATING_FRAME.md) the
     material's, or its model's?
 
-    The full space's force is M R U f_c (R: :func:`best_fit_rotation` of its nodes, the frame
-    the prototype's R is) less the rigid-rotation field m (alpha x (x - c)) that cancels its
-    torque about the centre of mass, so it is internal and L stays 0. The prototype runs three
+    The full space's force (``actuation_frame="body"``) is M R U f_c (R: the best-fit rotation
+    of its nodes, ``softrom_gym.body_frame``, the frame the prototype's R is) less the
+    rigid-rotation field m (alpha x (x - c)) that cancels its torque about the centre of mass,
+    so it is internal and L stays 0 (to implicit Euler's drift). The prototype runs three
     times: with f_c on z (its body-frame actuation), with f_c on z made torque-free
     (``FloatingFramePrototype.step``'s ``torque_free``: the same field, in closed form, at the
     step's end) and under the full space's nodal force field itself (at the step's start).
@@ -420,12 +413,7 @@ def follower(robot, sub, stroke: float, seconds: float, dt: float) -> dict:
 
     def following(x: np.ndarray, f: np.ndarray) -> np.ndarray:
         """Nodal forces (N, 3): m (R U f - alpha x r), torque-free about the centre of mass."""
-        r = x - mass @ x / mass.sum()
-        push = (u3 @ f) @ best_fit_rotation(x, rest, mass).T
-        tau = np.sum(mass[:, None] * np.cross(r, push), axis=0)
-        i_w = np.einsum("i,ij,ik->jk", mass, r, r)
-        alpha = np.linalg.solve(np.trace(i_w) * np.eye(3) - i_w, tau)
-        return mass[:, None] * (push - np.cross(alpha, r))
+        return following_forces(x, rest, mass, u3 @ f)
 
     per_kg = np.round(moments / mass.sum(), 5)
     print(f"{robot.name}: M = {m}, {stroke:g} body-weight stroke following the body, "
@@ -435,8 +423,9 @@ def follower(robot, sub, stroke: float, seconds: float, dt: float) -> dict:
     out: dict = {}
     for h in (dt, dt / 2, dt / 4):
         steps = round(seconds / h)
-        full = FullSpaceModel(robot, actuation=np.zeros((3 * n, 1)), dt=h, gravity=(0.0, 0.0, 0.0),
-                              damping_beta=0.0, contact="none", newton_tolerance=1e-10)  # fmt: skip
+        full = FullSpaceModel(robot, actuation=basis[:, 6:9], dt=h, gravity=(0.0, 0.0, 0.0),
+                              damping_beta=0.0, contact="none", newton_tolerance=1e-10,
+                              actuation_frame="body")  # fmt: skip
         linear = build_reduced_model(
             robot, subspace=sub, contact="none", gravity=[0, 0, 0],
             control_basis=np.eye(m)[:, :3], damping_beta=0.0, dt=h,
@@ -458,8 +447,7 @@ def follower(robot, sub, stroke: float, seconds: float, dt: float) -> dict:
         for k in range(steps):
             f = amp * np.sin(2.0 * np.pi * 2.0 * k * h - phase)
             rot = best_fit_rotation(fs.x, rest, mass)
-            full.actuation = (following(fs.x, f) / mass[:, None]).reshape(-1, 1)
-            fs, _ = full.step(fs, np.ones(1))
+            fs, _ = full.step(fs, f)
             turn = Rotation.from_matrix(rot.T @ best_fit_rotation(fs.x, rest, mass)).as_rotvec()
             note("full space", turn / h)  # body frame
             momentum = max(momentum, momentum_ratio(mass, fs.x, fs.v))
@@ -500,7 +488,8 @@ def swimming(robot, sub, seconds: float, dt: float) -> dict:
     the prototype): the centre of mass's displacement and the largest turn of the linear
     model, the floating-frame prototype with actuation on z (body frame: f_a itself, and its
     torque-free law) and with the world-fixed modal forces, and the full space (world-fixed,
-    as ``matching`` builds it)."""
+    as ``matching`` builds it, and following the body: ``actuation_frame="body"``, the
+    counterpart of the torque-free law)."""
     from softrom_gym.envs.observations import orientation_rows
 
     basis, nodes, mass = sub.basis, robot.nodes, np.asarray(robot.fem_model().mass)
@@ -510,6 +499,7 @@ def swimming(robot, sub, seconds: float, dt: float) -> dict:
         control_basis=np.eye(20)[:, :3], damping_beta=0.0, dt=dt,
     )  # fmt: skip
     full = FullSpaceModel.matching(linear, robot, basis)
+    full_body = FullSpaceModel.matching(linear, robot, basis, actuation_frame="body")
     floating = FloatingFramePrototype(linear, basis, nodes, mass)
     rows = orientation_rows(nodes, mass, basis)
     rest = nodes - mass @ nodes / mass.sum()
@@ -534,14 +524,15 @@ def swimming(robot, sub, seconds: float, dt: float) -> dict:
             scale * weight * np.sin(2.0 * np.pi * freq * k * dt - phase) for k in range(steps)
         ]
         start = time.perf_counter()
-        ls, fs = linear.rest_state(), full.rest_state()
+        ls, fs, fb = linear.rest_state(), full.rest_state(), full_body.rest_state()
         rest_frame = (floating.com, np.eye(3), np.zeros(20), np.zeros(3), np.zeros(3), np.zeros(20))
         body, free, world = rest_frame, rest_frame, rest_frame
         keys = ("linear", "floating, f on z", "floating, torque-free", "floating, world-fixed f")
-        most = dict.fromkeys((*keys, "full"), 0.0)
+        most = dict.fromkeys((*keys, "full", "full, body-frame f"), 0.0)
         for k, f in enumerate(forces):
             ls, _ = linear.step(ls, f)
             fs, _ = full.step(fs, f)
+            fb, _ = full_body.step(fb, f)
             body = floating.step(body, f, drag)
             free = floating.step(free, f, drag, torque_free=True)
             push = mass[:, None] * (basis[:, 6:9] @ f).reshape(n, 3)  # M U f, world-fixed
@@ -557,12 +548,14 @@ def swimming(robot, sub, seconds: float, dt: float) -> dict:
                 most[key] = max(most[key], angle)
             if k % 20 == 19:
                 most["full"] = max(most["full"], turned(fs.x))
+                most["full, body-frame f"] = max(most["full, body-frame f"], turned(fb.x))
         moved = {
             "linear": linear.com(ls.q) - floating.com,
             "floating, f on z": body[0] - floating.com,
             "floating, torque-free": free[0] - floating.com,
             "floating, world-fixed f": world[0] - floating.com,
             "full": full.com(fs.x) - floating.com,
+            "full, body-frame f": full.com(fb.x) - floating.com,
         }
         label = f"{freq:g} Hz {'/'.join(str(120 * o) for o in order)} {scale:g} bw"
         out[label] = {k: {"moved": moved[k].tolist(), "turned": most[k]} for k in moved}

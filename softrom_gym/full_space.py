@@ -10,11 +10,12 @@ solves the implicit Euler step
 
 by Newton's method (M lumped, f_e every tetrahedron's stable Neo-Hookean force, K_0 the rest
 stiffness of the Rayleigh term, B_d B_c the actuation's full-space mode shapes, so the same
-f_c is the same force as in the reduced model; f_d the quadratic drag on the surface
-triangles advancing into still fluid, f = -1/2 rho C_d A max(n.v, 0)^2 n shared by a
-triangle's three nodes, and J_d its velocity Jacobian, both at the step's start: the reduced
-step's law and linearisation), and the step's velocity is the staggered
-projection of v* in the metric A of the last Newton matrix: the normal problem
+f_c is the same force as in the reduced model, or, with ``actuation_frame="body"``, that
+field turned with the body and made torque-free (:mod:`softrom_gym.body_frame`); f_d the
+quadratic drag on the surface triangles advancing into still fluid, f = -1/2 rho C_d A
+max(n.v, 0)^2 n shared by a triangle's three nodes, and J_d its velocity Jacobian, both at
+the step's start: the reduced step's law and linearisation), and the step's velocity is the
+staggered projection of v* in the metric A of the last Newton matrix: the normal problem
 min 1/2 |v - v'|_A^2 s.t. v_z,i >= b_i on every candidate node (b_i = -z_i / h above the
 ground, -beta_s z_i / h for a penetrating node), alternated with one reweighted least-squares
 step of the Coulomb friction problem min 1/2 |v - v''|_A^2 + sum_i mu lambda_n,i |v_t,i|_eps,
@@ -48,6 +49,7 @@ from scipy.sparse.linalg import splu
 import cpp_sim
 
 from ._validate import real_array
+from .body_frame import following_forces
 from .robots import Robot
 
 __all__ = ["FullSpaceModel", "FullSpaceState"]
@@ -86,7 +88,14 @@ class FullSpaceModel:
         of B_r (:meth:`matching` builds it). The field is fixed in the world: it has no net
         force (B_d is mass-orthogonal to the translations) and no torque at rest, but a torque
         once the body has deformed or turned, which the reduced model's linearised rotation
-        columns do not see (``benchmarks/study_angular_momentum.py``).
+        columns do not see (``benchmarks/study_angular_momentum.py``). ``actuation_frame``
+        "body" turns it with the body instead.
+    actuation_frame : {"world", "body"}
+        "world" (default, the reduced model's actuation): the field above, fixed in the
+        world. "body": the field turned by the body's best-fit rotation and made torque-free
+        (:func:`softrom_gym.body_frame.following_forces`, taken at the step's start), so it
+        is internal at every configuration, as an actuator built into the robot is; the
+        reference for a floating frame's actuation (``docs/FLOATING_FRAME.md``).
     dt, gravity, friction, ground_height, contact_margin, contact_tolerance, stabilization,
     damping_alpha, damping_beta, newton_tolerance, max_newton_iterations,
     max_stagger_iterations, fluid_density, drag_coefficient
@@ -119,6 +128,7 @@ class FullSpaceModel:
     contact: str = "staggered"
     fluid_density: float = 0.0
     drag_coefficient: float = 1.0
+    actuation_frame: str = "world"
 
     def __post_init__(self) -> None:
         n = self.robot.num_nodes
@@ -133,6 +143,8 @@ class FullSpaceModel:
         self._fem = self.robot.fem_model()
         self._m3 = np.repeat(np.asarray(self._fem.mass), 3)
         self._total_mass = float(np.sum(self._fem.mass))
+        mass = np.asarray(self._fem.mass)
+        self._rest = self.robot.nodes - mass @ self.robot.nodes / self._total_mass
         self._k0 = sp.csr_matrix(self._fem.stiffness(self.robot.nodes, project=False))
         self._surface = np.asarray(self.robot.surface_nodes, dtype=np.int64)
         self._faces = np.asarray(self.robot.surface_faces, dtype=np.int64)
@@ -155,6 +167,10 @@ class FullSpaceModel:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
         if self.contact not in ("staggered", "none"):
             raise ValueError(f"contact must be 'staggered' or 'none', got {self.contact!r}")
+        if self.actuation_frame not in ("world", "body"):
+            raise ValueError(
+                f"actuation_frame must be 'world' or 'body', got {self.actuation_frame!r}"
+            )
         for name in ("friction", "contact_margin", "damping_alpha", "damping_beta",
                      "fluid_density", "drag_coefficient"):  # fmt: skip
             if not real(name) >= 0:
@@ -175,11 +191,12 @@ class FullSpaceModel:
         return g
 
     @classmethod
-    def matching(cls, model: cpp_sim.ReducedModel, robot: Robot, basis: np.ndarray
-                 ) -> FullSpaceModel:  # fmt: skip
+    def matching(cls, model: cpp_sim.ReducedModel, robot: Robot, basis: np.ndarray,
+                 actuation_frame: str = "world") -> FullSpaceModel:  # fmt: skip
         """The full-space counterpart of a reduced ``model`` of ``robot`` with staggered or no
         contact, with B_r = ``basis`` (3N x (M + 6)): its settings (its drag too), and its B_c
-        as full-space shapes."""
+        as full-space shapes, applied in ``actuation_frame`` ("world", as the reduced model
+        applies them, or "body")."""
         said = str(model.contact)
         contact = said.lower()
         if contact not in ("staggered", "none"):
@@ -199,7 +216,7 @@ class FullSpaceModel:
                  "drag_coefficient")  # fmt: skip
         settings = {name: getattr(model, name) for name in names}
         return cls(robot, basis[:, 6:] @ bc, gravity=tuple(model.gravity), contact=contact,
-                   **settings)  # fmt: skip
+                   actuation_frame=actuation_frame, **settings)  # fmt: skip
 
     # -- states ----------------------------------------------------------------------------
     def rest_state(self) -> FullSpaceState:
@@ -270,7 +287,13 @@ class FullSpaceModel:
             if fc.shape != (actuation.shape[1],) or not np.all(np.isfinite(fc)):
                 raise ValueError(f"controls must be finite with shape "
                                  f"({actuation.shape[1]},), got {fc.shape}")  # fmt: skip
-            f_ext = f_ext + m3 * (actuation @ fc)
+            field = actuation @ fc
+            if self.actuation_frame == "body":
+                mass = np.asarray(self._fem.mass)
+                push = following_forces(x_n.reshape(n, 3), self._rest, mass, field.reshape(n, 3))
+                f_ext = f_ext + push.ravel()
+            else:
+                f_ext = f_ext + m3 * field
         diag = sp.diags(m3 * (1.0 + h * self.damping_alpha))
         damping = h * self.damping_beta * self._k0
         drag_f = drag_j = None

@@ -166,7 +166,9 @@ def test_bad_input_is_named(bar):
                        ({"dt": float("inf")}, "dt must be a finite number"),
                        ({"gravity": (0.0, -9.81)}, "gravity must be 3 finite numbers"),
                        ({"max_newton_iterations": 2.5}, "max_newton_iterations must be an "
-                                                        "integer >= 1")):  # fmt: skip
+                                                        "integer >= 1"),
+                       ({"actuation_frame": "rotating"}, "actuation_frame must be 'world' or "
+                                                         "'body', got 'rotating'")):  # fmt: skip
         with pytest.raises(ValueError, match=match):
             FullSpaceModel(bar, **bad)
     with pytest.raises(ValueError, match="this model has no actuation, so it takes no controls"):

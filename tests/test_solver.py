@@ -767,7 +767,9 @@ def test_actuated_free_flight_gains_angular_momentum_at_second_order_only(beam_r
     "the full space under this stroke gains |L| to 94% of the scale) and B_r's rotations are "
     "linearised (elastic forces alone: |L| to 15%, the full space 0.43%); measured on the beam "
     "here, |L| reaches 62%. A floating frame with body-frame actuation keeps L (a prototype: "
-    "1e-11). benchmarks/study_angular_momentum.py, the README's known limits.",
+    "3e-10); the full space with that actuation (actuation_frame='body') keeps it up to "
+    "implicit Euler's first-order drift (tests/test_body_frame.py). "
+    "benchmarks/study_angular_momentum.py, the README's known limits.",
     strict=True,
 )
 def test_actuation_conserves_angular_momentum_in_free_flight(beam_robot):
