@@ -8,10 +8,13 @@ Printed: the three best gaits at the first M, and their distance (body lengths, 
 tetrahedron), which separates the truncation of B_r from the cubature's error.
 
     python benchmarks/check_m_convergence.py [ENV_ID ...] [--sim-dims 20 40] [--forces cubature]
-        [--full-space]
+        [--full-space [--actuation-frame world]]
 
 ``--full-space`` adds the limit M -> 3N: the same gaits, forces and start in
 ``softrom_gym.full_space.FullSpaceModel`` (the reduced step, contact and drag with B_r = I).
+``--actuation-frame body`` applies the actuation there as a field that turns with the body
+and is torque-free (``FullSpaceModel``'s ``actuation_frame``) instead of the reduced model's
+world-fixed field.
 """
 
 from __future__ import annotations
@@ -54,15 +57,15 @@ def distances(env_id: str, m: int, forces: str, gaits: list, seconds: float, sta
 
 
 def full_space_distances(env_id: str, m: int, gaits: list, seconds: float, start: float,
-                         seed: int) -> np.ndarray:  # fmt: skip
+                         seed: int, actuation_frame: str = "world") -> np.ndarray:  # fmt: skip
     """Body lengths travelled by each gait in the full space (``FullSpaceModel``: the same
     step, contact and drag with B_r = I), from the M-space env's reset state, the same
-    forces."""
+    forces (fixed in the world, or following the body: ``actuation_frame``)."""
     env = gym.make(env_id, sim_dim=m)
     u = env.unwrapped
     env.reset(seed=seed)
     basis = np.asarray(u.subspace.basis)
-    model = FullSpaceModel.matching(u.model, u.robot, basis)
+    model = FullSpaceModel.matching(u.model, u.robot, basis, actuation_frame=actuation_frame)
     start_state = model.state_from_reduced(basis, u.get_state())
     steps, first = round(seconds / u.dt), round(start / u.dt)
     k = u.frame_skip
@@ -99,6 +102,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--full-space", action="store_true",
                    help="also run the three best gaits in the full space (FullSpaceModel; "
                         "slow: the beam's three took 21 min on 2 shared cores)")  # fmt: skip
+    p.add_argument("--actuation-frame", choices=["world", "body"], default="world",
+                   help="--full-space's actuation: fixed in the world as the reduced model's "
+                        "(default), or turning with the body, torque-free")  # fmt: skip
     args = p.parse_args(argv)
     if args.seed < 0:  # gymnasium's reset refuses it, as a traceback
         p.error(f"--seed must be >= 0, got {args.seed}")
@@ -143,14 +149,16 @@ def main(argv: list[str] | None = None) -> list[dict]:
         first = table[(args.sim_dims[0], args.forces[0])]
         best = np.argsort(-np.nan_to_num(first, nan=-np.inf))[:3]
         full = None
+        full_head = "    full" if args.actuation_frame == "world" else "  full-b"
         if args.full_space:
             full = full_space_distances(env_id, args.sim_dims[0], [gaits[j] for j in best],
-                                        args.seconds, args.start, args.seed)  # fmt: skip
+                                        args.seconds, args.start, args.seed,
+                                        args.actuation_frame)  # fmt: skip
         print(f"{env_id} (body lengths, t = {args.start:g}..{args.seconds:g} s, seed {args.seed})")
         names = {"cubature": "cub", "exact": "exact"}
         print(f"  {'gait':<28}" + "".join(
             f"  M={m:<3}" + "".join(f" {names[f]:>6}" for f in args.forces)
-            for m in args.sim_dims) + ("    full" if full is not None else ""))  # fmt: skip
+            for m in args.sim_dims) + (full_head if full is not None else ""))  # fmt: skip
         for i, j in enumerate(best):
             # each M's values under its header's force names, past its "  M=20 " label
             cells = "".join(" " * 7 + "".join(f" {table[(m, f)][j]:+6.3f}" for f in args.forces)
