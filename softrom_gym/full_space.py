@@ -141,10 +141,10 @@ class FullSpaceModel:
                 )
             self.actuation = a
         self._fem = self.robot.fem_model()
-        self._m3 = np.repeat(np.asarray(self._fem.mass), 3)
-        self._total_mass = float(np.sum(self._fem.mass))
-        mass = np.asarray(self._fem.mass)
-        self._rest = self.robot.nodes - mass @ self.robot.nodes / self._total_mass
+        self._mass = np.asarray(self._fem.mass)
+        self._m3 = np.repeat(self._mass, 3)
+        self._total_mass = float(np.sum(self._mass))
+        self._rest = self.robot.nodes - self._mass @ self.robot.nodes / self._total_mass
         self._k0 = sp.csr_matrix(self._fem.stiffness(self.robot.nodes, project=False))
         self._surface = np.asarray(self.robot.surface_nodes, dtype=np.int64)
         self._faces = np.asarray(self.robot.surface_faces, dtype=np.int64)
@@ -245,8 +245,7 @@ class FullSpaceModel:
 
     def com(self, x: np.ndarray) -> np.ndarray:
         """Centre of mass (3,) of positions x (N, 3), in m."""
-        mass = np.asarray(self._fem.mass)
-        return mass @ self._nodal("x", x) / self._total_mass
+        return self._mass @ self._nodal("x", x) / self._total_mass
 
     def _nodal(self, name: str, value: object, rows: int | None = None) -> np.ndarray:
         """``value`` as a finite real (rows, 3) array (rows defaults to N); a wrong shape, a
@@ -289,8 +288,9 @@ class FullSpaceModel:
                                  f"({actuation.shape[1]},), got {fc.shape}")  # fmt: skip
             field = actuation @ fc
             if self.actuation_frame == "body":
-                mass = np.asarray(self._fem.mass)
-                push = following_forces(x_n.reshape(n, 3), self._rest, mass, field.reshape(n, 3))
+                push = following_forces(
+                    x_n.reshape(n, 3), self._rest, self._mass, field.reshape(n, 3)
+                )
                 f_ext = f_ext + push.ravel()
             else:
                 f_ext = f_ext + m3 * field

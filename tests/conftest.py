@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from softrom_gym.robots.robot import Robot
 from softrom_gym.robots.voxel import voxels_to_tets
 
 
@@ -11,6 +12,13 @@ def small_block():
     """A 3 x 2 x 2 voxel block (36 nodes, 72 tets), 0.1 m voxels."""
     nodes, tets = voxels_to_tets(np.ones((3, 2, 2), dtype=bool), 0.1)
     return nodes, tets
+
+
+@pytest.fixture(scope="module")
+def bar():
+    """A 3 x 1 x 1 voxel bar (16 nodes, 18 tets), 0.1 m voxels, soft (E = 20 kPa)."""
+    nodes, tets = voxels_to_tets(np.ones((3, 1, 1), dtype=bool), 0.1)
+    return Robot("bar", nodes, tets, youngs_modulus=2e4)
 
 
 @pytest.fixture

@@ -9,17 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from softrom_gym.body_frame import best_fit_rotation, following_forces
 from softrom_gym.full_space import FullSpaceModel
-from softrom_gym.robots.robot import Robot
-from softrom_gym.robots.voxel import voxels_to_tets
 from softrom_gym.rom import build_reduced_model, build_subspace
 
 G = 9.81
-
-
-@pytest.fixture(scope="module")
-def bar():
-    nodes, tets = voxels_to_tets(np.ones((3, 1, 1), dtype=bool), 0.1)
-    return Robot("bar", nodes, tets, youngs_modulus=2e4)
 
 
 def _shapes(robot) -> np.ndarray:

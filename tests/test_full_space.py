@@ -14,12 +14,6 @@ from softrom_gym.rom import build_reduced_model
 G = 9.81
 
 
-@pytest.fixture(scope="module")
-def bar():
-    nodes, tets = voxels_to_tets(np.ones((3, 1, 1), dtype=bool), 0.1)
-    return Robot("bar", nodes, tets, youngs_modulus=2e4)
-
-
 def test_the_centre_of_mass_is_mass_weighted(bar):
     # Guards: com() as the plain mean of the nodes. The deformation columns are mass-orthogonal
     # to the translations, so no deformation moves the (mass-weighted) centre of mass.
