@@ -184,6 +184,10 @@ class ReducedModel:
         """
         The cubature energy as the fast solver's line search computes it (for its tests).
         """
+    def _floating_residual(self, state: ReducedState, f_c: typing.Any, x: typing.Any) -> tuple[numpy.typing.NDArray[numpy.float64], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]]:
+        """
+        The floating frame's implicit-Euler residual at x = (omega', w') from `state`, and its Jacobian (for the tests' finite-difference check).
+        """
     def com(self, q: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """
         Centre of mass (3,) of reduced coordinates q.
@@ -206,7 +210,7 @@ class ReducedModel:
         """
     def positions(self, q: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """
-        Node positions (N, 3) of reduced coordinates q.
+        Node positions (N, 3) of reduced coordinates q (in the model's `frame`).
         """
     def rest_state(self) -> ReducedState:
         """
@@ -228,6 +232,10 @@ class ReducedModel:
     def step(self, state: ReducedState, f_c: typing.Any = None) -> tuple[ReducedState, dict]:
         """
         One implicit step; returns (new_state, info). A diverged step returns the input state and info['diverged'] = True and does not raise (a state or f_c of the wrong size raises ValueError).
+        """
+    def velocities(self, q: typing.Any, qdot: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        Node velocities (N, 3) of reduced coordinates q and velocities qdot (in the model's `frame`: B_r qdot, or u + R (omega x r_i + U_i w)).
         """
     @property
     def C(self) -> int:
@@ -331,6 +339,14 @@ class ReducedModel:
         """
     @fluid_density.setter
     def fluid_density(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def frame(self) -> typing.Any:
+        """
+        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; free flight only, contact='none' and fluid_density=0; exact Newton whatever `solver`, which picks the elastic kernels)
+        """
+    @frame.setter
+    def frame(self, arg1: typing.Any) -> None:
         ...
     @property
     def friction(self) -> typing.Any:
@@ -438,7 +454,7 @@ class ReducedConfig:
     accepts one; each setting is also a property of the model itself. Values are validated when
     set; `ReducedConfig.SETTINGS` lists the names.
     """
-    SETTINGS: typing.ClassVar[tuple] = ('dt', 'gravity', 'contact', 'solver', 'friction', 'ground_height', 'contact_margin', 'penalty_stiffness', 'fluid_density', 'drag_coefficient', 'damping_alpha', 'damping_beta', 'newton_tolerance', 'max_newton_iterations', 'contact_tolerance', 'max_stagger_iterations', 'stabilization', 'direction', 'max_speed', 'profile')
+    SETTINGS: typing.ClassVar[tuple] = ('dt', 'gravity', 'contact', 'solver', 'friction', 'ground_height', 'contact_margin', 'penalty_stiffness', 'fluid_density', 'drag_coefficient', 'damping_alpha', 'damping_beta', 'newton_tolerance', 'max_newton_iterations', 'contact_tolerance', 'max_stagger_iterations', 'stabilization', 'direction', 'max_speed', 'profile', 'frame')
     __hash__: typing.ClassVar[None] = None
     def __eq__(self, arg0: ReducedConfig) -> bool:
         ...
@@ -454,6 +470,10 @@ class ReducedConfig:
         ...
     def __repr__(self) -> str:
         ...
+    def validate(self) -> None:
+        """
+        Raise ValueError if the settings, each valid alone, cannot be stepped together (today: frame='floating' with contact or drag). step() and rollout() check the same.
+        """
     @property
     def contact(self) -> typing.Any:
         """
@@ -525,6 +545,14 @@ class ReducedConfig:
         """
     @fluid_density.setter
     def fluid_density(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def frame(self) -> typing.Any:
+        """
+        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; free flight only, contact='none' and fluid_density=0; exact Newton whatever `solver`, which picks the elastic kernels)
+        """
+    @frame.setter
+    def frame(self, arg1: typing.Any) -> None:
         ...
     @property
     def friction(self) -> typing.Any:

@@ -162,6 +162,20 @@ const std::vector<Setting>& settings() {
        "time the parts of each step: step() then reports time_dynamics, time_drag, "
        "time_normal, time_friction (s), and stagger_trace, the staggered projection's course "
        "(benchmarks/trace_staggers.py)"},
+      {"frame", [](const ReducedConfig& c) -> py::object {
+         return py::str(c.frame == Frame::Floating ? "floating" : "linear");
+       },
+       [](ReducedConfig& c, py::handle x) {
+         const std::string s = py::str(x);
+         if (s == "linear") c.frame = Frame::Linear;
+         else if (s == "floating") c.frame = Frame::Floating;
+         else throw py::value_error("frame must be 'linear' or 'floating'; got '" + s + "'");
+       },
+       "'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + "
+       "U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = "
+       "(sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free "
+       "flight keeps the angular momentum; free flight only, contact='none' and "
+       "fluid_density=0; exact Newton whatever `solver`, which picks the elastic kernels)"},
   };
   return table;
 }
@@ -201,6 +215,13 @@ set; `ReducedConfig.SETTINGS` lists the names.)doc");
         [p](ReducedModel& r, py::handle x) { p->set(r.config, x); }, s.doc);
   }
   cfg.attr("SETTINGS") = py::tuple(names);
+  cfg.def(
+      "validate",
+      [](const ReducedConfig& c) {
+        if (const char* why = floating_unsupported(c)) throw py::value_error(why);
+      },
+      "Raise ValueError if the settings, each valid alone, cannot be stepped together (today: "
+      "frame='floating' with contact or drag). step() and rollout() check the same.");
   cfg.def("__repr__", [](const ReducedConfig& c) {
     std::string out = "ReducedConfig(";
     bool first = true;

@@ -106,6 +106,11 @@ void check_state(const ReducedModel& m, const ReducedState& s) {
   }
 }
 
+// A config the floating frame cannot step yet (contact, drag) is refused by name.
+void check_frame(const ReducedConfig& cfg) {
+  if (const char* why = floating_unsupported(cfg)) throw py::value_error(why);
+}
+
 ReducedState make_state(py::handle q, py::handle qdot, py::handle impulses) {
   ReducedState s;
   s.q = vector_in(q, "q", -1);
@@ -309,6 +314,7 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           "step",
           [](const ReducedModel& r, const ReducedState& s, py::handle fc) {
             check_state(r, s);
+            check_frame(r.config);
             ReducedState out = s;
             py::array_t<double> f;
             const double* fp = nullptr;
@@ -378,6 +384,7 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
                                       std::to_string(b) + ")");
             }
             for (const ReducedState& s : starts) check_state(r, s);
+            check_frame(r.config);
             int nt = available_cores();
             if (!threads.is_none()) {
               // An integer (numpy's too: anything with __index__), not a bool or a float.
@@ -460,7 +467,16 @@ KeyboardInterrupt.)doc")
           [](const ReducedModel& r, py::handle q) {
             return v::positions_out(r.positions(vector_in(q, "q", r.dim())));
           },
-          py::arg("q"), "Node positions (N, 3) of reduced coordinates q.")
+          py::arg("q"), "Node positions (N, 3) of reduced coordinates q (in the model's `frame`).")
+      .def(
+          "velocities",
+          [](const ReducedModel& r, py::handle q, py::handle qdot) {
+            return v::positions_out(
+                r.velocities(vector_in(q, "q", r.dim()), vector_in(qdot, "qdot", r.dim())));
+          },
+          py::arg("q"), py::arg("qdot"),
+          "Node velocities (N, 3) of reduced coordinates q and velocities qdot (in the model's "
+          "`frame`: B_r qdot, or u + R (omega x r_i + U_i w)).")
       .def(
           "min_volume_ratio",
           [](const ReducedModel& r, py::handle q) {
@@ -494,6 +510,21 @@ KeyboardInterrupt.)doc")
             return vec_out(out);
           },
           py::arg("q_e"), "Reduced elastic force B_e^T f(X + B_e q_e) (M + 3,) by cubature, q_e = q[3:].")
+      .def(
+          "_floating_residual",
+          [](const ReducedModel& r, const ReducedState& s, py::handle fc, py::handle x) {
+            check_state(r, s);
+            const VecX xv = vector_in(x, "x", 3 + r.deformation_dim());
+            VecX f = VecX::Zero(r.control_dim());
+            if (r.control_dim() > 0) f = vector_in(fc, "f_c", r.control_dim());
+            const ReducedModel::WorkspaceLease ws = r.lend_workspace();
+            MatX res, jac;
+            r.floating_residual_for_tests(r.inputs(), s, f, xv, res, jac, *ws);
+            return py::make_tuple(vec_out(res.col(0)), jac);
+          },
+          py::arg("state"), py::arg("f_c"), py::arg("x"),
+          "The floating frame's implicit-Euler residual at x = (omega', w') from `state`, and "
+          "its Jacobian (for the tests' finite-difference check).")
       .def(
           "_elastic_energy_fast",
           [](const ReducedModel& r, py::handle qd) {

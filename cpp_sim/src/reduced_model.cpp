@@ -95,6 +95,10 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
   }
   control_basis_ = MatX::Zero(deformation_dim(), 0);
   k_rest_ = elastic_stiffness(VecX::Zero(md), false);
+  rest_about_com_ = rest_;
+  for (int i = 0; i < num_nodes_; ++i) rest_about_com_.segment<3>(3 * i) -= rest_com_;
+  floating_ = FloatingCoefficients::build(rest_about_com_, mass, total_mass_,
+                                          basis.rightCols(deformation_dim()));
 }
 
 ReducedModel::WorkspaceLease ReducedModel::lend_workspace() const {
@@ -125,7 +129,16 @@ ReducedState ReducedModel::rest_state() const {
   return s;
 }
 
-VecX ReducedModel::positions(const VecX& q) const { return rest_ + basis_ * q; }
+VecX ReducedModel::positions(const VecX& q) const {
+  if (config.frame == Frame::Linear) return rest_ + basis_ * q;
+  // x_i = c + R (X_i + U_i z).
+  const Mat3 rot = rotation_matrix(q.segment<3>(3));
+  const Vec3 c = com(q);
+  const VecX r = rest_about_com_ + basis_.rightCols(deformation_dim()) * q.tail(deformation_dim());
+  VecX x(r.size());
+  for (int i = 0; i < num_nodes_; ++i) x.segment<3>(3 * i) = c + rot * r.segment<3>(3 * i);
+  return x;
+}
 
 double ReducedModel::min_volume_ratio(const VecX& q) const {
   const VecX x = positions(q);

@@ -12,6 +12,8 @@
 //                         projection, normal LDP + friction), penalty ground
 //   reduced_drag.cpp      quadratic surface drag
 //   reduced_rollout.cpp   batched rollouts on the thread pool (thread_pool.h)
+//   reduced_floating.cpp  the floating frame's step (config.frame = Floating; kinematics
+//                         and kinetic coefficients in floating_frame.h)
 #pragma once
 
 #include <Eigen/Dense>
@@ -24,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "floating_frame.h"
 #include "material.h"
 #include "nnls.h"
 #include "scratch.h"
@@ -44,6 +47,15 @@ enum class ContactModel { None = 0, Staggered = 1, Penalty = 2 };
 // staggered projection as the reference, with a Gram-Cholesky NNLS (Givens downdates) and the
 // friction step solved in the loaded rows' space when they are fewer than the coordinates.
 enum class Solver { Reference = 0, Fast = 1 };
+
+// How the rigid motion is represented (docs/FLOATING_FRAME.md).
+// Linear (default): x = X + B_r q, the rotations linearised (every recorded figure is this
+// model's). Floating: x_i = c + R (X_i + U_i z) with an exact rotation R, q = (sqrt(m) (c - c_0),
+// the rotation vector theta of R (|theta| <= pi), z) and qdot = (sqrt(m) c', the body-frame
+// angular velocity omega, z'); actuation follows the body, torque-free, so in free flight the
+// angular momentum is kept to the Newton tolerance. It simulates free flight (with gravity
+// and Rayleigh damping) only: contact and drag in the floating frame are not built yet.
+enum class Frame { Linear = 0, Floating = 1 };
 
 // Every setting of a reduced model, in one place: the binding exposes this struct as
 // `ReducedConfig` and the model's settings as its fields.
@@ -68,7 +80,11 @@ struct ReducedConfig {
   Vec3 direction{1.0, 0.0, 0.0};  // unit task direction d (reward d . v_com dt)
   double max_speed = 100.0;       // m/s: an RMS node speed above this counts as divergence
   bool profile = false;           // time the parts of each step into StepInfo (a few % cost)
+  Frame frame = Frame::Linear;
 };
+
+// Why a config cannot be stepped in the floating frame (contact, drag), or null when it can.
+const char* floating_unsupported(const ReducedConfig& cfg);
 
 // Simulation state. `impulses` warm-starts the contact solver (per surface node, two tangential
 // then the normal), so it is part of the state: stepping from the same state is reproducible.
@@ -182,6 +198,13 @@ struct Workspace {
   // instructions each on the quadruped); cleared at each step's start.
   VecX ground_z, ground_vn;
   bool ground_rows_ready = false;
+  // The floating frame's Newton iteration (reduced_floating.cpp): the body's inertia and
+  // coupling at the iterate, its iterate x = (omega, w), residual, Jacobian and step.
+  FloatingBody fl_body;
+  VecX fl_x, fl_trial, fl_r, fl_dx, fl_z, fl_qe, fl_fe, fl_fa, fl_p0, fl_g, fl_q;
+  std::array<VecX, 3> fl_yw;
+  MatX fl_jac, fl_k, fl_e;
+  Eigen::PartialPivLU<MatX> fl_lu;
 };
 
 // What one call reads from the model besides its constant data: copied at entry, so a call
@@ -269,8 +292,15 @@ class ReducedModel {
   // alone would miss some: a few inverted tetrahedra of a soft tripod lie outside it.)
   double min_volume_ratio(const VecX& q) const;
 
-  // Full positions (N x 3 flattened) of a reduced configuration.
+  // Full positions (N x 3 flattened) of a reduced configuration, and node velocities, in the
+  // frame config.frame says.
   VecX positions(const VecX& q) const;
+  VecX velocities(const VecX& q, const VecX& qdot) const;
+  // The floating frame's step residual at x = (omega', w') from s under f_c (C entries), and
+  // its Jacobian: what step_floating's Newton iteration solves, for the tests.
+  void floating_residual_for_tests(const StepInputs& in, const ReducedState& s, const VecX& fc,
+                                   const VecX& x, MatX& residual, MatX& jacobian,
+                                   Workspace& ws) const;
   Vec3 com_velocity(const VecX& qdot) const;
   Vec3 com(const VecX& q) const;
 
@@ -311,6 +341,14 @@ class ReducedModel {
                           Workspace& ws) const;
   StepInfo step_fast(const StepInputs& in, ReducedState& s, const double* fc,
                      Workspace& ws) const;
+  // The floating frame's step (reduced_floating.cpp): Newton on the momentum-form implicit
+  // Euler residual, LU-factored (the gyroscopic terms make it unsymmetric).
+  StepInfo step_floating(const StepInputs& in, ReducedState& s, const double* fc,
+                         Workspace& ws) const;
+  // The floating frame's residual at x = (omega', w') into ws.fl_r, and with `jacobian` its
+  // Jacobian into ws.fl_jac (floating_residual's comment has the equations).
+  void floating_residual(const StepInputs& in, const ReducedState& s, const Vec3& pi0,
+                         const VecX& x, bool jacobian, Workspace& ws) const;
   void external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const;
   void step_loads(const StepInputs& in, const ReducedState& s, const double* fc, bool jacobian,
                   Workspace& ws, StepInfo& info) const;
@@ -383,6 +421,10 @@ class ReducedModel {
   std::vector<Tet> tets_;  // every tetrahedron, and 1 / (6 V) of each, for min_volume_ratio
   std::vector<double> inv_rest_det_;
   VecX rest_;
+  // The floating frame's kinetic coefficients (floating_frame.h), and the rest nodes about the
+  // centre of mass.
+  FloatingCoefficients floating_;
+  VecX rest_about_com_;
   MatX control_basis_;     // B_c, M x C
   MatX k_rest_;            // K_r at rest (cubature), for Rayleigh damping and A_0
   // The last A_0^-1 that inputs() formed, and the settings it was formed for: A_0 depends on

@@ -57,7 +57,10 @@ def build_reduced_model(
         Any :class:`cpp_sim.ReducedModel` setting: ``dt`` (default 1/200 s), ``gravity``,
         ``contact`` ("staggered", "penalty", "none"), ``friction`` (mu, default 0.8),
         ``fluid_density`` (> 0 switches drag on), ``drag_coefficient``, ``damping_alpha``,
-        ``damping_beta``, ``direction``, solver tolerances.
+        ``damping_beta``, ``direction``, solver tolerances, ``frame`` ("linear", the
+        default, or "floating": an exact rotation, free flight only, so with
+        ``contact="none"`` and no drag; docs/FLOATING_FRAME.md). Settings that cannot be
+        stepped together raise ValueError here.
     """
     unknown = set(settings) - _SETTINGS
     if unknown:
@@ -98,6 +101,7 @@ def build_reduced_model(
     )
     for name, value in settings.items():
         setattr(model, name, value)
+    model.config.validate()  # settings valid alone but not together (frame="floating" + contact)
     if control_basis is not None:
         model.control_basis = control_basis
     return model

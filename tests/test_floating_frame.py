@@ -1,0 +1,312 @@
+"""The floating frame (``frame="floating"``, docs/FLOATING_FRAME.md): x_i = c + R (X_i + U_i z)
+with an exact rotation, stepped by momentum-form implicit Euler with the actuation following
+the body, torque-free. Checked against finite differences (the Newton Jacobian, the node
+velocities), the full space (a complete basis reproduces FullSpaceModel with body-following
+actuation, to the step's first-order error), the linear model (they agree to second order in
+the amplitude), and the invariants: angular momentum, the centre of mass's fall, rotation
+equivariance, the rotation's composition."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import cpp_sim
+from softrom_gym.full_space import FullSpaceModel
+from softrom_gym.rom import build_reduced_model, build_subspace
+
+G = 9.81
+
+
+def _model(bar, M: int = 6, **settings) -> cpp_sim.ReducedModel:
+    """The bar in free flight in the floating frame, actuated in its first three modes."""
+    options = dict(contact="none", control_basis=np.eye(M)[:, :3], frame="floating")
+    options.update(settings)
+    return build_reduced_model(bar, subspace=build_subspace(bar, M), **options)
+
+
+def _mass(robot) -> np.ndarray:
+    return np.asarray(robot.fem_model().mass)
+
+
+def _stroke(model, k: int, body_weights: float) -> np.ndarray:
+    """A travelling wave through the three actuated modes at 4 Hz."""
+    amp = body_weights * np.sqrt(model.total_mass) * G
+    return amp * np.sin(2.0 * np.pi * 4.0 * k * model.dt - 2.0 * np.pi * np.arange(3) / 3.0)
+
+
+def _state(model, q, qdot) -> cpp_sim.ReducedState:
+    return cpp_sim.ReducedState(q, qdot, np.zeros(3 * len(model.surface_nodes)))
+
+
+def _moving(model, seed: int) -> cpp_sim.ReducedState:
+    """A turned, deformed, spinning and vibrating state."""
+    rng = np.random.default_rng(seed)
+    M = model.M
+    q = np.concatenate([[0.1, -0.2, 0.3], [0.4, -0.9, 0.3], 0.02 * rng.standard_normal(M)])
+    qdot = np.concatenate([[0.0, 0.1, 0.2], [1.5, -0.7, 2.0], 0.2 * rng.standard_normal(M)])
+    return _state(model, q, qdot)
+
+
+def _angular_momentum(model, state, mass) -> tuple[np.ndarray, float]:
+    """L about the centre of mass from the node positions and velocities, and its scale
+    sum m |x - c| |v|."""
+    x = model.positions(state.q)
+    v = model.velocities(state.q, state.qdot)
+    r = x - mass @ x / mass.sum()
+    moment = np.sum(mass[:, None] * np.cross(r, v), axis=0)
+    return moment, float(np.sum(mass * np.linalg.norm(r, axis=1) * np.linalg.norm(v, axis=1)))
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_newton_jacobian_matches_finite_differences(bar, solver):
+    # Every term: gyroscopic, rotation line, elastic stiffness, both dampings, the torque-free
+    # actuation's derivative. A wrong term costs Newton its quadratic convergence silently.
+    model = _model(bar, solver=solver, damping_alpha=0.3, damping_beta=0.01)
+    state = _moving(model, 0)
+    fc = np.array([3.0, -2.0, 1.0])
+    x = np.concatenate([[1.2, -0.4, 2.6], 0.3 * np.random.default_rng(1).standard_normal(model.M)])
+    r, jac = model._floating_residual(state, fc, x)
+    assert r.shape == (3 + model.M,) and jac.shape == (3 + model.M, 3 + model.M)
+    fd = np.empty_like(jac)
+    for k in range(x.size):
+        dx = np.zeros_like(x)
+        dx[k] = 1e-6
+        plus, _ = model._floating_residual(state, fc, x + dx)
+        minus, _ = model._floating_residual(state, fc, x - dx)
+        fd[:, k] = (plus - minus) / 2e-6
+    assert np.abs(jac - fd).max() < 1e-7 * np.abs(jac).max()
+
+
+def test_actuation_is_the_generalised_force_of_the_body_following_field(bar):
+    # Q_a(z) = (I - S^T I^-1 S) B_c f_c is the generalised force on z of the nodal field
+    # M R U B_c f_c less the rigid rotation that cancels its torque (softrom_gym.body_frame,
+    # FullSpaceModel's actuation_frame="body"), not B_c f_c itself: on a slender body the bare
+    # law spun the frame at 205 rad/s (docs/FLOATING_FRAME.md). It is the residual's only
+    # term in f_c: r_w(f_c) - r_w(0) = -h Q_a(z'), z' = z + h w'.
+    from softrom_gym.body_frame import following_forces
+
+    mass = _mass(bar)
+    model = _model(bar)
+    state = _moving(model, 8)
+    fc = np.array([3.0, -2.0, 1.0])
+    x = np.concatenate([[0.5, 0.2, -1.0], 0.4 * np.random.default_rng(2).standard_normal(6)])
+    with_f, _ = model._floating_residual(state, fc, x)
+    without, _ = model._floating_residual(state, np.zeros(3), x)
+    q_a = -(with_f - without)[3:] / model.dt
+    # the field's generalised force at z' (the frame's rotation R and c do not matter)
+    q = state.q.copy()
+    q[6:] += model.dt * x[3:]
+    nodes = model.positions(q)
+    turn = Rotation.from_rotvec(q[3:6]).as_matrix()
+    shapes = build_subspace(bar, 6).deformation.reshape(-1, 3, 6)
+    rest = bar.nodes - mass @ bar.nodes / mass.sum()
+    forces = following_forces(nodes, rest, mass, shapes[:, :, :3] @ fc)
+    expected = np.einsum("iaj,ia->j", shapes, forces @ turn)  # sum U_i^T R^T F_i
+    np.testing.assert_allclose(q_a, expected, rtol=0, atol=1e-10 * np.abs(expected).max())
+    # and it is not the bare law
+    assert np.abs(expected - np.eye(6)[:, :3] @ fc).max() > 1e-3 * np.abs(fc).max()
+
+
+def test_velocities_are_the_time_derivative_of_positions(bar):
+    model = _model(bar)
+    state = _moving(model, 2)
+    q, qdot, M = state.q, state.qdot, model.M
+
+    def at(t: float) -> np.ndarray:  # c + t u, R exp(t omega), z + t w
+        turn = Rotation.from_rotvec(q[3:6]) * Rotation.from_rotvec(t * qdot[3:6])
+        moved = np.concatenate([q[:3] + t * qdot[:3], turn.as_rotvec(), q[6:] + t * qdot[6:]])
+        return model.positions(moved)
+
+    fd = (at(1e-6) - at(-1e-6)) / 2e-6
+    v = model.velocities(q, qdot)
+    assert v.shape == (bar.num_nodes, 3)
+    np.testing.assert_allclose(v, fd, rtol=0, atol=1e-8 * np.abs(v).max())
+    assert M == 6
+    # the linear frame's node velocities are B_r qdot
+    model.frame = "linear"
+    basis = build_subspace(bar, 6).basis
+    np.testing.assert_allclose(model.velocities(q, qdot).ravel(), basis @ qdot, atol=1e-14)
+
+
+def test_actuated_free_flight_keeps_angular_momentum(bar):
+    # The rotation line keeps R Pi, so L is kept to the Newton tolerance whatever the internal
+    # forces: elastic, beta damping, the body-following actuation. (The linear model's |L|
+    # reaches 62% of the scale on the beam: test_solver.py.)
+    mass = _mass(bar)
+    model = _model(bar, damping_beta=0.01, gravity=[0.0, 0.0, -G])
+    state = _moving(model, 3)
+    start, _ = _angular_momentum(model, state, mass)
+    worst = 0.0
+    for k in range(100):
+        state, info = model.step(state, _stroke(model, k, 0.5))
+        assert info["converged"] and not info["diverged"]
+        moment, scale = _angular_momentum(model, state, mass)
+        worst = max(worst, float(np.linalg.norm(moment - start) / scale))
+    assert worst < 1e-10
+    # mass-proportional damping -alpha m_i v_i takes L down by 1 / (1 + h alpha) a step
+    model.damping_alpha = 2.0
+    state = _moving(model, 3)
+    for k in range(50):
+        state, _ = model.step(state, _stroke(model, k, 0.5))
+    moment, scale = _angular_momentum(model, state, mass)
+    expected = start / (1.0 + model.dt * 2.0) ** 50
+    assert np.linalg.norm(moment - expected) < 1e-10 * scale
+
+
+def test_centre_of_mass_falls_as_implicit_euler_says_whatever_the_actuation(bar):
+    mass = _mass(bar)
+    model = _model(bar, gravity=[0.0, 0.0, -G])
+    state = _moving(model, 4)
+    h, c0 = model.dt, model.com(state.q)
+    u0 = state.qdot[:3] / np.sqrt(model.total_mass)
+    for k in range(1, 41):
+        state, _ = model.step(state, _stroke(model, k, 0.5))
+        x = model.positions(state.q)
+        # c is the centre of mass of the nodes (sum m U = 0) ...
+        np.testing.assert_allclose(mass @ x / mass.sum(), model.com(state.q), rtol=0, atol=1e-12)
+        # ... and moves as u_j = u_0 + j h g, c_k = c_0 + h sum_j u_j
+        expected = c0 + h * (k * u0 + h * k * (k + 1) / 2 * np.array([0.0, 0.0, -G]))
+        np.testing.assert_allclose(model.com(state.q), expected, rtol=0, atol=1e-12)
+
+
+def test_a_turned_start_follows_the_turned_trajectory(bar):
+    # Every term of the step is rotation-equivariant (gravity acts on c alone), so turning the
+    # start turns the whole trajectory about the centre of mass.
+    model = _model(bar, gravity=[0.0, 0.0, -G])
+    plain = _moving(model, 5)
+    q = plain.q.copy()
+    turn = Rotation.from_rotvec([0.5, 1.2, -0.4])
+    q[3:6] = (turn * Rotation.from_rotvec(q[3:6])).as_rotvec()
+    turned = _state(model, q, plain.qdot)
+    for k in range(60):
+        u = _stroke(model, k, 0.5)
+        plain, _ = model.step(plain, u)
+        turned, _ = model.step(turned, u)
+        c = model.com(plain.q)
+        expected = c + (model.positions(plain.q) - c) @ turn.as_matrix().T
+        np.testing.assert_allclose(model.positions(turned.q), expected, rtol=0, atol=1e-9)
+
+
+def test_rotation_composes_exactly_and_stays_within_pi(bar):
+    # R_{n+1} = R_n exp(h omega_{n+1}), the rotation vector kept at |theta| <= pi as the body
+    # tumbles through several turns.
+    model = _model(bar, gravity=[0.0, 0.0, 0.0])
+    state = _moving(model, 6)
+    qdot = state.qdot.copy()
+    qdot[3:6] = [9.0, -4.0, 6.0]
+    state = _state(model, state.q, qdot)
+    angles = []
+    for _ in range(200):
+        before = Rotation.from_rotvec(state.q[3:6])
+        state, info = model.step(state, np.zeros(3))
+        assert info["converged"]
+        after = before * Rotation.from_rotvec(model.dt * state.qdot[3:6])
+        np.testing.assert_allclose(
+            Rotation.from_rotvec(state.q[3:6]).as_matrix(), after.as_matrix(), atol=1e-12
+        )
+        angles.append(np.linalg.norm(state.q[3:6]))
+    assert max(angles) <= np.pi + 1e-12
+    assert max(angles) > 3.0  # it did turn past pi and wrap
+
+
+def test_a_complete_basis_reproduces_the_full_space_with_body_following_actuation(bar):
+    # With all 3N - 6 deformation columns and exact elastic forces the floating frame is the
+    # full space in other coordinates, and its actuation the full space's actuation_frame=
+    # "body" (the frame is Buckens' best fit, which FullSpaceModel turns the field by). The two
+    # implicit Euler steps differ at first order in dt: measured 2.0 / 0.68 mm apart after
+    # 0.3 s at dt = 5 / 1.25 ms. Against the world-fixed field the gap does not close (3.6 /
+    # 5.6 mm).
+    mass = _mass(bar)
+    M = 3 * bar.num_nodes - 6
+    sub = build_subspace(bar, M)
+
+    def apart(dt: float, actuation_frame: str) -> float:
+        model = build_reduced_model(
+            bar, subspace=sub, forces="exact", contact="none", gravity=[0.0, 0.0, -G],
+            control_basis=np.eye(M)[:, :3], damping_beta=0.0, dt=dt, frame="floating",
+            newton_tolerance=1e-10,
+        )  # fmt: skip
+        full = FullSpaceModel(
+            bar, sub.basis[:, 6:9], dt=dt, gravity=(0.0, 0.0, -G), contact="none",
+            damping_beta=0.0, newton_tolerance=1e-12, actuation_frame=actuation_frame,
+        )  # fmt: skip
+        state, full_state = model.rest_state(), full.rest_state()
+        for k in range(round(0.3 / dt)):
+            u = (
+                0.3
+                * np.sqrt(mass.sum())
+                * G
+                * np.sin(8.0 * np.pi * k * dt - 2.0 * np.pi * np.arange(3) / 3)
+            )
+            state, info = model.step(state, u)
+            assert info["converged"]
+            full_state, _ = full.step(full_state, u)
+        return float(np.abs(model.positions(state.q) - full_state.x).max())
+
+    body = [apart(dt, "body") for dt in (0.005, 0.00125)]
+    assert body[1] < 0.45 * body[0] and body[1] < 1e-3
+    world = [apart(dt, "world") for dt in (0.005, 0.00125)]
+    assert world[1] > world[0] > body[0]
+
+
+def test_small_strokes_agree_with_the_linear_model_to_second_order(bar):
+    # The linear model is the floating frame linearised in the rotation (and its actuation at
+    # rest), so they part at second order: halving the stroke quarters the gap (measured 4.09,
+    # 4.04) while the deflection halves.
+    mass = _mass(bar)
+    rest = bar.nodes - mass @ bar.nodes / mass.sum()
+
+    def gap(body_weights: float) -> tuple[float, float]:
+        x = {}
+        for frame in ("linear", "floating"):
+            model = _model(bar, frame=frame, gravity=[0.0, 0.0, -G])
+            state = model.rest_state()
+            for k in range(60):
+                state, _ = model.step(state, _stroke(model, k, body_weights))
+            x[frame] = model.positions(state.q)
+            c = model.com(state.q)
+        deflection = np.abs(x["linear"] - c - rest).max()
+        return float(np.abs(x["linear"] - x["floating"]).max()), float(deflection)
+
+    (large, bend), (small, _) = gap(0.1), gap(0.05)
+    assert large / small > 3.5
+    assert large < 0.15 * bend
+
+
+def test_rollouts_step_as_single_steps_do(bar):
+    model = _model(bar, gravity=[0.0, 0.0, -G])
+    start = _moving(model, 7)
+    controls = np.stack([[_stroke(model, k, s) for k in range(30)] for s in (0.2, 0.5)])
+    outs = [model.rollout(start, controls, threads=t) for t in (1, 2)]
+    np.testing.assert_array_equal(outs[0]["q"], outs[1]["q"])
+    for b in range(2):
+        state = start
+        for k in range(30):
+            state, _ = model.step(state, controls[b, k])
+        np.testing.assert_array_equal(outs[0]["q"][b], state.q)
+        np.testing.assert_array_equal(outs[0]["com"][b, -1], model.com(state.q))
+    assert outs[0]["converged"].all() and not outs[0]["diverged"].any()
+
+
+def test_settings_the_floating_frame_cannot_step_are_refused_by_name(bar):
+    with pytest.raises(ValueError, match="frame must be 'linear' or 'floating'; got 'spinning'"):
+        cpp_sim.ReducedConfig(frame="spinning")
+    with pytest.raises(ValueError, match="set contact='none'"):
+        build_reduced_model(bar, subspace=build_subspace(bar, 6), frame="floating")
+    model = _model(bar)
+    state = model.rest_state()
+    u = np.zeros((1, 2, 3))
+    model.contact = "staggered"
+    with pytest.raises(ValueError, match="free flight only: set contact='none'"):
+        model.step(state, u[0, 0])
+    with pytest.raises(ValueError, match="free flight only: set contact='none'"):
+        model.rollout(state, u)
+    with pytest.raises(ValueError, match="free flight only: set contact='none'"):
+        model.config.validate()
+    model.contact = "none"
+    model.fluid_density = 1000.0
+    with pytest.raises(ValueError, match="set fluid_density=0"):
+        model.step(state, u[0, 0])
+    model.frame = "linear"  # the linear frame steps any of them
+    model.config.validate()
+    model.step(state, u[0, 0])
