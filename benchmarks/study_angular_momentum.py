@@ -30,7 +30,7 @@ whose generalised force is (I - S^T I^-1 S) f_a on z (``--follower`` says why it
 
     python benchmarks/study_angular_momentum.py [--robot beam] [--seconds 1] [--speed 0.2]
         [--spin 3] [--stroke 0.8] [--dt 0.005] [--step-convergence]
-        [--linearised-turns [--best-bases DIR]] [--swim] [--follower [--modes 20]]
+        [--linearised-turns [--best-bases DIR]] [--swim] [--follower [--modes 20]] [--core]
 
 ``--step-convergence`` runs only the stroke, on the prototype and the linear model, at dt,
 dt/2 and dt/4, to tell whether the prototype's fast frame spin (docs/FLOATING_FRAME.md) is the
@@ -44,7 +44,10 @@ world-fixed modal forces) and the full space, which swims since FullSpaceModel g
 ``--follower`` runs only the stroke as a force that follows the body, in the full space (its
 best-fit frame's M R U f_c, torque removed) and on the prototype (f on z; torque-free; the full
 space's nodal field), at dt, dt/2 and dt/4: whether the frame's fast spin is the material's
-(about 4 min per stroke on the beam).
+(about 4 min per stroke on the beam). ``--core`` runs only the package's floating frame
+(``frame="floating"``, C++) against the prototype under the torque-free law: the stroke in
+free flight and, in water with the package's drag, the 2 Hz 0/120/240 swim; the largest node
+distance between the two over ``--seconds`` and the seconds per step of each.
 """
 
 from __future__ import annotations
@@ -567,6 +570,62 @@ def swimming(robot, sub, seconds: float, dt: float) -> dict:
     return out
 
 
+def core_against_prototype(robot, sub, stroke: float, seconds: float, dt: float) -> dict:
+    """The package's floating frame (C++) against the prototype (torque-free law): the largest
+    node distance between them and the seconds per step of each, in free flight under the
+    stroke and swimming (the package's drag on both; the prototype's taken from the full
+    space's law at the step's start, as in ``swimming``)."""
+    basis, nodes, mass = sub.basis, robot.nodes, np.asarray(robot.fem_model().mass)
+    n, steps = len(mass), round(seconds / dt)
+    weight = np.sqrt(mass.sum()) * G
+    out: dict = {}
+    print(f"{robot.name}: the core's floating frame against the prototype, {seconds:g} s, "
+          f"dt = {dt * 1e3:g} ms")  # fmt: skip
+    for case, fluid in (("free flight", 0.0), ("swimming", 1000.0)):
+        settings = dict(contact="none", gravity=[0, 0, 0], control_basis=np.eye(20)[:, :3],
+                        damping_beta=0.0, dt=dt, fluid_density=fluid)  # fmt: skip
+        linear = build_reduced_model(robot, subspace=sub, **settings)
+        core = build_reduced_model(robot, subspace=sub, frame="floating", newton_tolerance=1e-9,
+                                   **settings)  # fmt: skip
+        prototype = FloatingFramePrototype(linear, basis, nodes, mass)
+        loads = None
+        if fluid > 0.0:
+            full = FullSpaceModel.matching(linear, robot, basis)
+
+            def loads(
+                state: tuple, full: FullSpaceModel = full, model: FloatingFramePrototype = prototype
+            ) -> tuple[np.ndarray, ...]:
+                x, v = model.world(state)
+                force, _ = full._drag(x, v, jacobian=False)
+                return model.generalised(state, force.reshape(n, 3))
+
+        amp = (stroke if fluid == 0.0 else 0.8) * weight
+        phase = 2.0 * np.pi * np.arange(3) / 3.0
+        state = core.rest_state()
+        frame = (prototype.com, np.eye(3), np.zeros(20), np.zeros(3), np.zeros(3), np.zeros(20))
+        apart, spent, iterations = 0.0, [0.0, 0.0], []
+        for k in range(steps):
+            f = amp * np.sin(2.0 * np.pi * 2.0 * k * dt - phase)
+            start = time.perf_counter()
+            state, info = core.step(state, f)
+            spent[0] += time.perf_counter() - start
+            iterations.append(info["newton_iterations"])
+            start = time.perf_counter()
+            frame = prototype.step(frame, f, loads, torque_free=True)
+            spent[1] += time.perf_counter() - start
+            x, _ = prototype.world(frame)
+            apart = max(apart, float(np.abs(core.positions(state.q) - x).max()))
+        turned = float(np.linalg.norm(state.q[3:6]))
+        out[case] = {"apart_m": apart, "core_s_per_step": spent[0] / steps,
+                     "prototype_s_per_step": spent[1] / steps, "turned_rad": turned,
+                     "newton_iterations": float(np.mean(iterations))}  # fmt: skip
+        print(f"  {case:<12} nodes apart at most {apart:.2e} m, turned {turned:.3f} rad; "
+              f"core {1e3 * spent[0] / steps:.2f} ms/step ({np.mean(iterations):.2f} Newton "
+              f"iterations), prototype {1e3 * spent[1] / steps:.1f} ms/step",
+              flush=True)  # fmt: skip
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--robot", choices=sorted(ROBOTS), default="beam")
@@ -593,6 +652,9 @@ def main(argv: list[str] | None = None) -> dict:
         default=20,
         help="--follower: the deformation modes M of B_r (the other modes use 20)",
     )
+    p.add_argument("--core", action="store_true",
+                   help="only the package's floating frame against the prototype, in free "
+                   "flight and swimming")  # fmt: skip
     p.add_argument("--step-convergence", action="store_true",
                    help="only the actuated stroke at dt, dt/2 and dt/4 (the prototype's frame "
                    "spin against the step)")  # fmt: skip
@@ -608,6 +670,8 @@ def main(argv: list[str] | None = None) -> dict:
     if args.follower:
         return follower(robot, build_subspace(robot, args.modes), args.stroke, args.seconds, dt)
     sub = build_subspace(robot, 20)
+    if args.core:
+        return core_against_prototype(robot, sub, args.stroke, args.seconds, dt)
     if args.step_convergence:
         return step_convergence(robot, sub, args.stroke, args.seconds, dt)
     if args.swim:

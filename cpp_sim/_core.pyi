@@ -186,7 +186,7 @@ class ReducedModel:
         """
     def _floating_residual(self, state: ReducedState, f_c: typing.Any, x: typing.Any) -> tuple[numpy.typing.NDArray[numpy.float64], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]]:
         """
-        The floating frame's implicit-Euler residual at x = (omega', w') from `state`, and its Jacobian (for the tests' finite-difference check).
+        The floating frame's implicit-Euler residual at x = (u', omega', w') from `state`, and its Jacobian (for the tests' finite-difference check).
         """
     def com(self, q: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """
@@ -343,7 +343,7 @@ class ReducedModel:
     @property
     def frame(self) -> typing.Any:
         """
-        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; free flight only, contact='none' and fluid_density=0; exact Newton whatever `solver`, which picks the elastic kernels)
+        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; contact='staggered' or 'none', not the penalty ground; exact Newton whatever `solver`, which picks the elastic kernels)
         """
     @frame.setter
     def frame(self, arg1: typing.Any) -> None:
@@ -472,7 +472,7 @@ class ReducedConfig:
         ...
     def validate(self) -> None:
         """
-        Raise ValueError if the settings, each valid alone, cannot be stepped together (today: frame='floating' with contact or drag). step() and rollout() check the same.
+        Raise ValueError if the settings, each valid alone, cannot be stepped together (today: frame='floating' with the penalty ground). step() and rollout() check the same.
         """
     @property
     def contact(self) -> typing.Any:
@@ -549,7 +549,7 @@ class ReducedConfig:
     @property
     def frame(self) -> typing.Any:
         """
-        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; free flight only, contact='none' and fluid_density=0; exact Newton whatever `solver`, which picks the elastic kernels)
+        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; contact='staggered' or 'none', not the penalty ground; exact Newton whatever `solver`, which picks the elastic kernels)
         """
     @frame.setter
     def frame(self, arg1: typing.Any) -> None:

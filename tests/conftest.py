@@ -21,6 +21,16 @@ def bar():
     return Robot("bar", nodes, tets, youngs_modulus=2e4)
 
 
+@pytest.fixture(scope="module")
+def box():
+    """A stiff 0.2 x 0.2 x 0.1 m block: rigid-body-like answers for contact and friction."""
+    import trimesh
+
+    from softrom_gym.robots import from_mesh
+
+    return from_mesh(trimesh.creation.box((0.2, 0.2, 0.1)), 8, youngs_modulus=1e6)
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

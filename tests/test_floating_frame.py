@@ -57,16 +57,23 @@ def _angular_momentum(model, state, mass) -> tuple[np.ndarray, float]:
     return moment, float(np.sum(mass * np.linalg.norm(r, axis=1) * np.linalg.norm(v, axis=1)))
 
 
-@pytest.mark.parametrize("solver", ["fast", "reference"])
-def test_newton_jacobian_matches_finite_differences(bar, solver):
+@pytest.mark.parametrize(
+    ("solver", "fluid_density"), [("fast", 0.0), ("reference", 0.0), ("fast", 1000.0)]
+)
+def test_newton_jacobian_matches_finite_differences(bar, solver, fluid_density):
     # Every term: gyroscopic, rotation line, elastic stiffness, both dampings, the torque-free
-    # actuation's derivative. A wrong term costs Newton its quadratic convergence silently.
-    model = _model(bar, solver=solver, damping_alpha=0.3, damping_beta=0.01)
+    # actuation's derivative, the linearised drag. A wrong term costs Newton its quadratic
+    # convergence silently.
+    model = _model(
+        bar, solver=solver, damping_alpha=0.3, damping_beta=0.01, fluid_density=fluid_density
+    )
     state = _moving(model, 0)
     fc = np.array([3.0, -2.0, 1.0])
-    x = np.concatenate([[1.2, -0.4, 2.6], 0.3 * np.random.default_rng(1).standard_normal(model.M)])
+    x = np.concatenate(
+        [[0.1, 0.0, -0.3, 1.2, -0.4, 2.6], 0.3 * np.random.default_rng(1).standard_normal(model.M)]
+    )
     r, jac = model._floating_residual(state, fc, x)
-    assert r.shape == (3 + model.M,) and jac.shape == (3 + model.M, 3 + model.M)
+    assert r.shape == (model.dim,) and jac.shape == (model.dim, model.dim)
     fd = np.empty_like(jac)
     for k in range(x.size):
         dx = np.zeros_like(x)
@@ -89,13 +96,15 @@ def test_actuation_is_the_generalised_force_of_the_body_following_field(bar):
     model = _model(bar)
     state = _moving(model, 8)
     fc = np.array([3.0, -2.0, 1.0])
-    x = np.concatenate([[0.5, 0.2, -1.0], 0.4 * np.random.default_rng(2).standard_normal(6)])
+    x = np.concatenate(
+        [[0.0, 0.1, 0.0, 0.5, 0.2, -1.0], 0.4 * np.random.default_rng(2).standard_normal(6)]
+    )
     with_f, _ = model._floating_residual(state, fc, x)
     without, _ = model._floating_residual(state, np.zeros(3), x)
-    q_a = -(with_f - without)[3:] / model.dt
+    q_a = -(with_f - without)[6:] / model.dt
     # the field's generalised force at z' (the frame's rotation R and c do not matter)
     q = state.q.copy()
-    q[6:] += model.dt * x[3:]
+    q[6:] += model.dt * x[6:]
     nodes = model.positions(q)
     turn = Rotation.from_rotvec(q[3:6]).as_matrix()
     shapes = build_subspace(bar, 6).deformation.reshape(-1, 3, 6)
@@ -169,22 +178,35 @@ def test_centre_of_mass_falls_as_implicit_euler_says_whatever_the_actuation(bar)
         np.testing.assert_allclose(model.com(state.q), expected, rtol=0, atol=1e-12)
 
 
-def test_a_turned_start_follows_the_turned_trajectory(bar):
-    # Every term of the step is rotation-equivariant (gravity acts on c alone), so turning the
-    # start turns the whole trajectory about the centre of mass.
-    model = _model(bar, gravity=[0.0, 0.0, -G])
+@pytest.mark.parametrize("swim", [False, True])
+def test_a_turned_start_follows_the_turned_trajectory(bar, swim):
+    # Every term of the step is rotation-equivariant. Under gravity (on c alone) the body's
+    # turn about the centre of mass does not change c's path; in still water (isotropic) the
+    # whole motion, c's velocity too, turns about the starting centre of mass.
+    settings = (
+        {"gravity": [0.0, 0.0, 0.0], "fluid_density": 1000.0}
+        if swim
+        else {"gravity": [0.0, 0.0, -G]}
+    )
+    model = _model(bar, **settings)
     plain = _moving(model, 5)
-    q = plain.q.copy()
+    q, qdot = plain.q.copy(), plain.qdot.copy()
     turn = Rotation.from_rotvec([0.5, 1.2, -0.4])
     q[3:6] = (turn * Rotation.from_rotvec(q[3:6])).as_rotvec()
-    turned = _state(model, q, plain.qdot)
+    if swim:
+        qdot[:3] = turn.apply(qdot[:3])
+    turned = _state(model, q, qdot)
+    c0 = model.com(q)
     for k in range(60):
         u = _stroke(model, k, 0.5)
         plain, _ = model.step(plain, u)
-        turned, _ = model.step(turned, u)
-        c = model.com(plain.q)
+        turned, info = model.step(turned, u)
+        assert info["converged"]
+        c = c0 if swim else model.com(plain.q)
         expected = c + (model.positions(plain.q) - c) @ turn.as_matrix().T
         np.testing.assert_allclose(model.positions(turned.q), expected, rtol=0, atol=1e-9)
+    if swim:  # the water acted: it took speed off the coast
+        assert np.linalg.norm(turned.qdot[:3]) < 0.9 * np.linalg.norm(qdot[:3])
 
 
 def test_rotation_composes_exactly_and_stays_within_pi(bar):
@@ -209,13 +231,17 @@ def test_rotation_composes_exactly_and_stays_within_pi(bar):
     assert max(angles) > 3.0  # it did turn past pi and wrap
 
 
-def test_a_complete_basis_reproduces_the_full_space_with_body_following_actuation(bar):
+@pytest.mark.parametrize("fluid_density", [0.0, 1000.0])
+def test_a_complete_basis_reproduces_the_full_space_with_body_following_actuation(
+    bar, fluid_density
+):
     # With all 3N - 6 deformation columns and exact elastic forces the floating frame is the
     # full space in other coordinates, and its actuation the full space's actuation_frame=
     # "body" (the frame is Buckens' best fit, which FullSpaceModel turns the field by). The two
     # implicit Euler steps differ at first order in dt: measured 2.0 / 0.68 mm apart after
-    # 0.3 s at dt = 5 / 1.25 ms. Against the world-fixed field the gap does not close (3.6 /
-    # 5.6 mm).
+    # 0.3 s at dt = 5 / 1.25 ms (in water, with both sides' drag linearised at the step's
+    # start: 1.75 / 0.55 mm). Against the world-fixed field the gap does not close (3.6 /
+    # 5.6 mm; in water 3.0 / 4.3 mm).
     mass = _mass(bar)
     M = 3 * bar.num_nodes - 6
     sub = build_subspace(bar, M)
@@ -224,11 +250,12 @@ def test_a_complete_basis_reproduces_the_full_space_with_body_following_actuatio
         model = build_reduced_model(
             bar, subspace=sub, forces="exact", contact="none", gravity=[0.0, 0.0, -G],
             control_basis=np.eye(M)[:, :3], damping_beta=0.0, dt=dt, frame="floating",
-            newton_tolerance=1e-10,
+            newton_tolerance=1e-10, fluid_density=fluid_density,
         )  # fmt: skip
         full = FullSpaceModel(
             bar, sub.basis[:, 6:9], dt=dt, gravity=(0.0, 0.0, -G), contact="none",
             damping_beta=0.0, newton_tolerance=1e-12, actuation_frame=actuation_frame,
+            fluid_density=fluid_density,
         )  # fmt: skip
         state, full_state = model.rest_state(), full.rest_state()
         for k in range(round(0.3 / dt)):
@@ -291,22 +318,137 @@ def test_rollouts_step_as_single_steps_do(bar):
 def test_settings_the_floating_frame_cannot_step_are_refused_by_name(bar):
     with pytest.raises(ValueError, match="frame must be 'linear' or 'floating'; got 'spinning'"):
         cpp_sim.ReducedConfig(frame="spinning")
-    with pytest.raises(ValueError, match="set contact='none'"):
-        build_reduced_model(bar, subspace=build_subspace(bar, 6), frame="floating")
+    with pytest.raises(ValueError, match="frame='floating' has no penalty ground"):
+        build_reduced_model(bar, subspace=build_subspace(bar, 6), frame="floating",
+                            contact="penalty")  # fmt: skip
     model = _model(bar)
     state = model.rest_state()
     u = np.zeros((1, 2, 3))
-    model.contact = "staggered"
-    with pytest.raises(ValueError, match="free flight only: set contact='none'"):
-        model.step(state, u[0, 0])
-    with pytest.raises(ValueError, match="free flight only: set contact='none'"):
-        model.rollout(state, u)
-    with pytest.raises(ValueError, match="free flight only: set contact='none'"):
-        model.config.validate()
-    model.contact = "none"
-    model.fluid_density = 1000.0
-    with pytest.raises(ValueError, match="set fluid_density=0"):
-        model.step(state, u[0, 0])
-    model.frame = "linear"  # the linear frame steps any of them
+    model.contact = "penalty"
+    for call in (lambda: model.step(state, u[0, 0]), lambda: model.rollout(state, u),
+                 model.config.validate):  # fmt: skip
+        with pytest.raises(ValueError, match="set contact='staggered' or 'none'"):
+            call()
+    model.frame = "linear"  # the linear frame steps it
     model.config.validate()
     model.step(state, u[0, 0])
+
+
+def test_a_dropped_block_lands_and_rests_as_in_the_linear_frame(box):
+    # Without a turn the two frames are the same model: a block dropped from 2 cm on its face
+    # lands, bounces a little and comes to rest on the same path, and the floating frame's
+    # contact rows, which follow its exact rotation, hold it on the plane.
+    # (At the impact one step stops at the stagger cap in both frames, and says so.)
+    sub = build_subspace(box, 12)
+    paths, capped = {}, {}
+    for frame in ("linear", "floating"):
+        model = build_reduced_model(box, subspace=sub, frame=frame)
+        q = model.rest_state().q
+        q[2] = 0.02 * np.sqrt(model.total_mass)
+        state = _state(model, q, np.zeros_like(q))
+        path, capped[frame] = [], []
+        for k in range(120):
+            state, info = model.step(state)
+            assert info["converged"]
+            if not info["contact_converged"]:
+                capped[frame].append(k)
+            path.append(model.com(state.q))
+        paths[frame] = np.array(path)
+        assert info["contacts"] > 0
+        assert np.abs(state.qdot[:3]).max() < 1e-5 * np.sqrt(model.total_mass)
+        low = model.positions(state.q)[model.surface_nodes, 2].min()
+        assert -1e-4 < low - model.ground_height < 1e-6
+    np.testing.assert_allclose(paths["floating"], paths["linear"], rtol=0, atol=1e-7)
+    assert capped["floating"] == capped["linear"] and len(capped["linear"]) <= 2
+
+
+@pytest.mark.filterwarnings("ignore:.*symmetric and normalized space")
+@pytest.mark.filterwarnings("ignore:.*space (minimum|maximum) value is -?infinity")
+def test_the_swimmer_env_runs_in_the_floating_frame():
+    # frame="floating" through gym.make: the orientation slots read the exact rotation vector
+    # and the body-frame angular velocity, a plan replays bit for bit, a copy keeps the frame.
+    import copy
+
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make("softrom_gym/CrossSwim-v0", frame="floating")
+    base = env.unwrapped
+    assert base.model.frame == "floating" and base.model.fluid_density > 0
+    check_env(base, skip_render_check=True)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    for _ in range(10):
+        obs, _, terminated, _, info = env.step(env.action_space.sample())
+    state = base.get_state()
+    np.testing.assert_allclose(obs[4:7], state.q[3:6], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(obs[7:10], state.qdot[3:6], rtol=1e-6, atol=1e-9)
+    assert info["orientation"] == pytest.approx(np.linalg.norm(state.q[3:6]))
+    assert not terminated and info["distance"] != 0.0
+    controls = np.random.default_rng(1).uniform(-1, 1, (2, 5, 3)) * base.action_bound
+    out = base.rollout(state, controls)
+    for t in range(5):
+        _, r, *_ = env.step(controls[0, t])
+        assert r == out["rewards"][0, t]
+    np.testing.assert_array_equal(base.get_state().q, out["q"][0])
+    twin = copy.deepcopy(base)
+    assert twin.model.frame == "floating"
+    env.close()
+
+
+def test_a_walker_turned_about_the_vertical_walks_the_turned_path():
+    # Ground and gravity are invariant under a turn about the vertical, so is the isotropic
+    # Coulomb cone, and the floating frame's contact rows turn with the body: a beam started
+    # 0.7 rad round walks its stroke's path turned by 0.7 rad, to the contact solve's
+    # tolerance (measured 2.8e-6 m after 0.5 s; 1e-5 after 1 s of a 2 Hz stroke). The linear
+    # frame cannot even start there: its 0.7 rad "turn" stretches the body by 22%.
+    from softrom_gym.robots import beam
+
+    robot = beam()
+    model = build_reduced_model(robot, subspace=build_subspace(robot, 20), frame="floating",
+                                control_basis=np.eye(20)[:, :3])  # fmt: skip
+    plain = model.rest_state()
+    turn = Rotation.from_rotvec([0.0, 0.0, 0.7])
+    q = plain.q.copy()
+    q[3:6] = turn.as_rotvec()
+    turned = cpp_sim.ReducedState(q, plain.qdot, plain.impulses)
+    c0 = model.com(plain.q)
+    for k in range(100):
+        u = _stroke(model, k, 0.8)
+        plain, info = model.step(plain, u)
+        turned, _ = model.step(turned, u)
+        expected = c0 + (model.positions(plain.q) - c0) @ turn.as_matrix().T
+        np.testing.assert_allclose(model.positions(turned.q), expected, rtol=0, atol=3e-5)
+    assert info["contacts"] > 0
+    assert np.linalg.norm(model.com(plain.q)[:2] - c0[:2]) > 5e-3  # it went somewhere
+
+
+@pytest.mark.filterwarnings("ignore:.*symmetric and normalized space")
+@pytest.mark.filterwarnings("ignore:.*space (minimum|maximum) value is -?infinity")
+def test_a_walker_env_runs_in_the_floating_frame():
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make("softrom_gym/QuadrupedWalk-v0", frame="floating")
+    base = env.unwrapped
+    assert base.model.frame == "floating" and base.model.contact == "staggered"
+    check_env(base, skip_render_check=True)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    for _ in range(20):
+        obs, _, terminated, _, info = env.step(env.action_space.sample())
+    assert not terminated and not info["diverged"]
+    state = base.get_state()
+    np.testing.assert_allclose(obs[4:7], state.q[3:6], rtol=1e-6, atol=1e-9)
+    assert (state.impulses.reshape(-1, 3)[:, 2] > 0).any()  # it stands on the ground
+    controls = np.random.default_rng(1).uniform(-1, 1, (2, 5, 3)) * base.action_bound
+    out = base.rollout(state, controls, threads=2)
+    for t in range(5):
+        _, r, *_ = env.step(controls[1, t])
+        assert r == out["rewards"][1, t]
+    np.testing.assert_array_equal(base.get_state().q, out["q"][1])
+    with pytest.raises(ValueError, match="frame='floating' has no penalty ground"):
+        gym.make("softrom_gym/QuadrupedWalk-v0", frame="floating", contact="penalty")
+    with pytest.raises(ValueError, match="frame must be 'linear' or 'floating'; got 'exact'"):
+        gym.make("softrom_gym/CrossSwim-v0", frame="exact")
+    env.close()

@@ -100,6 +100,24 @@ def test_swims_as_the_reduced_step_with_a_full_basis(bar):
     assert np.linalg.norm(full.com(fstate.v)) < 0.9 * np.linalg.norm([0.2, 0.0, -0.1])
 
 
+def test_a_swimming_step_from_rest_at_full_width(bar):
+    """From rest no face advances into the fluid, so the drag's factor W has no columns.
+    Eigen's blocked rank update divided by that zero width once M + 6 was past its
+    small-matrix path (48 here, not the benchmarks' 26): the reference solver's first swimming
+    step stopped the process with SIGFPE (until 2026-12-07), and the floating frame's, which
+    always forms J_d, too."""
+    sub = full_basis(bar)
+    for frame in ("linear", "floating"):
+        model = build_reduced_model(
+            bar, forces="exact", subspace=sub, solver="reference", frame=frame,
+            control_basis=np.eye(sub.M)[:, :2], contact="none", gravity=[0, 0, 0],
+            fluid_density=1000.0,
+        )  # fmt: skip
+        state, info = model.step(model.rest_state(), np.array([1.0, -1.0]))
+        assert info["converged"] and not info["diverged"]
+        assert np.abs(state.qdot).max() > 0.0
+
+
 def test_drag_on_a_translating_bar_is_its_end_face_s_pressure_drag(bar):
     # A rigid translation along the bar's axis: only the leading end face (0.1 m x 0.1 m, normal
     # +x) advances into the fluid, so the drag is -1/2 rho C_d A v^2 along x, and its Jacobian

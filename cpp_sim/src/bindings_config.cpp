@@ -174,8 +174,8 @@ const std::vector<Setting>& settings() {
        "'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + "
        "U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = "
        "(sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free "
-       "flight keeps the angular momentum; free flight only, contact='none' and "
-       "fluid_density=0; exact Newton whatever `solver`, which picks the elastic kernels)"},
+       "flight keeps the angular momentum; contact='staggered' or 'none', not the penalty "
+       "ground; exact Newton whatever `solver`, which picks the elastic kernels)"},
   };
   return table;
 }
@@ -221,7 +221,7 @@ set; `ReducedConfig.SETTINGS` lists the names.)doc");
         if (const char* why = floating_unsupported(c)) throw py::value_error(why);
       },
       "Raise ValueError if the settings, each valid alone, cannot be stepped together (today: "
-      "frame='floating' with contact or drag). step() and rollout() check the same.");
+      "frame='floating' with the penalty ground). step() and rollout() check the same.");
   cfg.def("__repr__", [](const ReducedConfig& c) {
     std::string out = "ReducedConfig(";
     bool first = true;

@@ -106,7 +106,7 @@ void check_state(const ReducedModel& m, const ReducedState& s) {
   }
 }
 
-// A config the floating frame cannot step yet (contact, drag) is refused by name.
+// A config the floating frame cannot step (the penalty ground) is refused by name.
 void check_frame(const ReducedConfig& cfg) {
   if (const char* why = floating_unsupported(cfg)) throw py::value_error(why);
 }
@@ -514,7 +514,7 @@ KeyboardInterrupt.)doc")
           "_floating_residual",
           [](const ReducedModel& r, const ReducedState& s, py::handle fc, py::handle x) {
             check_state(r, s);
-            const VecX xv = vector_in(x, "x", 3 + r.deformation_dim());
+            const VecX xv = vector_in(x, "x", r.dim());
             VecX f = VecX::Zero(r.control_dim());
             if (r.control_dim() > 0) f = vector_in(fc, "f_c", r.control_dim());
             const ReducedModel::WorkspaceLease ws = r.lend_workspace();
@@ -523,7 +523,7 @@ KeyboardInterrupt.)doc")
             return py::make_tuple(vec_out(res.col(0)), jac);
           },
           py::arg("state"), py::arg("f_c"), py::arg("x"),
-          "The floating frame's implicit-Euler residual at x = (omega', w') from `state`, and "
+          "The floating frame's implicit-Euler residual at x = (u', omega', w') from `state`, and "
           "its Jacobian (for the tests' finite-difference check).")
       .def(
           "_elastic_energy_fast",

@@ -12,13 +12,19 @@ namespace softrom {
 // semi-definite: a sum of -2 c A (n.v) w w^T with w = U_t^T n).
 void ReducedModel::drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f,
                         MatX* jac, MatX& w, Eigen::Index& cols) const {
-  const Eigen::Index m = basis_cols_;
-  const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
   const VecX xs = surface_rest_ + surface_rows_ * q;
   // A face's velocity is the mean of its nodes' (U_t qdot, U_t the mean of their rows): from
   // the node velocities, half the work of the face rows' product with qdot (a closed surface
   // has about twice as many faces as nodes).
   const VecX vs = surface_rows_ * qdot;
+  drag_on_surface(cfg, xs, vs, face_rows_, f, jac, w, cols);
+}
+
+void ReducedModel::drag_on_surface(const ReducedConfig& cfg, const VecX& xs, const VecX& vs,
+                                   const RowMatX& face_rows, VecX& f, MatX* jac, MatX& w,
+                                   Eigen::Index& cols) const {
+  const Eigen::Index m = basis_cols_;
+  const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
   const double c = 0.5 * cfg.fluid_density * cfg.drag_coefficient;
   // Columns w_f = U_t^T n of the faces advancing into the fluid, scaled for one rank update.
   if (w.rows() != m || w.cols() < nf) w.resize(m, nf);
@@ -38,7 +44,7 @@ void ReducedModel::drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdo
     const double vn = n.dot(vf);
     if (vn <= 0.0) continue;
     const double ca = c * 0.5 * twice_area;
-    w.col(n_adv).noalias() = face_rows_.middleRows<3>(3 * t).transpose() * n;
+    w.col(n_adv).noalias() = face_rows.middleRows<3>(3 * t).transpose() * n;
     coef[n_adv] = ca * vn;
     speed[n_adv] = vn;
     ++n_adv;
@@ -122,6 +128,10 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
 void ReducedModel::drag_jacobian(const MatX& w, Eigen::Index cols, MatX& jac) const {
   const Eigen::Index m = basis_cols_;
   jac.setZero(m, m);
+  // No face advancing (a body at rest): nothing to add. Eigen's blocked rank update divides
+  // by its inner size, so with zero columns it stopped the process (SIGFPE) once m was past
+  // its small-matrix path (M + 6 = 48 here, not 26).
+  if (cols == 0) return;
   // (w may have padding rows past m: drag_fast's.)
   jac.selfadjointView<Eigen::Lower>().rankUpdate(w.topLeftCorner(m, cols), -1.0);
   jac.triangularView<Eigen::StrictlyUpper>() = jac.transpose();

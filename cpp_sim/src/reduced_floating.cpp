@@ -3,9 +3,9 @@
 // State q = (sqrt(m) (c - c_0), theta, z), qdot = (sqrt(m) u, omega, w), R = exp([theta]x).
 // Momentum-form implicit Euler, with c' = c + h u', R' = R exp(h omega'), z' = z + h w':
 //
-//   (1 + h alpha) u'  = u + h g                                                  (translation)
-//   (1 + h alpha) Pi' = exp(-h omega') Pi                                        (rotation)
-//   (1 + h alpha) p'  = p + h (dT/dz' + f_e(z') - beta K_0 w' + Q_a(z'))         (deformation)
+//   (1 + h alpha) u'  = u + h (g + F_d)                                            (translation)
+//   (1 + h alpha) Pi' = exp(-h omega') (Pi + h tau_d)                              (rotation)
+//   (1 + h alpha) p'  = p + h (dT/dz' + f_e(z') - beta K_0 w' + Q_a(z') + Q_d)     (deformation)
 //
 // with Pi = dT/d omega = I(z) omega + S(z) w the body-frame angular momentum, p = dT/dw =
 // S(z)^T omega + w, dT/dz_k = 1/2 omega^T (dI/dz_k) omega + omega^T (dS/dz_k) w, f_e the
@@ -19,24 +19,65 @@
 // frame at 205 rad/s in the prototype). The rotation line makes the world angular momentum
 // R' Pi' = R Pi exactly whatever the internal forces, so in free flight L is kept to the
 // Newton tolerance. Mass-proportional damping alpha acts on every node (-alpha m_i v_i: on u,
-// Pi and p alike); beta K_0 on the deformation only. Uniform gravity loads c alone.
+// Pi and p alike); beta K_0 on the deformation only. Uniform gravity loads c alone. Drag
+// (F_d on c, tau_d about it in the body frame, Q_d on z) is the linear model's law on the
+// surface where it is at the step's start, linearised in the new velocities (u', omega', w')
+// as the linear model's is: its generalised force is B(q)^T F with B(q) the velocity rows
+// [I / sqrt(m), -R [r_i]x, R U_i] of the surface nodes at q (floating_drag).
 #include <algorithm>
 #include <cassert>
 #include <cmath>
 
 #include "reduced_model.h"
+#include "staggered_projection.h"
 
 namespace softrom {
 
 const char* floating_unsupported(const ReducedConfig& cfg) {
   if (cfg.frame != Frame::Floating) return nullptr;
-  if (cfg.contact != ContactModel::None)
-    return "frame='floating' simulates free flight only: set contact='none' (ground contact "
-           "in the floating frame is not built yet, docs/FLOATING_FRAME.md)";
-  if (cfg.fluid_density > 0.0)
-    return "frame='floating' simulates free flight only: set fluid_density=0 (drag in the "
-           "floating frame is not built yet, docs/FLOATING_FRAME.md)";
+  if (cfg.contact == ContactModel::Penalty)
+    return "frame='floating' has no penalty ground: set contact='staggered' or 'none' "
+           "(docs/FLOATING_FRAME.md)";
   return nullptr;
+}
+
+void ReducedModel::floating_surface(const VecX& q, Workspace& ws) const {
+  const Eigen::Index nd = deformation_dim(), m = basis_cols_;
+  const Eigen::Index ns = num_surface_nodes();
+  const Mat3 rot = rotation_matrix(q.segment<3>(3));
+  const Vec3 c = com(q);
+  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
+  RowMatX& rows = ws.fl_rows;
+  rows.resize(3 * ns, m);
+  VecX& xs = ws.fl_xs;
+  xs.resize(3 * ns);
+  for (Eigen::Index i = 0; i < ns; ++i) {
+    const auto u_i = surface_rows_.block(3 * i, kRigid, 3, nd);
+    const Vec3 r = surface_rest_.segment<3>(3 * i) - rest_com_ + u_i * q.tail(nd);
+    xs.segment<3>(3 * i) = c + rot * r;
+    rows.block<3, 3>(3 * i, 0) = inv_sqrt_m * Mat3::Identity();
+    rows.block<3, 3>(3 * i, 3) = -rot * cross_matrix(r);
+    rows.block(3 * i, kRigid, 3, nd).noalias() = rot * u_i;
+  }
+}
+
+void ReducedModel::floating_drag(const ReducedConfig& cfg, const ReducedState& s,
+                                 Workspace& ws) const {
+  const Eigen::Index m = basis_cols_;
+  const RowMatX& rows = ws.fl_rows;  // floating_surface's, at s.q
+  ws.fl_vs.noalias() = rows * s.qdot;
+  // Each face's rows the mean of its nodes' (as the linear model's face_rows_).
+  RowMatX& face_rows = ws.fl_face_rows;
+  face_rows.resize(3 * static_cast<Eigen::Index>(faces_.size()), m);
+  for (std::size_t t = 0; t < faces_.size(); ++t) {
+    const auto& f = faces_[t];
+    face_rows.middleRows<3>(3 * t) =
+        (rows.middleRows<3>(3 * f[0]) + rows.middleRows<3>(3 * f[1]) +
+         rows.middleRows<3>(3 * f[2])) /
+        3.0;
+  }
+  drag_on_surface(cfg, ws.fl_xs, ws.fl_vs, face_rows, ws.f_drag, &ws.j_drag, ws.drag_w,
+                  ws.drag_cols);
 }
 
 void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s,
@@ -44,16 +85,27 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
                                      Workspace& ws) const {
   const ReducedConfig& cfg = in.config;
   const FloatingCoefficients& co = floating_;
-  const Eigen::Index nd = deformation_dim();
+  const Eigen::Index nd = deformation_dim(), m = basis_cols_;
   const double h = cfg.dt, damp = 1.0 + h * cfg.damping_alpha;
+  const double sqrt_m = std::sqrt(total_mass_);
+  const bool swim = cfg.fluid_density > 0.0;
   // Rotation rows are divided by sqrt(m) r_g, which makes them mass-scaled velocities like
-  // the deformation rows: one norm serves the line search.
-  const double row_scale = 1.0 / (std::sqrt(total_mass_) * co.gyration);
-  const Vec3 om = x.head<3>();
+  // the others: one norm serves the line search.
+  const double row_scale = 1.0 / (sqrt_m * co.gyration);
+  const Vec3 u = x.head<3>();
+  const Vec3 om = x.segment<3>(3);
   const auto w = x.tail(nd);
   ws.fl_z = s.q.tail(nd) + h * w;
   FloatingBody& body = ws.fl_body;
   body.evaluate(co, ws.fl_z);
+  // The drag, linearised in the new velocities about the step's start: F + J_d (x - qdot_n).
+  VecX& load = ws.fl_load;
+  if (swim) {
+    load = ws.f_drag;
+    load.noalias() += ws.j_drag * (x - s.qdot);
+  } else {
+    load.setZero(m);
+  }
 
   // Elastic force (and stiffness) of the deformation: the cubature's kernels on q_e =
   // (0, 0, 0, z'), the rotation columns held at zero (the frame carries the rotation).
@@ -69,9 +121,11 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
   for (int a = 0; a < 3; ++a) ws.fl_yw[a].noalias() = co.y[a] * w;  // (dS/dz_k w)_a
   const Vec3 pi = body.inertia * om + body.s * w;
   const Mat3 turn_back = rotation_matrix(-h * om);
+  const Vec3 pi_start = pi0 + h * load.segment<3>(3);  // Pi + h tau_d (body frame, at the start)
   VecX& r = ws.fl_r;
-  r.resize(3 + nd);
-  r.head<3>() = (damp * pi - turn_back * pi0) * row_scale;
+  r.resize(m);
+  r.head<3>() = damp * u - s.qdot.head<3>() - h * (sqrt_m * cfg.gravity + load.head<3>());
+  r.segment<3>(3) = (damp * pi - turn_back * pi_start) * row_scale;
 
   // dT/dz_k = 1/2 (tr(D_k) |omega|^2 - omega^T D_k omega) + omega . (dS/dz_k w).
   VecX& g = ws.fl_g;
@@ -91,7 +145,7 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
   Vec3 torque_free = Vec3::Zero();  // a
   auto r_w = r.tail(nd);
   r_w = damp * (body.s.transpose() * om + w) - ws.fl_p0;
-  r_w -= h * (g + ws.fl_fe.tail(nd));
+  r_w -= h * (g + ws.fl_fe.tail(nd) + load.tail(nd));
   if (cfg.damping_beta > 0.0)
     r_w.noalias() += (h * cfg.damping_beta) * (k_rest_.bottomRightCorner(nd, nd) * w);
   if (actuated) {
@@ -100,24 +154,25 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
   }
   if (!jacobian) return;
 
-  // The Jacobian d r / d(omega', w'); z' = z + h w' brings a factor h to every z-derivative.
-  // E_k = d Pi / dz_k = dI/dz_k omega + dS/dz_k w, which is also d(dT/dz_k)/d omega.
+  // The Jacobian d r / d(u', omega', w'); z' = z + h w' brings a factor h to every
+  // z-derivative. E_k = d Pi / dz_k = dI/dz_k omega + dS/dz_k w, which is also
+  // d(dT/dz_k)/d omega.
   MatX& e = ws.fl_e;
   e.resize(3, nd);
   for (Eigen::Index k = 0; k < nd; ++k)
     e.col(k) = body.d_inertia(k, om) + Vec3(ws.fl_yw[0][k], ws.fl_yw[1][k], ws.fl_yw[2][k]);
   MatX& jac = ws.fl_jac;
-  jac.resize(3 + nd, 3 + nd);
-  jac.topLeftCorner<3, 3>() =
+  jac.setZero(m, m);
+  jac.topLeftCorner<3, 3>().diagonal().setConstant(damp);
+  jac.block<3, 3>(3, 3) =
       (damp * body.inertia -
-       h * turn_back * cross_matrix(pi0) * right_jacobian(-h * om)) * row_scale;
-  jac.topRightCorner(3, nd) = (damp * (body.s + h * e)) * row_scale;
-  jac.bottomLeftCorner(nd, 3) = damp * body.s.transpose() - h * e.transpose();
+       h * turn_back * cross_matrix(pi_start) * right_jacobian(-h * om)) * row_scale;
+  jac.block(3, kRigid, 3, nd) = (damp * (body.s + h * e)) * row_scale;
+  jac.block(kRigid, 3, nd, 3) = damp * body.s.transpose() - h * e.transpose();
   // Y_omega = sum_a omega_a Y_a: d p / dz = Y_omega^T = -Y_omega, d(dT/dz)/dw = Y_omega;
   // d^2 T / dz_k dz_l = |omega|^2 tr(C_kl) - omega^T C_kl omega.
   auto jww = jac.bottomRightCorner(nd, nd);
-  jww.setIdentity();
-  jww *= damp;
+  jww.diagonal().setConstant(damp);
   for (int a = 0; a < 3; ++a) {
     jww.noalias() -= (h * (damp + 1.0) * om[a]) * co.y[a];
     jww.noalias() -= (h * h * om2) * co.c[4 * a];
@@ -139,6 +194,11 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
       jww.col(k) += (h * h) * (ya.row(k).transpose() + sti * inner);
     }
   }
+  if (swim) {  // the drag's rows: -h J_d, the rotation's turned back by exp(-h omega')
+    jac.topRows<3>() -= h * ws.j_drag.topRows<3>();
+    jac.middleRows<3>(3) -= (h * row_scale) * (turn_back * ws.j_drag.middleRows<3>(3));
+    jac.bottomRows(nd) -= h * ws.j_drag.bottomRows(nd);
+  }
 }
 
 // The momenta at the step's start (pi0 returned, p_0 and B_c f_c into ws).
@@ -159,6 +219,10 @@ void ReducedModel::floating_residual_for_tests(const StepInputs& in, const Reduc
                                                const VecX& fc, const VecX& x, MatX& residual,
                                                MatX& jacobian, Workspace& ws) const {
   const Vec3 pi0 = floating_start(floating_, in, s, fc.data(), deformation_dim(), ws);
+  if (in.config.fluid_density > 0.0) {
+    floating_surface(s.q, ws);
+    floating_drag(in.config, s, ws);
+  }
   floating_residual(in, s, pi0, x, true, ws);
   residual = ws.fl_r;
   jacobian = ws.fl_jac;
@@ -168,20 +232,22 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
                                      Workspace& ws) const {
   const ReducedConfig& cfg = in.config;
   StepInfo info;
-  ScopedTimer timer(cfg.profile ? &info.time_dynamics : nullptr);
   const Eigen::Index nd = deformation_dim();
-  const double h = cfg.dt, damp = 1.0 + h * cfg.damping_alpha;
+  const double h = cfg.dt;
   const double sqrt_m = std::sqrt(total_mass_);
-  const Vec3 om0 = s.qdot.segment<3>(3);
-  const auto w0 = s.qdot.tail(nd);
-
+  const bool swim = cfg.fluid_density > 0.0;
+  const bool staggered = cfg.contact == ContactModel::Staggered;
+  if (swim || staggered) floating_surface(s.q, ws);
+  if (swim) {
+    ScopedTimer drag_timer(cfg.profile ? &info.time_drag : nullptr);
+    floating_drag(cfg, s, ws);
+  }
+  ScopedTimer timer(cfg.profile ? &info.time_dynamics : nullptr);
   const Vec3 pi0 = floating_start(floating_, in, s, fc, nd, ws);
 
   VecX& x = ws.fl_x;
   VecX& dx = ws.fl_dx;
-  x.resize(3 + nd);
-  x.head<3>() = om0;
-  x.tail(nd) = w0;
+  x = s.qdot;
   info.converged = false;
   info.stiffness_evaluations = 0;
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
@@ -194,9 +260,12 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
       info.diverged = true;
       return info;
     }
-    // As the linear step's test, in m/s: omega's change times the body's radius of gyration.
-    const double step_norm = std::max(dx.head<3>().cwiseAbs().maxCoeff() * floating_.gyration,
-                                      dx.tail(nd).cwiseAbs().maxCoeff() / sqrt_m);
+    // As the linear step's test, max |dv| / sqrt(m) in m/s, omega's change times the body's
+    // radius of gyration.
+    const double step_norm =
+        std::max({dx.head<3>().cwiseAbs().maxCoeff() / sqrt_m,
+                  dx.segment<3>(3).cwiseAbs().maxCoeff() * floating_.gyration,
+                  dx.tail(nd).cwiseAbs().maxCoeff() / sqrt_m});
     if (step_norm < cfg.newton_tolerance) {
       x += dx;
       info.converged = true;
@@ -214,10 +283,18 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
     x += t * dx;
   }
 
+  timer.stop();
+  // Ground contact projects the contact-free velocity; its impulses go into a copy.
+  VecX& impulses = ws.impulses_next;
+  if (staggered) {
+    impulses = s.impulses;
+    info.stagger_iterations = floating_contacts(in, s, x, impulses, ws, info);
+  }
+
   // The new state, into a copy: a diverged step leaves the state as it was.
-  const Vec3 om = x.head<3>();
+  const Vec3 u = x.head<3>();
+  const Vec3 om = x.segment<3>(3);
   const auto w = x.tail(nd);
-  const Vec3 u = (s.qdot.head<3>() + (h * sqrt_m) * cfg.gravity) / damp;
   VecX& q = ws.fl_q;
   q.resize(s.q.size());
   q.head<3>() = s.q.head<3>() + h * u;
@@ -227,7 +304,8 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
   ws.fl_body.evaluate(floating_, q.tail(nd));
   const double two_t = u.squaredNorm() + om.dot(ws.fl_body.inertia * om) +
                        2.0 * om.dot(ws.fl_body.s * w) + w.squaredNorm();
-  if (!q.allFinite() || !x.allFinite() || !std::isfinite(two_t) ||
+  if (info.diverged || !q.allFinite() || !x.allFinite() || !std::isfinite(two_t) ||
+      (staggered && !impulses.allFinite()) ||
       std::sqrt(std::max(two_t, 0.0)) / sqrt_m > cfg.max_speed) {
     info.diverged = true;
     return info;
@@ -236,7 +314,81 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
   s.qdot.head<3>() = u;
   s.qdot.segment<3>(3) = om;
   s.qdot.tail(nd) = w;
+  if (staggered) {
+    for (Eigen::Index c = 0; c < impulses.size() / 3; ++c)
+      if (impulses[3 * c + 2] > 0.0) ++info.contacts;
+    s.impulses.swap(impulses);
+  }
   return info;
+}
+
+int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s, VecX& v,
+                                    VecX& impulses, Workspace& ws, StepInfo& info) const {
+  const ReducedConfig& cfg = in.config;
+  const Eigen::Index nd = deformation_dim(), m = basis_cols_;
+  const Eigen::Index ns = num_surface_nodes();
+  const RowMatX& rows = ws.fl_rows;  // at s.q (floating_surface)
+  // Candidates as the linear model's: within the margin, or reaching the ground in two steps.
+  std::vector<int>& active = ws.contact_active;
+  std::vector<double>& gap = ws.contact_gap;
+  active.clear();
+  gap.clear();
+  for (Eigen::Index c = 0; c < ns; ++c) {
+    const double z = ws.fl_xs[3 * c + 2] - cfg.ground_height;
+    if (contact_candidate(cfg, z, rows.row(3 * c + 2).dot(v))) {
+      active.push_back(static_cast<int>(c));
+      gap.push_back(z);
+    }
+  }
+  const int k = static_cast<int>(active.size());
+  info.active_rows = k;
+  if (k == 0) {
+    impulses.setZero();
+    return 0;
+  }
+  // The metric: the velocity response to an impulse over the step, the kinetic metric at z'
+  // (u: 1, omega: I(z'), the coupling S(z'), w: 1) with the damping, plus h^2 K(z') + h beta
+  // K_0 on z and -h J_d: the linear model's Newton matrix with its mass made exact. (The
+  // momentum-form Jacobian is not symmetric, and the projection needs a metric.)
+  const double h = cfg.dt, damp = 1.0 + h * cfg.damping_alpha;
+  ws.fl_z = s.q.tail(nd) + h * v.tail(nd);
+  FloatingBody& body = ws.fl_body;
+  body.evaluate(floating_, ws.fl_z);
+  ws.fl_qe.setZero(nd + 3);
+  ws.fl_qe.tail(nd) = ws.fl_z;
+  if (cfg.solver == Solver::Fast) {
+    elastic_stiffness_fast(ws.fl_qe, ws.fl_k, ws);
+  } else {
+    elastic_reference(ws.fl_qe, false, nullptr, nullptr, &ws.fl_k);
+  }
+  ++info.stiffness_evaluations;
+  MatX& a = ws.a;
+  auto build = [&](const auto& k_dd) {
+    a.setZero(m, m);
+    a.topLeftCorner<3, 3>().diagonal().setConstant(damp);
+    a.block<3, 3>(3, 3) = damp * body.inertia;
+    a.block(3, kRigid, 3, nd) = damp * body.s;
+    a.block(kRigid, 3, nd, 3) = damp * body.s.transpose();
+    auto add = a.bottomRightCorner(nd, nd);
+    add.diagonal().array() += damp;
+    add += (h * h) * k_dd + (h * cfg.damping_beta) * k_rest_.bottomRightCorner(nd, nd);
+    if (cfg.fluid_density > 0.0) a -= h * ws.j_drag;
+  };
+  build(ws.fl_k.bottomRightCorner(nd, nd));
+  Eigen::LLT<MatX>& a_llt = ws.a_llt;
+  a_llt.compute(a);
+  if (a_llt.info() != Eigen::Success) {  // a crushed element: K projected, as the linear step
+    Eigen::SelfAdjointEigenSolver<MatX> es(ws.fl_k.bottomRightCorner(nd, nd));
+    build(es.eigenvectors() * es.eigenvalues().cwiseMax(0.0).asDiagonal() *
+          es.eigenvectors().transpose());
+    a_llt.compute(a);
+    if (a_llt.info() != Eigen::Success) {
+      info.diverged = true;
+      return 0;
+    }
+  }
+  if (!ws.contact) ws.contact = std::make_unique<StaggeredProjection>();
+  return ws.contact->solve(cfg, rows, active, gap, a, a_llt, v, impulses, ws.nnls, info);
 }
 
 VecX ReducedModel::velocities(const VecX& q, const VecX& qdot) const {

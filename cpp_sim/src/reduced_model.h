@@ -53,8 +53,8 @@ enum class Solver { Reference = 0, Fast = 1 };
 // model's). Floating: x_i = c + R (X_i + U_i z) with an exact rotation R, q = (sqrt(m) (c - c_0),
 // the rotation vector theta of R (|theta| <= pi), z) and qdot = (sqrt(m) c', the body-frame
 // angular velocity omega, z'); actuation follows the body, torque-free, so in free flight the
-// angular momentum is kept to the Newton tolerance. It simulates free flight (with gravity
-// and Rayleigh damping) only: contact and drag in the floating frame are not built yet.
+// angular momentum is kept to the Newton tolerance. Gravity, Rayleigh damping, drag and the
+// staggered-projection ground apply; the penalty ground does not.
 enum class Frame { Linear = 0, Floating = 1 };
 
 // Every setting of a reduced model, in one place: the binding exposes this struct as
@@ -83,7 +83,7 @@ struct ReducedConfig {
   Frame frame = Frame::Linear;
 };
 
-// Why a config cannot be stepped in the floating frame (contact, drag), or null when it can.
+// Why a config cannot be stepped in the floating frame (penalty contact), or null when it can.
 const char* floating_unsupported(const ReducedConfig& cfg);
 
 // Simulation state. `impulses` warm-starts the contact solver (per surface node, two tangential
@@ -201,7 +201,11 @@ struct Workspace {
   // The floating frame's Newton iteration (reduced_floating.cpp): the body's inertia and
   // coupling at the iterate, its iterate x = (omega, w), residual, Jacobian and step.
   FloatingBody fl_body;
-  VecX fl_x, fl_trial, fl_r, fl_dx, fl_z, fl_qe, fl_fe, fl_fa, fl_p0, fl_g, fl_q;
+  VecX fl_x, fl_trial, fl_r, fl_dx, fl_z, fl_qe, fl_fe, fl_fa, fl_p0, fl_g, fl_q, fl_load;
+  // Its drag at the step's start (floating_drag): the surface nodes' world positions and
+  // velocities and their velocity rows at q, and the faces' rows.
+  VecX fl_xs, fl_vs;
+  RowMatX fl_rows, fl_face_rows;
   std::array<VecX, 3> fl_yw;
   MatX fl_jac, fl_k, fl_e;
   Eigen::PartialPivLU<MatX> fl_lu;
@@ -296,7 +300,7 @@ class ReducedModel {
   // frame config.frame says.
   VecX positions(const VecX& q) const;
   VecX velocities(const VecX& q, const VecX& qdot) const;
-  // The floating frame's step residual at x = (omega', w') from s under f_c (C entries), and
+  // The floating frame's step residual at x = (u', omega', w') from s under f_c (C entries), and
   // its Jacobian: what step_floating's Newton iteration solves, for the tests.
   void floating_residual_for_tests(const StepInputs& in, const ReducedState& s, const VecX& fc,
                                    const VecX& x, MatX& residual, MatX& jacobian,
@@ -345,8 +349,17 @@ class ReducedModel {
   // Euler residual, LU-factored (the gyroscopic terms make it unsymmetric).
   StepInfo step_floating(const StepInputs& in, ReducedState& s, const double* fc,
                          Workspace& ws) const;
-  // The floating frame's residual at x = (omega', w') into ws.fl_r, and with `jacobian` its
-  // Jacobian into ws.fl_jac (floating_residual's comment has the equations).
+  // The floating frame's residual at x = (u', omega', w') into ws.fl_r, and with `jacobian`
+  // its Jacobian into ws.fl_jac (the file's comment has the equations); the drag at the
+  // step's start into ws.f_drag, ws.j_drag (floating_drag).
+  // The surface nodes' world positions (ws.fl_xs) and velocity rows [I / sqrt(m), -R [r_i]x,
+  // R U_i] (ws.fl_rows) at q; the drag and the contact solve read them.
+  void floating_surface(const VecX& q, Workspace& ws) const;
+  void floating_drag(const ReducedConfig& cfg, const ReducedState& s, Workspace& ws) const;
+  // The floating frame's staggered projection of v (in: contact-free, out: projected) with
+  // the surface rows at s.q; returns the staggers (ws.impulses_next gets the impulses).
+  int floating_contacts(const StepInputs& in, const ReducedState& s, VecX& v, VecX& impulses,
+                        Workspace& ws, StepInfo& info) const;
   void floating_residual(const StepInputs& in, const ReducedState& s, const Vec3& pi0,
                          const VecX& x, bool jacobian, Workspace& ws) const;
   void external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const;
@@ -371,6 +384,12 @@ class ReducedModel {
   // 0..cols-1 of w), and J_d itself when jac is not null.
   void drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f, MatX* jac,
             MatX& w, Eigen::Index& cols) const;
+  // The drag law on world surface positions xs and velocities vs (3 n_s each, surface node
+  // order), with face_rows (3 n_f x (M + 6)) each face's velocity rows, the mean of its three
+  // nodes': drag() with the basis's constant rows, the floating frame with its rows at q.
+  void drag_on_surface(const ReducedConfig& cfg, const VecX& xs, const VecX& vs,
+                       const RowMatX& face_rows, VecX& f, MatX* jac, MatX& w,
+                       Eigen::Index& cols) const;
   // The same into ws.f_drag, ws.drag_w (rows padded to a multiple of 4) and ws.drag_cols,
   // through the dense kernels (fast solver).
   void drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, Workspace& ws) const;

@@ -143,10 +143,12 @@ def model_settings(
     contact: str,
     friction: float,
     fluid_density: float,
+    frame: str = "linear",
 ) -> dict[str, Any]:
     """The reduced model's settings for ``task`` (a swimmer has no contact and no gravity),
-    each checked by the C++ core's config."""
-    settings: dict[str, Any] = {"dt": dt, "direction": direction}
+    each checked by the C++ core's config, and together (``frame="floating"`` has no penalty
+    ground)."""
+    settings: dict[str, Any] = {"dt": dt, "direction": direction, "frame": frame}
     swim = {"fluid_density": fluid_density}
     walk = {"contact": contact, "friction": friction}
     if task == "swim":
@@ -159,6 +161,7 @@ def model_settings(
     check = cpp_sim.ReducedConfig()
     for name, value in {**settings, **walk, **swim}.items():
         setattr(check, name, value)
+    cpp_sim.ReducedConfig(**settings).validate()
     return settings
 
 

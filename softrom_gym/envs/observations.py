@@ -56,7 +56,8 @@ class Observations:
     action_bound: float
     action_space: spaces.Box
     render_mode: str | None
-    _orientation: np.ndarray  # (3, M + 6): q_r -> linearised orientation (rotation vector)
+    # (3, M + 6): q_r -> orientation (rotation vector): linearised, or q[3:6] in the floating frame
+    _orientation: np.ndarray
     _sqrt_m: float
     _com0: np.ndarray
     _state: cpp_sim.ReducedState
@@ -121,7 +122,8 @@ class Observations:
                 'info["min_volume_ratio"] <= 0; raise youngs_modulus or lower action_scale',
                 stacklevel=3,
             )
-        if orientation > LINEARISED_TURN_LIMIT and not self._turn_warned:
+        if (orientation > LINEARISED_TURN_LIMIT and not self._turn_warned
+                and self.model.frame == "linear"):  # fmt: skip
             self._turn_warned = True
             warnings.warn(
                 f"{self.robot.name}: the robot has turned {orientation:.2f} rad from rest. "

@@ -36,7 +36,7 @@ class PlanningAPI:
     frame_skip: int
     action_bound: float
     action_space: spaces.Box
-    _orientation: np.ndarray  # (3, M + 6): q_r -> linearised orientation (rotation vector)
+    _orientation: np.ndarray  # (3, M + 6): q_r -> orientation (rotation vector; observations.py)
     _state: cpp_sim.ReducedState
 
     def get_state(self) -> cpp_sim.ReducedState:

@@ -64,13 +64,16 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
     |----------------|---------------------------------------------------------|--------|
     | 0              | centre-of-mass height above the ground                  | m      |
     | 1..3           | centre-of-mass velocity (x, y, z)                       | m/s    |
-    | 4..6           | linearised orientation (rotation vector vs. rest)       | rad    |
+    | 4..6           | orientation (rotation vector vs. rest)                  | rad    |
     | 7..9           | angular velocity (x, y, z)                              | rad/s  |
     | 10..9+M        | deformation coordinates q_d of B_r                      | m·kg½  |
     | 10+M..9+2M     | their velocities                                        | m·kg½/s|
 
-    Orientation is the rotation vector of B_r's linearised rotation coordinates (small-angle:
-    faithful to a few tenths of a radian, see :mod:`softrom_gym.rom.subspace`).
+    In the default ``frame="linear"`` orientation is the rotation vector of B_r's linearised
+    rotation coordinates (small-angle: faithful to a few tenths of a radian, see
+    :mod:`softrom_gym.rom.subspace`) and the angular velocity its rate. With
+    ``frame="floating"`` the rotation is exact: orientation is the rotation vector of the
+    body frame R (|θ| <= π) and the angular velocity the body-frame ω.
 
     ## Rewards
     Per step, the displacement of the centre of mass along the task direction d,
@@ -83,10 +86,10 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
     (|f_c / a|^2), plus ``distance`` (along d since reset, m), ``com``, ``diverged``,
     ``min_volume_ratio`` (the smallest det F over the mesh's tetrahedra; at or below 0 one is
     inverted, which a material too soft for the action bound allows, and the env warns once)
-    and ``contact`` (the model's contact setting: "staggered", "penalty" or "none"). Rotations
-    are linearised, so the env also warns once when ``orientation`` passes
-    ``LINEARISED_TURN_LIMIT`` (0.3 rad), past which the turn's stretch makes the motion
-    unphysical.
+    and ``contact`` (the model's contact setting: "staggered", "penalty" or "none"). In the
+    linear frame rotations are linearised, so the env also warns once when ``orientation``
+    passes ``LINEARISED_TURN_LIMIT`` (0.3 rad), past which the turn's stretch makes the motion
+    unphysical; the floating frame turns freely.
 
     ## Starting State
     The robot at rest (on the ground for walking), with deformation velocities drawn
@@ -124,7 +127,11 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
     "none"),
     ``fluid_density`` (swim), ``material`` (dict of youngs_modulus / poisson_ratio /
     density), ``resolution`` (mesh resolution), ``scale`` (multiplies a mesh's coordinates:
-    0.001 for one in millimetres), ``reset_noise_scale``, ``render_mode``.
+    0.001 for one in millimetres), ``reset_noise_scale``, ``render_mode``, ``frame`` (how the
+    rigid motion is represented, not ``frame_skip``: "linear", the default and every recorded
+    figure's, or "floating", an exact rotation with the actuation following the body, with
+    the staggered-projection ground or none, not ``contact="penalty"``;
+    ``docs/FLOATING_FRAME.md``).
 
     ## For model-predictive control
     ``get_state()`` / ``set_state(state)`` copy the full simulation state, and
@@ -170,6 +177,7 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
         scale: float | None = None,
         reset_noise_scale: float = 1.0,
         render_mode: str | None = None,
+        frame: str = "linear",
     ) -> None:
         if task not in TASKS:
             raise ValueError(f"unknown task {task!r}; valid tasks: {list(TASKS)}")
@@ -192,7 +200,8 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
             check_on_ground(self.robot)
         self.direction = task_direction(direction)
         self.control_basis = checked_control_basis(b_c, sim_dim, control_dim, orthonormalize)
-        settings = model_settings(task, dt, self.direction, contact, friction, fluid_density)
+        settings = model_settings(task, dt, self.direction, contact, friction, fluid_density,
+                                  frame)  # fmt: skip
         # verbose: a new robot or M takes seconds to minutes to build, once; say so on stderr
         self.subspace = build_subspace(self.robot, sim_dim, verbose=True)
         self.model = build_reduced_model(
@@ -201,7 +210,10 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
         )  # fmt: skip
         mass = self.robot.fem_model().mass
         self._sqrt_m = float(np.sqrt(mass.sum()))
-        self._orientation = orientation_rows(self.robot.nodes, mass, self.subspace.basis)
+        if self.model.frame == "floating":  # q[3:6] is the rotation vector itself
+            self._orientation = np.eye(3, self.model.dim, 3)
+        else:
+            self._orientation = orientation_rows(self.robot.nodes, mass, self.subspace.basis)
         self.action_bound = float(action_scale * self._sqrt_m * G)
         c = control_dim
         m = sim_dim

@@ -58,9 +58,9 @@ def build_reduced_model(
         ``contact`` ("staggered", "penalty", "none"), ``friction`` (mu, default 0.8),
         ``fluid_density`` (> 0 switches drag on), ``drag_coefficient``, ``damping_alpha``,
         ``damping_beta``, ``direction``, solver tolerances, ``frame`` ("linear", the
-        default, or "floating": an exact rotation, free flight only, so with
-        ``contact="none"`` and no drag; docs/FLOATING_FRAME.md). Settings that cannot be
-        stepped together raise ValueError here.
+        default, or "floating": an exact rotation, with the staggered-projection ground or
+        none, not the penalty one; docs/FLOATING_FRAME.md). Settings that cannot be stepped
+        together raise ValueError here.
     """
     unknown = set(settings) - _SETTINGS
     if unknown:
