@@ -392,7 +392,7 @@ inline bool least_distance(const Eigen::Ref<const Eigen::MatrixXd>& g,
                            Eigen::Ref<Eigen::VectorXd> x, Eigen::Ref<Eigen::VectorXd> lambda,
                            bool& converged, NnlsSolve how, NnlsWorkspace& ws,
                            const double* gt = nullptr, bool carry = false) {
-  const Eigen::Index m = g.rows() - 1, k = g.cols();
+  const Eigen::Index m = g.rows() - 1;
   ScratchVec& d = ws.d;
   d.setZero(m + 1);
   d[m] = 1.0;

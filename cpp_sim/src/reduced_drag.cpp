@@ -17,11 +17,14 @@ void ReducedModel::drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdo
   // the node velocities, half the work of the face rows' product with qdot (a closed surface
   // has about twice as many faces as nodes).
   const VecX vs = surface_rows_ * qdot;
-  drag_on_surface(cfg, xs, vs, face_rows_, f, jac, w, cols);
+  const FaceColumn column = [this](Eigen::Index t, const Vec3& n, Eigen::Ref<VecX> out) {
+    out.noalias() = face_rows_.middleRows<3>(3 * t).transpose() * n;
+  };
+  drag_on_surface(cfg, xs, vs, column, f, jac, w, cols);
 }
 
 void ReducedModel::drag_on_surface(const ReducedConfig& cfg, const VecX& xs, const VecX& vs,
-                                   const RowMatX& face_rows, VecX& f, MatX* jac, MatX& w,
+                                   const FaceColumn& column, VecX& f, MatX* jac, MatX& w,
                                    Eigen::Index& cols) const {
   const Eigen::Index m = basis_cols_;
   const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
@@ -44,7 +47,7 @@ void ReducedModel::drag_on_surface(const ReducedConfig& cfg, const VecX& xs, con
     const double vn = n.dot(vf);
     if (vn <= 0.0) continue;
     const double ca = c * 0.5 * twice_area;
-    w.col(n_adv).noalias() = face_rows.middleRows<3>(3 * t).transpose() * n;
+    column(t, n, w.col(n_adv));
     coef[n_adv] = ca * vn;
     speed[n_adv] = vn;
     ++n_adv;

@@ -42,41 +42,54 @@ const char* floating_unsupported(const ReducedConfig& cfg) {
 }
 
 void ReducedModel::floating_surface(const VecX& q, Workspace& ws) const {
-  const Eigen::Index nd = deformation_dim(), m = basis_cols_;
-  const Eigen::Index ns = num_surface_nodes();
+  const Eigen::Index nd = deformation_dim(), ns = num_surface_nodes();
   const Mat3 rot = rotation_matrix(q.segment<3>(3));
   const Vec3 c = com(q);
-  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
-  RowMatX& rows = ws.fl_rows;
-  rows.resize(3 * ns, m);
+  VecX& r = ws.fl_rs;
+  r.noalias() = surface_rows_.rightCols(nd) * q.tail(nd);
   VecX& xs = ws.fl_xs;
   xs.resize(3 * ns);
   for (Eigen::Index i = 0; i < ns; ++i) {
-    const auto u_i = surface_rows_.block(3 * i, kRigid, 3, nd);
-    const Vec3 r = surface_rest_.segment<3>(3 * i) - rest_com_ + u_i * q.tail(nd);
-    xs.segment<3>(3 * i) = c + rot * r;
-    rows.block<3, 3>(3 * i, 0) = inv_sqrt_m * Mat3::Identity();
-    rows.block<3, 3>(3 * i, 3) = -rot * cross_matrix(r);
-    rows.block(3 * i, kRigid, 3, nd).noalias() = rot * u_i;
+    r.segment<3>(3 * i) += surface_rest_.segment<3>(3 * i) - rest_com_;
+    xs.segment<3>(3 * i) = c + rot * r.segment<3>(3 * i);
   }
+}
+
+void ReducedModel::floating_node_velocities(const VecX& q, const VecX& qdot, VecX& out,
+                                            Workspace& ws) const {
+  // v_i = u + R (omega x r_i + U_i w), r_i from floating_surface at q.
+  const Eigen::Index nd = deformation_dim(), ns = num_surface_nodes();
+  const Mat3 rot = rotation_matrix(q.segment<3>(3));
+  const Vec3 u = qdot.head<3>() / std::sqrt(total_mass_);
+  const Vec3 om = qdot.segment<3>(3);
+  ws.fl_uw.noalias() = surface_rows_.rightCols(nd) * qdot.tail(nd);
+  out.resize(3 * ns);
+  for (Eigen::Index i = 0; i < ns; ++i)
+    out.segment<3>(3 * i) =
+        u + rot * (om.cross(ws.fl_rs.segment<3>(3 * i)) + ws.fl_uw.segment<3>(3 * i));
 }
 
 void ReducedModel::floating_drag(const ReducedConfig& cfg, const ReducedState& s,
                                  Workspace& ws) const {
-  const Eigen::Index m = basis_cols_;
-  const RowMatX& rows = ws.fl_rows;  // floating_surface's, at s.q
-  ws.fl_vs.noalias() = rows * s.qdot;
-  // Each face's rows the mean of its nodes' (as the linear model's face_rows_).
-  RowMatX& face_rows = ws.fl_face_rows;
-  face_rows.resize(3 * static_cast<Eigen::Index>(faces_.size()), m);
-  for (std::size_t t = 0; t < faces_.size(); ++t) {
+  // The surface's velocity rows at q are B_i = [I / sqrt(m), -R [r_i]x, R U_i], so a face's
+  // column (the mean of its nodes' B_i^T n) is [n / sqrt(m); r_f x n_b; U_f^T n_b], with
+  // n_b = R^T n, r_f the face's body centroid and U_f the mean of its nodes' rows of U (the
+  // linear model's face rows): no rows are formed.
+  const Eigen::Index nd = deformation_dim();
+  floating_node_velocities(s.q, s.qdot, ws.fl_vs, ws);
+  const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
+  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
+  const VecX& r = ws.fl_rs;
+  const FaceColumn column = [&](Eigen::Index t, const Vec3& n, Eigen::Ref<VecX> out) {
     const auto& f = faces_[t];
-    face_rows.middleRows<3>(3 * t) =
-        (rows.middleRows<3>(3 * f[0]) + rows.middleRows<3>(3 * f[1]) +
-         rows.middleRows<3>(3 * f[2])) /
-        3.0;
-  }
-  drag_on_surface(cfg, ws.fl_xs, ws.fl_vs, face_rows, ws.f_drag, &ws.j_drag, ws.drag_w,
+    const Vec3 n_b = rot.transpose() * n;
+    const Vec3 centroid =
+        (r.segment<3>(3 * f[0]) + r.segment<3>(3 * f[1]) + r.segment<3>(3 * f[2])) / 3.0;
+    out.head<3>() = inv_sqrt_m * n;
+    out.segment<3>(3) = centroid.cross(n_b);
+    out.tail(nd).noalias() = face_rows_.block(3 * t, kRigid, 3, nd).transpose() * n_b;
+  };
+  drag_on_surface(cfg, ws.fl_xs, ws.fl_vs, column, ws.f_drag, &ws.j_drag, ws.drag_w,
                   ws.drag_cols);
 }
 
@@ -327,15 +340,16 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   const ReducedConfig& cfg = in.config;
   const Eigen::Index nd = deformation_dim(), m = basis_cols_;
   const Eigen::Index ns = num_surface_nodes();
-  const RowMatX& rows = ws.fl_rows;  // at s.q (floating_surface)
-  // Candidates as the linear model's: within the margin, or reaching the ground in two steps.
+  // Candidates as the linear model's: within the margin, or reaching the ground in two steps
+  // at their normal velocity under v (the nodes at the step's start, floating_surface's).
+  floating_node_velocities(s.q, v, ws.fl_vs, ws);
   std::vector<int>& active = ws.contact_active;
   std::vector<double>& gap = ws.contact_gap;
   active.clear();
   gap.clear();
   for (Eigen::Index c = 0; c < ns; ++c) {
     const double z = ws.fl_xs[3 * c + 2] - cfg.ground_height;
-    if (contact_candidate(cfg, z, rows.row(3 * c + 2).dot(v))) {
+    if (contact_candidate(cfg, z, ws.fl_vs[3 * c + 2])) {
       active.push_back(static_cast<int>(c));
       gap.push_back(z);
     }
@@ -346,22 +360,26 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
     impulses.setZero();
     return 0;
   }
+  // The candidates' velocity rows [I / sqrt(m), -R [r_c]x, R U_c] (the solve reads only
+  // theirs, by surface node id).
+  RowMatX& rows = ws.fl_rows;
+  if (rows.rows() != 3 * ns || rows.cols() != m) rows.resize(3 * ns, m);
+  const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
+  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
+  for (const int c : active) {
+    rows.block<3, 3>(3 * c, 0) = inv_sqrt_m * Mat3::Identity();
+    rows.block<3, 3>(3 * c, 3) = -rot * cross_matrix(ws.fl_rs.segment<3>(3 * c));
+    rows.block(3 * c, kRigid, 3, nd).noalias() = rot * surface_rows_.block(3 * c, kRigid, 3, nd);
+  }
   // The metric: the velocity response to an impulse over the step, the kinetic metric at z'
   // (u: 1, omega: I(z'), the coupling S(z'), w: 1) with the damping, plus h^2 K(z') + h beta
   // K_0 on z and -h J_d: the linear model's Newton matrix with its mass made exact. (The
   // momentum-form Jacobian is not symmetric, and the projection needs a metric.)
+  // K is the last Newton iteration's (ws.fl_k): at z' to within the Newton tolerance.
   const double h = cfg.dt, damp = 1.0 + h * cfg.damping_alpha;
   ws.fl_z = s.q.tail(nd) + h * v.tail(nd);
   FloatingBody& body = ws.fl_body;
   body.evaluate(floating_, ws.fl_z);
-  ws.fl_qe.setZero(nd + 3);
-  ws.fl_qe.tail(nd) = ws.fl_z;
-  if (cfg.solver == Solver::Fast) {
-    elastic_stiffness_fast(ws.fl_qe, ws.fl_k, ws);
-  } else {
-    elastic_reference(ws.fl_qe, false, nullptr, nullptr, &ws.fl_k);
-  }
-  ++info.stiffness_evaluations;
   MatX& a = ws.a;
   auto build = [&](const auto& k_dd) {
     a.setZero(m, m);

@@ -204,8 +204,8 @@ struct Workspace {
   VecX fl_x, fl_trial, fl_r, fl_dx, fl_z, fl_qe, fl_fe, fl_fa, fl_p0, fl_g, fl_q, fl_load;
   // Its drag at the step's start (floating_drag): the surface nodes' world positions and
   // velocities and their velocity rows at q, and the faces' rows.
-  VecX fl_xs, fl_vs;
-  RowMatX fl_rows, fl_face_rows;
+  VecX fl_xs, fl_vs, fl_rs, fl_uw;
+  RowMatX fl_rows;
   std::array<VecX, 3> fl_yw;
   MatX fl_jac, fl_k, fl_e;
   Eigen::PartialPivLU<MatX> fl_lu;
@@ -352,9 +352,11 @@ class ReducedModel {
   // The floating frame's residual at x = (u', omega', w') into ws.fl_r, and with `jacobian`
   // its Jacobian into ws.fl_jac (the file's comment has the equations); the drag at the
   // step's start into ws.f_drag, ws.j_drag (floating_drag).
-  // The surface nodes' world positions (ws.fl_xs) and velocity rows [I / sqrt(m), -R [r_i]x,
-  // R U_i] (ws.fl_rows) at q; the drag and the contact solve read them.
+  // The surface nodes' body positions r_i (ws.fl_rs) and world positions (ws.fl_xs) at q; the
+  // drag and the contact solve start from them. floating_node_velocities: their world
+  // velocities at (q, qdot) into out (3 n_s; ws.fl_uw is scratch).
   void floating_surface(const VecX& q, Workspace& ws) const;
+  void floating_node_velocities(const VecX& q, const VecX& qdot, VecX& out, Workspace& ws) const;
   void floating_drag(const ReducedConfig& cfg, const ReducedState& s, Workspace& ws) const;
   // The floating frame's staggered projection of v (in: contact-free, out: projected) with
   // the surface rows at s.q; returns the staggers (ws.impulses_next gets the impulses).
@@ -385,10 +387,12 @@ class ReducedModel {
   void drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, VecX& f, MatX* jac,
             MatX& w, Eigen::Index& cols) const;
   // The drag law on world surface positions xs and velocities vs (3 n_s each, surface node
-  // order), with face_rows (3 n_f x (M + 6)) each face's velocity rows, the mean of its three
-  // nodes': drag() with the basis's constant rows, the floating frame with its rows at q.
+  // order); column(t, n, out) writes face t's velocity rows (the mean of its three nodes')
+  // times its unit normal n, the generalised direction of a force along n: drag() from the
+  // basis's constant rows, the floating frame from the body's rows at q.
+  using FaceColumn = std::function<void(Eigen::Index, const Vec3&, Eigen::Ref<VecX>)>;
   void drag_on_surface(const ReducedConfig& cfg, const VecX& xs, const VecX& vs,
-                       const RowMatX& face_rows, VecX& f, MatX* jac, MatX& w,
+                       const FaceColumn& column, VecX& f, MatX* jac, MatX& w,
                        Eigen::Index& cols) const;
   // The same into ws.f_drag, ws.drag_w (rows padded to a multiple of 4) and ws.drag_cols,
   // through the dense kernels (fast solver).
