@@ -22,11 +22,13 @@ x = X + B_r q), ``linear, projected`` (the same with its internal forces project
 exert no torque on the reduced state: the component of B_r^T f along T(q)^T is removed, with
 T(q) qdot = L; a constrained Galerkin projection) and ``floating frame``, a Python prototype
 of x = c + R (X + U z) (U: B_r's deformation columns; L-exact implicit Euler, below). The
-last two are studies, not package features. ``--stroke`` on the floating frame acts on z
-in the body frame, so it is internal and L stays exact; its two lines are there for that and
-for where the prototype's Newton fails: ``f on z`` is the generalised force f_a on z itself,
-``torque-free`` the nodal field M R U f_a less the rigid rotation that cancels its torque,
-whose generalised force is (I - S^T I^-1 S) f_a on z (``--follower`` says why it matters).
+projected model is a study only; the floating frame, designed here, is now in the package's
+core (``frame="floating"``), and ``--core`` checks the two against each other. ``--stroke``
+on the floating frame acts on z in the body frame, so it is internal and L stays exact; its
+two lines are there for that and for where the prototype's Newton fails: ``f on z`` is the
+generalised force f_a on z itself, ``torque-free`` the nodal field M R U f_a less the rigid
+rotation that cancels its torque, whose generalised force is (I - S^T I^-1 S) f_a on z
+(``--follower`` says why it matters).
 
     python benchmarks/study_angular_momentum.py [--robot beam] [--seconds 1] [--speed 0.2]
         [--spin 3] [--stroke 0.8] [--dt 0.005] [--step-convergence]

@@ -1,10 +1,12 @@
-"""The fast step allocates nothing once a rollout worker has seen its sizes.
+"""The fast step, and the floating frame's, allocate nothing once a rollout worker has seen
+its sizes.
 
 Counted in a child process by a malloc shim preloaded in front of glibc's (Linux only, built
 with the C compiler that built the core): a rollout's heap allocations are counted for two
 horizons of the same controls after a warm-up rollout over the longer one. The binding's own
 per-call allocations (the output arrays) do not depend on the horizon, the steps' would:
-before the worker kept its contact buffers (scratch.h) a walking step made ~90-130 of them.
+before the worker kept its contact buffers (scratch.h) a walking step made ~90-130 of them,
+and the floating frame's first build 23-31 (products evaluated into heap temporaries).
 """
 
 import json
@@ -46,9 +48,12 @@ _CHILD = textwrap.dedent(
     counter = ctypes.CDLL(sys.argv[1]).softrom_test_malloc_count
     counter.restype = ctypes.c_long
     robot = beam()
+    swim = dict(contact="none", gravity=[0.0, 0.0, 0.0], fluid_density=1000.0)
     cases = {
         "walk": dict(contact="staggered"),
-        "swim": dict(contact="none", gravity=[0.0, 0.0, 0.0], fluid_density=1000.0),
+        "swim": swim,
+        "floating walk": dict(contact="staggered", frame="floating"),
+        "floating swim": dict(swim, frame="floating"),
     }
     out = {}
     for name, settings in cases.items():
@@ -72,7 +77,7 @@ _CHILD = textwrap.dedent(
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="an LD_PRELOAD malloc shim")
-def test_fast_steps_do_not_allocate(tmp_path):
+def test_steps_do_not_allocate(tmp_path):
     cc = shutil.which(os.environ.get("CC", "cc")) or shutil.which("gcc")
     if cc is None:
         pytest.skip("no C compiler for the malloc shim")

@@ -3,8 +3,10 @@ with an exact rotation, stepped by momentum-form implicit Euler with the actuati
 the body, torque-free. Checked against finite differences (the Newton Jacobian, the node
 velocities), the full space (a complete basis reproduces FullSpaceModel with body-following
 actuation, to the step's first-order error), the linear model (they agree to second order in
-the amplitude), and the invariants: angular momentum, the centre of mass's fall, rotation
-equivariance, the rotation's composition."""
+the amplitude; a dropped block lands on the same path), the invariants (angular momentum, the
+centre of mass's fall, rotation equivariance in air, water and walking, the rotation's
+composition), and the envs. The incline, contact-condition and drop-and-bounce tests of
+test_reduced.py and test_solver.py run in both frames."""
 
 import numpy as np
 import pytest
@@ -394,6 +396,12 @@ def test_the_swimmer_env_runs_in_the_floating_frame():
     twin = copy.deepcopy(base)
     assert twin.model.frame == "floating"
     env.close()
+    vec = gym.make_vec("softrom_gym/CrossSwim-v0", num_envs=2, frame="floating")
+    assert vec.unwrapped.env.model.frame == "floating"
+    vec.reset(seed=0)
+    obs, *_ = vec.step(vec.action_space.sample())
+    assert obs.shape == (2, base.observation_space.shape[0]) and np.isfinite(obs).all()
+    vec.close()
 
 
 def test_a_walker_turned_about_the_vertical_walks_the_turned_path():

@@ -40,10 +40,9 @@ FloatingCoefficients FloatingCoefficients::build(const VecX& rest, const VecX& m
   return co;
 }
 
-void FloatingBody::evaluate(const FloatingCoefficients& co, const VecX& z) {
+void FloatingBody::evaluate(const FloatingCoefficients& co, const Eigen::Ref<const VecX>& z) {
   // C_ab z (M each): J's quadratic term is z . C_ab z, and dJ_ab/dz = A_ab + A_ba + C_ab z +
   // C_ba z (C_ab^T = C_ba).
-  std::array<VecX, 9> cz;
   for (int p = 0; p < 9; ++p) cz[p].noalias() = co.c[p] * z;
   Mat3 j;
   for (int a = 0; a < 3; ++a)
@@ -56,7 +55,12 @@ void FloatingBody::evaluate(const FloatingCoefficients& co, const VecX& z) {
   j = 0.5 * (j + j.transpose()).eval();
   inertia = j.trace() * Mat3::Identity() - j;
   s.resize(3, z.size());
-  for (int a = 0; a < 3; ++a) s.row(a) = (co.s0[a] + co.y[a].transpose() * z).transpose();
+  for (int a = 0; a < 3; ++a) {
+    // (Into a contiguous vector first: a product into s's strided row is evaluated into a
+    // heap temporary, and a rollout's steps allocate nothing.)
+    sz.noalias() = co.y[a].transpose() * z;
+    s.row(a) = (sz + co.s0[a]).transpose();
+  }
 }
 
 Mat3 rotation_matrix(const Vec3& theta) {

@@ -41,8 +41,10 @@ struct FloatingBody {
   Mat3 inertia;                                 // I(z)
   Eigen::Matrix<double, 3, Eigen::Dynamic> s;   // S(z), 3 x M
   std::array<VecX, 9> d;                        // d[3a+b][k] = dJ_ab / dz_k (D_k, symmetric)
+  std::array<VecX, 9> cz;                       // scratch: C_ab z (evaluate's) ...
+  VecX sz;                                      // ... and Y_a^T z
 
-  void evaluate(const FloatingCoefficients& co, const VecX& z);
+  void evaluate(const FloatingCoefficients& co, const Eigen::Ref<const VecX>& z);
   double trace_d(Eigen::Index k) const { return d[0][k] + d[4][k] + d[8][k]; }
   // dI/dz_k applied to a 3-vector: tr(D_k) v - D_k v.
   Vec3 d_inertia(Eigen::Index k, const Vec3& v) const {

@@ -25,13 +25,18 @@ void ReducedModel::drag(const ReducedConfig& cfg, const VecX& q, const VecX& qdo
 
 void ReducedModel::drag_on_surface(const ReducedConfig& cfg, const VecX& xs, const VecX& vs,
                                    const FaceColumn& column, VecX& f, MatX* jac, MatX& w,
-                                   Eigen::Index& cols) const {
+                                   Eigen::Index& cols, VecX* coef_scratch,
+                                   VecX* speed_scratch) const {
   const Eigen::Index m = basis_cols_;
   const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
   const double c = 0.5 * cfg.fluid_density * cfg.drag_coefficient;
   // Columns w_f = U_t^T n of the faces advancing into the fluid, scaled for one rank update.
   if (w.rows() != m || w.cols() < nf) w.resize(m, nf);
-  VecX coef(nf), speed(nf);
+  VecX own_coef, own_speed;
+  VecX& coef = coef_scratch ? *coef_scratch : own_coef;
+  VecX& speed = speed_scratch ? *speed_scratch : own_speed;
+  coef.resize(nf);
+  speed.resize(nf);
   Eigen::Index n_adv = 0;
   for (Eigen::Index t = 0; t < nf; ++t) {
     const auto& tri = faces_[t];
@@ -52,8 +57,11 @@ void ReducedModel::drag_on_surface(const ReducedConfig& cfg, const VecX& xs, con
     speed[n_adv] = vn;
     ++n_adv;
   }
-  // f = -sum ca vn^2 w,  df/dv = -sum 2 ca vn w w^T.
-  f.noalias() = -(w.leftCols(n_adv) * coef.head(n_adv).cwiseProduct(speed.head(n_adv)));
+  // f = -sum ca vn^2 w,  df/dv = -sum 2 ca vn w w^T. (ca vn^2 into speed first: a product
+  // with an expression operand would be evaluated into a heap temporary.)
+  speed.head(n_adv) = coef.head(n_adv).cwiseProduct(speed.head(n_adv));
+  f.noalias() = w.leftCols(n_adv) * speed.head(n_adv);
+  f = -f;
   for (Eigen::Index t = 0; t < n_adv; ++t) w.col(t) *= std::sqrt(2.0 * coef[t]);
   cols = n_adv;
   if (jac != nullptr) drag_jacobian(w, cols, *jac);

@@ -77,20 +77,29 @@ void ReducedModel::floating_drag(const ReducedConfig& cfg, const ReducedState& s
   // linear model's face rows): no rows are formed.
   const Eigen::Index nd = deformation_dim();
   floating_node_velocities(s.q, s.qdot, ws.fl_vs, ws);
-  const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
-  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
-  const VecX& r = ws.fl_rs;
-  const FaceColumn column = [&](Eigen::Index t, const Vec3& n, Eigen::Ref<VecX> out) {
-    const auto& f = faces_[t];
-    const Vec3 n_b = rot.transpose() * n;
+  struct Context {
+    const ReducedModel& model;
+    Mat3 rot;
+    double inv_sqrt_m;
+    const VecX& r;
+    Eigen::Index nd;
+  };
+  const Context ctx{*this, rotation_matrix(s.q.segment<3>(3)), 1.0 / std::sqrt(total_mass_),
+                    ws.fl_rs, nd};
+  // (One reference captured: std::function keeps it without allocating.)
+  const FaceColumn column = [&ctx](Eigen::Index t, const Vec3& n, Eigen::Ref<VecX> out) {
+    const auto& f = ctx.model.faces_[t];
+    const Vec3 n_b = ctx.rot.transpose() * n;
+    const VecX& r = ctx.r;
     const Vec3 centroid =
         (r.segment<3>(3 * f[0]) + r.segment<3>(3 * f[1]) + r.segment<3>(3 * f[2])) / 3.0;
-    out.head<3>() = inv_sqrt_m * n;
+    out.head<3>() = ctx.inv_sqrt_m * n;
     out.segment<3>(3) = centroid.cross(n_b);
-    out.tail(nd).noalias() = face_rows_.block(3 * t, kRigid, 3, nd).transpose() * n_b;
+    out.tail(ctx.nd).noalias() =
+        ctx.model.face_rows_.block(3 * t, kRigid, 3, ctx.nd).transpose() * n_b;
   };
   drag_on_surface(cfg, ws.fl_xs, ws.fl_vs, column, ws.f_drag, &ws.j_drag, ws.drag_w,
-                  ws.drag_cols);
+                  ws.drag_cols, &ws.drag_coef, &ws.fl_speed);
 }
 
 void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s,
@@ -114,8 +123,9 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
   // The drag, linearised in the new velocities about the step's start: F + J_d (x - qdot_n).
   VecX& load = ws.fl_load;
   if (swim) {
+    ws.fl_dv = x - s.qdot;
     load = ws.f_drag;
-    load.noalias() += ws.j_drag * (x - s.qdot);
+    load.noalias() += ws.j_drag * ws.fl_dv;
   } else {
     load.setZero(m);
   }
@@ -156,14 +166,20 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
   const bool actuated = f.size() == nd && f.any();
   const Mat3 inertia_inv = body.inertia.inverse();
   Vec3 torque_free = Vec3::Zero();  // a
+  // (Products into their destinations, never inside a larger expression: Eigen would
+  // evaluate them into a heap temporary, and a rollout's steps allocate nothing.)
   auto r_w = r.tail(nd);
-  r_w = damp * (body.s.transpose() * om + w) - ws.fl_p0;
+  r_w.noalias() = body.s.transpose() * om;
+  r_w += w;
+  r_w *= damp;
+  r_w -= ws.fl_p0;
   r_w -= h * (g + ws.fl_fe.tail(nd) + load.tail(nd));
   if (cfg.damping_beta > 0.0)
     r_w.noalias() += (h * cfg.damping_beta) * (k_rest_.bottomRightCorner(nd, nd) * w);
   if (actuated) {
     torque_free = inertia_inv * (body.s * f);
-    r_w -= h * (f - body.s.transpose() * torque_free);
+    ws.fl_tmp.noalias() = body.s.transpose() * torque_free;
+    r_w -= h * (f - ws.fl_tmp);
   }
   if (!jacobian) return;
 
@@ -197,19 +213,23 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
     // d Q_a / dz_k = -[dS_k^T a + S^T I^-1 (dS_k f - dI_k a)], (dS_k f)_a = (Y_a f)_k,
     // (dS_k^T a)_l = (sum_b a_b Y_b)_(k, l).
     const Vec3& a = torque_free;
-    std::array<VecX, 3> yf;
+    std::array<VecX, 3>& yf = ws.fl_yf;
     for (int b = 0; b < 3; ++b) yf[b].noalias() = co.y[b] * f;
-    const MatX ya = a[0] * co.y[0] + a[1] * co.y[1] + a[2] * co.y[2];
-    const MatX sti = body.s.transpose() * inertia_inv;  // M x 3
+    MatX& ya = ws.fl_ya;
+    ya = a[0] * co.y[0] + a[1] * co.y[1] + a[2] * co.y[2];
+    MatX& sti = ws.fl_sti;
+    sti.noalias() = body.s.transpose() * inertia_inv;  // M x 3
     for (Eigen::Index k = 0; k < nd; ++k) {
       const Vec3 inner = Vec3(yf[0][k], yf[1][k], yf[2][k]) - body.d_inertia(k, a);
       // r_w has -h Q_a, so + h^2 (dS_k^T a + S^T I^-1 inner) in column k.
-      jww.col(k) += (h * h) * (ya.row(k).transpose() + sti * inner);
+      jww.col(k) += (h * h) * ya.row(k).transpose();
+      jww.col(k).noalias() += (h * h) * (sti * inner);
     }
   }
   if (swim) {  // the drag's rows: -h J_d, the rotation's turned back by exp(-h omega')
     jac.topRows<3>() -= h * ws.j_drag.topRows<3>();
-    jac.middleRows<3>(3) -= (h * row_scale) * (turn_back * ws.j_drag.middleRows<3>(3));
+    ws.fl_turned_drag.noalias() = turn_back * ws.j_drag.middleRows<3>(3);
+    jac.middleRows<3>(3) -= (h * row_scale) * ws.fl_turned_drag;
     jac.bottomRows(nd) -= h * ws.j_drag.bottomRows(nd);
   }
 }
@@ -224,7 +244,8 @@ static Vec3 floating_start(const FloatingCoefficients& co, const StepInputs& in,
   const Vec3 om0 = s.qdot.segment<3>(3);
   const auto w0 = s.qdot.tail(nd);
   ws.fl_body.evaluate(co, s.q.tail(nd));
-  ws.fl_p0 = ws.fl_body.s.transpose() * om0 + w0;
+  ws.fl_p0.noalias() = ws.fl_body.s.transpose() * om0;
+  ws.fl_p0 += w0;
   return ws.fl_body.inertia * om0 + ws.fl_body.s * w0;
 }
 
@@ -267,7 +288,8 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
     floating_residual(in, s, pi0, x, true, ws);
     ++info.stiffness_evaluations;
     ws.fl_lu.compute(ws.fl_jac);
-    dx = -ws.fl_lu.solve(ws.fl_r);
+    dx = ws.fl_lu.solve(ws.fl_r);
+    dx = -dx;
     info.newton_iterations = it + 1;
     if (!dx.allFinite()) {
       info.diverged = true;

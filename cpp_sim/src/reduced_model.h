@@ -204,7 +204,10 @@ struct Workspace {
   VecX fl_x, fl_trial, fl_r, fl_dx, fl_z, fl_qe, fl_fe, fl_fa, fl_p0, fl_g, fl_q, fl_load;
   // Its drag at the step's start (floating_drag): the surface nodes' world positions and
   // velocities and their velocity rows at q, and the faces' rows.
-  VecX fl_xs, fl_vs, fl_rs, fl_uw;
+  VecX fl_xs, fl_vs, fl_rs, fl_uw, fl_speed, fl_tmp, fl_dv;
+  std::array<VecX, 3> fl_yf;  // the actuation's Jacobian: Y_a f, sum a_b Y_b, S^T I^-1
+  MatX fl_ya, fl_sti;
+  Eigen::Matrix<double, 3, Eigen::Dynamic> fl_turned_drag;  // exp(-h omega') J_d's torque rows
   RowMatX fl_rows;
   std::array<VecX, 3> fl_yw;
   MatX fl_jac, fl_k, fl_e;
@@ -391,9 +394,11 @@ class ReducedModel {
   // times its unit normal n, the generalised direction of a force along n: drag() from the
   // basis's constant rows, the floating frame from the body's rows at q.
   using FaceColumn = std::function<void(Eigen::Index, const Vec3&, Eigen::Ref<VecX>)>;
+  // coef_scratch, speed_scratch: buffers it may keep (a workspace's), else its own.
   void drag_on_surface(const ReducedConfig& cfg, const VecX& xs, const VecX& vs,
                        const FaceColumn& column, VecX& f, MatX* jac, MatX& w,
-                       Eigen::Index& cols) const;
+                       Eigen::Index& cols, VecX* coef_scratch = nullptr,
+                       VecX* speed_scratch = nullptr) const;
   // The same into ws.f_drag, ws.drag_w (rows padded to a multiple of 4) and ws.drag_cols,
   // through the dense kernels (fast solver).
   void drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, Workspace& ws) const;
