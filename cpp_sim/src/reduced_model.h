@@ -199,19 +199,23 @@ struct Workspace {
   VecX ground_z, ground_vn;
   bool ground_rows_ready = false;
   // The floating frame's Newton iteration (reduced_floating.cpp): the body's inertia and
-  // coupling at the iterate, its iterate x = (omega, w), residual, Jacobian and step.
+  // coupling at the iterate, its iterate x = (u, omega, w), residual, Jacobian and step, and
+  // the terms they are built from (fl_yw: dS/dz_k w; fl_yf, fl_ya, fl_sti: the actuation's
+  // Jacobian, Y_a f, sum_b a_b Y_b and S^T I^-1; fl_turned_drag: exp(-h omega') times J_d's
+  // torque rows).
   FloatingBody fl_body;
   VecX fl_x, fl_trial, fl_r, fl_dx, fl_z, fl_qe, fl_fe, fl_fa, fl_p0, fl_g, fl_q, fl_load;
-  // Its drag at the step's start (floating_drag): the surface nodes' world positions and
-  // velocities and their velocity rows at q, and the faces' rows.
-  VecX fl_xs, fl_vs, fl_rs, fl_uw, fl_speed, fl_tmp, fl_dv;
-  std::array<VecX, 3> fl_yf;  // the actuation's Jacobian: Y_a f, sum a_b Y_b, S^T I^-1
-  MatX fl_ya, fl_sti;
-  Eigen::Matrix<double, 3, Eigen::Dynamic> fl_turned_drag;  // exp(-h omega') J_d's torque rows
-  RowMatX fl_rows;
-  std::array<VecX, 3> fl_yw;
-  MatX fl_jac, fl_k, fl_e;
+  VecX fl_tmp, fl_dv;
+  std::array<VecX, 3> fl_yw, fl_yf;
+  MatX fl_jac, fl_k, fl_e, fl_ya, fl_sti;
+  Eigen::Matrix<double, 3, Eigen::Dynamic> fl_turned_drag;
   Eigen::PartialPivLU<MatX> fl_lu;
+  // Its surface (floating_surface, floating_node_velocities, floating_drag,
+  // floating_contacts): the surface nodes' body and world positions at the step's start,
+  // their world velocities, U w's scratch, the drag law's buffer, and the contact
+  // candidates' velocity rows.
+  VecX fl_rs, fl_xs, fl_vs, fl_uw, fl_speed;
+  RowMatX fl_rows;
 };
 
 // What one call reads from the model besides its constant data: copied at entry, so a call
@@ -353,20 +357,20 @@ class ReducedModel {
   StepInfo step_floating(const StepInputs& in, ReducedState& s, const double* fc,
                          Workspace& ws) const;
   // The floating frame's residual at x = (u', omega', w') into ws.fl_r, and with `jacobian`
-  // its Jacobian into ws.fl_jac (the file's comment has the equations); the drag at the
-  // step's start into ws.f_drag, ws.j_drag (floating_drag).
+  // its Jacobian into ws.fl_jac (the file's comment has the equations).
+  void floating_residual(const StepInputs& in, const ReducedState& s, const Vec3& pi0,
+                         const VecX& x, bool jacobian, Workspace& ws) const;
   // The surface nodes' body positions r_i (ws.fl_rs) and world positions (ws.fl_xs) at q; the
   // drag and the contact solve start from them. floating_node_velocities: their world
   // velocities at (q, qdot) into out (3 n_s; ws.fl_uw is scratch).
   void floating_surface(const VecX& q, Workspace& ws) const;
   void floating_node_velocities(const VecX& q, const VecX& qdot, VecX& out, Workspace& ws) const;
+  // The drag at the step's start into ws.f_drag, ws.j_drag (after floating_surface).
   void floating_drag(const ReducedConfig& cfg, const ReducedState& s, Workspace& ws) const;
   // The floating frame's staggered projection of v (in: contact-free, out: projected) with
   // the surface rows at s.q; returns the staggers (ws.impulses_next gets the impulses).
   int floating_contacts(const StepInputs& in, const ReducedState& s, VecX& v, VecX& impulses,
                         Workspace& ws, StepInfo& info) const;
-  void floating_residual(const StepInputs& in, const ReducedState& s, const Vec3& pi0,
-                         const VecX& x, bool jacobian, Workspace& ws) const;
   void external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const;
   void step_loads(const StepInputs& in, const ReducedState& s, const double* fc, bool jacobian,
                   Workspace& ws, StepInfo& info) const;
