@@ -18,7 +18,6 @@ Workspace::~Workspace() = default;
 int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                                  const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses,
                                  Workspace& ws, StepInfo& info) const {
-  const int ns = static_cast<int>(surface_nodes_.size());
   // Candidate rows: every surface node on or near the ground, or reaching it within two steps.
   if (!ws.ground_rows_ready) {  // near_ground has not formed them for this q and v
     ws.ground_z.noalias() = normal_rows_ * q;
@@ -27,23 +26,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   ws.ground_rows_ready = false;
   const VecX& z_all = ws.ground_z;
   const VecX& vn_all = ws.ground_vn;
-  std::vector<int>& active = ws.contact_active;
-  std::vector<double>& gap = ws.contact_gap;
-  active.clear();
-  gap.clear();
-  for (int c = 0; c < ns; ++c) {
-    const double z = ground_gap(cfg, c, z_all[c]);
-    if (contact_candidate(cfg, z, vn_all[c])) {
-      active.push_back(c);
-      gap.push_back(z);
-    }
-  }
-  const int k = static_cast<int>(active.size());
-  info.active_rows = k;
-  if (k == 0) {
-    impulses.setZero();
-    return 0;
-  }
+  const auto gap_of = [&](int c) { return ground_gap(cfg, c, z_all[c]); };
+  const auto vn_of = [&](int c) { return vn_all[c]; };
+  if (pick_candidates(cfg, gap_of, vn_of, impulses, ws, info) == 0) return 0;
+  const std::vector<int>& active = ws.contact_active;
+  const std::vector<double>& gap = ws.contact_gap;
   if (!ws.contact) ws.contact = std::make_unique<StaggeredProjection>();
   return ws.contact->solve(cfg, surface_rows_, active, gap, a, a_llt, v, impulses, ws.nnls, info);
 }

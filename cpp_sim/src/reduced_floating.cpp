@@ -365,23 +365,11 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   // Candidates as the linear model's: within the margin, or reaching the ground in two steps
   // at their normal velocity under v (the nodes at the step's start, floating_surface's).
   floating_node_velocities(s.q, v, ws.fl_vs, ws);
-  std::vector<int>& active = ws.contact_active;
-  std::vector<double>& gap = ws.contact_gap;
-  active.clear();
-  gap.clear();
-  for (Eigen::Index c = 0; c < ns; ++c) {
-    const double z = ws.fl_xs[3 * c + 2] - cfg.ground_height;
-    if (contact_candidate(cfg, z, ws.fl_vs[3 * c + 2])) {
-      active.push_back(static_cast<int>(c));
-      gap.push_back(z);
-    }
-  }
-  const int k = static_cast<int>(active.size());
-  info.active_rows = k;
-  if (k == 0) {
-    impulses.setZero();
-    return 0;
-  }
+  const auto gap_of = [&](int c) { return ws.fl_xs[3 * c + 2] - cfg.ground_height; };
+  const auto vn_of = [&](int c) { return ws.fl_vs[3 * c + 2]; };
+  if (pick_candidates(cfg, gap_of, vn_of, impulses, ws, info) == 0) return 0;
+  const std::vector<int>& active = ws.contact_active;
+  const std::vector<double>& gap = ws.contact_gap;
   // The candidates' velocity rows [I / sqrt(m), -R [r_c]x, R U_c] (the solve reads only
   // theirs, by surface node id).
   RowMatX& rows = ws.fl_rows;

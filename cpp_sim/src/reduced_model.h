@@ -261,8 +261,10 @@ class ReducedModel {
   // Whether step() takes the fast quasi-Newton path (step_fast), which starts from A_0^-1.
   static bool uses_fast_step(const ReducedConfig& cfg) {
     // Penalty contact is not a potential force (damping, friction), so it keeps the Newton
-    // solve on the residual; it still gets the fast kernels when solver = fast.
-    return cfg.solver == Solver::Fast && cfg.contact != ContactModel::Penalty;
+    // solve on the residual; it still gets the fast kernels when solver = fast. The floating
+    // frame has its own step (step_floating), which does not start from A_0.
+    return cfg.frame == Frame::Linear && cfg.solver == Solver::Fast &&
+           cfg.contact != ContactModel::Penalty;
   }
 
   ReducedState rest_state() const;
@@ -388,6 +390,28 @@ class ReducedModel {
   // margin of the ground, or that would reach it within two steps at its normal velocity v_n.
   static bool contact_candidate(const ReducedConfig& cfg, double gap, double v_n) {
     return gap + 2.0 * cfg.dt * std::min(v_n, 0.0) < cfg.contact_margin;
+  }
+  // The step's contact candidates (contact_candidate) into ws.contact_active (surface node
+  // ids) and ws.contact_gap, from gap_of(c) and vn_of(c), surface node c's height above the
+  // ground and normal velocity; returns their count (info.active_rows), and with none clears
+  // `impulses`. Both frames' contact solves start here.
+  template <class Gap, class NormalVelocity>
+  int pick_candidates(const ReducedConfig& cfg, Gap gap_of, NormalVelocity vn_of,
+                      VecX& impulses, Workspace& ws, StepInfo& info) const {
+    std::vector<int>& active = ws.contact_active;
+    std::vector<double>& gap = ws.contact_gap;
+    active.clear();
+    gap.clear();
+    for (int c = 0; c < num_surface_nodes(); ++c) {
+      const double z = gap_of(c);
+      if (contact_candidate(cfg, z, vn_of(c))) {
+        active.push_back(c);
+        gap.push_back(z);
+      }
+    }
+    info.active_rows = static_cast<int>(active.size());
+    if (active.empty()) impulses.setZero();
+    return info.active_rows;
   }
   // Drag at (q, qdot): the force f, the factor W of its Jacobian J_d = -W W^T (columns
   // 0..cols-1 of w), and J_d itself when jac is not null.
