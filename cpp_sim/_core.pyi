@@ -343,7 +343,7 @@ class ReducedModel:
     @property
     def frame(self) -> typing.Any:
         """
-        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; contact='staggered' or 'none', not the penalty ground; exact Newton whatever `solver`, which picks the elastic kernels)
+        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; contact='staggered' or 'none', not the penalty ground; solver='fast' freezes the Newton matrix's stiffness at K_0, 'reference' is exact Newton)
         """
     @frame.setter
     def frame(self, arg1: typing.Any) -> None:
@@ -549,7 +549,7 @@ class ReducedConfig:
     @property
     def frame(self) -> typing.Any:
         """
-        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; contact='staggered' or 'none', not the penalty ground; exact Newton whatever `solver`, which picks the elastic kernels)
+        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; contact='staggered' or 'none', not the penalty ground; solver='fast' freezes the Newton matrix's stiffness at K_0, 'reference' is exact Newton)
         """
     @frame.setter
     def frame(self, arg1: typing.Any) -> None:

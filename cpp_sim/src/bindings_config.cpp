@@ -175,7 +175,8 @@ const std::vector<Setting>& settings() {
        "U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = "
        "(sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free "
        "flight keeps the angular momentum; contact='staggered' or 'none', not the penalty "
-       "ground; exact Newton whatever `solver`, which picks the elastic kernels)"},
+       "ground; solver='fast' freezes the Newton matrix's stiffness at K_0, 'reference' is "
+       "exact Newton)"},
   };
   return table;
 }

@@ -24,10 +24,18 @@
 // surface where it is at the step's start, linearised in the new velocities (u', omega', w')
 // as the linear model's is: its generalised force is B(q)^T F with B(q) the velocity rows
 // [I / sqrt(m), -R [r_i]x, R U_i] of the surface nodes at q (floating_drag).
+//
+// The solve (step_floating) is Newton on (u', omega', w') with a backtracking line search on
+// |r|. solver = reference evaluates K(z') at every iterate; solver = fast keeps every other
+// term of the Jacobian exact (O(M^2) each) and freezes K at K_0, evaluating K(z') only on a
+// stall and, for the contact metric, once at the end of a step with contact candidates: on the
+// swimmer that is no stiffness evaluation at all.
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <limits>
 
+#include "dense_kernels.h"
 #include "reduced_model.h"
 #include "staggered_projection.h"
 
@@ -71,6 +79,10 @@ void ReducedModel::floating_node_velocities(const VecX& q, const VecX& qdot, Vec
 
 void ReducedModel::floating_drag(const ReducedConfig& cfg, const ReducedState& s,
                                  Workspace& ws) const {
+  if (cfg.solver == Solver::Fast) {
+    floating_drag_fast(cfg, s, ws);
+    return;
+  }
   // The surface's velocity rows at q are B_i = [I / sqrt(m), -R [r_i]x, R U_i], so a face's
   // column (the mean of its nodes' B_i^T n) is [n / sqrt(m); r_f x n_b; U_f^T n_b], with
   // n_b = R^T n, r_f the face's body centroid and U_f the mean of its nodes' rows of U (the
@@ -102,9 +114,104 @@ void ReducedModel::floating_drag(const ReducedConfig& cfg, const ReducedState& s
                   ws.drag_cols, &ws.drag_coef, &ws.fl_speed);
 }
 
+void ReducedModel::floating_stiffness(const ReducedConfig& cfg, const ReducedState& s,
+                                      const VecX& x, Workspace& ws) const {
+  const Eigen::Index nd = deformation_dim();
+  // (The cubature's kernels on q_e = (0, 0, 0, z'), as floating_residual's force.)
+  ws.fl_qe.setZero(nd + 3);
+  ws.fl_qe.tail(nd) = s.q.tail(nd) + cfg.dt * x.tail(nd);
+  if (cfg.solver == Solver::Fast)
+    elastic_stiffness_fast(ws.fl_qe, ws.fl_k, ws);
+  else
+    elastic_reference(ws.fl_qe, false, nullptr, nullptr, &ws.fl_k);
+}
+
+void ReducedModel::floating_drag_fast(const ReducedConfig& cfg, const ReducedState& s,
+                                      Workspace& ws) const {
+  // floating_drag's law and columns, the way drag_fast forms the linear model's: in the
+  // body frame (a face's normal speed and its columns' deformation rows U_f^T n_b do not
+  // depend on R), scalar corner arithmetic, and W's columns from the faces' padded rows by
+  // combine_row_triples, whose first six rows (the linear basis's rigid columns) are then
+  // replaced by the floating frame's [R n_b / sqrt(m); r_f x n_b].
+  const Eigen::Index nd = deformation_dim(), m = basis_cols_, mp = face_rows_pad_.cols();
+  const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
+  const Eigen::Index ns = num_surface_nodes();
+  const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
+  const Vec3 om = s.qdot.segment<3>(3);
+  const Vec3 u_body = rot.transpose() * (s.qdot.head<3>() / std::sqrt(total_mass_));
+  // Body-frame node velocities R^T u + omega x r_i + U_i w (r_i: floating_surface's).
+  VecX& vb = ws.fl_vs;
+  vb.resize(3 * ns);
+  ws.fl_uw.noalias() = surface_rows_.rightCols(nd) * s.qdot.tail(nd);
+  for (Eigen::Index i = 0; i < ns; ++i)
+    vb.segment<3>(3 * i) =
+        u_body + om.cross(ws.fl_rs.segment<3>(3 * i)) + ws.fl_uw.segment<3>(3 * i);
+  const double c_third = 0.5 * cfg.fluid_density * cfg.drag_coefficient / 3.0;
+  MatX& w = ws.drag_w;
+  if (w.rows() != mp || w.cols() < nf) w.resize(mp, nf);
+  VecX& coef = ws.drag_coef;
+  coef.resize(nf);
+  ws.drag_faces.resize(nf);
+  ws.drag_normals.resize(3 * nf);
+  Eigen::Index n_adv = 0;
+  const double* x = ws.fl_rs.data();
+  const double* v = vb.data();
+  for (Eigen::Index t = 0; t < nf; ++t) {
+    // (drag_fast's arithmetic: the scale sqrt(2 c A vn) over |n| is sqrt(c nv / (3 |n|^2)).)
+    const std::ptrdiff_t* corner = face_corners_.data() + 3 * t;
+    const double* pa = x + corner[0];
+    const double* pb = x + corner[1];
+    const double* pd = x + corner[2];
+    const double e0 = pb[0] - pa[0], e1 = pb[1] - pa[1], e2 = pb[2] - pa[2];
+    const double g0 = pd[0] - pa[0], g1 = pd[1] - pa[1], g2 = pd[2] - pa[2];
+    const double n0 = e1 * g2 - e2 * g1, n1 = e2 * g0 - e0 * g2, n2 = e0 * g1 - e1 * g0;
+    const double* ua = v + corner[0];
+    const double* ub = v + corner[1];
+    const double* ud = v + corner[2];
+    const double nv = n0 * (ua[0] + ub[0] + ud[0]) + n1 * (ua[1] + ub[1] + ud[1]) +
+                      n2 * (ua[2] + ub[2] + ud[2]);
+    if (nv <= 0.0) continue;  // receding, or degenerate (n = 0); NaN goes on, to be caught
+    const double scale = std::sqrt(c_third * nv / (n0 * n0 + n1 * n1 + n2 * n2));
+    double* n = ws.drag_normals.data() + 3 * n_adv;
+    n[0] = n0 * scale;
+    n[1] = n1 * scale;
+    n[2] = n2 * scale;
+    coef[n_adv] = nv * scale * (1.0 / 6.0);
+    ws.drag_faces[n_adv] = t;
+    ++n_adv;
+  }
+  kernels::combine_row_triples(face_rows_pad_.data(), mp, ws.drag_faces.data(),
+                               ws.drag_normals.data(), n_adv, w.data(), mp);
+  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
+  for (Eigen::Index i = 0; i < n_adv; ++i) {
+    const Vec3 n_b = Eigen::Map<const Vec3>(ws.drag_normals.data() + 3 * i);
+    const std::ptrdiff_t* corner = face_corners_.data() + 3 * ws.drag_faces[i];
+    const Vec3 centroid = (Eigen::Map<const Vec3>(x + corner[0]) +
+                           Eigen::Map<const Vec3>(x + corner[1]) +
+                           Eigen::Map<const Vec3>(x + corner[2])) /
+                          3.0;
+    w.col(i).head<3>() = inv_sqrt_m * (rot * n_b);
+    w.col(i).segment<3>(3) = centroid.cross(n_b);
+  }
+  ws.drag_pad.resize(mp);
+  kernels::cols_times(w.data(), mp, n_adv, coef.data(), ws.drag_pad.data());
+  ws.f_drag = -ws.drag_pad.head(m);
+  ws.drag_cols = n_adv;
+  // J_d = -W W^T, every step (the Newton matrix holds it), by the Gram kernel: W's columns
+  // are the kernel's rows. Eigen's rank update took 3x the time (it runs on the build's
+  // baseline SSE2; the kernels dispatch to AVX2 + FMA at run time).
+  MatX& gram = ws.fl_gram;
+  gram.resize(mp, mp);
+  kernels::gram_lower(w.data(), w.data(), n_adv, mp, gram.data());
+  MatX& jac = ws.j_drag;
+  jac.resize(m, m);
+  for (Eigen::Index j = 0; j < m; ++j)
+    for (Eigen::Index i = j; i < m; ++i) jac(i, j) = jac(j, i) = -gram(i, j);
+}
+
 void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s,
                                      const Vec3& pi0, const VecX& x, bool jacobian,
-                                     Workspace& ws) const {
+                                     const MatX* stiffness, Workspace& ws) const {
   const ReducedConfig& cfg = in.config;
   const FloatingCoefficients& co = floating_;
   const Eigen::Index nd = deformation_dim(), m = basis_cols_;
@@ -134,12 +241,14 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
   // (0, 0, 0, z'), the rotation columns held at zero (the frame carries the rotation).
   ws.fl_qe.setZero(nd + 3);
   ws.fl_qe.tail(nd) = ws.fl_z;
+  const bool evaluate_k = jacobian && stiffness == nullptr;
   if (cfg.solver == Solver::Fast) {
     elastic_energy_force(ws.fl_qe, ws.fl_fe, ws);
-    if (jacobian) elastic_stiffness_fast(ws.fl_qe, ws.fl_k, ws);
+    if (evaluate_k) elastic_stiffness_fast(ws.fl_qe, ws.fl_k, ws);
   } else {
-    elastic_reference(ws.fl_qe, false, nullptr, &ws.fl_fe, jacobian ? &ws.fl_k : nullptr);
+    elastic_reference(ws.fl_qe, false, nullptr, &ws.fl_fe, evaluate_k ? &ws.fl_k : nullptr);
   }
+  const MatX& k_el = evaluate_k ? ws.fl_k : *stiffness;
 
   for (int a = 0; a < 3; ++a) ws.fl_yw[a].noalias() = co.y[a] * w;  // (dS/dz_k w)_a
   const Vec3 pi = body.inertia * om + body.s * w;
@@ -207,7 +316,7 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
     jww.noalias() -= (h * h * om2) * co.c[4 * a];
     for (int b = 0; b < 3; ++b) jww.noalias() += (h * h * om[a] * om[b]) * co.c[3 * a + b];
   }
-  jww.noalias() += (h * h) * ws.fl_k.bottomRightCorner(nd, nd);
+  jww.noalias() += (h * h) * k_el.bottomRightCorner(nd, nd);
   if (cfg.damping_beta > 0.0) jww += (h * cfg.damping_beta) * k_rest_.bottomRightCorner(nd, nd);
   if (actuated) {
     // d Q_a / dz_k = -[dS_k^T a + S^T I^-1 (dS_k f - dI_k a)], (dS_k f)_a = (Y_a f)_k,
@@ -257,7 +366,7 @@ void ReducedModel::floating_residual_for_tests(const StepInputs& in, const Reduc
     floating_surface(s.q, ws);
     floating_drag(in.config, s, ws);
   }
-  floating_residual(in, s, pi0, x, true, ws);
+  floating_residual(in, s, pi0, x, true, nullptr, ws);
   residual = ws.fl_r;
   jacobian = ws.fl_jac;
 }
@@ -279,14 +388,27 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
   ScopedTimer timer(cfg.profile ? &info.time_dynamics : nullptr);
   const Vec3 pi0 = floating_start(floating_, in, s, fc, nd, ws);
 
+  // solver = reference: Newton, the stiffness K(z') evaluated at every iterate. solver =
+  // fast: the same Jacobian with K frozen at K_0 (every other term of it is O(M^2) and kept
+  // exact), so an iteration evaluates forces only; like the linear fast step, K(z') at the
+  // iterate replaces it when the iteration stalls (a step no smaller than half the last). The rotation
+  // rows hold no stiffness, so they are solved exactly whatever K: R Pi is kept to the square
+  // of the final step, as by exact Newton.
+  const bool exact = cfg.solver == Solver::Reference;
+  const MatX* frozen = exact ? nullptr : &k_rest_;
   VecX& x = ws.fl_x;
   VecX& dx = ws.fl_dx;
   x = s.qdot;
   info.converged = false;
   info.stiffness_evaluations = 0;
+  double prev_norm = std::numeric_limits<double>::infinity();
+  // The fast solver's full step is tried with the (cheap, K-frozen) Jacobian: when it is
+  // taken, as it nearly always is, the next iteration starts from that residual and Jacobian.
+  bool evaluated_at_x = false;
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
-    floating_residual(in, s, pi0, x, true, ws);
-    ++info.stiffness_evaluations;
+    if (!evaluated_at_x) floating_residual(in, s, pi0, x, true, frozen, ws);
+    evaluated_at_x = false;
+    if (exact) ++info.stiffness_evaluations;
     ws.fl_lu.compute(ws.fl_jac);
     dx = ws.fl_lu.solve(ws.fl_r);
     dx = -dx;
@@ -297,25 +419,51 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
     }
     // As the linear step's test, max |dv| / sqrt(m) in m/s, omega's change times the body's
     // radius of gyration.
-    const double step_norm =
-        std::max({dx.head<3>().cwiseAbs().maxCoeff() / sqrt_m,
-                  dx.segment<3>(3).cwiseAbs().maxCoeff() * floating_.gyration,
-                  dx.tail(nd).cwiseAbs().maxCoeff() / sqrt_m});
+    auto norm_of = [&](const VecX& d) {
+      return std::max({d.head<3>().cwiseAbs().maxCoeff() / sqrt_m,
+                       d.segment<3>(3).cwiseAbs().maxCoeff() * floating_.gyration,
+                       d.tail(nd).cwiseAbs().maxCoeff() / sqrt_m});
+    };
+    double step_norm = norm_of(dx);
     if (step_norm < cfg.newton_tolerance) {
       x += dx;
       info.converged = true;
       break;
     }
+    if (!exact && it >= 1 && step_norm > 0.5 * prev_norm) {
+      // The frozen K too far from K(z') for a useful rate: the stiffness at this iterate,
+      // kept (at worst every iteration, which is exact Newton).
+      floating_stiffness(cfg, s, x, ws);
+      ++info.stiffness_evaluations;
+      frozen = &ws.fl_k;
+      floating_residual(in, s, pi0, x, true, frozen, ws);
+      ws.fl_lu.compute(ws.fl_jac);
+      dx = ws.fl_lu.solve(ws.fl_r);
+      dx = -dx;
+      if (!dx.allFinite()) {
+        info.diverged = true;
+        return info;
+      }
+      step_norm = norm_of(dx);
+    }
+    prev_norm = step_norm;
     // Backtracking on |r| (the residual is not a gradient: the gyroscopic terms).
     const double r0 = ws.fl_r.norm();
     double t = 1.0;
     for (int ls = 0; ls < 8; ++ls) {
       ws.fl_trial = x + t * dx;
-      floating_residual(in, s, pi0, ws.fl_trial, false, ws);
-      if (ws.fl_r.norm() <= (1.0 - 1e-4 * t) * r0) break;
+      const bool with_jacobian = !exact && ls == 0;
+      floating_residual(in, s, pi0, ws.fl_trial, with_jacobian, frozen, ws);
+      if (ws.fl_r.norm() <= (1.0 - 1e-4 * t) * r0) {
+        evaluated_at_x = with_jacobian;
+        break;
+      }
       t *= 0.5;
     }
-    x += t * dx;
+    if (evaluated_at_x)
+      x.swap(ws.fl_trial);
+    else
+      x += t * dx;
   }
 
   timer.stop();
@@ -323,7 +471,7 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
   VecX& impulses = ws.impulses_next;
   if (staggered) {
     impulses = s.impulses;
-    info.stagger_iterations = floating_contacts(in, s, x, impulses, ws, info);
+    info.stagger_iterations = floating_contacts(in, s, x, impulses, exact, ws, info);
   }
 
   // The new state, into a copy: a diverged step leaves the state as it was.
@@ -358,7 +506,8 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
 }
 
 int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s, VecX& v,
-                                    VecX& impulses, Workspace& ws, StepInfo& info) const {
+                                    VecX& impulses, bool stiffness_at_v, Workspace& ws,
+                                    StepInfo& info) const {
   const ReducedConfig& cfg = in.config;
   const Eigen::Index nd = deformation_dim(), m = basis_cols_;
   const Eigen::Index ns = num_surface_nodes();
@@ -385,7 +534,13 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   // (u: 1, omega: I(z'), the coupling S(z'), w: 1) with the damping, plus h^2 K(z') + h beta
   // K_0 on z and -h J_d: the linear model's Newton matrix with its mass made exact. (The
   // momentum-form Jacobian is not symmetric, and the projection needs a metric.)
-  // K is the last Newton iteration's (ws.fl_k): at z' to within the Newton tolerance.
+  // K is the last Newton iteration's (ws.fl_k): at z' to within the Newton tolerance. The fast
+  // solver's iterations froze K, so it is evaluated here, once, as the linear fast step does
+  // for its metric (which measured the metric's stiffness at the step's end to matter).
+  if (!stiffness_at_v) {
+    floating_stiffness(cfg, s, v, ws);
+    ++info.stiffness_evaluations;
+  }
   const double h = cfg.dt, damp = 1.0 + h * cfg.damping_alpha;
   ws.fl_z = s.q.tail(nd) + h * v.tail(nd);
   FloatingBody& body = ws.fl_body;

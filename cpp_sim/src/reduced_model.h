@@ -215,6 +215,7 @@ struct Workspace {
   // their world velocities, U w's scratch, the drag law's buffer, and the contact
   // candidates' velocity rows.
   VecX fl_rs, fl_xs, fl_vs, fl_uw, fl_speed;
+  MatX fl_gram;  // floating_drag_fast's W W^T (lower triangle)
   RowMatX fl_rows;
 };
 
@@ -355,24 +356,35 @@ class ReducedModel {
   StepInfo step_fast(const StepInputs& in, ReducedState& s, const double* fc,
                      Workspace& ws) const;
   // The floating frame's step (reduced_floating.cpp): Newton on the momentum-form implicit
-  // Euler residual, LU-factored (the gyroscopic terms make it unsymmetric).
+  // Euler residual, LU-factored (the gyroscopic terms make it unsymmetric); exact with solver =
+  // reference, its stiffness frozen at K_0 with solver = fast (the file's comment).
   StepInfo step_floating(const StepInputs& in, ReducedState& s, const double* fc,
                          Workspace& ws) const;
   // The floating frame's residual at x = (u', omega', w') into ws.fl_r, and with `jacobian`
-  // its Jacobian into ws.fl_jac (the file's comment has the equations).
+  // its Jacobian into ws.fl_jac (the file's comment has the equations). The Jacobian's
+  // stiffness is K(z') evaluated at x into ws.fl_k when `stiffness` is null, else that
+  // (elastic_dim square) matrix: the fast solver's frozen K.
   void floating_residual(const StepInputs& in, const ReducedState& s, const Vec3& pi0,
-                         const VecX& x, bool jacobian, Workspace& ws) const;
+                         const VecX& x, bool jacobian, const MatX* stiffness,
+                         Workspace& ws) const;
+  // K(z') at x = (u', omega', w') into ws.fl_k, by the solver's kernels.
+  void floating_stiffness(const ReducedConfig& cfg, const ReducedState& s, const VecX& x,
+                          Workspace& ws) const;
   // The surface nodes' body positions r_i (ws.fl_rs) and world positions (ws.fl_xs) at q; the
   // drag and the contact solve start from them. floating_node_velocities: their world
   // velocities at (q, qdot) into out (3 n_s; ws.fl_uw is scratch).
   void floating_surface(const VecX& q, Workspace& ws) const;
   void floating_node_velocities(const VecX& q, const VecX& qdot, VecX& out, Workspace& ws) const;
   // The drag at the step's start into ws.f_drag, ws.j_drag (after floating_surface).
+  // (With solver = fast by floating_drag_fast: the same sums, rounded differently.)
   void floating_drag(const ReducedConfig& cfg, const ReducedState& s, Workspace& ws) const;
+  void floating_drag_fast(const ReducedConfig& cfg, const ReducedState& s, Workspace& ws) const;
   // The floating frame's staggered projection of v (in: contact-free, out: projected) with
   // the surface rows at s.q; returns the staggers (ws.impulses_next gets the impulses).
+  // `stiffness_at_v`: ws.fl_k holds K(z') at v already, from exact Newton (else it is
+  // evaluated there when a node is a candidate).
   int floating_contacts(const StepInputs& in, const ReducedState& s, VecX& v, VecX& impulses,
-                        Workspace& ws, StepInfo& info) const;
+                        bool stiffness_at_v, Workspace& ws, StepInfo& info) const;
   void external_forces(const StepInputs& in, const double* fc, VecX& f_ext) const;
   void step_loads(const StepInputs& in, const ReducedState& s, const double* fc, bool jacobian,
                   Workspace& ws, StepInfo& info) const;
