@@ -28,6 +28,7 @@ FloatingCoefficients FloatingCoefficients::build(const VecX& rest, const VecX& m
       co.a[3 * a + b] = mua[b].transpose() * xa[a];
       co.c[3 * a + b] = mua[a].transpose() * ua[b];
     }
+  co.c_pair = {co.c[1] + co.c[3], co.c[2] + co.c[6], co.c[5] + co.c[7]};
   // (U_k x U_l)_x = U_yk U_zl - U_zk U_yl, and cyclically; the same for X x U_l.
   for (int a = 0; a < 3; ++a) {
     const int p = (a + 1) % 3, q = (a + 2) % 3;

@@ -27,6 +27,7 @@ struct FloatingCoefficients {
   Mat3 j0 = Mat3::Zero();             // sum m X X^T
   std::array<VecX, 9> a;              // a[3a+b][k] = sum m X_a U_bk
   std::array<Eigen::MatrixXd, 9> c;   // c[3a+b](k, l) = sum m U_ak U_bl   (c[3b+a] = c[3a+b]^T)
+  std::array<Eigen::MatrixXd, 3> c_pair;  // c[3a+b] + c[3b+a] for (a, b) = (0, 1), (0, 2), (1, 2)
   std::array<Eigen::MatrixXd, 3> y;   // y[a](k, l) = (sum m U_k x U_l)_a  (antisymmetric)
   std::array<VecX, 3> s0;             // s0[a][l] = (sum m X x U_l)_a      (0 at a mean-axis basis)
   double gyration = 0.0;  // sqrt(largest eigenvalue of I(0) / m), m: the Newton test's length

@@ -49,12 +49,21 @@ const char* floating_unsupported(const ReducedConfig& cfg) {
   return nullptr;
 }
 
+void ReducedModel::deformation_rows_times(const VecX& a, VecX& out) const {
+  // (The column-major copy of the rows, through the dispatched kernel: Eigen's row-major
+  // product runs on the build's baseline SSE2.)
+  const Eigen::Index rows = surface_cols_.rows();
+  out.resize(rows);
+  kernels::cols_times(surface_cols_.data() + kRigid * rows, rows, deformation_dim(),
+                      a.data() + kRigid, out.data());
+}
+
 void ReducedModel::floating_surface(const VecX& q, Workspace& ws) const {
-  const Eigen::Index nd = deformation_dim(), ns = num_surface_nodes();
+  const Eigen::Index ns = num_surface_nodes();
   const Mat3 rot = rotation_matrix(q.segment<3>(3));
   const Vec3 c = com(q);
   VecX& r = ws.fl_rs;
-  r.noalias() = surface_rows_.rightCols(nd) * q.tail(nd);
+  deformation_rows_times(q, r);
   VecX& xs = ws.fl_xs;
   xs.resize(3 * ns);
   for (Eigen::Index i = 0; i < ns; ++i) {
@@ -66,11 +75,11 @@ void ReducedModel::floating_surface(const VecX& q, Workspace& ws) const {
 void ReducedModel::floating_node_velocities(const VecX& q, const VecX& qdot, VecX& out,
                                             Workspace& ws) const {
   // v_i = u + R (omega x r_i + U_i w), r_i from floating_surface at q.
-  const Eigen::Index nd = deformation_dim(), ns = num_surface_nodes();
+  const Eigen::Index ns = num_surface_nodes();
   const Mat3 rot = rotation_matrix(q.segment<3>(3));
   const Vec3 u = qdot.head<3>() / std::sqrt(total_mass_);
   const Vec3 om = qdot.segment<3>(3);
-  ws.fl_uw.noalias() = surface_rows_.rightCols(nd) * qdot.tail(nd);
+  deformation_rows_times(qdot, ws.fl_uw);
   out.resize(3 * ns);
   for (Eigen::Index i = 0; i < ns; ++i)
     out.segment<3>(3 * i) =
@@ -133,7 +142,7 @@ void ReducedModel::floating_drag_fast(const ReducedConfig& cfg, const ReducedSta
   // depend on R), scalar corner arithmetic, and W's columns from the faces' padded rows by
   // combine_row_triples, whose first six rows (the linear basis's rigid columns) are then
   // replaced by the floating frame's [R n_b / sqrt(m); r_f x n_b].
-  const Eigen::Index nd = deformation_dim(), m = basis_cols_, mp = face_rows_pad_.cols();
+  const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols();
   const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
   const Eigen::Index ns = num_surface_nodes();
   const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
@@ -142,7 +151,7 @@ void ReducedModel::floating_drag_fast(const ReducedConfig& cfg, const ReducedSta
   // Body-frame node velocities R^T u + omega x r_i + U_i w (r_i: floating_surface's).
   VecX& vb = ws.fl_vs;
   vb.resize(3 * ns);
-  ws.fl_uw.noalias() = surface_rows_.rightCols(nd) * s.qdot.tail(nd);
+  deformation_rows_times(s.qdot, ws.fl_uw);
   for (Eigen::Index i = 0; i < ns; ++i)
     vb.segment<3>(3 * i) =
         u_body + om.cross(ws.fl_rs.segment<3>(3 * i)) + ws.fl_uw.segment<3>(3 * i);
@@ -311,10 +320,13 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
   // d^2 T / dz_k dz_l = |omega|^2 tr(C_kl) - omega^T C_kl omega.
   auto jww = jac.bottomRightCorner(nd, nd);
   jww.diagonal().setConstant(damp);
+  // (sum_ab omega_a omega_b C_ab by its diagonal terms and symmetric pairs: 9 updates of the
+  // M x M block, not 15.)
   for (int a = 0; a < 3; ++a) {
     jww.noalias() -= (h * (damp + 1.0) * om[a]) * co.y[a];
-    jww.noalias() -= (h * h * om2) * co.c[4 * a];
-    for (int b = 0; b < 3; ++b) jww.noalias() += (h * h * om[a] * om[b]) * co.c[3 * a + b];
+    jww.noalias() += (h * h * (om[a] * om[a] - om2)) * co.c[4 * a];
+    const int b = (a + 1) % 3, lo = std::min(a, b), hi = std::max(a, b);
+    jww.noalias() += (h * h * om[lo] * om[hi]) * co.c_pair[lo + hi - 1];
   }
   jww.noalias() += (h * h) * k_el.bottomRightCorner(nd, nd);
   if (cfg.damping_beta > 0.0) jww += (h * cfg.damping_beta) * k_rest_.bottomRightCorner(nd, nd);

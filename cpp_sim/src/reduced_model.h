@@ -374,6 +374,8 @@ class ReducedModel {
   // drag and the contact solve start from them. floating_node_velocities: their world
   // velocities at (q, qdot) into out (3 n_s; ws.fl_uw is scratch).
   void floating_surface(const VecX& q, Workspace& ws) const;
+  // out (3 n_s) = the surface rows' deformation columns times a's deformation entries.
+  void deformation_rows_times(const VecX& a, VecX& out) const;
   void floating_node_velocities(const VecX& q, const VecX& qdot, VecX& out, Workspace& ws) const;
   // The drag at the step's start into ws.f_drag, ws.j_drag (after floating_surface).
   // (With solver = fast by floating_drag_fast: the same sums, rounded differently.)
