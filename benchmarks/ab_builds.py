@@ -20,16 +20,17 @@ A build is an unpacked wheel. For a commit::
 then::
 
     python benchmarks/ab_builds.py --build before=/tmp/site_before --build after=/tmp/site_after
-        [--robots quadruped-walk ...] [--solver fast] [--steps 300] [--rounds 3] [--compare]
-        [--json]
+        [--robots quadruped-walk ...] [--solver fast] [--frame linear] [--steps 300]
+        [--rounds 3] [--compare] [--json]
 
 It prints steps/s per build and benchmark (best of ``--rounds`` alternating rounds, each the
 best of three rollouts) and each build's ratio to the first. ``--solver`` picks the solver in
 builds that have one (``fast``, the default, or ``reference``); a build older than the
-``solver`` setting runs its only step, and says so. ``--compare`` also reports, per build
-against the first, the largest difference of the rollouts' reduced coordinates q (0 means the
-builds compute bit for bit the same trajectory, which is how a change that should not alter
-the physics is checked).
+``solver`` setting runs its only step, and says so. ``--frame floating`` steps every build in
+the floating frame (a build without the setting is refused). ``--compare`` also reports, per
+build against the first, the largest difference of the rollouts' reduced coordinates q (0
+means the builds compute bit for bit the same trajectory, which is how a change that should
+not alter the physics is checked).
 """
 
 from __future__ import annotations
@@ -70,7 +71,8 @@ def save_models(robots: list[str], path: Path) -> None:
     np.savez(path, **arrays)
 
 
-def child(site: str, data: str, solver: str, steps: int, robots: list[str], out: str) -> None:
+def child(site: str, data: str, solver: str, frame: str, steps: int, robots: list[str],
+          out: str) -> None:  # fmt: skip
     """Time each benchmark with the build in ``site`` (imported instead of the installed one)."""
     sys.meta_path = [f for f in sys.meta_path if not type(f).__module__.startswith("_editable")]
     sys.path.insert(0, site)
@@ -98,6 +100,10 @@ def child(site: str, data: str, solver: str, steps: int, robots: list[str], out:
         if hasattr(model, "solver"):
             model.solver = solver
             result["solver"] = solver
+        if frame != "linear":
+            if not hasattr(model, "frame"):
+                raise SystemExit(f"{site} has no frame setting (built before frame='floating')")
+            model.frame = frame
         model.control_basis = np.eye(20)[:, :3]
         controls = modal_forces(model, (1, steps, 3))
         state = model.rest_state()
@@ -117,7 +123,7 @@ def child(site: str, data: str, solver: str, steps: int, robots: list[str], out:
 
 def run_build(site: Path, data: Path, args: argparse.Namespace, out: Path) -> dict:
     cmd = [sys.executable, __file__, "--child", str(site), "--data", str(data), "--solver",
-           args.solver, "--steps", str(args.steps), "--out", str(out),
+           args.solver, "--frame", args.frame, "--steps", str(args.steps), "--out", str(out),
            "--robots", *args.robots]  # fmt: skip
     env = dict(os.environ, PYTHONNOUSERSITE="1")
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -132,6 +138,12 @@ def main() -> None:
                         help="an unpacked wheel to time (give two or more)")  # fmt: skip
     parser.add_argument("--robots", nargs="+", default=list(BENCHMARKS), choices=list(BENCHMARKS))
     parser.add_argument("--solver", default="fast", choices=["fast", "reference"])
+    parser.add_argument(
+        "--frame",
+        default="linear",
+        choices=["linear", "floating"],
+        help="the frame every build steps in (floating: builds that have it)",
+    )
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--compare", action="store_true",
@@ -142,7 +154,7 @@ def main() -> None:
     parser.add_argument("--out", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        child(args.child, args.data, args.solver, args.steps, args.robots, args.out)
+        child(args.child, args.data, args.solver, args.frame, args.steps, args.robots, args.out)
         return
     builds: dict[str, Path] = {}
     for spec in args.build:

@@ -4,12 +4,13 @@ For each of the five benchmarks (M = 20, cubature, one thread, one C++ rollout s
 Python overhead is counted), with the task's physics (staggered-projection ground contact and
 gravity for the walkers, from rest on the ground; water without gravity for the swimmer) and
 the same random actuation of 0.5 body weight in the first three modes, drawn anew every step,
-it times the default linear frame (fast solver) and the floating frame (``frame="floating"``:
-exact Newton on M + 6 unknowns with an LU factor, the contact rows at the body's exact
-rotation), in alternating rounds, best of each. It prints both rates, their ratio
-(``floating_over_linear``), the mean Newton iterations per step, and how far each frame's
-centre of mass moved and the body turned over the rollout (the two frames are different
-models, so these differ; the rollout is short and random, so they say little of gaits).
+it times the default linear frame (fast solver) and the floating frame (``frame="floating"``,
+fast solver: Newton on M + 6 unknowns with an LU factor and the stiffness frozen at K_0, the
+contact rows at the body's exact rotation), in alternating rounds, best of each. It prints
+both rates, their ratio (``floating_over_linear``), the mean Newton iterations per step, and
+how far each frame's centre of mass moved and the body turned over the rollout (the two
+frames are different models, so these differ; the rollout is short and random, so they say
+little of gaits).
 
     python benchmarks/bench_floating.py [--benchmarks CrossSwim-v0 ...] [--steps 400]
         [--rounds 3] [--json]

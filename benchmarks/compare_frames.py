@@ -7,7 +7,8 @@ for ``--seconds`` in the default linear frame and in the floating frame (``frame
 It prints the mean forward speed over the gaits in each frame, ``rms(floating - linear)`` of the
 per-gait speeds, next to ``rms(perturbed - linear)``: the linear frame started 1e-4 m/s away in
 one deformation velocity (the contact tolerance), the spread that frictional contact's chaos
-alone gives a gait. A frame gap within that spread is noise; beyond it, the frames differ.
+alone gives a gait, and ``rms(perturbed - floating)``, the same for the floating frame. A frame
+gap within those spreads is noise; beyond both, the frames differ.
 It also prints each frame's largest turn over the gaits (the floating frame's |theta| exactly;
 the linear frame's linearised orientation, what the envs report), since the frames part most
 where the body turns.
@@ -61,16 +62,20 @@ def compare(robot_name: str, task: str, count: int, seconds: float) -> dict:
         speeds[frame] = out["rewards"].sum(axis=1) / seconds
         turns[frame] = float(np.linalg.norm(out["observed"], axis=2).max())
         converged[frame] = float(out["converged"].mean())
-    start = linear.rest_state()
-    qdot = start.qdot
-    qdot[6] += linear.contact_tolerance * np.sqrt(linear.total_mass)
-    nudged = cpp_sim.ReducedState(start.q, qdot, start.impulses)
-    perturbed = linear.rollout(nudged, u, threads=2)["rewards"].sum(axis=1) / seconds
+    spread = {}
+    for frame, model in models.items():
+        start = model.rest_state()
+        qdot = start.qdot
+        qdot[6] += model.contact_tolerance * np.sqrt(model.total_mass)
+        nudged = cpp_sim.ReducedState(start.q, qdot, start.impulses)
+        perturbed = model.rollout(nudged, u, threads=2)["rewards"].sum(axis=1) / seconds
+        spread[frame] = rms(perturbed - speeds[frame])
     return {
         "mean_speed_linear": float(speeds["linear"].mean()),
         "mean_speed_floating": float(speeds["floating"].mean()),
         "rms_floating_minus_linear": rms(speeds["floating"] - speeds["linear"]),
-        "rms_perturbed_minus_linear": rms(perturbed - speeds["linear"]),
+        "rms_perturbed_minus_linear": spread["linear"],
+        "rms_perturbed_minus_floating": spread["floating"],
         "largest_turn_linear": turns["linear"],
         "largest_turn_floating": turns["floating"],
         "converged_linear": converged["linear"],
@@ -94,7 +99,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
                 f"{args.seconds}")  # fmt: skip
     if not args.json:
         print(f"{'benchmark':<15} {'speed lin':>10} {'speed float':>11} {'rms f-l':>9} "
-              f"{'rms p-l':>9} {'turn lin':>9} {'turn float':>10}   (m/s, rad; "
+              f"{'rms p-l':>9} {'rms p-f':>9} {'turn lin':>9} {'turn float':>10}   (m/s, rad; "
               f"{args.gaits} gaits of {args.seconds:g} s)")  # fmt: skip
     rows = []
     for name in args.robots:
@@ -105,6 +110,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
             continue
         print(f"{name:<15} {row['mean_speed_linear']:>+10.5f} {row['mean_speed_floating']:>+11.5f} "
               f"{row['rms_floating_minus_linear']:>9.5f} {row['rms_perturbed_minus_linear']:>9.5f} "
+              f"{row['rms_perturbed_minus_floating']:>9.5f} "
               f"{row['largest_turn_linear']:>9.3f} {row['largest_turn_floating']:>10.3f}",
               flush=True)  # fmt: skip
     return rows

@@ -29,7 +29,7 @@
 // |r|. solver = reference evaluates K(z') at every iterate; solver = fast keeps every other
 // term of the Jacobian exact (O(M^2) each) and freezes K at K_0, evaluating K(z') only on a
 // stall and, for the contact metric, once at the end of a step with contact candidates: on the
-// swimmer that is no stiffness evaluation at all.
+// cross swimmer (400 random-stroke steps) that was no stiffness evaluation at all.
 #include <algorithm>
 #include <cassert>
 #include <cmath>
@@ -402,10 +402,11 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
 
   // solver = reference: Newton, the stiffness K(z') evaluated at every iterate. solver =
   // fast: the same Jacobian with K frozen at K_0 (every other term of it is O(M^2) and kept
-  // exact), so an iteration evaluates forces only; like the linear fast step, K(z') at the
-  // iterate replaces it when the iteration stalls (a step no smaller than half the last). The rotation
-  // rows hold no stiffness, so they are solved exactly whatever K: R Pi is kept to the square
-  // of the final step, as by exact Newton.
+  // exact), so an iteration evaluates forces only. K(z') at the iterate replaces it when the
+  // iteration stalls: a step no smaller than half the last (the linear fast step's test), or
+  // a rate that would leave more than four iterations to the tolerance. The rotation rows
+  // hold no stiffness, so they are solved exactly whatever K: R Pi is kept to the square of
+  // the final step, as by exact Newton.
   const bool exact = cfg.solver == Solver::Reference;
   const MatX* frozen = exact ? nullptr : &k_rest_;
   VecX& x = ws.fl_x;
@@ -442,7 +443,12 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
       info.converged = true;
       break;
     }
-    if (!exact && it >= 1 && step_norm > 0.5 * prev_norm) {
+    // Stalled: a rate above 1/2, or so slow a rate that more than four iterations would
+    // remain before the tolerance (a stiffness evaluation costs about as much as four).
+    const double rate = step_norm / prev_norm;
+    const bool stalled =
+        it >= 1 && (rate > 0.5 || std::pow(rate, 4.0) * step_norm > cfg.newton_tolerance);
+    if (!exact && stalled) {
       // The frozen K too far from K(z') for a useful rate: the stiffness at this iterate,
       // kept (at worst every iteration, which is exact Newton).
       floating_stiffness(cfg, s, x, ws);
