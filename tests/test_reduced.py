@@ -551,3 +551,24 @@ def test_full_basis_with_ground_contact_matches_clamped_full_space_at_rest(solve
     sag = nodes[:, 2].max() - x[:, 2].max()
     assert 2e-3 < sag < 2e-2
     np.testing.assert_allclose(model.positions(state.q), x, atol=0.02 * sag)
+
+
+@pytest.mark.parametrize("frame", ["linear", "floating"])
+def test_min_volume_ratio_is_the_smallest_det_f_over_the_mesh(bar, frame):
+    # The smallest det F = det(D_s) / det(D_m) over every tetrahedron at the nodes that
+    # model.positions gives, whichever way the core forms them (the floating frame's in the
+    # body frame, where det F is the same).
+    model = build_reduced_model(bar, contact="none", frame=frame)
+    rng = np.random.default_rng(4)
+    q = 0.3 * rng.standard_normal(model.dim)
+    x = model.positions(q).reshape(-1, 3)
+    rest = np.asarray(bar.nodes)
+    tets = np.asarray(bar.tets)
+
+    def dets(p):
+        return np.linalg.det(np.stack([p[tets[:, k]] - p[tets[:, 0]] for k in (1, 2, 3)], -1))
+
+    expected = (dets(x) / dets(rest)).min()
+    assert expected < 0.95  # deformed enough that the minimum means something
+    assert model.min_volume_ratio(q) == pytest.approx(expected, rel=1e-12)
+    assert model.min_volume_ratio(model.rest_state().q) == pytest.approx(1.0, rel=1e-12)

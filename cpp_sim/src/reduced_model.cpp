@@ -6,6 +6,8 @@
 #include <limits>
 #include <stdexcept>
 
+#include "dense_kernels.h"
+
 namespace softrom {
 
 ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material,
@@ -141,14 +143,35 @@ VecX ReducedModel::positions(const VecX& q) const {
 }
 
 double ReducedModel::min_volume_ratio(const VecX& q) const {
-  const VecX x = positions(q);
+  // (Called on every env step, where it was 5-7 % of a walker's. The nodes come from the
+  // dispatched column kernel rather than Eigen's SSE2 product, and the determinants from scalar
+  // corner arithmetic as in drag_fast; together about 1.3x the earlier form's rate (best of
+  // alternating runs, quadruped and cross). det F does not depend on the rotation, so the
+  // floating frame's nodes are taken in the body frame, X + U z.)
+  const Eigen::Index n3 = basis_.rows();
+  VecX x(n3);
+  if (config.frame == Frame::Linear) {
+    kernels::cols_times(basis_.data(), n3, basis_cols_, q.data(), x.data());
+    x += rest_;
+  } else {
+    kernels::cols_times(basis_.data() + kRigid * n3, n3, deformation_dim(), q.data() + kRigid,
+                        x.data());
+    x += rest_about_com_;
+  }
   double j_min = std::numeric_limits<double>::infinity();
+  const double* p = x.data();
   for (std::size_t e = 0; e < tets_.size(); ++e) {
     const Tet& t = tets_[e];
-    const Vec3 x0 = x.segment<3>(3 * t[0]);
-    const Vec3 a = x.segment<3>(3 * t[1]) - x0, b = x.segment<3>(3 * t[2]) - x0,
-               c = x.segment<3>(3 * t[3]) - x0;
-    j_min = std::min(j_min, a.dot(b.cross(c)) * inv_rest_det_[e]);
+    const double* p0 = p + 3 * t[0];
+    const double* p1 = p + 3 * t[1];
+    const double* p2 = p + 3 * t[2];
+    const double* p3 = p + 3 * t[3];
+    const double a0 = p1[0] - p0[0], a1 = p1[1] - p0[1], a2 = p1[2] - p0[2];
+    const double b0 = p2[0] - p0[0], b1 = p2[1] - p0[1], b2 = p2[2] - p0[2];
+    const double c0 = p3[0] - p0[0], c1 = p3[1] - p0[1], c2 = p3[2] - p0[2];
+    const double det = a0 * (b1 * c2 - b2 * c1) + a1 * (b2 * c0 - b0 * c2) +
+                       a2 * (b0 * c1 - b1 * c0);
+    j_min = std::min(j_min, det * inv_rest_det_[e]);
   }
   return j_min;
 }
