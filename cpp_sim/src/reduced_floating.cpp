@@ -28,8 +28,9 @@
 // The solve (step_floating) is Newton on (u', omega', w') with a backtracking line search on
 // |r|. solver = reference evaluates K(z') at every iterate; solver = fast keeps every other
 // term of the Jacobian exact (O(M^2) each) and freezes K at K_0, evaluating K(z') only on a
-// stall and, for the contact metric, once at the end of a step with contact candidates: on the
-// cross swimmer (400 random-stroke steps) that was no stiffness evaluation at all.
+// stall and, with the staggered ground, once a step for the contact metric (at the second
+// iterate): on the cross swimmer (400 random-stroke steps) that was no stiffness evaluation
+// at all (docs/FLOATING_FRAME.md, step 9).
 #include <algorithm>
 #include <cassert>
 #include <cmath>
