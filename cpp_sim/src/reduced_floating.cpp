@@ -28,9 +28,9 @@
 // The solve (step_floating) is Newton on (u', omega', w') with a backtracking line search on
 // |r|. solver = reference evaluates K(z') at every iterate; solver = fast keeps every other
 // term of the Jacobian exact (O(M^2) each) and freezes K at K_0, evaluating K(z') only on a
-// stall and, with the staggered ground, once a step for the contact metric (at the second
-// iterate): on the cross swimmer (400 random-stroke steps) that was no stiffness evaluation
-// at all (docs/FLOATING_FRAME.md, step 9).
+// stall and, with the staggered ground, at the second iterate and once more at the end for
+// the contact metric: on the cross swimmer (400 random-stroke steps) that was no stiffness
+// evaluation at all (docs/FLOATING_FRAME.md, step 9).
 #include <algorithm>
 #include <cassert>
 #include <cmath>
@@ -449,16 +449,17 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
     const double rate = step_norm / prev_norm;
     const bool stalled =
         it >= 1 && (rate > 0.5 || std::pow(rate, 4.0) * step_norm > cfg.newton_tolerance);
-    // With the staggered ground, the step needs K(z') for the contact metric anyway: taken at
-    // the second iterate, it also gives the rest of the iteration Newton's rate. A frozen K_0
-    // stops at the tolerance with a linear-rate error that, though below it, is biased the
-    // same way every step: on the cross walker's 8 gaits it moved the mean speed 7 % from the
-    // tightly converged reference's (rms 0.0009 m/s over the gaits; 0.0004 with this, the
-    // reference's own 0.0002; benchmarks/accuracy_solvers.py --frame floating).
+    // With the staggered ground, K(z') at the second iterate, which gives the rest of the
+    // iteration Newton's rate. A frozen K_0 stops at the tolerance with a linear-rate error
+    // that, though below it, is biased the same way every step: on the cross walker's 8 gaits
+    // it moved the mean speed 7 % from the tightly converged reference's (rms 0.0009 m/s over
+    // the gaits, the reference's own 0.0002; 0.0004-0.0005 with this refresh;
+    // benchmarks/accuracy_solvers.py --frame floating).
     const bool for_contact = staggered && it == 1 && frozen == &k_rest_;
     if (!exact && (stalled || for_contact)) {
-      // The frozen K too far from K(z') for a useful rate (or the metric's K, above): the
-      // stiffness at this iterate, kept (at worst every iteration, which is exact Newton).
+      // The frozen K too far from K(z') for a useful rate (or the contact step's refresh,
+      // above): the stiffness at this iterate, kept (at worst every iteration, which is exact
+      // Newton).
       floating_stiffness(cfg, s, x, ws);
       ++info.stiffness_evaluations;
       frozen = &ws.fl_k;
@@ -497,10 +498,11 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
   VecX& impulses = ws.impulses_next;
   if (staggered) {
     impulses = s.impulses;
-    // (The metric's K: exact Newton's from its last Jacobian, the fast solver's from its last
-    // refresh, else evaluated at x.)
-    const bool stiffness_at_x = exact || frozen == &ws.fl_k;
-    info.stagger_iterations = floating_contacts(in, s, x, impulses, stiffness_at_x, ws, info);
+    // (The metric's K: exact Newton's from its last Jacobian; the fast solver's evaluated at
+    // x. Its refresh at the second iterate is too far from the end: on 48 tripod gaits the
+    // per-gait speeds then spread 0.0109 m/s (rms) about the tight reference's, against the
+    // reference's own 0.0076, and 0.0085 with K at the end.)
+    info.stagger_iterations = floating_contacts(in, s, x, impulses, exact, ws, info);
   }
 
   // The new state, into a copy: a diverged step leaves the state as it was.
@@ -563,10 +565,9 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   // (u: 1, omega: I(z'), the coupling S(z'), w: 1) with the damping, plus h^2 K(z') + h beta
   // K_0 on z and -h J_d: the linear model's Newton matrix with its mass made exact. (The
   // momentum-form Jacobian is not symmetric, and the projection needs a metric.)
-  // K is exact Newton's last (ws.fl_k: at z' to within the Newton tolerance) or the fast
-  // solver's last refresh (from its second iterate on); a step that converged before any
-  // refresh evaluates it here, as the linear fast step does for its metric (which measured
-  // the metric's stiffness at the step's end to matter).
+  // K is exact Newton's last (ws.fl_k: at z' to within the Newton tolerance); the fast
+  // solver's is evaluated here, at the end, as the linear fast step does for its metric
+  // (which measured the metric's stiffness at the step's end to matter).
   if (!stiffness_at_v) {
     floating_stiffness(cfg, s, v, ws);
     ++info.stiffness_evaluations;

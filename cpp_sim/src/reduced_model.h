@@ -383,7 +383,7 @@ class ReducedModel {
   void floating_drag_fast(const ReducedConfig& cfg, const ReducedState& s, Workspace& ws) const;
   // The floating frame's staggered projection of v (in: contact-free, out: projected) with
   // the surface rows at s.q; returns the staggers (ws.impulses_next gets the impulses).
-  // `stiffness_at_v`: ws.fl_k holds the Newton iteration's K(z') near v already (else it is
+  // `stiffness_at_v`: ws.fl_k holds exact Newton's K(z') near v already (else it is
   // evaluated at v when a node is a candidate).
   int floating_contacts(const StepInputs& in, const ReducedState& s, VecX& v, VecX& impulses,
                         bool stiffness_at_v, Workspace& ws, StepInfo& info) const;
