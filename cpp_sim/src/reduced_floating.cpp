@@ -445,7 +445,8 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
       break;
     }
     // Stalled: a rate above 1/2, or so slow a rate that more than four iterations would
-    // remain before the tolerance (a stiffness evaluation costs about as much as four).
+    // remain before the tolerance (a heuristic threshold, not tuned: a stiffness evaluation
+    // costs a few frozen iterations).
     const double rate = step_norm / prev_norm;
     const bool stalled =
         it >= 1 && (rate > 0.5 || std::pow(rate, 4.0) * step_norm > cfg.newton_tolerance);
