@@ -20,14 +20,16 @@ A build is an unpacked wheel. For a commit::
 then::
 
     python benchmarks/ab_builds.py --build before=/tmp/site_before --build after=/tmp/site_after
-        [--robots quadruped-walk ...] [--solver fast] [--frame linear] [--steps 300]
-        [--rounds 3] [--compare] [--json]
+        [--robots quadruped-walk ...] [--solver fast] [--frame linear]
+        [--contact staggered] [--steps 300] [--rounds 3] [--compare] [--json]
 
 It prints steps/s per build and benchmark (best of ``--rounds`` alternating rounds, each the
 best of three rollouts) and each build's ratio to the first. ``--solver`` picks the solver in
 builds that have one (``fast``, the default, or ``reference``); a build older than the
 ``solver`` setting runs its only step, and says so. ``--frame floating`` steps every build in
-the floating frame (a build without the setting is refused). ``--compare`` also reports, per
+the floating frame (a build without the setting is refused). ``--contact penalty`` gives the
+walkers the penalty ground instead of staggered projection (the swimmer has no contact).
+``--compare`` also reports, per
 build against the first, the largest difference of the rollouts' reduced coordinates q (0
 means the builds compute bit for bit the same trajectory, which is how a change that should
 not alter the physics is checked).
@@ -71,8 +73,8 @@ def save_models(robots: list[str], path: Path) -> None:
     np.savez(path, **arrays)
 
 
-def child(site: str, data: str, solver: str, frame: str, steps: int, robots: list[str],
-          out: str) -> None:  # fmt: skip
+def child(site: str, data: str, solver: str, frame: str, contact: str, steps: int,
+          robots: list[str], out: str) -> None:  # fmt: skip
     """Time each benchmark with the build in ``site`` (imported instead of the installed one)."""
     sys.meta_path = [f for f in sys.meta_path if not type(f).__module__.startswith("_editable")]
     sys.path.insert(0, site)
@@ -96,7 +98,7 @@ def child(site: str, data: str, solver: str, frame: str, steps: int, robots: lis
             model.gravity = [0.0, 0.0, 0.0]
             model.fluid_density = 1000.0
         else:
-            model.contact = "staggered"
+            model.contact = contact
         if hasattr(model, "solver"):
             model.solver = solver
             result["solver"] = solver
@@ -123,7 +125,8 @@ def child(site: str, data: str, solver: str, frame: str, steps: int, robots: lis
 
 def run_build(site: Path, data: Path, args: argparse.Namespace, out: Path) -> dict:
     cmd = [sys.executable, __file__, "--child", str(site), "--data", str(data), "--solver",
-           args.solver, "--frame", args.frame, "--steps", str(args.steps), "--out", str(out),
+           args.solver, "--frame", args.frame, "--contact", args.contact, "--steps",
+           str(args.steps), "--out", str(out),
            "--robots", *args.robots]  # fmt: skip
     env = dict(os.environ, PYTHONNOUSERSITE="1")
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -144,6 +147,12 @@ def main() -> None:
         choices=["linear", "floating"],
         help="the frame every build steps in (floating: builds that have it)",
     )
+    parser.add_argument(
+        "--contact",
+        default="staggered",
+        choices=["staggered", "penalty"],
+        help="the walkers' ground (the swimmer has none)",
+    )
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--compare", action="store_true",
@@ -154,7 +163,8 @@ def main() -> None:
     parser.add_argument("--out", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        child(args.child, args.data, args.solver, args.frame, args.steps, args.robots, args.out)
+        child(args.child, args.data, args.solver, args.frame, args.contact, args.steps,
+              args.robots, args.out)  # fmt: skip
         return
     builds: dict[str, Path] = {}
     for spec in args.build:
@@ -206,6 +216,7 @@ def main() -> None:
           f"ratio to {first}")  # fmt: skip
     for name in builds:
         how = f"solver={solver_of[name]}" if solver_of[name] else "its only solver"
+        how += f", {args.contact} ground" if args.contact != "staggered" else ""
         print(f"  {name}: {builds[name]} ({how})")
     header = f"{'benchmark':<16}" + "".join(f"{n:>14}" for n in builds)
     print(header + "".join(f"{n + '/' + first:>16}" for n in list(builds)[1:]))

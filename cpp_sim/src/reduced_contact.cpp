@@ -44,13 +44,18 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 // needs the stiffness (its springs are implicit in position), so with the fast solver it runs
 // at a sixth to a thirteenth of staggered projection's rate (bench_rom.py).
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
-                                    VecX& f, MatX* jac) const {
+                                    VecX& f, MatX* jac, Workspace& ws) const {
   const Eigen::Index m = basis_cols_;
   f.setZero(m);
   if (jac) jac->setZero(m, m);  // d f / d v (the position terms through q = q_n + h v: times h)
   const double h = cfg.dt;
-  const VecX xs = surface_rest_ + surface_rows_ * q;
-  const VecX vs = surface_rows_ * v;
+  // (Each product is evaluated as Eigen evaluates the expression it replaces, into the
+  // workspace's scratch instead of a heap temporary: the same sums, bit for bit.)
+  VecX& xs = ws.pen_xs;
+  VecX& vs = ws.pen_vs;
+  xs = surface_rest_;
+  xs.noalias() += surface_rows_ * q;
+  vs.noalias() = surface_rows_ * v;
   for (size_t c = 0; c < surface_nodes_.size(); ++c) {
     const double z = xs[3 * c + 2] - cfg.ground_height;
     if (z >= 0.0) continue;
@@ -66,17 +71,22 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
     const auto rows = surface_rows_.middleRows(3 * c, 3);
     f += fn * rows.row(2).transpose();
     // Stiffness (through z = z0 + h v_z) and damping, both on the normal row.
-    if (jac) jac->noalias() -= (k * h + damp) * rows.row(2).transpose() * rows.row(2);
+    if (jac) {
+      ws.pen_row = (k * h + damp) * rows.row(2).transpose();
+      jac->noalias() -= ws.pen_row * rows.row(2);
+    }
     const Eigen::Vector2d vt(vs[3 * c], vs[3 * c + 1]);
     const double eps = 1e-3;
     const double s = std::sqrt(vt.squaredNorm() + eps * eps);
     const double scale = cfg.friction * fn / s;
-    f -= scale * (rows.topRows(2).transpose() * vt);
+    ws.pen_ft.noalias() = scale * (rows.topRows(2).transpose() * vt);
+    f -= ws.pen_ft;
     if (!jac) continue;
     // Exact Jacobian of -mu f_n v_t / |v_t|_eps in v_t: (mu f_n / s)(I - v_t v_t^T / s^2).
     const Eigen::Matrix2d dt_dv =
         scale * (Eigen::Matrix2d::Identity() - vt * vt.transpose() / (s * s));
-    jac->noalias() -= rows.topRows(2).transpose() * dt_dv * rows.topRows(2);
+    ws.pen_at.noalias() = rows.topRows(2).transpose() * dt_dv;
+    jac->noalias() -= ws.pen_at * rows.topRows(2);
   }
 }
 

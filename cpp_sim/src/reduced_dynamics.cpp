@@ -133,44 +133,63 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
   step_loads(in, s, fc, true, ws, info);
   ScopedTimer dyn_timer(cfg.profile ? &info.time_dynamics : nullptr);
 
-  VecX v = s.qdot;
+  // Every buffer is the workspace's, so the step allocates nothing once the worker has seen
+  // its sizes (the reference kernel, elastic_reference, still allocates: it is kept as #8
+  // found it, the yardstick the fast kernels are measured against).
+  VecX& v = ws.v;
+  v = s.qdot;
   VecX& f_el = ws.f_el;
   VecX& r = ws.r;
   VecX& dv = ws.dv;
+  VecX& qe = ws.ref_qe;
   MatX& k_el = ws.k_el;
   MatX& a = ws.a;
   r.resize(m);
-  Eigen::LDLT<MatX> ldlt(m);
+  Eigen::LDLT<MatX>& ldlt = ws.ref_ldlt;
   info.converged = false;
   const bool penalty = cfg.contact == ContactModel::Penalty;
   // The implicit-Euler residual at velocity w, given the elastic force f_e and (with penalty
   // contact) the penalty force f_p at q_n + h w (K_0 acting on w's elastic coordinates):
   //   r(w) = w - v_n - h (f_ext + f_e + f_drag + J_d (w - v_n) + f_p) + h alpha w + h beta K_0 w.
+  // (The products go through scratch, as Eigen evaluates them into a temporary: the same
+  // sums, without the heap.)
+  VecX& prod = ws.ref_prod;
   auto residual = [&](const VecX& w, const VecX& f_e, const VecX& f_p, VecX& out) {
     out = w - s.qdot;
     out -= h * f_ext;
     out.tail(md) -= h * f_e;
     if (cfg.damping_alpha > 0.0) out += h * cfg.damping_alpha * w;
-    if (cfg.damping_beta > 0.0) out.tail(md) += (h * cfg.damping_beta) * (k_rest_ * w.tail(md));
-    if (swim) out -= h * (ws.f_drag + ws.j_drag * (w - s.qdot));
+    if (cfg.damping_beta > 0.0) {
+      prod.noalias() = (h * cfg.damping_beta) * (k_rest_ * w.tail(md));
+      out.tail(md) += prod;
+    }
+    if (swim) {
+      ws.ref_dw = w - s.qdot;
+      prod.noalias() = ws.j_drag * ws.ref_dw;
+      out -= h * (ws.f_drag + prod);
+    }
     if (penalty) out -= h * f_p;
   };
   // |r(w)| for the penalty line search (forces only: no stiffness, no penalty Jacobian).
-  VecX r_trial(m), f_trial(md), v_trial(m);
+  VecX& r_trial = ws.ref_r_trial;
+  VecX& f_trial = ws.ref_f_trial;
+  VecX& f_pen_trial = ws.ref_f_pen_trial;
+  VecX& qe_trial = ws.ref_qe_trial;
+  VecX& v_trial = ws.v_trial;
   auto residual_norm = [&](const VecX& w) {
-    const VecX qe = s.q.tail(md) + h * w.tail(md);
+    qe_trial = s.q.tail(md) + h * w.tail(md);
     if (fast_kernels) {
-      elastic_energy_force(qe, f_trial, ws);
+      elastic_energy_force(qe_trial, f_trial, ws);
     } else {
-      elastic_reference(qe, false, nullptr, &f_trial, nullptr);
+      elastic_reference(qe_trial, false, nullptr, &f_trial, nullptr);
     }
-    VecX f_pen;
-    penalty_contacts(cfg, s.q + h * w, w, f_pen, nullptr);
-    residual(w, f_trial, f_pen, r_trial);
+    ws.ref_q = s.q + h * w;
+    penalty_contacts(cfg, ws.ref_q, w, f_pen_trial, nullptr, ws);
+    residual(w, f_trial, f_pen_trial, r_trial);
     return r_trial.norm();
   };
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
-    const VecX qe = s.q.tail(md) + h * v.tail(md);
+    qe = s.q.tail(md) + h * v.tail(md);
     // The exact reduced Hessian: I dominates A = I + dt^2 K_r + ..., so A stays positive
     // definite unless an element is crushed; only then is K_r projected (below), an
     // (M + 3)-square eigen decomposition instead of one 9 x 9 decomposition per element.
@@ -181,7 +200,10 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
       elastic_reference(qe, false, nullptr, &f_el, &k_el);
     }
     ++info.stiffness_evaluations;
-    if (penalty) penalty_contacts(cfg, s.q + h * v, v, ws.f_pen, &ws.j_pen);
+    if (penalty) {
+      ws.ref_q = s.q + h * v;
+      penalty_contacts(cfg, ws.ref_q, v, ws.f_pen, &ws.j_pen, ws);
+    }
     residual(v, f_el, ws.f_pen, r);
     // A = dr/dv = I + h^2 K_r + h alpha I + h beta K_0 - h J_d - h J_pen.
     a.setIdentity(m, m);
@@ -193,13 +215,16 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     ldlt.compute(a);
     if (ldlt.info() != Eigen::Success || !ldlt.isPositive() ||
         (ldlt.vectorD().array() <= 0.0).any()) {
+      // (Only where an element is crushed: this allocates, and it is rare.)
       Eigen::SelfAdjointEigenSolver<MatX> es(k_el);
       const MatX k_psd = es.eigenvectors() * es.eigenvalues().cwiseMax(0.0).asDiagonal() *
                          es.eigenvectors().transpose();
       a.bottomRightCorner(md, md) += (h * h) * (k_psd - k_el);
       ldlt.compute(a);
     }
-    dv = -ldlt.solve(r);
+    dv = r;
+    ldlt.solveInPlace(dv);
+    dv = -dv;
     info.newton_iterations = it + 1;
     if (!dv.allFinite()) {
       info.diverged = true;

@@ -217,6 +217,16 @@ struct Workspace {
   VecX fl_rs, fl_xs, fl_vs, fl_uw, fl_speed;
   MatX fl_gram;  // floating_drag_fast's W W^T (lower triangle)
   RowMatX fl_rows;
+  // The Newton step on the residual (step_reference: the reference solver, and penalty
+  // contact's): the LDL^T of A, the iterate's elastic coordinates and generalised position,
+  // the residual's products and v - v_n, and the penalty line search's trial point (elastic
+  // coordinates, elastic and penalty forces, residual).
+  Eigen::LDLT<MatX> ref_ldlt;
+  VecX ref_qe, ref_q, ref_prod, ref_dw, ref_qe_trial, ref_f_trial, ref_f_pen_trial, ref_r_trial;
+  // penalty_contacts': the surface nodes' positions and velocities, a node's scaled normal row
+  // and friction force, and its tangent rows times the friction Jacobian.
+  VecX pen_xs, pen_vs, pen_row, pen_ft;
+  Eigen::Matrix<double, Eigen::Dynamic, 2> pen_at;
 };
 
 // What one call reads from the model besides its constant data: copied at entry, so a call
@@ -449,9 +459,9 @@ class ReducedModel {
                      const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses, Workspace& ws,
                      StepInfo& info) const;
   // Penalty ground force f at (q, v), and its velocity Jacobian when jac is not null (the
-  // Newton matrix needs it; the line search's residuals do not).
+  // Newton matrix needs it; the line search's residuals do not), in ws's scratch (pen_*).
   void penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
-                        MatX* jac) const;
+                        MatX* jac, Workspace& ws) const;
 
   int num_nodes_ = 0;
   Eigen::Index basis_cols_ = 0;
