@@ -42,7 +42,7 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 // the quadruped's feet sink 6 cm), so a resting body sinks a little under 1 mm (0.89 mm for
 // test_solver's block). It is an approximate model, and not a fast one: each Newton iteration
 // needs the stiffness (its springs are implicit in position), so with the fast solver it runs
-// at a sixth to a thirteenth of staggered projection's rate (bench_rom.py).
+// at a fourth to a seventh of staggered projection's rate (bench_rom.py's penalty/s, 2026-12-07).
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
                                     VecX& f, MatX* jac, Workspace& ws) const {
   const Eigen::Index m = basis_cols_;
