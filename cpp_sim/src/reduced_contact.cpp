@@ -4,6 +4,7 @@
 #include <cmath>
 #include <memory>
 
+#include "dense_kernels.h"
 #include "reduced_model.h"
 #include "staggered_projection.h"
 
@@ -43,14 +44,32 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 // test_solver's block). It is an approximate model, and not a fast one: each Newton iteration
 // needs the stiffness (its springs are implicit in position), so with the fast solver it runs
 // at a fourth to a seventh of staggered projection's rate (bench_rom.py's penalty/s, 2026-12-07).
+double ReducedModel::penalty_normal_force(const ReducedConfig& cfg, size_t c, double z,
+                                          double vz, double& jacobian_factor) const {
+  const double h = cfg.dt;
+  const double mass = node_mass_surface_[c];
+  const double k = cfg.penalty_stiffness > 0
+                       ? cfg.penalty_stiffness
+                       : total_mass_ * std::abs(cfg.gravity.z()) / (rest_contacts_ * kPenaltySink) +
+                             mass * 0.25 / (h * h);
+  const double damp = 2.0 * std::sqrt(k * mass);
+  jacobian_factor = k * h + damp;  // stiffness (through z = z0 + h v_z) and damping
+  return std::max(0.0, -k * z - damp * vz);
+}
+
+// The penalty ground's smoothing of |v_t| (m/s): friction is regularised Coulomb,
+// -mu f_n v_t / sqrt(|v_t|^2 + eps^2).
+constexpr double kPenaltyFrictionEps = 1e-3;
+
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
                                     VecX& f, MatX* jac, Workspace& ws) const {
+  if (cfg.solver == Solver::Fast) return penalty_contacts_fast(cfg, q, v, f, jac, ws);
+  // The reference solver's arithmetic: Eigen's products, node by node. (Each is evaluated as
+  // Eigen evaluates the expression it replaced, into the workspace's scratch instead of a
+  // heap temporary: the same sums, bit for bit.)
   const Eigen::Index m = basis_cols_;
   f.setZero(m);
   if (jac) jac->setZero(m, m);  // d f / d v (the position terms through q = q_n + h v: times h)
-  const double h = cfg.dt;
-  // (Each product is evaluated as Eigen evaluates the expression it replaces, into the
-  // workspace's scratch instead of a heap temporary: the same sums, bit for bit.)
   VecX& xs = ws.pen_xs;
   VecX& vs = ws.pen_vs;
   xs = surface_rest_;
@@ -59,24 +78,17 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
   for (size_t c = 0; c < surface_nodes_.size(); ++c) {
     const double z = xs[3 * c + 2] - cfg.ground_height;
     if (z >= 0.0) continue;
-    const double mass = node_mass_surface_[c];
-    const double k = cfg.penalty_stiffness > 0
-                         ? cfg.penalty_stiffness
-                         : total_mass_ * std::abs(cfg.gravity.z()) / (rest_contacts_ * kPenaltySink) +
-                               mass * 0.25 / (h * h);
-    const double damp = 2.0 * std::sqrt(k * mass);
-    const double vz = vs[3 * c + 2];
-    const double fn = std::max(0.0, -k * z - damp * vz);
+    double jn = 0.0;
+    const double fn = penalty_normal_force(cfg, c, z, vs[3 * c + 2], jn);
     if (fn <= 0.0) continue;
     const auto rows = surface_rows_.middleRows(3 * c, 3);
     f += fn * rows.row(2).transpose();
-    // Stiffness (through z = z0 + h v_z) and damping, both on the normal row.
     if (jac) {
-      ws.pen_row = (k * h + damp) * rows.row(2).transpose();
+      ws.pen_row = jn * rows.row(2).transpose();
       jac->noalias() -= ws.pen_row * rows.row(2);
     }
     const Eigen::Vector2d vt(vs[3 * c], vs[3 * c + 1]);
-    const double eps = 1e-3;
+    const double eps = kPenaltyFrictionEps;
     const double s = std::sqrt(vt.squaredNorm() + eps * eps);
     const double scale = cfg.friction * fn / s;
     ws.pen_ft.noalias() = scale * (rows.topRows(2).transpose() * vt);
@@ -88,6 +100,74 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
     ws.pen_at.noalias() = rows.topRows(2).transpose() * dt_dv;
     jac->noalias() -= ws.pen_at * rows.topRows(2);
   }
+}
+
+// The fast solver's: the heights and normal velocities of every surface node by one pass of
+// the column-major kernel over the normal rows, the tangent rows read only for loaded nodes,
+// and the Jacobian as one Gram product. Both of its terms are negative semi-definite, so
+// J_pen = -W^T W with three rows of W per loaded node: sqrt(k h + d) times its normal row, and
+// S times its tangent rows, S = sqrt(c) (I - v_t v_t^T / (s (s + eps))) (c = mu f_n / s) the
+// symmetric square root of the friction block c (I - v_t v_t^T / s^2) (in this form, free of
+// the cancellation of 1 - eps / s at small |v_t|). Node by node with Eigen's products, the
+// Jacobian took over half of a penalty step on the cross (a flat body: ~185 loaded nodes).
+void ReducedModel::penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q, const VecX& v,
+                                         VecX& f, MatX* jac, Workspace& ws) const {
+  const Eigen::Index m = basis_cols_, mp = (m + 3) / 4 * 4;
+  const Eigen::Index ns = normal_cols_.rows();
+  f.setZero(m);
+  VecX& zq = ws.pen_xs;
+  VecX& vn = ws.pen_vs;
+  zq.resize(ns);
+  vn.resize(ns);
+  kernels::cols_times_pair(normal_cols_.data(), ns, m, q.data(), v.data(), zq.data(), vn.data());
+  ScratchRowMat& w = ws.pen_w;
+  if (jac) w.resize(3 * ns, mp);  // (only grows: allocated once per worker and model)
+  Eigen::Index rows = 0;
+  const double eps = kPenaltyFrictionEps;
+  for (Eigen::Index c = 0; c < ns; ++c) {
+    const double z = ground_gap(cfg, c, zq[c]);
+    if (z >= 0.0) continue;
+    double jn = 0.0;
+    const double fn = penalty_normal_force(cfg, static_cast<size_t>(c), z, vn[c], jn);
+    if (fn <= 0.0) continue;
+    const double* rx = surface_rows_.data() + 3 * c * m;
+    const double* ry = rx + m;
+    const double* rz = ry + m;
+    double vt0 = 0.0, vt1 = 0.0;
+    for (Eigen::Index j = 0; j < m; ++j) {
+      vt0 += rx[j] * v[j];
+      vt1 += ry[j] * v[j];
+    }
+    const double s = std::sqrt(vt0 * vt0 + vt1 * vt1 + eps * eps);
+    const double scale = cfg.friction * fn / s;
+    const double ft0 = scale * vt0, ft1 = scale * vt1;
+    for (Eigen::Index j = 0; j < m; ++j) f[j] += fn * rz[j] - (ft0 * rx[j] + ft1 * ry[j]);
+    if (!jac) continue;
+    const double sn = std::sqrt(jn), st = std::sqrt(scale);
+    const double a = 1.0 / (s * (s + eps));
+    const double s00 = st * (1.0 - a * vt0 * vt0), s01 = -st * a * vt0 * vt1,
+                 s11 = st * (1.0 - a * vt1 * vt1);
+    double* wn = w.data() + rows * mp;
+    double* w0 = wn + mp;
+    double* w1 = w0 + mp;
+    for (Eigen::Index j = 0; j < m; ++j) {
+      wn[j] = sn * rz[j];
+      w0[j] = s00 * rx[j] + s01 * ry[j];
+      w1[j] = s01 * rx[j] + s11 * ry[j];
+    }
+    for (Eigen::Index j = m; j < mp; ++j) wn[j] = w0[j] = w1[j] = 0.0;
+    rows += 3;
+  }
+  if (!jac) return;
+  jac->resize(m, m);
+  if (rows == 0) {
+    jac->setZero();
+    return;
+  }
+  ws.pen_gram.resize(mp, mp);
+  kernels::gram_lower(w.data(), w.data(), rows, mp, ws.pen_gram.data());
+  for (Eigen::Index j = 0; j < m; ++j)
+    for (Eigen::Index i = j; i < m; ++i) (*jac)(i, j) = (*jac)(j, i) = -ws.pen_gram(i, j);
 }
 
 }  // namespace softrom

@@ -223,10 +223,14 @@ struct Workspace {
   // coordinates, elastic and penalty forces, residual).
   Eigen::LDLT<MatX> ref_ldlt;
   VecX ref_qe, ref_q, ref_prod, ref_dw, ref_qe_trial, ref_f_trial, ref_f_pen_trial, ref_r_trial;
-  // penalty_contacts': the surface nodes' positions and velocities, a node's scaled normal row
-  // and friction force, and its tangent rows times the friction Jacobian.
+  // penalty_contacts': the surface nodes' positions and velocities (the fast solver's: their
+  // heights and normal velocities), a node's scaled normal row and friction force, and its
+  // tangent rows times the friction Jacobian (reference); the fast solver's factor W of
+  // J_pen = -W^T W (three rows per loaded node, padded to a multiple of 4 columns) and W^T W.
   VecX pen_xs, pen_vs, pen_row, pen_ft;
   Eigen::Matrix<double, Eigen::Dynamic, 2> pen_at;
+  ScratchRowMat pen_w;
+  MatX pen_gram;
 };
 
 // What one call reads from the model besides its constant data: copied at entry, so a call
@@ -462,6 +466,12 @@ class ReducedModel {
   // Newton matrix needs it; the line search's residuals do not), in ws's scratch (pen_*).
   void penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
                         MatX* jac, Workspace& ws) const;
+  void penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
+                             MatX* jac, Workspace& ws) const;
+  // Surface node c's penalty normal force at height z above the ground (negative: below it)
+  // and normal velocity vz, and (out) the factor k h + d of its normal row in the Jacobian.
+  double penalty_normal_force(const ReducedConfig& cfg, size_t c, double z, double vz,
+                              double& jacobian_factor) const;
 
   int num_nodes_ = 0;
   Eigen::Index basis_cols_ = 0;
