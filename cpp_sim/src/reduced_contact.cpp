@@ -43,7 +43,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 // the quadruped's feet sink 6 cm), so a resting body sinks a little under 1 mm (0.89 mm for
 // test_solver's block). It is an approximate model, and not a fast one: each Newton iteration
 // needs the stiffness (its springs are implicit in position), so with the fast solver it runs
-// at a fourth to a seventh of staggered projection's rate (bench_rom.py's penalty/s, 2026-12-07).
+// at a quarter to three fifths of staggered projection's rate (bench_rom.py's penalty/s,
+// 2026-12-07; a fourth to a seventh before penalty_contacts_fast).
 double ReducedModel::penalty_normal_force(const ReducedConfig& cfg, size_t c, double z,
                                           double vz, double& jacobian_factor) const {
   const double h = cfg.dt;
