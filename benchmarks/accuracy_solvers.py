@@ -19,13 +19,15 @@
    ``rms(fast - ref)`` exceeds the perturbed spread; these two columns say which of the two
    stopped nearer the converged physics.
 
-``--frame floating`` runs both solvers in the floating frame (``frame="floating"``), whose fast
+``--contact penalty`` gives the walkers the penalty ground (both solvers run exact Newton on it;
+the fast one with the fast kernels and its own Jacobian assembly). ``--frame floating`` runs
+both solvers in the floating frame (``frame="floating"``), whose fast
 solver freezes the Newton matrix's stiffness at K_0 (docs/FLOATING_FRAME.md, step 9); the
 velocity errors are then the nodes' mass-weighted RMS from ``model.velocities``, which in the
 linear frame is |dqdot| / sqrt(m).
 
     python benchmarks/accuracy_solvers.py [--robots quadruped-walk ...] [--gaits 8]
-        [--frame linear] [--json]
+        [--frame linear] [--contact staggered] [--json]
 """
 
 from __future__ import annotations
@@ -45,11 +47,11 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _actuation import BENCHMARKS, modal_forces
 
 
-def model(robot, task: str, solver: str, frame: str, **extra):
+def model(robot, task: str, solver: str, frame: str, contact: str = "staggered", **extra):
     kw = {"contact": "none", "gravity": [0.0, 0.0, 0.0], "fluid_density": 1000.0}
     return build_reduced_model(
         robot, control_basis=np.eye(20)[:, :3], solver=solver, frame=frame,
-        **(kw if task == "swim" else {}), **extra,
+        **(kw if task == "swim" else {"contact": contact}), **extra,
     )  # fmt: skip
 
 
@@ -63,9 +65,10 @@ def gaits(m, count: int, seconds: float, seed: int = 0) -> np.ndarray:
     return modal_forces(m, (count, round(seconds / m.dt), 3), seed=seed, kind="gait")
 
 
-def one_step_errors(robot, task: str, frame: str, steps: int = 150) -> dict:
-    ref, fast = model(robot, task, "reference", frame), model(robot, task, "fast", frame)
-    tight = model(robot, task, "reference", frame, **TIGHT)
+def one_step_errors(robot, task: str, frame: str, contact: str, steps: int = 150) -> dict:
+    ref = model(robot, task, "reference", frame, contact)
+    fast = model(robot, task, "fast", frame, contact)
+    tight = model(robot, task, "reference", frame, contact, **TIGHT)
     mass = np.asarray(robot.fem_model().mass)
     u = gaits(ref, 1, steps * ref.dt, seed=1)[0]
     state = ref.rest_state()
@@ -89,9 +92,10 @@ def one_step_errors(robot, task: str, frame: str, steps: int = 150) -> dict:
 TIGHT = {"newton_tolerance": 1e-10, "contact_tolerance": 1e-6, "max_stagger_iterations": 400}
 
 
-def gait_speeds(robot, task: str, frame: str, count: int, seconds: float) -> dict:
-    ref, fast = model(robot, task, "reference", frame), model(robot, task, "fast", frame)
-    tight = model(robot, task, "reference", frame, **TIGHT)
+def gait_speeds(robot, task: str, frame: str, contact: str, count: int, seconds: float) -> dict:
+    ref = model(robot, task, "reference", frame, contact)
+    fast = model(robot, task, "fast", frame, contact)
+    tight = model(robot, task, "reference", frame, contact, **TIGHT)
     u = gaits(ref, count, seconds)
     start = ref.rest_state()
     qdot = start.qdot
@@ -129,12 +133,16 @@ def main() -> None:
     parser.add_argument("--gaits", type=int, default=8)
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--frame", default="linear", choices=["linear", "floating"])
+    parser.add_argument("--contact", default="staggered", choices=["staggered", "penalty"],
+                        help="the walkers' ground (the swimmer has none)")  # fmt: skip
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
     args = parser.parse_args()
     if args.gaits < 1 or not 0.05 <= args.seconds < np.inf:
         parser.error(
             f"need --gaits >= 1 and finite --seconds >= 0.05, got {args.gaits}, {args.seconds}"
         )
+    if args.frame == "floating" and args.contact == "penalty":
+        parser.error("--frame floating has no penalty ground (docs/FLOATING_FRAME.md)")
     if not args.json:
         print(
             f"{'benchmark':<15} {'step dv':>9} {'err ref':>9} {'err fast':>9} | "
@@ -148,8 +156,10 @@ def main() -> None:
     for name in args.robots:
         robot_name, task = BENCHMARKS[name]
         robot = ROBOTS[robot_name]()
-        row = {"benchmark": name, "frame": args.frame, **one_step_errors(robot, task, args.frame)}
-        row.update(gait_speeds(robot, task, args.frame, args.gaits, args.seconds))
+        contact = args.contact if task != "swim" else "none"
+        row = {"benchmark": name, "frame": args.frame, "contact": contact,
+               **one_step_errors(robot, task, args.frame, args.contact)}  # fmt: skip
+        row.update(gait_speeds(robot, task, args.frame, args.contact, args.gaits, args.seconds))
         if args.json:
             print(json.dumps(row), flush=True)
             continue

@@ -836,24 +836,30 @@ def test_penalty_walking_steps_converge(solver):
 def test_the_fast_penalty_jacobian_is_the_references():
     # The fast solver forms the penalty Jacobian as -W^T W (per loaded node its normal row
     # scaled by sqrt(k h + d) and its tangent rows by the friction block's symmetric square
-    # root, then one Gram product); the reference sums Eigen's products node by node. The same
-    # matrix to round-off, so Newton takes the same iterations on every step of a sliding gait
-    # and the trajectories agree to round-off (measured: 7e-16 after 150 tripod steps). A
-    # factor that were not the friction block's square root leaves Newton with a wrong
-    # Jacobian: more iterations, and the solvers apart by up to the Newton tolerance.
-    runs = []
-    for solver in ("fast", "reference"):
-        model = build_reduced_model(
-            tripod(), control_basis=np.eye(20)[:, :3], contact="penalty", solver=solver
-        )
-        state, iterations = model.rest_state(), []
-        for u in gait(model, 150, scale=1.0):
-            state, info = model.step(state, u)
-            iterations.append(info["newton_iterations"])
-        runs.append((np.array(iterations), state.q))
-    (it_fast, q_fast), (it_ref, q_ref) = runs
-    np.testing.assert_array_equal(it_fast, it_ref)
-    np.testing.assert_allclose(q_fast, q_ref, rtol=0, atol=1e-12)
+    # root, then one Gram product); the reference sums Eigen's products node by node. Its
+    # Newton keeps the stiffness of the first iterate (a chord), so the first iteration's
+    # matrix is the reference's: one iteration from each state of a sliding tripod gait lands
+    # both solvers at the same velocity to round-off. (A few states may be allowed to differ:
+    # where the line search's sufficient-decrease test is met to round-off, the two may take
+    # different step lengths.) With either of two wrong factors (1 / s^2 for
+    # 1 / (s (s + eps)) in the root, or its cross term dropped) the steps differ on most states.
+    def penalty_model(solver, **extra):
+        return build_reduced_model(tripod(), control_basis=np.eye(20)[:, :3], contact="penalty",
+                                   solver=solver, **extra)  # fmt: skip
+
+    walker = penalty_model("reference")
+    one = {
+        solver: penalty_model(solver, max_newton_iterations=1) for solver in ("fast", "reference")
+    }
+    state, gaps = walker.rest_state(), []
+    for u in gait(walker, 150, scale=1.0):
+        fast, _ = one["fast"].step(state, u)
+        ref, _ = one["reference"].step(state, u)
+        scale = np.abs(ref.qdot - state.qdot).max()  # the iteration's own velocity change
+        gaps.append(np.abs(fast.qdot - ref.qdot).max() / scale)
+        state, _ = walker.step(state, u)
+    gaps = np.array(gaps)
+    assert np.mean(gaps < 1e-9) > 0.95, np.sort(gaps)[-10:]
 
 
 @pytest.mark.parametrize("solver", ["fast", "reference"])

@@ -115,7 +115,7 @@ StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double*
 
 // Newton's method on the residual, the stiffness rebuilt at every iteration: the reference
 // solver, which the fast step is checked against, and every solver's step with penalty contact
-// (with the fast kernels when solver = fast). Penalty contact, whose regularised friction
+// (with the fast kernels, and the stiffness as a chord, when solver = fast). Penalty contact, whose regularised friction
 // switches sign over a few mm/s, gets a backtracking line search on |r|: without it Newton
 // cycled, and 70-100% of walking steps ended at the iteration cap.
 StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, const double* fc,
@@ -188,18 +188,29 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     residual(w, f_trial, f_pen_trial, r_trial);
     return r_trial.norm();
   };
+  // Penalty contact's fast solver keeps K_r from the first iterate
+  // (a chord) and evaluates it again only when the iteration stalls, by step_fast's test: a
+  // step no smaller than half the last. Within a step K_r barely moves; the penalty forces,
+  // whose Jacobian is formed at every iterate, are what Newton has to resolve. Measured on
+  // walking gaits: the same Newton iterations per step, 1.4-2.9 stiffness evaluations instead
+  // of 4.8-7.4, the step 1.2-1.7x faster (benchmarks/PROFILE.md, session 48).
+  bool refresh_stiffness = true;
+  double last_step = std::numeric_limits<double>::infinity();
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
     qe = s.q.tail(md) + h * v.tail(md);
     // The exact reduced Hessian: I dominates A = I + dt^2 K_r + ..., so A stays positive
     // definite unless an element is crushed; only then is K_r projected (below), an
     // (M + 3)-square eigen decomposition instead of one 9 x 9 decomposition per element.
-    if (fast_kernels) {
-      elastic_energy_force(qe, f_el, ws);
-      elastic_stiffness_fast(qe, k_el, ws);
-    } else {
+    if (!fast_kernels) {
       elastic_reference(qe, false, nullptr, &f_el, &k_el);
+      ++info.stiffness_evaluations;
+    } else {
+      elastic_energy_force(qe, f_el, ws);
+      if (refresh_stiffness) {
+        elastic_stiffness_fast(qe, k_el, ws);
+        ++info.stiffness_evaluations;
+      }
     }
-    ++info.stiffness_evaluations;
     if (penalty) {
       ws.ref_q = s.q + h * v;
       penalty_contacts(cfg, ws.ref_q, v, ws.f_pen, &ws.j_pen, ws);
@@ -231,6 +242,8 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
       return info;
     }
     const double step_norm = dv.cwiseAbs().maxCoeff() / sqrt_m;
+    refresh_stiffness = !(fast_kernels && penalty) || step_norm > 0.5 * last_step;
+    last_step = step_norm;
     double t = 1.0;
     if (penalty && step_norm >= cfg.newton_tolerance) {
       const double r0 = r.norm();
