@@ -41,10 +41,10 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 // the weight it must carry: the body's weight shared by the surface nodes that touch the
 // ground at rest, per kPenaltySink (1 mm) of sink, plus 0.25 m_i / dt^2 (alone, that term let
 // the quadruped's feet sink 6 cm), so a resting body sinks a little under 1 mm (0.89 mm for
-// test_solver's block). It is an approximate model, and not a fast one: each Newton iteration
-// needs the stiffness (its springs are implicit in position), so with the fast solver it runs
-// at a quarter to three fifths of staggered projection's rate (bench_rom.py's penalty/s,
-// 2026-12-07; a fourth to a seventh before penalty_contacts_fast).
+// test_solver's block). It is an approximate model, and not a fast one: its springs are
+// implicit in position, so it keeps Newton on the residual, each iteration with the penalty
+// Jacobian (and, in the fast solver, the stiffness when Newton stalls); with the fast solver
+// it runs at 0.37-0.85 of staggered projection's rate (bench_rom.py's penalty/s, 2026-12-07).
 double ReducedModel::penalty_normal_force(const ReducedConfig& cfg, size_t c, double z,
                                           double vz, double& jacobian_factor) const {
   const double h = cfg.dt;
