@@ -115,9 +115,9 @@ StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double*
 
 // Newton's method on the residual, the stiffness rebuilt at every iteration: the reference
 // solver, which the fast step is checked against, and every solver's step with penalty contact
-// (with the fast kernels, and the stiffness as a chord, when solver = fast). Penalty contact, whose regularised friction
-// switches sign over a few mm/s, gets a backtracking line search on |r|: without it Newton
-// cycled, and 70-100% of walking steps ended at the iteration cap.
+// (with the fast kernels, and the stiffness as a chord, when solver = fast). Penalty contact,
+// whose regularised friction switches sign over a few mm/s, gets a backtracking line search on
+// |r|: without it Newton cycled, and 70-100% of walking steps ended at the iteration cap.
 StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, const double* fc,
                                       Workspace& ws) const {
   const ReducedConfig& cfg = in.config;
@@ -188,12 +188,12 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     residual(w, f_trial, f_pen_trial, r_trial);
     return r_trial.norm();
   };
-  // Penalty contact's fast solver keeps K_r from the first iterate
-  // (a chord) and evaluates it again only when the iteration stalls, by step_fast's test: a
-  // step no smaller than half the last. Within a step K_r barely moves; the penalty forces,
-  // whose Jacobian is formed at every iterate, are what Newton has to resolve. Measured on
-  // walking gaits: the same Newton iterations per step, 1.4-2.9 stiffness evaluations instead
-  // of 4.8-7.4, the step 1.2-1.7x faster (benchmarks/PROFILE.md, session 48).
+  // Penalty contact's fast solver keeps K_r from the first iterate (a chord) and evaluates it
+  // again only when the iteration stalls, by step_fast's test: a step no smaller than half the
+  // last. Within a step K_r barely moves; the penalty forces, whose Jacobian is formed at every
+  // iterate, are what Newton has to resolve. Measured on walking gaits: the same Newton
+  // iterations per step, 1.4-2.9 stiffness evaluations a step where exact Newton made 5.4-7.4
+  // (one per iteration), the step 1.2-1.7x faster (benchmarks/PROFILE.md, session 48).
   bool refresh_stiffness = true;
   double last_step = std::numeric_limits<double>::infinity();
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
