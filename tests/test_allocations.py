@@ -7,7 +7,8 @@ horizons of the same controls after a warm-up rollout over the longer one. The b
 per-call allocations (the output arrays) do not depend on the horizon, the steps' would:
 before the worker kept its contact buffers (scratch.h) a walking step made ~90-130 of them,
 the floating frame's first build 23-31 (products evaluated into heap temporaries), and a
-penalty step ~700 (its Newton iterations' and line search's vectors, and its per-node products).
+penalty step 750-890 (its Newton iterations' and line search's vectors, its per-node
+products).
 The reference solver is not counted: its cubature kernel is kept as issue #8 found it, the
 yardstick the fast kernels are measured against, and it allocates.
 """
