@@ -113,7 +113,7 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
 // Jacobian took over half of a penalty step on the cross (a flat body: ~185 loaded nodes).
 void ReducedModel::penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q, const VecX& v,
                                          VecX& f, MatX* jac, Workspace& ws) const {
-  const Eigen::Index m = basis_cols_, mp = (m + 3) / 4 * 4;
+  const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols();  // (negative_gram's width)
   const Eigen::Index ns = normal_cols_.rows();
   f.setZero(m);
   VecX& zq = ws.pen_xs;
@@ -159,16 +159,7 @@ void ReducedModel::penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q
     for (Eigen::Index j = m; j < mp; ++j) wn[j] = w0[j] = w1[j] = 0.0;
     rows += 3;
   }
-  if (!jac) return;
-  jac->resize(m, m);
-  if (rows == 0) {
-    jac->setZero();
-    return;
-  }
-  ws.pen_gram.resize(mp, mp);
-  kernels::gram_lower(w.data(), w.data(), rows, mp, ws.pen_gram.data());
-  for (Eigen::Index j = 0; j < m; ++j)
-    for (Eigen::Index i = j; i < m; ++i) (*jac)(i, j) = (*jac)(j, i) = -ws.pen_gram(i, j);
+  if (jac) negative_gram(w.data(), rows, ws.pen_gram, *jac);
 }
 
 }  // namespace softrom

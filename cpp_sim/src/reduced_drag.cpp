@@ -77,7 +77,6 @@ void ReducedModel::drag_on_surface(const ReducedConfig& cfg, const VecX& xs, con
 void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX& qdot,
                              Workspace& ws) const {
   const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols();
-  const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
   const Eigen::Index ns3 = surface_cols_.rows();
   VecX& xs = ws.drag_xs;
   VecX& vs = ws.drag_vs;
@@ -87,6 +86,19 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
                            vs.data());
   xs += surface_rest_;
   const double c_third = 0.5 * cfg.fluid_density * cfg.drag_coefficient / 3.0;
+  const Eigen::Index n_adv = advancing_faces(xs.data(), vs.data(), c_third, ws);
+  const MatX& w = ws.drag_w;
+  const VecX& coef = ws.drag_coef;
+  ws.drag_pad.resize(mp);
+  kernels::cols_times(w.data(), mp, n_adv, coef.data(), ws.drag_pad.data());
+  ws.f_drag = -ws.drag_pad.head(m);
+  ws.drag_cols = n_adv;
+}
+
+Eigen::Index ReducedModel::advancing_faces(const double* x, const double* v, double c_third,
+                                           Workspace& ws) const {
+  const Eigen::Index mp = face_rows_pad_.cols();
+  const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
   MatX& w = ws.drag_w;
   if (w.rows() != mp || w.cols() < nf) w.resize(mp, nf);
   // The face's force along -n, ca vn^2, is coef times its column's scale: the force is -W coef.
@@ -95,8 +107,6 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
   ws.drag_faces.resize(nf);
   ws.drag_normals.resize(3 * nf);
   Eigen::Index n_adv = 0;
-  const double* x = xs.data();
-  const double* u = vs.data();
   for (Eigen::Index t = 0; t < nf; ++t) {
     // Scalar arithmetic on the corners (Eigen's 3-vectors cost twice the instructions here; a
     // four-faces-per-vector kernel measured no faster, its corners loaded one by one), and the
@@ -108,9 +118,9 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
     const double e0 = pb[0] - pa[0], e1 = pb[1] - pa[1], e2 = pb[2] - pa[2];
     const double g0 = pd[0] - pa[0], g1 = pd[1] - pa[1], g2 = pd[2] - pa[2];
     const double n0 = e1 * g2 - e2 * g1, n1 = e2 * g0 - e0 * g2, n2 = e0 * g1 - e1 * g0;
-    const double* ua = u + corner[0];
-    const double* ub = u + corner[1];
-    const double* ud = u + corner[2];
+    const double* ua = v + corner[0];
+    const double* ub = v + corner[1];
+    const double* ud = v + corner[2];
     const double nv = n0 * (ua[0] + ub[0] + ud[0]) + n1 * (ua[1] + ub[1] + ud[1]) +
                       n2 * (ua[2] + ub[2] + ud[2]);
     if (nv <= 0.0) continue;  // receding, or degenerate (n = 0); NaN goes on, to be caught
@@ -130,10 +140,21 @@ void ReducedModel::drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX
   // W's scaled columns U_t^T n scale from each face's three rows (padded with zeros to mp).
   kernels::combine_row_triples(face_rows_pad_.data(), mp, ws.drag_faces.data(),
                                ws.drag_normals.data(), n_adv, w.data(), mp);
-  ws.drag_pad.resize(mp);
-  kernels::cols_times(w.data(), mp, n_adv, coef.data(), ws.drag_pad.data());
-  ws.f_drag = -ws.drag_pad.head(m);
-  ws.drag_cols = n_adv;
+  return n_adv;
+}
+
+void ReducedModel::negative_gram(const double* rows, Eigen::Index count, MatX& gram,
+                                 MatX& out) const {
+  const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols();
+  out.resize(m, m);
+  if (count == 0) {
+    out.setZero();
+    return;
+  }
+  gram.resize(mp, mp);
+  kernels::gram_lower(rows, rows, count, mp, gram.data());
+  for (Eigen::Index j = 0; j < m; ++j)
+    for (Eigen::Index i = j; i < m; ++i) out(i, j) = out(j, i) = -gram(i, j);
 }
 
 void ReducedModel::drag_jacobian(const MatX& w, Eigen::Index cols, MatX& jac) const {

@@ -144,7 +144,6 @@ void ReducedModel::floating_drag_fast(const ReducedConfig& cfg, const ReducedSta
   // combine_row_triples, whose first six rows (the linear basis's rigid columns) are then
   // replaced by the floating frame's [R n_b / sqrt(m); r_f x n_b].
   const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols();
-  const Eigen::Index nf = static_cast<Eigen::Index>(faces_.size());
   const Eigen::Index ns = num_surface_nodes();
   const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
   const Vec3 om = s.qdot.segment<3>(3);
@@ -157,41 +156,10 @@ void ReducedModel::floating_drag_fast(const ReducedConfig& cfg, const ReducedSta
     vb.segment<3>(3 * i) =
         u_body + om.cross(ws.fl_rs.segment<3>(3 * i)) + ws.fl_uw.segment<3>(3 * i);
   const double c_third = 0.5 * cfg.fluid_density * cfg.drag_coefficient / 3.0;
-  MatX& w = ws.drag_w;
-  if (w.rows() != mp || w.cols() < nf) w.resize(mp, nf);
-  VecX& coef = ws.drag_coef;
-  coef.resize(nf);
-  ws.drag_faces.resize(nf);
-  ws.drag_normals.resize(3 * nf);
-  Eigen::Index n_adv = 0;
   const double* x = ws.fl_rs.data();
-  const double* v = vb.data();
-  for (Eigen::Index t = 0; t < nf; ++t) {
-    // (drag_fast's arithmetic: the scale sqrt(2 c A vn) over |n| is sqrt(c nv / (3 |n|^2)).)
-    const std::ptrdiff_t* corner = face_corners_.data() + 3 * t;
-    const double* pa = x + corner[0];
-    const double* pb = x + corner[1];
-    const double* pd = x + corner[2];
-    const double e0 = pb[0] - pa[0], e1 = pb[1] - pa[1], e2 = pb[2] - pa[2];
-    const double g0 = pd[0] - pa[0], g1 = pd[1] - pa[1], g2 = pd[2] - pa[2];
-    const double n0 = e1 * g2 - e2 * g1, n1 = e2 * g0 - e0 * g2, n2 = e0 * g1 - e1 * g0;
-    const double* ua = v + corner[0];
-    const double* ub = v + corner[1];
-    const double* ud = v + corner[2];
-    const double nv = n0 * (ua[0] + ub[0] + ud[0]) + n1 * (ua[1] + ub[1] + ud[1]) +
-                      n2 * (ua[2] + ub[2] + ud[2]);
-    if (nv <= 0.0) continue;  // receding, or degenerate (n = 0); NaN goes on, to be caught
-    const double scale = std::sqrt(c_third * nv / (n0 * n0 + n1 * n1 + n2 * n2));
-    double* n = ws.drag_normals.data() + 3 * n_adv;
-    n[0] = n0 * scale;
-    n[1] = n1 * scale;
-    n[2] = n2 * scale;
-    coef[n_adv] = nv * scale * (1.0 / 6.0);
-    ws.drag_faces[n_adv] = t;
-    ++n_adv;
-  }
-  kernels::combine_row_triples(face_rows_pad_.data(), mp, ws.drag_faces.data(),
-                               ws.drag_normals.data(), n_adv, w.data(), mp);
+  const Eigen::Index n_adv = advancing_faces(x, vb.data(), c_third, ws);
+  MatX& w = ws.drag_w;
+  const VecX& coef = ws.drag_coef;
   const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
   for (Eigen::Index i = 0; i < n_adv; ++i) {
     const Vec3 n_b = Eigen::Map<const Vec3>(ws.drag_normals.data() + 3 * i);
@@ -210,13 +178,7 @@ void ReducedModel::floating_drag_fast(const ReducedConfig& cfg, const ReducedSta
   // J_d = -W W^T, every step (the Newton matrix holds it), by the Gram kernel: W's columns
   // are the kernel's rows. Eigen's rank update took 3x the time (it runs on the build's
   // baseline SSE2; the kernels dispatch to AVX2 + FMA at run time).
-  MatX& gram = ws.fl_gram;
-  gram.resize(mp, mp);
-  kernels::gram_lower(w.data(), w.data(), n_adv, mp, gram.data());
-  MatX& jac = ws.j_drag;
-  jac.resize(m, m);
-  for (Eigen::Index j = 0; j < m; ++j)
-    for (Eigen::Index i = j; i < m; ++i) jac(i, j) = jac(j, i) = -gram(i, j);
+  negative_gram(w.data(), n_adv, ws.fl_gram, ws.j_drag);
 }
 
 void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s,

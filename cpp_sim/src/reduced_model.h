@@ -458,7 +458,17 @@ class ReducedModel {
   // The same into ws.f_drag, ws.drag_w (rows padded to a multiple of 4) and ws.drag_cols,
   // through the dense kernels (fast solver).
   void drag_fast(const ReducedConfig& cfg, const VecX& q, const VecX& qdot, Workspace& ws) const;
+  // drag_fast's face pass, shared with floating_drag_fast: over the surface's faces at node
+  // positions x and velocities v (3 n_s each, in one frame), each advancing face's scaled
+  // normal (ws.drag_normals), force coefficient (ws.drag_coef) and id (ws.drag_faces), and
+  // W's columns U_t^T n from its three padded rows (ws.drag_w); returns how many advance.
+  Eigen::Index advancing_faces(const double* x, const double* v, double c_third,
+                               Workspace& ws) const;
   void drag_jacobian(const MatX& w, Eigen::Index cols, MatX& jac) const;
+  // out (M + 6 square) = -W^T W for W's `count` rows of width face_rows_pad_.cols() (M + 6
+  // padded to a multiple of 4) at `rows`, by the dispatched Gram kernel (gram: its scratch).
+  // (The floating drag's J_d, W's columns being the rows; the penalty ground's J_pen.)
+  void negative_gram(const double* rows, Eigen::Index count, MatX& gram, MatX& out) const;
   int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                      const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses, Workspace& ws,
                      StepInfo& info) const;
