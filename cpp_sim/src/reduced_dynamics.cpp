@@ -196,16 +196,20 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
   // (one per iteration), the step 1.2-1.7x faster (benchmarks/PROFILE.md, session 48).
   bool refresh_stiffness = true;
   double last_step = std::numeric_limits<double>::infinity();
+  // True when v is the line search's accepted trial point, whose elastic force f_trial is
+  // then f_e at v (q_e is the same sum again), so it is not evaluated twice. (The penalty force is: the trial formed it without its Jacobian.)
+  bool at_trial = false;
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
     qe = s.q.tail(md) + h * v.tail(md);
+    if (at_trial) f_el.swap(f_trial);
     // The exact reduced Hessian: I dominates A = I + dt^2 K_r + ..., so A stays positive
     // definite unless an element is crushed; only then is K_r projected (below), an
     // (M + 3)-square eigen decomposition instead of one 9 x 9 decomposition per element.
     if (!fast_kernels) {
-      elastic_reference(qe, false, nullptr, &f_el, &k_el);
+      elastic_reference(qe, false, nullptr, at_trial ? nullptr : &f_el, &k_el);
       ++info.stiffness_evaluations;
     } else {
-      elastic_energy_force(qe, f_el, ws);
+      if (!at_trial) elastic_energy_force(qe, f_el, ws);
       if (refresh_stiffness) {
         elastic_stiffness_fast(qe, k_el, ws);
         ++info.stiffness_evaluations;
@@ -245,15 +249,23 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     refresh_stiffness = !(fast_kernels && penalty) || step_norm > 0.5 * last_step;
     last_step = step_norm;
     double t = 1.0;
+    at_trial = false;
     if (penalty && step_norm >= cfg.newton_tolerance) {
       const double r0 = r.norm();
       for (int ls = 0; ls < 8; ++ls) {
         v_trial = v + t * dv;
-        if (residual_norm(v_trial) <= (1.0 - 1e-4 * t) * r0) break;
+        if (residual_norm(v_trial) <= (1.0 - 1e-4 * t) * r0) {
+          at_trial = true;
+          break;
+        }
         t *= 0.5;
       }
     }
-    v += t * dv;
+    if (at_trial) {
+      v.swap(v_trial);
+    } else {
+      v += t * dv;
+    }
     if (step_norm < cfg.newton_tolerance) {
       info.converged = true;
       break;
