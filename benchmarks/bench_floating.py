@@ -12,8 +12,10 @@ how far each frame's centre of mass moved and the body turned over the rollout (
 frames are different models, so these differ; the rollout is short and random, so they say
 little of gaits).
 
+``--contact penalty`` puts the walkers on the penalty ground in both frames instead.
+
     python benchmarks/bench_floating.py [--benchmarks CrossSwim-v0 ...] [--steps 400]
-        [--rounds 3] [--json]
+        [--rounds 3] [--contact staggered|penalty] [--json]
 """
 
 from __future__ import annotations
@@ -31,12 +33,15 @@ from softrom_gym.rom import build_reduced_model, build_subspace
 G = 9.81
 
 
-def measure(benchmark: str, steps: int, rounds: int, seed: int = 0) -> dict:
-    """One row: ``benchmark``'s robot with its task's physics in both frames."""
+def measure(
+    benchmark: str, steps: int, rounds: int, seed: int = 0, contact: str = "staggered"
+) -> dict:
+    """One row: ``benchmark``'s robot with its task's physics in both frames (a walker on
+    ``contact``'s ground)."""
     spec = BENCHMARKS[benchmark]
     robot = ROBOTS[spec["robot"]]()
     sub = build_subspace(robot, 20)
-    physics: dict = {}
+    physics: dict = {"contact": contact}
     if spec["task"] == "swim":
         physics.update(contact="none", gravity=[0.0, 0.0, 0.0], fluid_density=1000.0)
     models = {
@@ -80,6 +85,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--benchmarks", nargs="+", choices=list(BENCHMARKS), default=list(BENCHMARKS))
     p.add_argument("--steps", type=int, default=400, help="steps per timed rollout")
     p.add_argument("--rounds", type=int, default=3, help="alternating timed rounds, best kept")
+    p.add_argument("--contact", choices=["staggered", "penalty"], default="staggered",
+                   help="the walkers' ground (the swimmer has none)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print one JSON object per row")
     args = p.parse_args(argv)
     if args.steps < 2 or args.rounds < 1:
@@ -90,7 +97,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
               f"{'Newton it. lin / float':>22} {'moved lin / float (m)':>22} "
               f"{'turned (rad)':>12}")  # fmt: skip
     for name in args.benchmarks:
-        row = measure(name, args.steps, args.rounds)
+        row = measure(name, args.steps, args.rounds, contact=args.contact)
         rows.append(row)
         if args.json:
             print(json.dumps(row), flush=True)

@@ -343,7 +343,7 @@ class ReducedModel:
     @property
     def frame(self) -> typing.Any:
         """
-        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; contact='staggered' or 'none', not the penalty ground; solver='fast' freezes the Newton matrix's stiffness at K_0, 'reference' is exact Newton)
+        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; any contact; solver='fast' freezes the Newton matrix's stiffness at K_0, 'reference' is exact Newton)
         """
     @frame.setter
     def frame(self, arg1: typing.Any) -> None:
@@ -472,7 +472,7 @@ class ReducedConfig:
         ...
     def validate(self) -> None:
         """
-        Raise ValueError if the settings, each valid alone, cannot be stepped together (today: frame='floating' with the penalty ground). step() and rollout() check the same.
+        Raise ValueError if the settings, each valid alone, cannot be stepped together. Every combination steps today (frame='floating' with the penalty ground since 2026-12-07), so it returns; it stays so that code calling it keeps working.
         """
     @property
     def contact(self) -> typing.Any:
@@ -549,7 +549,7 @@ class ReducedConfig:
     @property
     def frame(self) -> typing.Any:
         """
-        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; contact='staggered' or 'none', not the penalty ground; solver='fast' freezes the Newton matrix's stiffness at K_0, 'reference' is exact Newton)
+        'linear' (default: x = X + B_r q, rotations linearised) or 'floating' (x = c + R (X + U z) with an exact rotation: q = (sqrt(m) (c - c_0), rotation vector of R, z), qdot = (sqrt(m) c', body-frame angular velocity, z'); actuation follows the body, so free flight keeps the angular momentum; any contact; solver='fast' freezes the Newton matrix's stiffness at K_0, 'reference' is exact Newton)
         """
     @frame.setter
     def frame(self, arg1: typing.Any) -> None:

@@ -59,6 +59,7 @@ _CHILD = textwrap.dedent(
         "floating walk": dict(contact="staggered", frame="floating"),
         "floating swim": dict(swim, frame="floating"),
         "penalty walk": dict(contact="penalty"),
+        "floating penalty walk": dict(contact="penalty", frame="floating"),
     }
     out = {}
     for name, settings in cases.items():

@@ -49,6 +49,18 @@ def _moving(model, seed: int) -> cpp_sim.ReducedState:
     return _state(model, q, qdot)
 
 
+def _finite_difference_jacobian(model, state, fc, x) -> np.ndarray:
+    """The floating residual's Jacobian in x by central differences (steps of 1e-6)."""
+    fd = np.empty((x.size, x.size))
+    for k in range(x.size):
+        dx = np.zeros_like(x)
+        dx[k] = 1e-6
+        plus, _ = model._floating_residual(state, fc, x + dx)
+        minus, _ = model._floating_residual(state, fc, x - dx)
+        fd[:, k] = (plus - minus) / 2e-6
+    return fd
+
+
 def _angular_momentum(model, state, mass) -> tuple[np.ndarray, float]:
     """L about the centre of mass from the node positions and velocities, and its scale
     sum m |x - c| |v|."""
@@ -76,14 +88,37 @@ def test_newton_jacobian_matches_finite_differences(bar, solver, fluid_density):
     )
     r, jac = model._floating_residual(state, fc, x)
     assert r.shape == (model.dim,) and jac.shape == (model.dim, model.dim)
-    fd = np.empty_like(jac)
-    for k in range(x.size):
-        dx = np.zeros_like(x)
-        dx[k] = 1e-6
-        plus, _ = model._floating_residual(state, fc, x + dx)
-        minus, _ = model._floating_residual(state, fc, x - dx)
-        fd[:, k] = (plus - minus) / 2e-6
+    fd = _finite_difference_jacobian(model, state, fc, x)
     assert np.abs(jac - fd).max() < 1e-7 * np.abs(jac).max()
+
+
+@pytest.mark.parametrize(
+    ("solver", "fluid_density"), [("fast", 0.0), ("reference", 0.0), ("fast", 1000.0)]
+)
+def test_penalty_ground_jacobian_matches_finite_differences(bar, solver, fluid_density):
+    # The penalty ground's force enters the residual on the surface rows at the step's start,
+    # and its Jacobian is exact: the springs and dampers, the friction's (I - t t^T) block and
+    # its coupling to the normal force (which the linear frame's symmetric LDL^T leaves out).
+    model = _model(bar, solver=solver, contact="penalty", fluid_density=fluid_density,
+                   damping_alpha=0.3, damping_beta=0.01)  # fmt: skip
+    rng = np.random.default_rng(0)
+    q = np.concatenate([[0.0, 0.0, 0.0], [0.2, -0.1, 0.3], 0.02 * rng.standard_normal(model.M)])
+    low = model.positions(q)[model.surface_nodes, 2].min()
+    q[2] = (model.ground_height - low - 0.002) * np.sqrt(model.total_mass)  # 2 mm into it
+    qdot = np.concatenate([[0.3, -0.2, -0.3], [1.5, -0.7, 2.0], 0.2 * rng.standard_normal(model.M)])
+    state = _state(model, q, qdot)
+    fc = np.array([3.0, -2.0, 1.0])
+    x = qdot + 0.05 * rng.standard_normal(qdot.size)
+    # Loaded nodes, sliding: below the ground after the step, as the start's rows predict it.
+    ends = model.positions(q) + model.dt * model.velocities(q, x)
+    below = ends[model.surface_nodes, 2] < model.ground_height
+    assert 0 < below.sum() < below.size
+    r, jac = model._floating_residual(state, fc, x)
+    fd = _finite_difference_jacobian(model, state, fc, x)
+    assert np.abs(jac - fd).max() < 1e-8 * np.abs(jac).max()  # measured 1.2e-10 to 1.6e-10
+    free, _ = _model(bar, solver=solver, fluid_density=fluid_density, damping_alpha=0.3,
+                     damping_beta=0.01)._floating_residual(state, fc, x)  # fmt: skip
+    assert np.abs(r - free).max() > 1e-3 * np.abs(r).max()  # the ground pushes
 
 
 def test_actuation_is_the_generalised_force_of_the_body_following_field(bar):
@@ -339,23 +374,43 @@ def test_the_fast_solver_lands_where_exact_newton_does(bar, fluid_density):
     assert evaluations["reference"] >= 600 and evaluations["fast"] < 20
 
 
-def test_settings_the_floating_frame_cannot_step_are_refused_by_name(bar):
+def test_a_bad_frame_is_refused_by_name_and_every_ground_steps(bar):
     with pytest.raises(ValueError, match="frame must be 'linear' or 'floating'; got 'spinning'"):
         cpp_sim.ReducedConfig(frame="spinning")
-    with pytest.raises(ValueError, match="frame='floating' has no penalty ground"):
-        build_reduced_model(bar, subspace=build_subspace(bar, 6), frame="floating",
-                            contact="penalty")  # fmt: skip
     model = _model(bar)
+    with pytest.raises(ValueError, match="frame must be 'linear' or 'floating'; got 'exact'"):
+        model.frame = "exact"
     state = model.rest_state()
     u = np.zeros((1, 2, 3))
-    model.contact = "penalty"
-    for call in (lambda: model.step(state, u[0, 0]), lambda: model.rollout(state, u),
-                 model.config.validate):  # fmt: skip
-        with pytest.raises(ValueError, match="set contact='staggered' or 'none'"):
-            call()
-    model.frame = "linear"  # the linear frame steps it
-    model.config.validate()
-    model.step(state, u[0, 0])
+    for contact in ("none", "staggered", "penalty"):
+        model.contact = contact
+        model.config.validate()  # (kept for callers: every combination steps)
+        _, info = model.step(state, u[0, 0])
+        out = model.rollout(state, u)
+        assert info["converged"] and not out["diverged"].any()
+
+
+def test_a_block_dropped_on_the_penalty_ground_rests_as_in_the_linear_frame(box):
+    # Without a turn the two frames are one model, on the penalty ground too: a block dropped
+    # from 2 cm lands on the same path (measured 1.0e-7 m apart, the Newton tolerance's
+    # doing) and rests sunk by the penalty's sizing, a little under 1 mm (0.92 mm).
+    sub = build_subspace(box, 12)
+    paths = {}
+    for frame in ("linear", "floating"):
+        model = build_reduced_model(box, subspace=sub, frame=frame, contact="penalty")
+        q = model.rest_state().q
+        q[2] = 0.02 * np.sqrt(model.total_mass)
+        state = _state(model, q, np.zeros_like(q))
+        path = []
+        for _ in range(120):
+            state, info = model.step(state)
+            assert info["converged"]
+            path.append(model.com(state.q))
+        paths[frame] = np.array(path)
+        assert np.abs(state.qdot[:3]).max() < 1e-6 * np.sqrt(model.total_mass)
+        low = model.positions(state.q)[model.surface_nodes, 2].min()
+        assert -1e-3 < low - model.ground_height < -5e-4
+    np.testing.assert_allclose(paths["floating"], paths["linear"], rtol=0, atol=1e-6)
 
 
 def test_a_dropped_block_lands_and_rests_as_in_the_linear_frame(box):
@@ -426,17 +481,20 @@ def test_the_swimmer_env_runs_in_the_floating_frame():
     vec.close()
 
 
-def test_a_walker_turned_about_the_vertical_walks_the_turned_path():
+@pytest.mark.parametrize("contact", ["staggered", "penalty"])
+def test_a_walker_turned_about_the_vertical_walks_the_turned_path(contact):
     # Ground and gravity are invariant under a turn about the vertical, so is the isotropic
-    # Coulomb cone, and the floating frame's contact rows turn with the body: a beam started
-    # 0.7 rad round walks its stroke's path turned by 0.7 rad, to the contact solve's
-    # tolerance (measured 2.8e-6 m after 0.5 s; 1e-5 after 1 s of a 2 Hz stroke). The linear
-    # frame cannot even start there: its 0.7 rad "turn" stretches the body by 22%.
+    # Coulomb cone (and the penalty ground's regularised one), and the floating frame's
+    # contact rows turn with the body: a beam started 0.7 rad round walks its stroke's path
+    # turned by 0.7 rad, to the contact solve's tolerance (staggered: measured 2.8e-6 m after
+    # 0.5 s; 1e-5 after 1 s of a 2 Hz stroke; penalty: 7e-16, its heights' rows being the
+    # same numbers). The linear frame cannot even start there: its 0.7 rad "turn" stretches
+    # the body by 22%.
     from softrom_gym.robots import beam
 
     robot = beam()
     model = build_reduced_model(robot, subspace=build_subspace(robot, 20), frame="floating",
-                                control_basis=np.eye(20)[:, :3])  # fmt: skip
+                                control_basis=np.eye(20)[:, :3], contact=contact)  # fmt: skip
     plain = model.rest_state()
     turn = Rotation.from_rotvec([0.0, 0.0, 0.7])
     q = plain.q.copy()
@@ -449,7 +507,11 @@ def test_a_walker_turned_about_the_vertical_walks_the_turned_path():
         turned, _ = model.step(turned, u)
         expected = c0 + (model.positions(plain.q) - c0) @ turn.as_matrix().T
         np.testing.assert_allclose(model.positions(turned.q), expected, rtol=0, atol=3e-5)
-    assert info["contacts"] > 0
+    if contact == "staggered":
+        assert info["contacts"] > 0
+    else:  # on the springs: its lowest node sunk a little
+        low = model.positions(plain.q)[model.surface_nodes, 2].min() - model.ground_height
+        assert -5e-3 < low < 0.0
     assert np.linalg.norm(model.com(plain.q)[:2] - c0[:2]) > 5e-3  # it went somewhere
 
 
@@ -477,8 +539,13 @@ def test_a_walker_env_runs_in_the_floating_frame():
         _, r, *_ = env.step(controls[1, t])
         assert r == out["rewards"][1, t]
     np.testing.assert_array_equal(base.get_state().q, out["q"][1])
-    with pytest.raises(ValueError, match="frame='floating' has no penalty ground"):
-        gym.make("softrom_gym/QuadrupedWalk-v0", frame="floating", contact="penalty")
+    sprung = gym.make("softrom_gym/QuadrupedWalk-v0", frame="floating", contact="penalty")
+    assert sprung.unwrapped.model.contact == "penalty"
+    sprung.reset(seed=0)
+    for _ in range(5):
+        *_, info = sprung.step(sprung.action_space.sample())
+    assert info["contact"] == "penalty" and not info["diverged"]
+    sprung.close()
     with pytest.raises(ValueError, match="frame must be 'linear' or 'floating'; got 'exact'"):
         gym.make("softrom_gym/CrossSwim-v0", frame="exact")
     env.close()

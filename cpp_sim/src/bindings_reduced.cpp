@@ -106,11 +106,6 @@ void check_state(const ReducedModel& m, const ReducedState& s) {
   }
 }
 
-// A config the floating frame cannot step (the penalty ground) is refused by name.
-void check_frame(const ReducedConfig& cfg) {
-  if (const char* why = floating_unsupported(cfg)) throw py::value_error(why);
-}
-
 ReducedState make_state(py::handle q, py::handle qdot, py::handle impulses) {
   ReducedState s;
   s.q = vector_in(q, "q", -1);
@@ -314,7 +309,6 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           "step",
           [](const ReducedModel& r, const ReducedState& s, py::handle fc) {
             check_state(r, s);
-            check_frame(r.config);
             ReducedState out = s;
             py::array_t<double> f;
             const double* fp = nullptr;
@@ -384,7 +378,6 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
                                       std::to_string(b) + ")");
             }
             for (const ReducedState& s : starts) check_state(r, s);
-            check_frame(r.config);
             int nt = available_cores();
             if (!threads.is_none()) {
               // An integer (numpy's too: anything with __index__), not a bool or a float.

@@ -62,6 +62,48 @@ double ReducedModel::penalty_normal_force(const ReducedConfig& cfg, size_t c, do
 // -mu f_n v_t / sqrt(|v_t|^2 + eps^2).
 constexpr double kPenaltyFrictionEps = 1e-3;
 
+// One loaded node's share of the penalty force, given its normal force f_n > 0, its Jacobian
+// factor j_n = k h + d and its world velocity rows r_x, r_y, r_z (m entries each) in the
+// generalised velocities v: f += f_n r_z - c (v_tx r_x + v_ty r_y), c = mu f_n / s,
+// s = |v_t|_eps, and, when w is not null, the node's three rows of W (J_pen = -W^T W; mp
+// columns, zero past m): sqrt(j_n) r_z, and the tangent rows times
+// S = sqrt(c) (I - v_t v_t^T / (s (s + eps))). Both frames' fast penalty grounds sum it.
+// -W^T W leaves out the friction's dependence on f_n, the rank-one (mu j_n / s) t r_z^T with
+// t = v_tx r_x + v_ty r_y, which is not symmetric (the linear frame's LDL^T cannot take it);
+// when `coupling` is not null, its row (mu j_n / s) t goes there (mp columns, zero past m).
+void penalty_node_load(double mu, double fn, double jn, const double* rx, const double* ry,
+                       const double* rz, const double* v, Eigen::Index m, Eigen::Index mp,
+                       double* f, double* w, double* coupling) {
+  const double eps = kPenaltyFrictionEps;
+  double vt0 = 0.0, vt1 = 0.0;
+  for (Eigen::Index j = 0; j < m; ++j) {
+    vt0 += rx[j] * v[j];
+    vt1 += ry[j] * v[j];
+  }
+  const double s = std::sqrt(vt0 * vt0 + vt1 * vt1 + eps * eps);
+  const double scale = mu * fn / s;
+  const double ft0 = scale * vt0, ft1 = scale * vt1;
+  for (Eigen::Index j = 0; j < m; ++j) f[j] += fn * rz[j] - (ft0 * rx[j] + ft1 * ry[j]);
+  if (w == nullptr) return;
+  const double sn = std::sqrt(jn), st = std::sqrt(scale);
+  const double a = 1.0 / (s * (s + eps));
+  const double s00 = st * (1.0 - a * vt0 * vt0), s01 = -st * a * vt0 * vt1,
+               s11 = st * (1.0 - a * vt1 * vt1);
+  double* wn = w;
+  double* w0 = wn + mp;
+  double* w1 = w0 + mp;
+  for (Eigen::Index j = 0; j < m; ++j) {
+    wn[j] = sn * rz[j];
+    w0[j] = s00 * rx[j] + s01 * ry[j];
+    w1[j] = s01 * rx[j] + s11 * ry[j];
+  }
+  for (Eigen::Index j = m; j < mp; ++j) wn[j] = w0[j] = w1[j] = 0.0;
+  if (coupling == nullptr) return;
+  const double cn = mu * jn / s;
+  for (Eigen::Index j = 0; j < m; ++j) coupling[j] = cn * (vt0 * rx[j] + vt1 * ry[j]);
+  for (Eigen::Index j = m; j < mp; ++j) coupling[j] = 0.0;
+}
+
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
                                     VecX& f, MatX* jac, Workspace& ws) const {
   if (cfg.solver == Solver::Fast) return penalty_contacts_fast(cfg, q, v, f, jac, ws);
@@ -124,7 +166,6 @@ void ReducedModel::penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q
   ScratchRowMat& w = ws.pen_w;
   if (jac) w.resize(3 * ns, mp);  // (only grows: allocated once per worker and model)
   Eigen::Index rows = 0;
-  const double eps = kPenaltyFrictionEps;
   for (Eigen::Index c = 0; c < ns; ++c) {
     const double z = ground_gap(cfg, c, zq[c]);
     if (z >= 0.0) continue;
@@ -132,32 +173,9 @@ void ReducedModel::penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q
     const double fn = penalty_normal_force(cfg, static_cast<size_t>(c), z, vn[c], jn);
     if (fn <= 0.0) continue;
     const double* rx = surface_rows_.data() + 3 * c * m;
-    const double* ry = rx + m;
-    const double* rz = ry + m;
-    double vt0 = 0.0, vt1 = 0.0;
-    for (Eigen::Index j = 0; j < m; ++j) {
-      vt0 += rx[j] * v[j];
-      vt1 += ry[j] * v[j];
-    }
-    const double s = std::sqrt(vt0 * vt0 + vt1 * vt1 + eps * eps);
-    const double scale = cfg.friction * fn / s;
-    const double ft0 = scale * vt0, ft1 = scale * vt1;
-    for (Eigen::Index j = 0; j < m; ++j) f[j] += fn * rz[j] - (ft0 * rx[j] + ft1 * ry[j]);
-    if (!jac) continue;
-    const double sn = std::sqrt(jn), st = std::sqrt(scale);
-    const double a = 1.0 / (s * (s + eps));
-    const double s00 = st * (1.0 - a * vt0 * vt0), s01 = -st * a * vt0 * vt1,
-                 s11 = st * (1.0 - a * vt1 * vt1);
-    double* wn = w.data() + rows * mp;
-    double* w0 = wn + mp;
-    double* w1 = w0 + mp;
-    for (Eigen::Index j = 0; j < m; ++j) {
-      wn[j] = sn * rz[j];
-      w0[j] = s00 * rx[j] + s01 * ry[j];
-      w1[j] = s01 * rx[j] + s11 * ry[j];
-    }
-    for (Eigen::Index j = m; j < mp; ++j) wn[j] = w0[j] = w1[j] = 0.0;
-    rows += 3;
+    penalty_node_load(cfg.friction, fn, jn, rx, rx + m, rx + 2 * m, v.data(), m, mp, f.data(),
+                      jac ? w.data() + rows * mp : nullptr, nullptr);
+    if (jac) rows += 3;
   }
   if (jac) negative_gram(w.data(), rows, ws.pen_gram, *jac);
 }

@@ -98,17 +98,7 @@ StepInfo ReducedModel::step(const StepInputs& in, ReducedState& s, const double*
                             Workspace& ws) const {
   assert(ws.lender == this && "a Workspace serves the model that lent it (reduced_model.h)");
   ws.ground_rows_ready = false;
-  if (in.config.frame == Frame::Floating) {
-    // The binding refuses these configs before it releases the GIL; a C++ caller is told by
-    // a diverged step, never by silently linear physics.
-    assert(floating_unsupported(in.config) == nullptr);
-    if (floating_unsupported(in.config) != nullptr) {
-      StepInfo info;
-      info.diverged = true;
-      return info;
-    }
-    return step_floating(in, s, fc, ws);
-  }
+  if (in.config.frame == Frame::Floating) return step_floating(in, s, fc, ws);
   if (uses_fast_step(in.config)) return step_fast(in, s, fc, ws);
   return step_reference(in, s, fc, ws);
 }

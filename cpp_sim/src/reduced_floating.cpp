@@ -23,7 +23,10 @@
 // (F_d on c, tau_d about it in the body frame, Q_d on z) is the linear model's law on the
 // surface where it is at the step's start, linearised in the new velocities (u', omega', w')
 // as the linear model's is: its generalised force is B(q)^T F with B(q) the velocity rows
-// [I / sqrt(m), -R [r_i]x, R U_i] of the surface nodes at q (floating_drag).
+// [I / sqrt(m), -R [r_i]x, R U_i] of the surface nodes at q (floating_drag). The penalty
+// ground's force (floating_penalty) enters the same way, on the same rows, evaluated at the
+// iterate with each node's height after the step predicted by them; the staggered ground
+// projects the contact-free velocities with them (floating_contacts).
 //
 // The solve (step_floating) is Newton on (u', omega', w') with a backtracking line search on
 // |r|. solver = reference evaluates K(z') at every iterate; solver = fast keeps every other
@@ -41,14 +44,6 @@
 #include "staggered_projection.h"
 
 namespace softrom {
-
-const char* floating_unsupported(const ReducedConfig& cfg) {
-  if (cfg.frame != Frame::Floating) return nullptr;
-  if (cfg.contact == ContactModel::Penalty)
-    return "frame='floating' has no penalty ground: set contact='staggered' or 'none' "
-           "(docs/FLOATING_FRAME.md)";
-  return nullptr;
-}
 
 void ReducedModel::deformation_rows_times(const VecX& a, VecX& out) const {
   // (The column-major copy of the rows, through the dispatched kernel: Eigen's row-major
@@ -85,6 +80,80 @@ void ReducedModel::floating_node_velocities(const VecX& q, const VecX& qdot, Vec
   for (Eigen::Index i = 0; i < ns; ++i)
     out.segment<3>(3 * i) =
         u + rot * (om.cross(ws.fl_rs.segment<3>(3 * i)) + ws.fl_uw.segment<3>(3 * i));
+}
+
+void ReducedModel::floating_velocity_rows(const ReducedState& s, const std::vector<int>* nodes,
+                                          Workspace& ws) const {
+  const Eigen::Index ns = num_surface_nodes(), nd = deformation_dim(), m = basis_cols_;
+  RowMatX& rows = ws.fl_rows;
+  if (rows.rows() != 3 * ns || rows.cols() != m) rows.resize(3 * ns, m);
+  const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
+  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
+  auto row = [&](Eigen::Index c) {
+    rows.block<3, 3>(3 * c, 0) = inv_sqrt_m * Mat3::Identity();
+    rows.block<3, 3>(3 * c, 3) = -rot * cross_matrix(ws.fl_rs.segment<3>(3 * c));
+    rows.block(3 * c, kRigid, 3, nd).noalias() = rot * surface_rows_.block(3 * c, kRigid, 3, nd);
+  };
+  if (nodes == nullptr) {
+    for (Eigen::Index c = 0; c < ns; ++c) row(c);
+  } else {
+    for (const int c : *nodes) row(c);
+  }
+}
+
+// The penalty ground in the floating frame: penalty_contacts' springs, dampers and regularised
+// friction (penalty_normal_force, penalty_node_load) on the surface's velocity rows B_i at the
+// step's start, with node i's height after the step predicted by them, z_i + h (B_i x)_z: the
+// staggered ground's and the drag's linearisation. Its Jacobian is exact in x: -W^T W plus the
+// friction's coupling to the normal force, sum_i a_i r_z,i^T (penalty_node_load), which the
+// linear frame leaves out (its Newton matrix is factored by LDL^T, and the term is not
+// symmetric; the floating frame's Jacobian is not symmetric anyway, and LU takes it).
+void ReducedModel::floating_penalty(const ReducedConfig& cfg, const VecX& x, bool jacobian,
+                                    Workspace& ws) const {
+  const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols();  // (negative_gram's width)
+  const Eigen::Index ns = num_surface_nodes();
+  const double h = cfg.dt;
+  VecX& f = ws.fl_pen;
+  f.setZero(m);
+  ScratchRowMat& w = ws.pen_w;
+  ScratchRowMat& coupling = ws.fl_pen_coupling;
+  ScratchRowMat& normal = ws.fl_pen_normal;
+  if (jacobian) {  // (they only grow: allocated once per worker and model)
+    w.resize(3 * ns, mp);
+    coupling.resize(ns, mp);
+    normal.resize(ns, mp);
+  }
+  Eigen::Index rows = 0, loaded = 0;
+  for (Eigen::Index c = 0; c < ns; ++c) {
+    const double* rx = ws.fl_rows.data() + 3 * c * m;
+    const double* rz = rx + 2 * m;
+    double vn = 0.0;
+    for (Eigen::Index j = 0; j < m; ++j) vn += rz[j] * x[j];
+    const double z = ws.fl_xs[3 * c + 2] + h * vn - cfg.ground_height;
+    if (z >= 0.0) continue;
+    double jn = 0.0;
+    const double fn = penalty_normal_force(cfg, static_cast<size_t>(c), z, vn, jn);
+    if (fn <= 0.0) continue;
+    if (!jacobian) {
+      penalty_node_load(cfg.friction, fn, jn, rx, rx + m, rz, x.data(), m, mp, f.data(),
+                        nullptr, nullptr);
+      continue;
+    }
+    penalty_node_load(cfg.friction, fn, jn, rx, rx + m, rz, x.data(), m, mp, f.data(),
+                      w.data() + rows * mp, coupling.data() + loaded * mp);
+    double* n_row = normal.data() + loaded * mp;
+    std::copy(rz, rz + m, n_row);
+    std::fill(n_row + m, n_row + mp, 0.0);
+    rows += 3;
+    ++loaded;
+  }
+  if (!jacobian) return;
+  negative_gram(w.data(), rows, ws.pen_gram, ws.fl_pen_jac);
+  // + A^T N, A's rows the couplings and N's the normal rows (products into their destination:
+  // no heap temporary).
+  using RowMap = Eigen::Map<const RowMatX>;
+  const RowMap a(coupling.data(), loaded, mp), n(normal.data(), loaded, mp);
+  ws.fl_pen_jac.noalias() += a.leftCols(m).transpose() * n.leftCols(m);
 }
 
 void ReducedModel::floating_drag(const ReducedConfig& cfg, const ReducedState& s,
@@ -190,6 +259,7 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
   const double h = cfg.dt, damp = 1.0 + h * cfg.damping_alpha;
   const double sqrt_m = std::sqrt(total_mass_);
   const bool swim = cfg.fluid_density > 0.0;
+  const bool penalty = cfg.contact == ContactModel::Penalty;
   // Rotation rows are divided by sqrt(m) r_g, which makes them mass-scaled velocities like
   // the others: one norm serves the line search.
   const double row_scale = 1.0 / (sqrt_m * co.gyration);
@@ -207,6 +277,12 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
     load.noalias() += ws.j_drag * ws.fl_dv;
   } else {
     load.setZero(m);
+  }
+  // The penalty ground's force at x enters as the drag's does: F on c, the torque about it in
+  // the start's body frame (turned back with Pi), Q on z.
+  if (penalty) {
+    floating_penalty(cfg, x, jacobian, ws);
+    load += ws.fl_pen;
   }
 
   // Elastic force (and stiffness) of the deformation: the cubature's kernels on q_e =
@@ -310,11 +386,16 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
       jww.col(k).noalias() += (h * h) * (sti * inner);
     }
   }
-  if (swim) {  // the drag's rows: -h J_d, the rotation's turned back by exp(-h omega')
-    jac.topRows<3>() -= h * ws.j_drag.topRows<3>();
-    ws.fl_turned_drag.noalias() = turn_back * ws.j_drag.middleRows<3>(3);
+  if (swim || penalty) {  // the load's rows: -h J, the rotation's turned back by exp(-h omega')
+    const MatX* j_load = swim ? &ws.j_drag : &ws.fl_pen_jac;  // J_d, J_pen or their sum
+    if (swim && penalty) {
+      ws.fl_load_jac = ws.j_drag + ws.fl_pen_jac;
+      j_load = &ws.fl_load_jac;
+    }
+    jac.topRows<3>() -= h * j_load->topRows<3>();
+    ws.fl_turned_drag.noalias() = turn_back * j_load->middleRows<3>(3);
     jac.middleRows<3>(3) -= (h * row_scale) * ws.fl_turned_drag;
-    jac.bottomRows(nd) -= h * ws.j_drag.bottomRows(nd);
+    jac.bottomRows(nd) -= h * j_load->bottomRows(nd);
   }
 }
 
@@ -337,10 +418,10 @@ void ReducedModel::floating_residual_for_tests(const StepInputs& in, const Reduc
                                                const VecX& fc, const VecX& x, MatX& residual,
                                                MatX& jacobian, Workspace& ws) const {
   const Vec3 pi0 = floating_start(floating_, in, s, fc.data(), deformation_dim(), ws);
-  if (in.config.fluid_density > 0.0) {
-    floating_surface(s.q, ws);
-    floating_drag(in.config, s, ws);
-  }
+  const bool penalty = in.config.contact == ContactModel::Penalty;
+  if (in.config.fluid_density > 0.0 || penalty) floating_surface(s.q, ws);
+  if (in.config.fluid_density > 0.0) floating_drag(in.config, s, ws);
+  if (penalty) floating_velocity_rows(s, nullptr, ws);
   floating_residual(in, s, pi0, x, true, nullptr, ws);
   residual = ws.fl_r;
   jacobian = ws.fl_jac;
@@ -355,11 +436,13 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
   const double sqrt_m = std::sqrt(total_mass_);
   const bool swim = cfg.fluid_density > 0.0;
   const bool staggered = cfg.contact == ContactModel::Staggered;
-  if (swim || staggered) floating_surface(s.q, ws);
+  const bool penalty = cfg.contact == ContactModel::Penalty;
+  if (swim || staggered || penalty) floating_surface(s.q, ws);
   if (swim) {
     ScopedTimer drag_timer(cfg.profile ? &info.time_drag : nullptr);
     floating_drag(cfg, s, ws);
   }
+  if (penalty) floating_velocity_rows(s, nullptr, ws);
   ScopedTimer timer(cfg.profile ? &info.time_dynamics : nullptr);
   const Vec3 pi0 = floating_start(floating_, in, s, fc, nd, ws);
 
@@ -504,7 +587,6 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
                                     StepInfo& info) const {
   const ReducedConfig& cfg = in.config;
   const Eigen::Index nd = deformation_dim(), m = basis_cols_;
-  const Eigen::Index ns = num_surface_nodes();
   // Candidates as the linear model's: within the margin, or reaching the ground in two steps
   // at their normal velocity under v (the nodes at the step's start, floating_surface's).
   floating_node_velocities(s.q, v, ws.fl_vs, ws);
@@ -513,17 +595,9 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   if (pick_candidates(cfg, gap_of, vn_of, impulses, ws, info) == 0) return 0;
   const std::vector<int>& active = ws.contact_active;
   const std::vector<double>& gap = ws.contact_gap;
-  // The candidates' velocity rows [I / sqrt(m), -R [r_c]x, R U_c] (the solve reads only
-  // theirs, by surface node id).
-  RowMatX& rows = ws.fl_rows;
-  if (rows.rows() != 3 * ns || rows.cols() != m) rows.resize(3 * ns, m);
-  const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
-  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
-  for (const int c : active) {
-    rows.block<3, 3>(3 * c, 0) = inv_sqrt_m * Mat3::Identity();
-    rows.block<3, 3>(3 * c, 3) = -rot * cross_matrix(ws.fl_rs.segment<3>(3 * c));
-    rows.block(3 * c, kRigid, 3, nd).noalias() = rot * surface_rows_.block(3 * c, kRigid, 3, nd);
-  }
+  // The candidates' velocity rows (the solve reads only theirs, by surface node id).
+  floating_velocity_rows(s, &active, ws);
+  const RowMatX& rows = ws.fl_rows;
   // The metric: the velocity response to an impulse over the step, the kinetic metric at z'
   // (u: 1, omega: I(z'), the coupling S(z'), w: 1) with the damping, plus h^2 K(z') + h beta
   // K_0 on z and -h J_d: the linear model's Newton matrix with its mass made exact. (The

@@ -53,8 +53,8 @@ enum class Solver { Reference = 0, Fast = 1 };
 // model's). Floating: x_i = c + R (X_i + U_i z) with an exact rotation R, q = (sqrt(m) (c - c_0),
 // the rotation vector theta of R (|theta| <= pi), z) and qdot = (sqrt(m) c', the body-frame
 // angular velocity omega, z'); actuation follows the body, torque-free, so in free flight the
-// angular momentum is kept to the Newton tolerance. Gravity, Rayleigh damping, drag and the
-// staggered-projection ground apply; the penalty ground does not.
+// angular momentum is kept to the Newton tolerance. Gravity, Rayleigh damping, drag and both
+// grounds apply.
 enum class Frame { Linear = 0, Floating = 1 };
 
 // Every setting of a reduced model, in one place: the binding exposes this struct as
@@ -83,8 +83,11 @@ struct ReducedConfig {
   Frame frame = Frame::Linear;
 };
 
-// Why a config cannot be stepped in the floating frame (penalty contact), or null when it can.
-const char* floating_unsupported(const ReducedConfig& cfg);
+// One loaded surface node's penalty force and rows of W (J_pen = -W^T W), summed by both
+// frames' penalty grounds (reduced_contact.cpp has the law).
+void penalty_node_load(double mu, double fn, double jn, const double* rx, const double* ry,
+                       const double* rz, const double* v, Eigen::Index m, Eigen::Index mp,
+                       double* f, double* w, double* coupling);
 
 // Simulation state. `impulses` warm-starts the contact solver (per surface node, two tangential
 // then the normal), so it is part of the state: stepping from the same state is reproducible.
@@ -217,6 +220,12 @@ struct Workspace {
   VecX fl_rs, fl_xs, fl_vs, fl_uw, fl_speed;
   MatX fl_gram;  // floating_drag_fast's W W^T (lower triangle)
   RowMatX fl_rows;
+  // The penalty ground's force and Jacobian at the iterate (floating_penalty), the rows of
+  // its friction's coupling to the normal force and the loaded nodes' normal rows, and the
+  // Jacobian of the load it shares with the drag (J_d + J_pen, when both act).
+  VecX fl_pen;
+  MatX fl_pen_jac, fl_load_jac;
+  ScratchRowMat fl_pen_coupling, fl_pen_normal;
   // The Newton step on the residual (step_reference: the reference solver, and penalty
   // contact's): the LDL^T of A, the iterate's elastic coordinates and generalised position,
   // the residual's products and v - v_n, and the penalty line search's trial point (elastic
@@ -391,6 +400,18 @@ class ReducedModel {
   // out (3 n_s) = the surface rows' deformation columns times a's deformation entries.
   void deformation_rows_times(const VecX& a, VecX& out) const;
   void floating_node_velocities(const VecX& q, const VecX& qdot, VecX& out, Workspace& ws) const;
+  // The surface nodes' world velocity rows [I / sqrt(m), -R [r_c]x, R U_c] at the step's start
+  // (after floating_surface, R the rotation of s.q) into ws.fl_rows, for the surface nodes in
+  // `nodes`, or every surface node when it is null.
+  void floating_velocity_rows(const ReducedState& s, const std::vector<int>* nodes,
+                              Workspace& ws) const;
+  // The penalty ground's generalised force at x = (u', omega', w') into ws.fl_pen, and with
+  // `jacobian` its derivative into ws.fl_pen_jac: penalty_contacts' law on the surface rows at
+  // the step's start (floating_velocity_rows over every surface node), a node's height after
+  // the step predicted by them, as the staggered ground's candidates are. The derivative is
+  // exact: -W^T W and the friction's coupling to the normal force (penalty_node_load).
+  void floating_penalty(const ReducedConfig& cfg, const VecX& x, bool jacobian,
+                        Workspace& ws) const;
   // The drag at the step's start into ws.f_drag, ws.j_drag (after floating_surface).
   // (With solver = fast by floating_drag_fast: the same sums, rounded differently.)
   void floating_drag(const ReducedConfig& cfg, const ReducedState& s, Workspace& ws) const;

@@ -58,9 +58,8 @@ def build_reduced_model(
         ``contact`` ("staggered", "penalty", "none"), ``friction`` (mu, default 0.8),
         ``fluid_density`` (> 0 switches drag on), ``drag_coefficient``, ``damping_alpha``,
         ``damping_beta``, ``direction``, solver tolerances, ``frame`` ("linear", the
-        default, or "floating": an exact rotation, with the staggered-projection ground or
-        none, not the penalty one; docs/FLOATING_FRAME.md). Settings that cannot be stepped
-        together raise ValueError here.
+        default, or "floating": an exact rotation, with any of the three grounds;
+        docs/FLOATING_FRAME.md).
     """
     unknown = set(settings) - _SETTINGS
     if unknown:
@@ -101,7 +100,6 @@ def build_reduced_model(
     )
     for name, value in settings.items():
         setattr(model, name, value)
-    model.config.validate()  # settings valid alone but not together (frame="floating" + contact)
     if control_basis is not None:
         model.control_basis = control_basis
     return model

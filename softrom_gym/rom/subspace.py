@@ -23,7 +23,9 @@ meets a restoring energy growing as E theta^4 beyond, sooner for stiffer and sma
 (a 0.2 m block of E = 1 MPa spun at 0.5 rad/s stops near 0.07 rad; random actuation turns
 the 50 kPa benchmark walkers and swimmer by 0.09-0.12 rad in 10 s). So robots rock, tip
 and veer by small angles, which the task regulariser penalises anyway, but cannot turn
-around or flip over: that needs a floating frame, which this model does not implement.
+around or flip over: that needs the floating frame (``frame="floating"``,
+docs/FLOATING_FRAME.md), which simulates the same B_r's deformation columns with an exact
+rotation.
 """
 
 from __future__ import annotations
