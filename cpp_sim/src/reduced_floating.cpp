@@ -82,23 +82,44 @@ void ReducedModel::floating_node_velocities(const VecX& q, const VecX& qdot, Vec
         u + rot * (om.cross(ws.fl_rs.segment<3>(3 * i)) + ws.fl_uw.segment<3>(3 * i));
 }
 
-void ReducedModel::floating_velocity_rows(const ReducedState& s, const std::vector<int>* nodes,
+void ReducedModel::floating_velocity_row(const Mat3& rot, Eigen::Index c, Workspace& ws) const {
+  RowMatX& rows = ws.fl_rows;
+  rows.block<3, 3>(3 * c, 0) = (1.0 / std::sqrt(total_mass_)) * Mat3::Identity();
+  rows.block<3, 3>(3 * c, 3) = -rot * cross_matrix(ws.fl_rs.segment<3>(3 * c));
+  rows.block(3 * c, kRigid, 3, deformation_dim()).noalias() =
+      rot * surface_rows_.block(3 * c, kRigid, 3, deformation_dim());
+}
+
+void ReducedModel::floating_velocity_rows(const ReducedState& s, const std::vector<int>& nodes,
                                           Workspace& ws) const {
-  const Eigen::Index ns = num_surface_nodes(), nd = deformation_dim(), m = basis_cols_;
+  const Eigen::Index ns = num_surface_nodes(), m = basis_cols_;
   RowMatX& rows = ws.fl_rows;
   if (rows.rows() != 3 * ns || rows.cols() != m) rows.resize(3 * ns, m);
   const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
-  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
-  auto row = [&](Eigen::Index c) {
-    rows.block<3, 3>(3 * c, 0) = inv_sqrt_m * Mat3::Identity();
-    rows.block<3, 3>(3 * c, 3) = -rot * cross_matrix(ws.fl_rs.segment<3>(3 * c));
-    rows.block(3 * c, kRigid, 3, nd).noalias() = rot * surface_rows_.block(3 * c, kRigid, 3, nd);
-  };
-  if (nodes == nullptr) {
-    for (Eigen::Index c = 0; c < ns; ++c) row(c);
-  } else {
-    for (const int c : *nodes) row(c);
+  for (const int c : nodes) floating_velocity_row(rot, c, ws);
+}
+
+void ReducedModel::floating_penalty_start(const ReducedState& s, Workspace& ws) const {
+  const Eigen::Index ns = num_surface_nodes(), nd = deformation_dim(), m = basis_cols_;
+  // e_z^T B_i = [e_z^T / sqrt(m), (r_i x b)^T, (U_i^T b)^T] with b = R^T e_z, R's third row.
+  ws.fl_pen_rot = rotation_matrix(s.q.segment<3>(3));
+  const Vec3 b = ws.fl_pen_rot.row(2).transpose();
+  MatX& n = ws.fl_pen_normal_cols;
+  n.resize(ns, m);
+  n.leftCols<2>().setZero();
+  n.col(2).setConstant(1.0 / std::sqrt(total_mass_));
+  for (Eigen::Index c = 0; c < ns; ++c)
+    n.block<1, 3>(c, 3) = ws.fl_rs.segment<3>(3 * c).cross(b).transpose();
+  const Eigen::Index rows = surface_cols_.rows();
+  for (Eigen::Index j = kRigid; j < kRigid + nd; ++j) {
+    const double* u = surface_cols_.data() + j * rows;
+    double* out = n.data() + j * ns;
+    for (Eigen::Index c = 0; c < ns; ++c)
+      out[c] = b[0] * u[3 * c] + b[1] * u[3 * c + 1] + b[2] * u[3 * c + 2];
   }
+  ws.fl_pen_rows_formed.assign(static_cast<size_t>(ns), 0);
+  RowMatX& full = ws.fl_rows;
+  if (full.rows() != 3 * ns || full.cols() != m) full.resize(3 * ns, m);
 }
 
 // The penalty ground in the floating frame: penalty_contacts' springs, dampers and regularised
@@ -123,17 +144,24 @@ void ReducedModel::floating_penalty(const ReducedConfig& cfg, const VecX& x, boo
     coupling.resize(ns, mp);
     normal.resize(ns, mp);
   }
+  // Every node's normal velocity by the dispatched column kernel; a loaded node's full rows
+  // only when it is first loaded this step (most of the surface never is).
+  VecX& vn = ws.fl_pen_vn;
+  vn.resize(ns);
+  kernels::cols_times(ws.fl_pen_normal_cols.data(), ns, m, x.data(), vn.data());
   Eigen::Index rows = 0, loaded = 0;
   for (Eigen::Index c = 0; c < ns; ++c) {
-    const double* rx = ws.fl_rows.data() + 3 * c * m;
-    const double* rz = rx + 2 * m;
-    double vn = 0.0;
-    for (Eigen::Index j = 0; j < m; ++j) vn += rz[j] * x[j];
-    const double z = ws.fl_xs[3 * c + 2] + h * vn - cfg.ground_height;
+    const double z = ws.fl_xs[3 * c + 2] + h * vn[c] - cfg.ground_height;
     if (z >= 0.0) continue;
     double jn = 0.0;
-    const double fn = penalty_normal_force(cfg, static_cast<size_t>(c), z, vn, jn);
+    const double fn = penalty_normal_force(cfg, static_cast<size_t>(c), z, vn[c], jn);
     if (fn <= 0.0) continue;
+    if (!ws.fl_pen_rows_formed[static_cast<size_t>(c)]) {
+      floating_velocity_row(ws.fl_pen_rot, c, ws);
+      ws.fl_pen_rows_formed[static_cast<size_t>(c)] = 1;
+    }
+    const double* rx = ws.fl_rows.data() + 3 * c * m;
+    const double* rz = rx + 2 * m;
     if (!jacobian) {
       penalty_node_load(cfg.friction, fn, jn, rx, rx + m, rz, x.data(), m, mp, f.data(),
                         nullptr, nullptr);
@@ -421,7 +449,7 @@ void ReducedModel::floating_residual_for_tests(const StepInputs& in, const Reduc
   const bool penalty = in.config.contact == ContactModel::Penalty;
   if (in.config.fluid_density > 0.0 || penalty) floating_surface(s.q, ws);
   if (in.config.fluid_density > 0.0) floating_drag(in.config, s, ws);
-  if (penalty) floating_velocity_rows(s, nullptr, ws);
+  if (penalty) floating_penalty_start(s, ws);
   floating_residual(in, s, pi0, x, true, nullptr, ws);
   residual = ws.fl_r;
   jacobian = ws.fl_jac;
@@ -442,7 +470,7 @@ StepInfo ReducedModel::step_floating(const StepInputs& in, ReducedState& s, cons
     ScopedTimer drag_timer(cfg.profile ? &info.time_drag : nullptr);
     floating_drag(cfg, s, ws);
   }
-  if (penalty) floating_velocity_rows(s, nullptr, ws);
+  if (penalty) floating_penalty_start(s, ws);
   ScopedTimer timer(cfg.profile ? &info.time_dynamics : nullptr);
   const Vec3 pi0 = floating_start(floating_, in, s, fc, nd, ws);
 
@@ -596,7 +624,7 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   const std::vector<int>& active = ws.contact_active;
   const std::vector<double>& gap = ws.contact_gap;
   // The candidates' velocity rows (the solve reads only theirs, by surface node id).
-  floating_velocity_rows(s, &active, ws);
+  floating_velocity_rows(s, active, ws);
   const RowMatX& rows = ws.fl_rows;
   // The metric: the velocity response to an impulse over the step, the kinetic metric at z'
   // (u: 1, omega: I(z'), the coupling S(z'), w: 1) with the damping, plus h^2 K(z') + h beta

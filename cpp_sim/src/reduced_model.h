@@ -226,6 +226,12 @@ struct Workspace {
   VecX fl_pen;
   MatX fl_pen_jac, fl_load_jac;
   ScratchRowMat fl_pen_coupling, fl_pen_normal;
+  // The step's normal rows of every surface node (column-major), their normal velocities at
+  // the iterate, and which nodes have their rows in fl_rows this step.
+  MatX fl_pen_normal_cols;
+  VecX fl_pen_vn;
+  Mat3 fl_pen_rot;  // R at the step's start
+  std::vector<char> fl_pen_rows_formed;
   // The Newton step on the residual (step_reference: the reference solver, and penalty
   // contact's): the LDL^T of A, the iterate's elastic coordinates and generalised position,
   // the residual's products and v - v_n, and the penalty line search's trial point (elastic
@@ -402,14 +408,20 @@ class ReducedModel {
   void floating_node_velocities(const VecX& q, const VecX& qdot, VecX& out, Workspace& ws) const;
   // The surface nodes' world velocity rows [I / sqrt(m), -R [r_c]x, R U_c] at the step's start
   // (after floating_surface, R the rotation of s.q) into ws.fl_rows, for the surface nodes in
-  // `nodes`, or every surface node when it is null.
-  void floating_velocity_rows(const ReducedState& s, const std::vector<int>* nodes,
+  // `nodes`; floating_velocity_row: node c's, given R (ws.fl_rows already sized
+  // 3 n_s x (M + 6)).
+  void floating_velocity_rows(const ReducedState& s, const std::vector<int>& nodes,
                               Workspace& ws) const;
+  void floating_velocity_row(const Mat3& rot, Eigen::Index c, Workspace& ws) const;
+  // The penalty ground's set-up at the step's start (after floating_surface): every surface
+  // node's normal velocity row e_z^T B_i, column-major, into ws.fl_pen_normal_cols, and no
+  // node's full rows formed yet (floating_penalty forms a loaded node's on first use).
+  void floating_penalty_start(const ReducedState& s, Workspace& ws) const;
   // The penalty ground's generalised force at x = (u', omega', w') into ws.fl_pen, and with
   // `jacobian` its derivative into ws.fl_pen_jac: penalty_contacts' law on the surface rows at
-  // the step's start (floating_velocity_rows over every surface node), a node's height after
-  // the step predicted by them, as the staggered ground's candidates are. The derivative is
-  // exact: -W^T W and the friction's coupling to the normal force (penalty_node_load).
+  // the step's start, a node's height after the step predicted by them, as the staggered
+  // ground's candidates are. The derivative is exact: -W^T W and the friction's coupling to
+  // the normal force (penalty_node_load).
   void floating_penalty(const ReducedConfig& cfg, const VecX& x, bool jacobian,
                         Workspace& ws) const;
   // The drag at the step's start into ws.f_drag, ws.j_drag (after floating_surface).
