@@ -70,7 +70,8 @@ constexpr double kPenaltyFrictionEps = 1e-3;
 // S = sqrt(c) (I - v_t v_t^T / (s (s + eps))). Both frames' fast penalty grounds sum it.
 // -W^T W leaves out the friction's dependence on f_n, the rank-one (mu j_n / s) t r_z^T with
 // t = v_tx r_x + v_ty r_y, which is not symmetric (the linear frame's LDL^T cannot take it);
-// when `coupling` is not null, its row (mu j_n / s) t goes there (mp columns, zero past m).
+// when `coupling` is not null, a = (mu sqrt(j_n) / s) t goes there (mp columns, zero past m),
+// so that the term is a times the node's normal row of W.
 void penalty_node_load(double mu, double fn, double jn, const double* rx, const double* ry,
                        const double* rz, const double* v, Eigen::Index m, Eigen::Index mp,
                        double* f, double* w, double* coupling) {
@@ -99,7 +100,7 @@ void penalty_node_load(double mu, double fn, double jn, const double* rx, const 
   }
   for (Eigen::Index j = m; j < mp; ++j) wn[j] = w0[j] = w1[j] = 0.0;
   if (coupling == nullptr) return;
-  const double cn = mu * jn / s;
+  const double cn = mu * sn / s;
   for (Eigen::Index j = 0; j < m; ++j) coupling[j] = cn * (vt0 * rx[j] + vt1 * ry[j]);
   for (Eigen::Index j = m; j < mp; ++j) coupling[j] = 0.0;
 }

@@ -187,7 +187,8 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
   bool refresh_stiffness = true;
   double last_step = std::numeric_limits<double>::infinity();
   // True when v is the line search's accepted trial point, whose elastic force f_trial is
-  // then f_e at v (q_e is the same sum again), so it is not evaluated twice. (The penalty force is: the trial formed it without its Jacobian.)
+  // then f_e at v (q_e is the same sum again), so it is not evaluated twice. (The penalty
+  // force is: the trial formed it without its Jacobian.)
   bool at_trial = false;
   for (int it = 0; it < cfg.max_newton_iterations; ++it) {
     qe = s.q.tail(md) + h * v.tail(md);

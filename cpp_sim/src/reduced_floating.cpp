@@ -138,18 +138,16 @@ void ReducedModel::floating_penalty(const ReducedConfig& cfg, const VecX& x, boo
   f.setZero(m);
   ScratchRowMat& w = ws.pen_w;
   ScratchRowMat& coupling = ws.fl_pen_coupling;
-  ScratchRowMat& normal = ws.fl_pen_normal;
   if (jacobian) {  // (they only grow: allocated once per worker and model)
     w.resize(3 * ns, mp);
     coupling.resize(ns, mp);
-    normal.resize(ns, mp);
   }
   // Every node's normal velocity by the dispatched column kernel; a loaded node's full rows
   // only when it is first loaded this step (most of the surface never is).
   VecX& vn = ws.fl_pen_vn;
   vn.resize(ns);
   kernels::cols_times(ws.fl_pen_normal_cols.data(), ns, m, x.data(), vn.data());
-  Eigen::Index rows = 0, loaded = 0;
+  Eigen::Index loaded = 0;
   for (Eigen::Index c = 0; c < ns; ++c) {
     const double z = ws.fl_xs[3 * c + 2] + h * vn[c] - cfg.ground_height;
     if (z >= 0.0) continue;
@@ -161,26 +159,18 @@ void ReducedModel::floating_penalty(const ReducedConfig& cfg, const VecX& x, boo
       ws.fl_pen_rows_formed[static_cast<size_t>(c)] = 1;
     }
     const double* rx = ws.fl_rows.data() + 3 * c * m;
-    const double* rz = rx + 2 * m;
-    if (!jacobian) {
-      penalty_node_load(cfg.friction, fn, jn, rx, rx + m, rz, x.data(), m, mp, f.data(),
-                        nullptr, nullptr);
-      continue;
-    }
-    penalty_node_load(cfg.friction, fn, jn, rx, rx + m, rz, x.data(), m, mp, f.data(),
-                      w.data() + rows * mp, coupling.data() + loaded * mp);
-    double* n_row = normal.data() + loaded * mp;
-    std::copy(rz, rz + m, n_row);
-    std::fill(n_row + m, n_row + mp, 0.0);
-    rows += 3;
+    penalty_node_load(cfg.friction, fn, jn, rx, rx + m, rx + 2 * m, x.data(), m, mp, f.data(),
+                      jacobian ? w.data() + 3 * loaded * mp : nullptr,
+                      jacobian ? coupling.data() + loaded * mp : nullptr);
     ++loaded;
   }
   if (!jacobian) return;
-  negative_gram(w.data(), rows, ws.pen_gram, ws.fl_pen_jac);
-  // + A^T N, A's rows the couplings and N's the normal rows (products into their destination:
-  // no heap temporary).
-  using RowMap = Eigen::Map<const RowMatX>;
-  const RowMap a(coupling.data(), loaded, mp), n(normal.data(), loaded, mp);
+  negative_gram(w.data(), 3 * loaded, ws.pen_gram, ws.fl_pen_jac);
+  // + A^T N, A's rows the couplings and N's W's normal rows, every third (products into their
+  // destination: no heap temporary).
+  const Eigen::Map<const RowMatX> a(coupling.data(), loaded, mp);
+  const Eigen::Map<const RowMatX, 0, Eigen::OuterStride<>> n(w.data(), loaded, mp,
+                                                              Eigen::OuterStride<>(3 * mp));
   ws.fl_pen_jac.noalias() += a.leftCols(m).transpose() * n.leftCols(m);
 }
 

@@ -83,8 +83,9 @@ struct ReducedConfig {
   Frame frame = Frame::Linear;
 };
 
-// One loaded surface node's penalty force and rows of W (J_pen = -W^T W), summed by both
-// frames' penalty grounds (reduced_contact.cpp has the law).
+// One loaded surface node's penalty force, its rows of W (J_pen = -W^T W) and the row of its
+// friction's coupling to the normal force, summed by both frames' penalty grounds
+// (reduced_contact.cpp has the law).
 void penalty_node_load(double mu, double fn, double jn, const double* rx, const double* ry,
                        const double* rz, const double* v, Eigen::Index m, Eigen::Index mp,
                        double* f, double* w, double* coupling);
@@ -221,11 +222,11 @@ struct Workspace {
   MatX fl_gram;  // floating_drag_fast's W W^T (lower triangle)
   RowMatX fl_rows;
   // The penalty ground's force and Jacobian at the iterate (floating_penalty), the rows of
-  // its friction's coupling to the normal force and the loaded nodes' normal rows, and the
-  // Jacobian of the load it shares with the drag (J_d + J_pen, when both act).
+  // its friction's coupling to the normal force, and the Jacobian of the load it shares with
+  // the drag (J_d + J_pen, when both act).
   VecX fl_pen;
   MatX fl_pen_jac, fl_load_jac;
-  ScratchRowMat fl_pen_coupling, fl_pen_normal;
+  ScratchRowMat fl_pen_coupling;
   // The step's normal rows of every surface node (column-major), their normal velocities at
   // the iterate, and which nodes have their rows in fl_rows this step.
   MatX fl_pen_normal_cols;
