@@ -36,8 +36,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   return ws.contact->solve(cfg, surface_rows_, active, gap, a, a_llt, v, impulses, ws.nnls, info);
 }
 
-// Penalty ground: a spring on penetration with damping and regularised Coulomb friction,
-// evaluated at the Newton iterate (implicit in position). The default stiffness is sized from
+// Penalty ground: a spring on penetration with a critical damper (ramped in over the first
+// kPenaltyDamperRamp of sink) and regularised Coulomb friction, evaluated at the Newton iterate (implicit in position). The default stiffness is sized from
 // the weight it must carry: the body's weight shared by the surface nodes that touch the
 // ground at rest, per kPenaltySink (1 mm) of sink, plus 0.25 m_i / dt^2 (alone, that term let
 // the quadruped's feet sink 6 cm), so a resting body sinks a little under 1 mm (0.89 mm for
@@ -54,8 +54,18 @@ double ReducedModel::penalty_normal_force(const ReducedConfig& cfg, size_t c, do
                        : total_mass_ * std::abs(cfg.gravity.z()) / (rest_contacts_ * kPenaltySink) +
                              mass * 0.25 / (h * h);
   const double damp = 2.0 * std::sqrt(k * mass);
+  const double sink = -z;
+  if (sink < kPenaltyDamperRamp) {
+    // The damper ramps in with the sink, f = sink (k - d v_z / delta_0) (Hunt-Crossley's
+    // form), so the force is continuous where a node arrives. Its derivative in v_z, through
+    // sink = -(z_0 + h v_z), is -(h (k - d v_z / delta_0) + d sink / delta_0), positive
+    // wherever f > 0, so -W^T W stays a valid (exact) Jacobian.
+    const double r = sink / kPenaltyDamperRamp;
+    jacobian_factor = h * (k - damp * vz / kPenaltyDamperRamp) + damp * r;
+    return std::max(0.0, k * sink - damp * vz * r);
+  }
   jacobian_factor = k * h + damp;  // stiffness (through z = z0 + h v_z) and damping
-  return std::max(0.0, -k * z - damp * vz);
+  return std::max(0.0, k * sink - damp * vz);
 }
 
 // The penalty ground's smoothing of |v_t| (m/s): friction is regularised Coulomb,

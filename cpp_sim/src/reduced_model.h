@@ -513,7 +513,8 @@ class ReducedModel {
   void penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
                              MatX* jac, Workspace& ws) const;
   // Surface node c's penalty normal force at height z above the ground (negative: below it)
-  // and normal velocity vz, and (out) the factor k h + d of its normal row in the Jacobian.
+  // and normal velocity vz, and (out) the factor -d f / d vz of its normal row in the Jacobian
+  // (k h + d below the damper's ramp).
   double penalty_normal_force(const ReducedConfig& cfg, size_t c, double z, double vz,
                               double& jacobian_factor) const;
 
@@ -522,6 +523,12 @@ class ReducedModel {
   double total_mass_ = 0.0;
   int rest_contacts_ = 1;   // surface nodes on the lowest plane at rest (penalty sizing)
   static constexpr double kPenaltySink = 1e-3;  // m of sink per body weight (penalty default)
+  // m of sink over which the penalty damper ramps in (a tenth of kPenaltySink). A damper on
+  // from z = 0 made the force jump by d |v_z| where a node arrives, and Newton found no root
+  // on up to 6 % of walking steps. 10 um already removed every such cap (benchmarks/PROFILE.md,
+  // session 50); 0.1 mm keeps the change to the first tenth of the sink the stiffness is
+  // sized for.
+  static constexpr double kPenaltyDamperRamp = 1e-4;
   Vec3 rest_com_;
   // Cubature over K elements (k = 1..K): G = [G_1; ...; G_K] stacked (9K x (M + 3)),
   // G_k = d vec(F_k) / d q_e, and wvol_[k] = w_k V_k, the element's cubature weight (the
