@@ -9,7 +9,8 @@ passed to each build's ``cpp_sim.ReducedModel`` constructor (whose arguments hav
 since the reduced core landed), so only the step's code differs. Each build runs with its own
 default settings except the task's (staggered contact for the walkers; drag, no gravity and
 no contact for the swimmer), under ``bench_rom.py``'s actuation (random modal forces of 0.5
-body weight in the first three modes, seed 0), one thread, one C++ rollout from rest.
+body weight in the first three modes, seed 0; ``--actuation gait`` for one smooth sinusoidal
+gait instead, as ``_actuation.py`` draws it), one thread, one C++ rollout from rest.
 
 A build is an unpacked wheel. For a commit::
 
@@ -21,7 +22,8 @@ then::
 
     python benchmarks/ab_builds.py --build before=/tmp/site_before --build after=/tmp/site_after
         [--robots quadruped-walk ...] [--solver fast] [--frame linear]
-        [--contact staggered] [--steps 300] [--rounds 3] [--compare] [--json]
+        [--contact staggered] [--actuation random] [--steps 300] [--rounds 3] [--compare]
+        [--json]
 
 It prints steps/s per build and benchmark (best of ``--rounds`` alternating rounds, each the
 best of three rollouts) and each build's ratio to the first. ``--solver`` picks the solver in
@@ -73,8 +75,8 @@ def save_models(robots: list[str], path: Path) -> None:
     np.savez(path, **arrays)
 
 
-def child(site: str, data: str, solver: str, frame: str, contact: str, steps: int,
-          robots: list[str], out: str) -> None:  # fmt: skip
+def child(site: str, data: str, solver: str, frame: str, contact: str, actuation: str,
+          steps: int, robots: list[str], out: str) -> None:  # fmt: skip
     """Time each benchmark with the build in ``site`` (imported instead of the installed one)."""
     sys.meta_path = [f for f in sys.meta_path if not type(f).__module__.startswith("_editable")]
     sys.path.insert(0, site)
@@ -107,7 +109,7 @@ def child(site: str, data: str, solver: str, frame: str, contact: str, steps: in
                 raise SystemExit(f"{site} has no frame setting (built before frame='floating')")
             model.frame = frame
         model.control_basis = np.eye(20)[:, :3]
-        controls = modal_forces(model, (1, steps, 3))
+        controls = modal_forces(model, (1, steps, 3), kind=actuation)
         state = model.rest_state()
         model.rollout(state, controls[:, :5], threads=1)  # warm-up
         best = np.inf
@@ -125,8 +127,8 @@ def child(site: str, data: str, solver: str, frame: str, contact: str, steps: in
 
 def run_build(site: Path, data: Path, args: argparse.Namespace, out: Path) -> dict:
     cmd = [sys.executable, __file__, "--child", str(site), "--data", str(data), "--solver",
-           args.solver, "--frame", args.frame, "--contact", args.contact, "--steps",
-           str(args.steps), "--out", str(out),
+           args.solver, "--frame", args.frame, "--contact", args.contact, "--actuation",
+           args.actuation, "--steps", str(args.steps), "--out", str(out),
            "--robots", *args.robots]  # fmt: skip
     env = dict(os.environ, PYTHONNOUSERSITE="1")
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -153,6 +155,12 @@ def main() -> None:
         choices=["staggered", "penalty"],
         help="the walkers' ground (the swimmer has none)",
     )
+    parser.add_argument(
+        "--actuation",
+        default="random",
+        choices=["random", "gait"],
+        help="random modal forces, new each step (bench_rom's), or one smooth gait",
+    )
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--compare", action="store_true",
@@ -163,8 +171,8 @@ def main() -> None:
     parser.add_argument("--out", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        child(args.child, args.data, args.solver, args.frame, args.contact, args.steps,
-              args.robots, args.out)  # fmt: skip
+        child(args.child, args.data, args.solver, args.frame, args.contact, args.actuation,
+              args.steps, args.robots, args.out)  # fmt: skip
         return
     builds: dict[str, Path] = {}
     for spec in args.build:
@@ -217,6 +225,7 @@ def main() -> None:
     for name in builds:
         how = f"solver={solver_of[name]}" if solver_of[name] else "its only solver"
         how += f", {args.contact} ground" if args.contact != "staggered" else ""
+        how += ", a gait" if args.actuation == "gait" else ""
         print(f"  {name}: {builds[name]} ({how})")
     header = f"{'benchmark':<16}" + "".join(f"{n:>14}" for n in builds)
     print(header + "".join(f"{n + '/' + first:>16}" for n in list(builds)[1:]))

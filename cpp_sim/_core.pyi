@@ -188,6 +188,10 @@ class ReducedModel:
         """
         The floating frame's implicit-Euler residual at x = (u', omega', w') from `state`, and its Jacobian (for the tests' finite-difference check).
         """
+    def _penalty_load(self, q: typing.Any, v: typing.Any) -> tuple[numpy.typing.NDArray[numpy.float64], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]]:
+        """
+        The linear frame's penalty ground force at q + dt v and its Jacobian in v, as the Newton matrix takes it (for the tests' finite-difference check).
+        """
     def com(self, q: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """
         Centre of mass (3,) of reduced coordinates q.

@@ -73,15 +73,16 @@ double ReducedModel::penalty_normal_force(const ReducedConfig& cfg, size_t c, do
 constexpr double kPenaltyFrictionEps = 1e-3;
 
 // One loaded node's share of the penalty force, given its normal force f_n > 0, its Jacobian
-// factor j_n = k h + d and its world velocity rows r_x, r_y, r_z (m entries each) in the
-// generalised velocities v: f += f_n r_z - c (v_tx r_x + v_ty r_y), c = mu f_n / s,
+// factor j_n = -d f_n / d v_z (k h + d beyond the damper's ramp) and its world velocity rows
+// r_x, r_y, r_z (m entries each) in the generalised velocities v:
+// f += f_n r_z - c (v_tx r_x + v_ty r_y), c = mu f_n / s,
 // s = |v_t|_eps, and, when w is not null, the node's three rows of W (J_pen = -W^T W; mp
 // columns, zero past m): sqrt(j_n) r_z, and the tangent rows times
 // S = sqrt(c) (I - v_t v_t^T / (s (s + eps))). Both frames' fast penalty grounds sum it.
 // -W^T W leaves out the friction's dependence on f_n, the rank-one (mu j_n / s) t r_z^T with
-// t = v_tx r_x + v_ty r_y, which is not symmetric (the linear frame's LDL^T cannot take it);
-// when `coupling` is not null, a = (mu sqrt(j_n) / s) t goes there (mp columns, zero past m),
-// so that the term is a times the node's normal row of W.
+// t = v_tx r_x + v_ty r_y, which is not symmetric; when `coupling` is not null,
+// a = (mu sqrt(j_n) / s) t goes there (mp columns, zero past m), so that the term is a times
+// the node's normal row of W. Both frames' Newton matrices then take it, factored by LU.
 void penalty_node_load(double mu, double fn, double jn, const double* rx, const double* ry,
                        const double* rz, const double* v, Eigen::Index m, Eigen::Index mp,
                        double* f, double* w, double* coupling) {
@@ -115,6 +116,14 @@ void penalty_node_load(double mu, double fn, double jn, const double* rx, const 
   for (Eigen::Index j = m; j < mp; ++j) coupling[j] = 0.0;
 }
 
+void ReducedModel::penalty_load_for_tests(const StepInputs& in, const VecX& q_n, const VecX& v,
+                                          VecX& force, MatX& jacobian, Workspace& ws) const {
+  const VecX q = q_n + in.config.dt * v;
+  penalty_contacts(in.config, q, v, force, &jacobian, ws);
+  if (in.config.solver == Solver::Fast) penalty_coupling_matrix(ws, ws.j_pen_coupling);
+  jacobian += ws.j_pen_coupling;
+}
+
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
                                     VecX& f, MatX* jac, Workspace& ws) const {
   if (cfg.solver == Solver::Fast) return penalty_contacts_fast(cfg, q, v, f, jac, ws);
@@ -123,7 +132,10 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
   // heap temporary: the same sums, bit for bit.)
   const Eigen::Index m = basis_cols_;
   f.setZero(m);
-  if (jac) jac->setZero(m, m);  // d f / d v (the position terms through q = q_n + h v: times h)
+  if (jac) {  // d f / d v (the position terms through q = q_n + h v: times h)
+    jac->setZero(m, m);
+    ws.j_pen_coupling.setZero(m, m);
+  }
   VecX& xs = ws.pen_xs;
   VecX& vs = ws.pen_vs;
   xs = surface_rest_;
@@ -153,6 +165,9 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
         scale * (Eigen::Matrix2d::Identity() - vt * vt.transpose() / (s * s));
     ws.pen_at.noalias() = rows.topRows(2).transpose() * dt_dv;
     jac->noalias() -= ws.pen_at * rows.topRows(2);
+    // The friction's dependence on f_n (d f_n / d v = -j_n r_z^T): (mu j_n / s) t r_z^T.
+    ws.pen_row.noalias() = (cfg.friction * jn / s) * (rows.topRows(2).transpose() * vt);
+    ws.j_pen_coupling.noalias() += ws.pen_row * rows.row(2);
   }
 }
 
@@ -175,7 +190,11 @@ void ReducedModel::penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q
   vn.resize(ns);
   kernels::cols_times_pair(normal_cols_.data(), ns, m, q.data(), v.data(), zq.data(), vn.data());
   ScratchRowMat& w = ws.pen_w;
-  if (jac) w.resize(3 * ns, mp);  // (only grows: allocated once per worker and model)
+  ScratchRowMat& coupling = ws.pen_coupling;
+  if (jac) {  // (they only grow: allocated once per worker and model)
+    w.resize(3 * ns, mp);
+    coupling.resize(ns, mp);
+  }
   Eigen::Index rows = 0;
   for (Eigen::Index c = 0; c < ns; ++c) {
     const double z = ground_gap(cfg, c, zq[c]);
@@ -185,10 +204,34 @@ void ReducedModel::penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q
     if (fn <= 0.0) continue;
     const double* rx = surface_rows_.data() + 3 * c * m;
     penalty_node_load(cfg.friction, fn, jn, rx, rx + m, rx + 2 * m, v.data(), m, mp, f.data(),
-                      jac ? w.data() + rows * mp : nullptr, nullptr);
+                      jac ? w.data() + rows * mp : nullptr,
+                      jac ? coupling.data() + (rows / 3) * mp : nullptr);
     if (jac) rows += 3;
   }
-  if (jac) negative_gram(w.data(), rows, ws.pen_gram, *jac);
+  if (!jac) return;
+  negative_gram(w.data(), rows, ws.pen_gram, *jac);
+  ws.pen_loaded = rows / 3;  // the coupling stays in its rows: penalty_coupling_times
+}
+
+// The coupling C = A^T N, A's rows the couplings and N's W's normal rows (every third), as
+// penalty_contacts_fast left them: C x = A^T (N x), or C itself.
+void ReducedModel::penalty_coupling_times(const VecX& x, VecX& out, Workspace& ws) const {
+  const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols(), loaded = ws.pen_loaded;
+  const Eigen::Map<const RowMatX> a(ws.pen_coupling.data(), loaded, mp);
+  const Eigen::Map<const RowMatX, 0, Eigen::OuterStride<>> n(ws.pen_w.data(), loaded, mp,
+                                                              Eigen::OuterStride<>(3 * mp));
+  // (pen_nx only grows: the loaded count changes from iterate to iterate.)
+  if (ws.pen_nx.size() < loaded) ws.pen_nx.resize(normal_cols_.rows());
+  ws.pen_nx.head(loaded).noalias() = n.leftCols(m) * x;
+  out.noalias() = a.leftCols(m).transpose() * ws.pen_nx.head(loaded);
+}
+
+void ReducedModel::penalty_coupling_matrix(Workspace& ws, MatX& out) const {
+  const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols(), loaded = ws.pen_loaded;
+  const Eigen::Map<const RowMatX> a(ws.pen_coupling.data(), loaded, mp);
+  const Eigen::Map<const RowMatX, 0, Eigen::OuterStride<>> n(ws.pen_w.data(), loaded, mp,
+                                                              Eigen::OuterStride<>(3 * mp));
+  out.noalias() = a.leftCols(m).transpose() * n.leftCols(m);
 }
 
 }  // namespace softrom

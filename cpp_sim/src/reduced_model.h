@@ -167,9 +167,10 @@ struct Workspace {
   const ReducedModel* lender = nullptr;  // the model whose steps it serves (lend_workspace)
 
   // The step's loads (step_loads, penalty_contacts): f_ext (gravity + B_c f_c), the drag force
-  // and its Jacobian J_d, the penalty force and its Jacobian.
+  // and its Jacobian J_d, the penalty force and its Jacobian's symmetric part and (reference
+  // solver) the friction's coupling to the normal force (the Jacobian is their sum).
   VecX f_ext, f_drag, f_pen;
-  MatX j_drag, j_pen;
+  MatX j_drag, j_pen, j_pen_coupling;
   // The Newton iteration (reduced_dynamics.cpp): elastic force f_e and stiffness K_r at the
   // iterate, the implicit matrix A, the residual r (reference) or the gradient g of Phi
   // (fast), the step dv; the fast step's inverse estimate H, its line search's trial point
@@ -234,18 +235,23 @@ struct Workspace {
   Mat3 fl_pen_rot;  // R at the step's start
   std::vector<char> fl_pen_rows_formed;
   // The Newton step on the residual (step_reference: the reference solver, and penalty
-  // contact's): the LDL^T of A, the iterate's elastic coordinates and generalised position,
+  // contact's): the LDL^T of A (with penalty contact, of A's symmetric part; the reference
+  // solver then factors A itself by LU), the iterate's elastic coordinates and generalised position,
   // the residual's products and v - v_n, and the penalty line search's trial point (elastic
   // coordinates, elastic and penalty forces, residual).
   Eigen::LDLT<MatX> ref_ldlt;
+  Eigen::PartialPivLU<MatX> ref_lu;
   VecX ref_qe, ref_q, ref_prod, ref_dw, ref_qe_trial, ref_f_trial, ref_f_pen_trial, ref_r_trial;
   // penalty_contacts': the surface nodes' positions and velocities (the fast solver's: their
   // heights and normal velocities), a node's scaled normal row and friction force, and its
   // tangent rows times the friction Jacobian (reference); the fast solver's factor W of
-  // J_pen = -W^T W (three rows per loaded node, padded to a multiple of 4 columns) and W^T W.
+  // J_pen = -W^T W (three rows per loaded node, padded to a multiple of 4 columns) and W^T W,
+  // and the coupling rows a (one per loaded node: penalty_node_load's).
   VecX pen_xs, pen_vs, pen_row, pen_ft;
   Eigen::Matrix<double, Eigen::Dynamic, 2> pen_at;
-  ScratchRowMat pen_w;
+  ScratchRowMat pen_w, pen_coupling;
+  Eigen::Index pen_loaded = 0;  // (the fast solver's loaded nodes: rows of pen_coupling)
+  VecX pen_nx, pen_cx, pen_rhs;  // C x's N x, C x, and a refinement's right-hand side
   MatX pen_gram;
 };
 
@@ -340,6 +346,13 @@ class ReducedModel {
   // frame config.frame says.
   VecX positions(const VecX& q) const;
   VecX velocities(const VecX& q, const VecX& qdot) const;
+  // The linear frame's penalty ground force at q = q_n + h v and its full Jacobian d f / d v
+  // (symmetric part plus the friction's coupling): what step_reference's Newton matrix takes,
+  // for the tests.
+  void penalty_coupling_times(const VecX& x, VecX& out, Workspace& ws) const;
+  void penalty_coupling_matrix(Workspace& ws, MatX& out) const;
+  void penalty_load_for_tests(const StepInputs& in, const VecX& q_n, const VecX& v, VecX& force,
+                              MatX& jacobian, Workspace& ws) const;
   // The floating frame's step residual at x = (u', omega', w') from s under f_c (C entries), and
   // its Jacobian: what step_floating's Newton iteration solves, for the tests.
   void floating_residual_for_tests(const StepInputs& in, const ReducedState& s, const VecX& fc,
@@ -506,8 +519,11 @@ class ReducedModel {
   int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                      const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses, Workspace& ws,
                      StepInfo& info) const;
-  // Penalty ground force f at (q, v), and its velocity Jacobian when jac is not null (the
-  // Newton matrix needs it; the line search's residuals do not), in ws's scratch (pen_*).
+  // Penalty ground force f at (q, v), and, when jac is not null (the Newton matrix needs it;
+  // the line search's residuals do not), its velocity Jacobian's symmetric part in *jac and
+  // the friction's coupling to the normal force C (not symmetric): the reference solver's in
+  // ws.j_pen_coupling, the fast solver's as the rows that penalty_coupling_times (C x) and
+  // penalty_coupling_matrix (C) read, in ws's scratch (pen_*).
   void penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
                         MatX* jac, Workspace& ws) const;
   void penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
