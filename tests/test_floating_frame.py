@@ -100,7 +100,7 @@ def test_newton_jacobian_matches_finite_differences(bar, solver, fluid_density):
 def test_penalty_ground_jacobian_matches_finite_differences(bar, solver, fluid_density, sink):
     # The penalty ground's force enters the residual on the surface rows at the step's start,
     # and its Jacobian is exact: the springs and dampers, the friction's (I - t t^T) block and
-    # its coupling to the normal force (which the linear frame's symmetric LDL^T leaves out).
+    # its coupling to the normal force (as the linear frame's, test_solver.py's check).
     # At 50 um the lowest node's end-of-step sink lies in the first 0.1 mm, where the damper
     # ramps in with the sink (its derivative then has a term in the sink's own velocity).
     model = _model(bar, solver=solver, contact="penalty", fluid_density=fluid_density,

@@ -44,7 +44,8 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 // test_solver's block). It is an approximate model, and not a fast one: its springs are
 // implicit in position, so it keeps Newton on the residual, each iteration with the penalty
 // Jacobian (and, in the fast solver, the stiffness when Newton stalls); with the fast solver
-// it runs at 0.41-0.91 of staggered projection's rate (bench_rom.py's penalty/s, session 49).
+// it runs at about 0.5-0.8 of staggered projection's rate (bench_rom.py's penalty/s, session
+// 50).
 double ReducedModel::penalty_normal_force(const ReducedConfig& cfg, size_t c, double z,
                                           double vz, double& jacobian_factor) const {
   const double h = cfg.dt;
