@@ -188,9 +188,9 @@ class ReducedModel:
         """
         The floating frame's implicit-Euler residual at x = (u', omega', w') from `state`, and its Jacobian (for the tests' finite-difference check).
         """
-    def _penalty_load(self, q: typing.Any, v: typing.Any) -> tuple[numpy.typing.NDArray[numpy.float64], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]]:
+    def _penalty_load(self, q: typing.Any, v: typing.Any, x: typing.Any = None) -> tuple[numpy.typing.NDArray[numpy.float64], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"], typing.Any]:
         """
-        The linear frame's penalty ground force at q + dt v and its Jacobian in v, as the Newton matrix takes it (for the tests' finite-difference check).
+        The linear frame's penalty ground force at q + dt v, its Jacobian in v as the solver forms it (the symmetric part, and the friction's coupling C), and C x as the Newton step applies it (None without x): for the tests.
         """
     def com(self, q: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
         """

@@ -505,21 +505,26 @@ KeyboardInterrupt.)doc")
           py::arg("q_e"), "Reduced elastic force B_e^T f(X + B_e q_e) (M + 3,) by cubature, q_e = q[3:].")
       .def(
           "_penalty_load",
-          [](const ReducedModel& r, py::handle q, py::handle v) {
+          [](const ReducedModel& r, py::handle q, py::handle v, py::handle x) {
             const StepInputs in = r.inputs();
             if (in.config.frame != Frame::Linear || in.config.contact != ContactModel::Penalty)
               throw py::value_error("_penalty_load needs frame='linear' and contact='penalty'");
             const VecX qn = vector_in(q, "q", r.dim());
             const VecX vv = vector_in(v, "v", r.dim());
+            VecX xv;
+            if (!x.is_none()) xv = vector_in(x, "x", r.dim());
             const ReducedModel::WorkspaceLease ws = r.lend_workspace();
-            VecX f;
-            MatX jac;
-            r.penalty_load_for_tests(in, qn, vv, f, jac, *ws);
-            return py::make_tuple(vec_out(f), jac);
+            VecX f, cx;
+            MatX sym, coupling;
+            r.penalty_load_for_tests(in, qn, vv, x.is_none() ? nullptr : &xv, f, sym, coupling,
+                                     cx, *ws);
+            return py::make_tuple(vec_out(f), sym, coupling,
+                                  x.is_none() ? py::object(py::none()) : py::object(vec_out(cx)));
           },
-          py::arg("q"), py::arg("v"),
-          "The linear frame's penalty ground force at q + dt v and its Jacobian in v, as the "
-          "Newton matrix takes it (for the tests' finite-difference check).")
+          py::arg("q"), py::arg("v"), py::arg("x") = py::none(),
+          "The linear frame's penalty ground force at q + dt v, its Jacobian in v as the solver "
+          "forms it (the symmetric part, and the friction's coupling C), and C x as the Newton "
+          "step applies it (None without x): for the tests.")
       .def(
           "_floating_residual",
           [](const ReducedModel& r, const ReducedState& s, py::handle fc, py::handle x) {

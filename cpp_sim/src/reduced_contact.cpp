@@ -37,11 +37,12 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
 }
 
 // Penalty ground: a spring on penetration with a critical damper (ramped in over the first
-// kPenaltyDamperRamp of sink) and regularised Coulomb friction, evaluated at the Newton iterate (implicit in position). The default stiffness is sized from
-// the weight it must carry: the body's weight shared by the surface nodes that touch the
-// ground at rest, per kPenaltySink (1 mm) of sink, plus 0.25 m_i / dt^2 (alone, that term let
-// the quadruped's feet sink 6 cm), so a resting body sinks a little under 1 mm (0.89 mm for
-// test_solver's block). It is an approximate model, and not a fast one: its springs are
+// kPenaltyDamperRamp of sink) and regularised Coulomb friction, evaluated at the Newton
+// iterate (implicit in position). The default stiffness is sized from the weight it must
+// carry: the body's weight shared by the surface nodes that touch the ground at rest, per
+// kPenaltySink (1 mm) of sink, plus 0.25 m_i / dt^2 (alone, that term let the quadruped's
+// feet sink 6 cm), so a resting body sinks a little under 1 mm (0.89 mm for test_solver's
+// block). It is an approximate model, and not a fast one: its springs are
 // implicit in position, so it keeps Newton on the residual, each iteration with the penalty
 // Jacobian (and, in the fast solver, the stiffness when Newton stalls); with the fast solver
 // it runs at about 0.5-0.8 of staggered projection's rate (bench_rom.py's penalty/s, session
@@ -59,8 +60,9 @@ double ReducedModel::penalty_normal_force(const ReducedConfig& cfg, size_t c, do
   if (sink < kPenaltyDamperRamp) {
     // The damper ramps in with the sink, f = sink (k - d v_z / delta_0) (Hunt-Crossley's
     // form), so the force is continuous where a node arrives. Its derivative in v_z, through
-    // sink = -(z_0 + h v_z), is -(h (k - d v_z / delta_0) + d sink / delta_0), positive
-    // wherever f > 0, so -W^T W stays a valid (exact) Jacobian.
+    // sink = -(z_0 + h v_z), is -(h (k - d v_z / delta_0) + d sink / delta_0), negative
+    // wherever f > 0: the factor j_n is positive, so a node's normal row of W, sqrt(j_n) r_z,
+    // stays real and the Jacobian exact.
     const double r = sink / kPenaltyDamperRamp;
     jacobian_factor = h * (k - damp * vz / kPenaltyDamperRamp) + damp * r;
     return std::max(0.0, k * sink - damp * vz * r);
@@ -83,7 +85,8 @@ constexpr double kPenaltyFrictionEps = 1e-3;
 // -W^T W leaves out the friction's dependence on f_n, the rank-one (mu j_n / s) t r_z^T with
 // t = v_tx r_x + v_ty r_y, which is not symmetric; when `coupling` is not null,
 // a = (mu sqrt(j_n) / s) t goes there (mp columns, zero past m), so that the term is a times
-// the node's normal row of W. Both frames' Newton matrices then take it, factored by LU.
+// the node's normal row of W. The floating frame's Newton matrix takes it, factored by LU; the
+// linear frame's, by one refinement of its symmetric part's solve (step_reference).
 void penalty_node_load(double mu, double fn, double jn, const double* rx, const double* ry,
                        const double* rz, const double* v, Eigen::Index m, Eigen::Index mp,
                        double* f, double* w, double* coupling) {
@@ -118,11 +121,23 @@ void penalty_node_load(double mu, double fn, double jn, const double* rx, const 
 }
 
 void ReducedModel::penalty_load_for_tests(const StepInputs& in, const VecX& q_n, const VecX& v,
-                                          VecX& force, MatX& jacobian, Workspace& ws) const {
+                                          const VecX* x, VecX& force, MatX& symmetric,
+                                          MatX& coupling, VecX& coupling_x,
+                                          Workspace& ws) const {
   const VecX q = q_n + in.config.dt * v;
-  penalty_contacts(in.config, q, v, force, &jacobian, ws);
-  if (in.config.solver == Solver::Fast) penalty_coupling_matrix(ws, ws.j_pen_coupling);
-  jacobian += ws.j_pen_coupling;
+  penalty_contacts(in.config, q, v, force, &symmetric, ws);
+  const bool fast = in.config.solver == Solver::Fast;
+  if (fast) {
+    penalty_coupling_matrix(ws, coupling);
+  } else {
+    coupling = ws.j_pen_coupling;
+  }
+  if (x == nullptr) return;
+  if (fast) {
+    penalty_coupling_times(*x, coupling_x, ws);
+  } else {
+    coupling_x = coupling * *x;
+  }
 }
 
 void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v,
@@ -174,12 +189,14 @@ void ReducedModel::penalty_contacts(const ReducedConfig& cfg, const VecX& q, con
 
 // The fast solver's: the heights and normal velocities of every surface node by one pass of
 // the column-major kernel over the normal rows, the tangent rows read only for loaded nodes,
-// and the Jacobian as one Gram product. Both of its terms are negative semi-definite, so
-// J_pen = -W^T W with three rows of W per loaded node: sqrt(k h + d) times its normal row, and
+// and the Jacobian's symmetric part as one Gram product. Its terms are negative semi-definite,
+// so it is -W^T W with three rows of W per loaded node: sqrt(j_n) times its normal row, and
 // S times its tangent rows, S = sqrt(c) (I - v_t v_t^T / (s (s + eps))) (c = mu f_n / s) the
 // symmetric square root of the friction block c (I - v_t v_t^T / s^2) (in this form, free of
 // the cancellation of 1 - eps / s at small |v_t|). Node by node with Eigen's products, the
 // Jacobian took over half of a penalty step on the cross (a flat body: ~185 loaded nodes).
+// The friction's coupling to the normal force stays in one row per loaded node
+// (penalty_node_load's a), for penalty_coupling_times.
 void ReducedModel::penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q, const VecX& v,
                                          VecX& f, MatX* jac, Workspace& ws) const {
   const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols();  // (negative_gram's width)

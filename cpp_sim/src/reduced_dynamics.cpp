@@ -241,8 +241,9 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     } else {
       dv = r;
       ldlt.solveInPlace(dv);
-      // (Not on the iteration that certifies the step: its step is below the tolerance
-      // before refinement, and refinement would change it by a fraction of that.)
+      // (Not on the iteration that certifies the step: the certificate stays what it was
+      // before the coupling was taken, the symmetric solve's step S^-1 r below the tolerance,
+      // a bound on the residual r through S.)
       if (penalty && ws.pen_loaded > 0 &&
           dv.cwiseAbs().maxCoeff() / sqrt_m >= cfg.newton_tolerance) {
         penalty_coupling_times(dv, ws.pen_cx, ws);

@@ -126,8 +126,8 @@ void ReducedModel::floating_penalty_start(const ReducedState& s, Workspace& ws) 
 // friction (penalty_normal_force, penalty_node_load) on the surface's velocity rows B_i at the
 // step's start, with node i's height after the step predicted by them, z_i + h (B_i x)_z: the
 // staggered ground's and the drag's linearisation. Its Jacobian is exact in x: -W^T W plus the
-// friction's coupling to the normal force, sum_i a_i r_z,i^T (penalty_node_load), as in the
-// linear frame (not symmetric: LU takes it).
+// friction's coupling to the normal force, sum_i a_i r_z,i^T (penalty_node_load), which the
+// linear frame's step takes too (not symmetric: here LU takes it).
 void ReducedModel::floating_penalty(const ReducedConfig& cfg, const VecX& x, bool jacobian,
                                     Workspace& ws) const {
   const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols();  // (negative_gram's width)

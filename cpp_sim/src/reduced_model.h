@@ -236,9 +236,9 @@ struct Workspace {
   std::vector<char> fl_pen_rows_formed;
   // The Newton step on the residual (step_reference: the reference solver, and penalty
   // contact's): the LDL^T of A (with penalty contact, of A's symmetric part; the reference
-  // solver then factors A itself by LU), the iterate's elastic coordinates and generalised position,
-  // the residual's products and v - v_n, and the penalty line search's trial point (elastic
-  // coordinates, elastic and penalty forces, residual).
+  // solver then factors A itself by LU), the iterate's elastic coordinates and generalised
+  // position, the residual's products and v - v_n, and the penalty line search's trial point
+  // (elastic coordinates, elastic and penalty forces, residual).
   Eigen::LDLT<MatX> ref_ldlt;
   Eigen::PartialPivLU<MatX> ref_lu;
   VecX ref_qe, ref_q, ref_prod, ref_dw, ref_qe_trial, ref_f_trial, ref_f_pen_trial, ref_r_trial;
@@ -346,13 +346,12 @@ class ReducedModel {
   // frame config.frame says.
   VecX positions(const VecX& q) const;
   VecX velocities(const VecX& q, const VecX& qdot) const;
-  // The linear frame's penalty ground force at q = q_n + h v and its full Jacobian d f / d v
-  // (symmetric part plus the friction's coupling): what step_reference's Newton matrix takes,
-  // for the tests.
-  void penalty_coupling_times(const VecX& x, VecX& out, Workspace& ws) const;
-  void penalty_coupling_matrix(Workspace& ws, MatX& out) const;
-  void penalty_load_for_tests(const StepInputs& in, const VecX& q_n, const VecX& v, VecX& force,
-                              MatX& jacobian, Workspace& ws) const;
+  // For the tests: the linear frame's penalty ground force at q = q_n + h v, its Jacobian in v
+  // as the solver forms it (symmetric part, and the friction's coupling C), and, when x is not
+  // null, C x as step_reference's Newton step applies it (the fast solver's through its rows).
+  void penalty_load_for_tests(const StepInputs& in, const VecX& q_n, const VecX& v,
+                              const VecX* x, VecX& force, MatX& symmetric, MatX& coupling,
+                              VecX& coupling_x, Workspace& ws) const;
   // The floating frame's step residual at x = (u', omega', w') from s under f_c (C entries), and
   // its Jacobian: what step_floating's Newton iteration solves, for the tests.
   void floating_residual_for_tests(const StepInputs& in, const ReducedState& s, const VecX& fc,
@@ -526,11 +525,15 @@ class ReducedModel {
   // penalty_coupling_matrix (C) read, in ws's scratch (pen_*).
   void penalty_contacts(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
                         MatX* jac, Workspace& ws) const;
+  // The fast solver's coupling C times x, and C itself, from the rows penalty_contacts_fast
+  // left in ws: valid only after its call with jac on the same iterate.
+  void penalty_coupling_times(const VecX& x, VecX& out, Workspace& ws) const;
+  void penalty_coupling_matrix(Workspace& ws, MatX& out) const;
   void penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q, const VecX& v, VecX& f,
                              MatX* jac, Workspace& ws) const;
   // Surface node c's penalty normal force at height z above the ground (negative: below it)
   // and normal velocity vz, and (out) the factor -d f / d vz of its normal row in the Jacobian
-  // (k h + d below the damper's ramp).
+  // (k h + d past the damper's ramp).
   double penalty_normal_force(const ReducedConfig& cfg, size_t c, double z, double vz,
                               double& jacobian_factor) const;
 
