@@ -861,8 +861,9 @@ def test_the_penalty_newton_takes_the_friction_coupling(beam_robot, solver):
 def test_the_penalty_jacobian_matches_finite_differences(beam_robot, solver):
     # The penalty force's Jacobian in v, as the Newton matrix takes it: the springs and
     # dampers (through q = q_n + h v), the friction's (I - t t^T) block, and the friction's
-    # coupling to the normal force, which makes it unsymmetric (an LU takes it). Checked on a
-    # walking beam's state with nodes both inside the damper's 0.1 mm ramp and beyond it.
+    # coupling to the normal force, which makes it unsymmetric (the reference factors it by
+    # LU; the fast solver refines its symmetric part's solve). Checked on a walking beam's
+    # state with nodes both inside the damper's 0.1 mm ramp and beyond it.
     model = build_reduced_model(beam_robot, control_basis=np.eye(20)[:, :3], contact="penalty",
                                 solver=solver)  # fmt: skip
     state = model.rest_state()
