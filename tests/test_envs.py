@@ -38,7 +38,7 @@ def test_spaces_and_info(env):
     assert env.action_space.shape == (3,) and env.action_space.dtype == np.float32
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     keys = ("distance", "orientation", "lateral", "effort", "com", "diverged", "contact")
-    for key in (*keys, "min_volume_ratio"):
+    for key in (*keys, "converged", "min_volume_ratio"):
         assert key in info
     # the default material carries a random action with every element far from inverting
     assert 0.5 < info["min_volume_ratio"] < 1.5
@@ -109,6 +109,33 @@ def test_a_diverging_step_terminates_and_does_not_truncate():
     # diverged in the first sub-step), pays nothing for the lost sub-steps, no penalty
     np.testing.assert_array_equal(obs, before)
     assert reward == 0.0 and info["distance"] == 0.0
+
+
+def test_a_step_whose_solver_stops_short_says_so_in_info():
+    # A physics step whose Newton iteration (or contact solve) stops at its cap is still taken
+    # (the step is not lost), and info["converged"] says so: in step, in rollout and in the
+    # vector env. One Newton iteration cannot converge a penalty-ground step under load.
+    env = gym.make("softrom_gym/BeamWalk-v0", contact="penalty")
+    env.reset(seed=0)
+    action = np.full(3, 0.5 * env.get_wrapper_attr("action_bound"), dtype=np.float32)
+    state = env.unwrapped.get_state()
+    *_, info = env.step(action)
+    assert info["converged"] and not info["diverged"]
+    env.unwrapped.model.max_newton_iterations = 1
+    env.unwrapped.set_state(state)
+    *_, terminated, _, info = env.step(action)
+    assert not info["converged"] and not info["diverged"] and not terminated
+    out = env.unwrapped.rollout(state, action[None, None, :])
+    assert out["converged"].tolist() == [False] and out["diverged"].tolist() == [False]
+    venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, contact="penalty",
+                        vectorization_mode="vector_entry_point")  # fmt: skip
+    venv.reset(seed=0)
+    *_, info = venv.step(np.stack([action, action]))
+    assert info["converged"].tolist() == [True, True]
+    venv.unwrapped.env.model.max_newton_iterations = 1
+    *_, info = venv.step(np.stack([action, action]))
+    assert info["converged"].tolist() == [False, False]
+    venv.close()
 
 
 def test_seeded_determinism(env):

@@ -102,6 +102,7 @@ class Observations:
         diverged: bool,
         orientation: float | None = None,
         com: np.ndarray | None = None,
+        converged: bool = True,
     ) -> dict[str, Any]:
         """The step info of ``state``; ``com`` is its centre of mass when the caller has it."""
         q = state.q
@@ -141,6 +142,7 @@ class Observations:
             "effort": effort,
             "com": com,
             "diverged": diverged,
+            "converged": converged,
             "min_volume_ratio": volume_ratio,
             "contact": self.model.contact,
         }

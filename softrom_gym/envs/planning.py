@@ -114,6 +114,9 @@ class PlanningAPI:
           then on, so a planner must price these steps (a controller's Λ charges a weight in
           metres per lost step) or a blow-up would beat a trajectory that goes backwards.
         * ``diverged`` (B,): whether the rollout diverged.
+        * ``converged`` (B,): whether every physics step of the rollout ended with its Newton
+          iteration and contact solve at their tolerances (a step that does not is kept and
+          goes on; see the README's penalty ground).
         * ``observed`` (B, H, P): ``observe @ q_r``, only when ``observe`` is given.
         * ``q``, ``qdot`` (B, M + 6), ``impulses``: the final states.
         """
@@ -168,6 +171,7 @@ class PlanningAPI:
             "effort": np.sum((u / self.action_bound) ** 2, axis=-1),
             "lost": lost,
             "diverged": out["diverged"],
+            "converged": out["converged"],
             "q": out["q"],
             "qdot": out["qdot"],
             "impulses": out["impulses"],
@@ -202,6 +206,7 @@ class PlanningAPI:
             "lateral": float(lateral[0, 0]),
             "effort": float(np.add.reduce((u / self.action_bound) ** 2, axis=-1)),
             "diverged": bool(out["diverged"][0]),
+            "converged": bool(out["converged"][0]),
         }
         new = cpp_sim.ReducedState(out["q"][0], out["qdot"][0], out["impulses"][0])
         return new, terms

@@ -84,6 +84,8 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
     terms of the regulariser Λ separately: ``orientation`` (|rotation vector|, rad),
     ``lateral`` (motion orthogonal to d in the ground plane this step, m) and ``effort``
     (|f_c / a|^2), plus ``distance`` (along d since reset, m), ``com``, ``diverged``,
+    ``converged`` (whether every physics sub-step's Newton iteration and contact solve reached
+    its tolerance: a step that does not is still taken, and this says so; True after reset),
     ``min_volume_ratio`` (the smallest det F over the mesh's tetrahedra; at or below 0 one is
     inverted, which a material too soft for the action bound allows, and the env warns once)
     and ``contact`` (the model's contact setting: "staggered", "penalty" or "none"). In the
@@ -130,8 +132,7 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
     0.001 for one in millimetres), ``reset_noise_scale``, ``render_mode``, ``frame`` (how the
     rigid motion is represented, not ``frame_skip``: "linear", the default and every recorded
     figure's, or "floating", an exact rotation with the actuation following the body, with
-    the staggered-projection ground or none, not ``contact="penalty"``;
-    ``docs/FLOATING_FRAME.md``).
+    any ground; ``docs/FLOATING_FRAME.md``).
 
     ## For model-predictive control
     ``get_state()`` / ``set_state(state)`` copy the full simulation state, and
@@ -261,7 +262,7 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
         com = self.model.com(self._state.q)
         # The terms as rollout() computes them: a planner's prediction is what step reports.
         info = self._info(self._state, terms["lateral"], terms["effort"], terms["diverged"],
-                          terms["orientation"], com)  # fmt: skip
+                          terms["orientation"], com, terms["converged"])  # fmt: skip
         return self._obs(self._state, com), terms["reward"], terms["diverged"], False, info
 
     # ---------------------------------------------------------------- copying

@@ -283,7 +283,8 @@ class SoftRobotVectorEnv(VectorEnv):
                 env._com0 = self._com0[i]
                 info = env._info(state, float(out["lateral"][k, 0]),
                                  float(out["effort"][k, 0]), diverged,
-                                 float(out["orientation"][k, 0]))  # fmt: skip
+                                 float(out["orientation"][k, 0]),
+                                 converged=bool(out["converged"][k]))  # fmt: skip
                 if self.autoreset_mode is AutoresetMode.SAME_STEP and (
                     terminated[i] or truncated[i]
                 ):
