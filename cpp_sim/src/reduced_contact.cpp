@@ -120,6 +120,14 @@ void penalty_node_load(double mu, double fn, double jn, const double* rx, const 
   for (Eigen::Index j = m; j < mp; ++j) coupling[j] = 0.0;
 }
 
+void add_penalty_coupling(const double* coupling, const double* w, Eigen::Index loaded,
+                          Eigen::Index m, Eigen::Index mp, MatX& jac) {
+  const Eigen::Map<const RowMatX> a(coupling, loaded, mp);
+  const Eigen::Map<const RowMatX, 0, Eigen::OuterStride<>> n(w, loaded, mp,
+                                                              Eigen::OuterStride<>(3 * mp));
+  jac.noalias() += a.leftCols(m).transpose() * n.leftCols(m);  // (into jac: no temporary)
+}
+
 void ReducedModel::penalty_load_for_tests(const StepInputs& in, const VecX& q_n, const VecX& v,
                                           const VecX* x, VecX& force, MatX& symmetric,
                                           MatX& coupling, VecX& coupling_x,
@@ -231,8 +239,8 @@ void ReducedModel::penalty_contacts_fast(const ReducedConfig& cfg, const VecX& q
   ws.pen_loaded = rows / 3;  // the coupling stays in its rows: penalty_coupling_times
 }
 
-// The coupling C = A^T N, A's rows the couplings and N's W's normal rows (every third), as
-// penalty_contacts_fast left them: C x = A^T (N x), or C itself.
+// C x = A^T (N x) (add_penalty_coupling's C), from the rows penalty_contacts_fast left, and
+// C itself.
 void ReducedModel::penalty_coupling_times(const VecX& x, VecX& out, Workspace& ws) const {
   const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols(), loaded = ws.pen_loaded;
   const Eigen::Map<const RowMatX> a(ws.pen_coupling.data(), loaded, mp);
@@ -245,11 +253,10 @@ void ReducedModel::penalty_coupling_times(const VecX& x, VecX& out, Workspace& w
 }
 
 void ReducedModel::penalty_coupling_matrix(Workspace& ws, MatX& out) const {
-  const Eigen::Index m = basis_cols_, mp = face_rows_pad_.cols(), loaded = ws.pen_loaded;
-  const Eigen::Map<const RowMatX> a(ws.pen_coupling.data(), loaded, mp);
-  const Eigen::Map<const RowMatX, 0, Eigen::OuterStride<>> n(ws.pen_w.data(), loaded, mp,
-                                                              Eigen::OuterStride<>(3 * mp));
-  out.noalias() = a.leftCols(m).transpose() * n.leftCols(m);
+  const Eigen::Index m = basis_cols_;
+  out.setZero(m, m);
+  add_penalty_coupling(ws.pen_coupling.data(), ws.pen_w.data(), ws.pen_loaded, m,
+                       face_rows_pad_.cols(), out);
 }
 
 }  // namespace softrom

@@ -165,12 +165,7 @@ void ReducedModel::floating_penalty(const ReducedConfig& cfg, const VecX& x, boo
   }
   if (!jacobian) return;
   negative_gram(w.data(), 3 * loaded, ws.pen_gram, ws.fl_pen_jac);
-  // + A^T N, A's rows the couplings and N's W's normal rows, every third (products into their
-  // destination: no heap temporary).
-  const Eigen::Map<const RowMatX> a(coupling.data(), loaded, mp);
-  const Eigen::Map<const RowMatX, 0, Eigen::OuterStride<>> n(w.data(), loaded, mp,
-                                                              Eigen::OuterStride<>(3 * mp));
-  ws.fl_pen_jac.noalias() += a.leftCols(m).transpose() * n.leftCols(m);
+  add_penalty_coupling(coupling.data(), w.data(), loaded, m, mp, ws.fl_pen_jac);
 }
 
 void ReducedModel::floating_drag(const ReducedConfig& cfg, const ReducedState& s,

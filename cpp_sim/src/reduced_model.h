@@ -89,6 +89,11 @@ struct ReducedConfig {
 void penalty_node_load(double mu, double fn, double jn, const double* rx, const double* ry,
                        const double* rz, const double* v, Eigen::Index m, Eigen::Index mp,
                        double* f, double* w, double* coupling);
+// jac (m x m) += C = A^T N, the friction's coupling to the normal force of `loaded` nodes:
+// A's rows the nodes' coupling rows (penalty_node_load's, mp apart), N's their normal rows of
+// W (every third row of w).
+void add_penalty_coupling(const double* coupling, const double* w, Eigen::Index loaded,
+                          Eigen::Index m, Eigen::Index mp, MatX& jac);
 
 // Simulation state. `impulses` warm-starts the contact solver (per surface node, two tangential
 // then the normal), so it is part of the state: stepping from the same state is reproducible.
