@@ -179,14 +179,19 @@ void StaggeredProjection::set_up(const RowMatX& surface_rows, const std::vector<
   lam_ldp_.resize(k);
   row_gap_.resize(k);
   weight_.resize(k);
-  v_prev_ = v;
+  // The first stagger is judged against the warm start's velocity, v* + A^-1 J^T lambda_0,
+  // the iterate it continues. Judged against v* (as it was until session 51), a first stagger
+  // whose normal half found the warm start's friction alone enough to lift every candidate
+  // unloaded them all, so its friction half returned v* itself, and the step "converged" at
+  // zero impulses with the normal conditions violated (a beam node 0.02 mm into the ground).
+  v_prev_ = warm_start_velocity();
   dv_stagger_.resize(m);
   v_second_.resize(m);
   if (!fast) {  // the reference compares all 3k contact velocities stagger to stagger
     vc_prev_.resize(3 * k);
     vc_.resize(3 * k);
-    vc_prev_.head(k).noalias() = jn_ * v;
-    vc_prev_.tail(2 * k).noalias() = jt_ * v;
+    vc_prev_.head(k).noalias() = jn_ * v_prev_;
+    vc_prev_.tail(2 * k).noalias() = jt_ * v_prev_;
   }
   hess_.resize(m, m);
   wjt_.resize(2 * k, m);
@@ -260,6 +265,31 @@ const ScratchVec& StaggeredProjection::velocity_after(const ScratchMat& j, const
     kernels::cols_times(l_inv_t_.data(), m, m, solve_tmp_.data(), response_.data());
   } else {
     response_.noalias() = j.transpose() * lam;
+    a_llt_->solveInPlace(response_);
+  }
+  response_ += v_free_;
+  return response_;
+}
+
+const ScratchVec& StaggeredProjection::warm_start_velocity() {
+  if (lam_n_.isZero(0.0) && lam_t_.isZero(0.0)) {
+    response_ = v_free_;
+    return response_;
+  }
+  const Eigen::Index m = m_;
+  if (fast_) {
+    response_.setZero();
+    for (int i = 0; i < k_; ++i) {
+      if (lam_n_[i] != 0.0) response_.noalias() += lam_n_[i] * jn_.row(i).transpose();
+      for (int t = 0; t < 2; ++t)
+        if (lam_t_[2 * i + t] != 0.0)
+          response_.noalias() += lam_t_[2 * i + t] * jt_.row(2 * i + t).transpose();
+    }
+    kernels::cols_times(l_inv_.data(), m, m, response_.data(), solve_tmp_.data());
+    kernels::cols_times(l_inv_t_.data(), m, m, solve_tmp_.data(), response_.data());
+  } else {
+    response_.noalias() = jn_.transpose() * lam_n_;
+    response_.noalias() += jt_.transpose() * lam_t_;
     a_llt_->solveInPlace(response_);
   }
   response_ += v_free_;

@@ -38,6 +38,8 @@ class StaggeredProjection {
   template <class Vector>
   Eigen::Vector2d tangent(int i, const Vector& x) const;
   const ScratchVec& velocity_after(const ScratchMat& j, const ScratchVec& lam);
+  // v* + A^-1 J^T lambda for the warm start's impulses (v* when they are zero), in response_.
+  const ScratchVec& warm_start_velocity();
   template <class Vector>
   const ScratchVec& loaded_tangents(const Vector& x);
   void normal_solve(const ScratchVec& v_prime);
