@@ -68,6 +68,7 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
     node_mass_surface_[c] = mass[i];
   }
   normal_cols_ = normal_rows_;
+  normal_row_norms_ = normal_rows_.rowwise().norm();
   surface_cols_ = surface_rows_;
   faces_.reserve(surface_faces.size());
   for (const auto& f : surface_faces) {

@@ -203,6 +203,8 @@ struct Workspace {
   std::unique_ptr<StaggeredProjection> contact;  // made by the first contact solve
   std::vector<int> contact_active;     // the step's contact candidates (surface node ids) ...
   std::vector<double> contact_gap;     // ... and their heights above the ground
+  std::vector<char> contact_member;    // (add_missed_candidates' scratch)
+  VecX contact_v_free;                 // the contact-free velocity a contact solve starts from
   // N q and N v (N: the surface nodes' normal rows) of the step's end, from near_ground for
   // the contact solve that follows it (two products over every surface node, ~0.1 M
   // instructions each on the quadruped); cleared at each step's start.
@@ -523,6 +525,34 @@ class ReducedModel {
   int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                      const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses, Workspace& ws,
                      StepInfo& info) const;
+  // After a contact solve from v_free to v: appends to ws.contact_active (and contact_gap)
+  // every other surface node that v takes below its bound by more than the contact tolerance,
+  // from each node's height (gap_of(c)) and its normal velocity at the end (vn_end(c), asked
+  // only of nodes that the bound |dv| max_c |B_c| on a node's velocity change cannot clear:
+  // row_norm(c) bounds its row's norm). Returns how many it appended.
+  template <class Gap, class NormalVelocity, class RowNorm>
+  int add_missed_candidates(const ReducedConfig& cfg, Gap gap_of, const VecX& vn_free,
+                            NormalVelocity vn_end, RowNorm row_norm, const VecX& v,
+                            const VecX& v_free, Workspace& ws, StepInfo& info) const {
+    std::vector<int>& active = ws.contact_active;
+    std::vector<char>& member = ws.contact_member;
+    member.assign(num_surface_nodes(), 0);
+    for (const int c : active) member[c] = 1;
+    const double dv = (v - v_free).norm(), h = cfg.dt, tol = cfg.contact_tolerance;
+    int added = 0;
+    for (int c = 0; c < num_surface_nodes(); ++c) {
+      if (member[c]) continue;
+      const double z = gap_of(c);
+      const double bound = z >= 0.0 ? -z / h : -cfg.stabilization * z / h;
+      if (vn_free[c] - row_norm(c) * dv >= bound - tol) continue;  // cannot reach it
+      if (vn_end(c) >= bound - tol) continue;
+      active.push_back(c);
+      ws.contact_gap.push_back(z);
+      ++added;
+    }
+    info.active_rows = static_cast<int>(active.size());
+    return added;
+  }
   // Penalty ground force f at (q, v), and, when jac is not null (the Newton matrix needs it;
   // the line search's residuals do not), its velocity Jacobian's symmetric part in *jac and
   // the friction's coupling to the normal force C (not symmetric): the reference solver's in
@@ -553,6 +583,9 @@ class ReducedModel {
   // session 50); 0.1 mm keeps the change to the first tenth of the sink the stiffness is
   // sized for.
   static constexpr double kPenaltyDamperRamp = 1e-4;
+  // Re-solves of a contact step after nodes outside its candidates were found driven below
+  // the ground (solve_contacts); measured: one at most on the walkers' gaits.
+  static constexpr int kMaxCandidateRounds = 3;
   Vec3 rest_com_;
   // Cubature over K elements (k = 1..K): G = [G_1; ...; G_K] stacked (9K x (M + 3)),
   // G_k = d vec(F_k) / d q_e, and wvol_[k] = w_k V_k, the element's cubature weight (the
@@ -575,6 +608,7 @@ class ReducedModel {
   RowMatX surface_rows_;   // (3 n_s) x (M + 6)
   RowMatX normal_rows_;    // n_s x (M + 6): the z rows alone, for the candidate search
   MatX normal_cols_;       // the same, column-major: near_ground's N q, N v (cols_times_pair)
+  VecX normal_row_norms_;  // |N_c|: bounds a node's normal velocity change by |N_c| |dv|
   MatX surface_cols_;      // surface_rows_ column-major, for the fast drag (cols_times_pair)
   VecX surface_rest_;      // 3 n_s
   std::vector<std::array<int, 3>> faces_;  // indices into surface nodes
