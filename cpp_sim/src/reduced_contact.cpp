@@ -41,16 +41,17 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   // 0.15 mm into the ground at the other, session 51). Such nodes join the candidates and the
   // solve is repeated from v_free, warm-started from the impulses it found.
   const auto vn_end = [&](int c) { return normal_rows_.row(c).dot(v); };
-  const auto row_norm = [&](int c) { return normal_row_norms_[c]; };
+  double dv = 0.0;  // |v - v*|: |N_c| dv bounds node c's change of normal velocity
+  const auto vn_at_least = [&](int c) { return vn_all[c] - normal_row_norms_[c] * dv; };
   for (int round = 0;; ++round) {
-    if (add_missed_candidates(cfg, gap_of, vn_all, vn_end, row_norm, v, ws.contact_v_free, ws,
-                              info) == 0)
-      break;
+    dv = (v - ws.contact_v_free).norm();
+    if (add_missed_candidates(cfg, gap_of, vn_at_least, vn_end, ws, info) == 0) break;
     if (round == kMaxCandidateRounds) {  // still missing some: say so
       info.contact_converged = false;
       break;
     }
     v = ws.contact_v_free;
+    info.contact_converged = true;  // the last solve's verdict (its v and impulses are kept)
     staggers +=
         ws.contact->solve(cfg, surface_rows_, active, gap, a, a_llt, v, impulses, ws.nnls, info);
   }

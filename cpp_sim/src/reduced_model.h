@@ -123,7 +123,9 @@ struct StepInfo {
   //   W<i> / w<i><why>  the held-set Newton reached the root in i steps / failed after i
   //                (why: l a node would leave the set, r a load not positive, s a singular
   //                step, c the iteration cap);   J  an Aitken jump;
-  //   ok / cap     the end: converged / at max_stagger_iterations (a last normal solve follows).
+  //   ok / cap     the end: converged / at max_stagger_iterations (a last normal solve follows);
+  //   R            the step solved again from v*, warm-started: a node outside the candidates
+  //                ended below its bound, or (floating frame) the height drift moved.
   // Empty when no node is a contact candidate.
   std::string stagger_trace;
 };
@@ -224,9 +226,11 @@ struct Workspace {
   Eigen::PartialPivLU<MatX> fl_lu;
   // Its surface (floating_surface, floating_node_velocities, floating_drag,
   // floating_contacts): the surface nodes' body and world positions at the step's start,
-  // their world velocities, U w's scratch, the drag law's buffer, and the contact
-  // candidates' velocity rows.
-  VecX fl_rs, fl_xs, fl_vs, fl_uw, fl_speed;
+  // their world velocities, U w's scratch, the drag law's buffer, their heights' drift over
+  // the step (floating_height_drift) and the contact candidates' (the contact solve's), and
+  // the candidates' velocity rows.
+  VecX fl_rs, fl_xs, fl_vs, fl_uw, fl_speed, fl_drift;
+  std::vector<double> contact_drift;
   MatX fl_gram;  // floating_drag_fast's W W^T (lower triangle)
   RowMatX fl_rows;
   // The penalty ground's force and Jacobian at the iterate (floating_penalty), the rows of
@@ -433,6 +437,10 @@ class ReducedModel {
   void floating_velocity_rows(const ReducedState& s, const std::vector<int>& nodes,
                               Workspace& ws) const;
   void floating_velocity_row(const Mat3& rot, Eigen::Index c, Workspace& ws) const;
+  // The surface nodes' height change over a step at velocities qdot from q that their
+  // velocity rows leave out (second order in h omega) into ws.fl_drift, from
+  // floating_node_velocities' ws.fl_rs and ws.fl_uw at (q, qdot).
+  void floating_height_drift(const VecX& q, const VecX& qdot, double h, Workspace& ws) const;
   // The penalty ground's set-up at the step's start (after floating_surface): every surface
   // node's normal velocity row e_z^T B_i, column-major, into ws.fl_pen_normal_cols, and no
   // node's full rows formed yet (floating_penalty forms a loaded node's on first use).
@@ -525,27 +533,25 @@ class ReducedModel {
   int solve_contacts(const ReducedConfig& cfg, const VecX& q, const MatX& a,
                      const Eigen::LLT<MatX>& a_llt, VecX& v, VecX& impulses, Workspace& ws,
                      StepInfo& info) const;
-  // After a contact solve from v_free to v: appends to ws.contact_active (and contact_gap)
-  // every other surface node that v takes below its bound by more than the contact tolerance,
-  // from each node's height (gap_of(c)) and its normal velocity at the end (vn_end(c), asked
-  // only of nodes that the bound |dv| max_c |B_c| on a node's velocity change cannot clear:
-  // row_norm(c) bounds its row's norm). Returns how many it appended.
-  template <class Gap, class NormalVelocity, class RowNorm>
-  int add_missed_candidates(const ReducedConfig& cfg, Gap gap_of, const VecX& vn_free,
-                            NormalVelocity vn_end, RowNorm row_norm, const VecX& v,
-                            const VecX& v_free, Workspace& ws, StepInfo& info) const {
+  // After a contact solve: appends to ws.contact_active (and contact_gap) every other surface
+  // node c that the step's velocity takes below its bound by more than the contact tolerance,
+  // from its height gap_of(c) and its normal velocity at the step's end, vn_end(c), asked
+  // only where vn_at_least(c), a cheap lower bound on it, does not already clear the bound.
+  // Returns how many it appended.
+  template <class Gap, class LowerBound, class NormalVelocity>
+  int add_missed_candidates(const ReducedConfig& cfg, Gap gap_of, LowerBound vn_at_least,
+                            NormalVelocity vn_end, Workspace& ws, StepInfo& info) const {
     std::vector<int>& active = ws.contact_active;
     std::vector<char>& member = ws.contact_member;
     member.assign(num_surface_nodes(), 0);
     for (const int c : active) member[c] = 1;
-    const double dv = (v - v_free).norm(), h = cfg.dt, tol = cfg.contact_tolerance;
+    const double h = cfg.dt, tol = cfg.contact_tolerance;
     int added = 0;
     for (int c = 0; c < num_surface_nodes(); ++c) {
       if (member[c]) continue;
       const double z = gap_of(c);
-      const double bound = z >= 0.0 ? -z / h : -cfg.stabilization * z / h;
-      if (vn_free[c] - row_norm(c) * dv >= bound - tol) continue;  // cannot reach it
-      if (vn_end(c) >= bound - tol) continue;
+      const double bound = (z >= 0.0 ? -z / h : -cfg.stabilization * z / h) - tol;
+      if (vn_at_least(c) >= bound || vn_end(c) >= bound) continue;
       active.push_back(c);
       ws.contact_gap.push_back(z);
       ++added;

@@ -39,7 +39,8 @@ namespace softrom {
 int StaggeredProjection::solve(const ReducedConfig& cfg, const RowMatX& surface_rows,
                                const std::vector<int>& active, const std::vector<double>& gap,
                                const MatX& a, const Eigen::LLT<MatX>& a_llt, VecX& v,
-                               VecX& impulses, NnlsWorkspace& nnls, StepInfo& info) {
+                               VecX& impulses, NnlsWorkspace& nnls, StepInfo& info,
+                               const std::vector<double>* drift) {
   cfg_ = &cfg;
   a_ = &a;
   a_llt_ = &a_llt;
@@ -56,11 +57,12 @@ int StaggeredProjection::solve(const ReducedConfig& cfg, const RowMatX& surface_
   const int k = k_;
   const bool fast = fast_;
   const double tol = tol_;
-  set_up(surface_rows, active, gap, impulses);
+  set_up(surface_rows, active, gap, drift, impulses);
   impulses.setZero();
 
   // With config.profile, the stagger loop's course in info.stagger_trace (StepInfo's grammar).
   const bool trace = cfg.profile;
+  if (trace && !info.stagger_trace.empty()) info.stagger_trace += " R ";  // a re-solve
   if (trace) trace_start();
   int stagger = 0;
   bool converged = false;
@@ -121,7 +123,8 @@ int StaggeredProjection::solve(const ReducedConfig& cfg, const RowMatX& surface_
 }
 
 void StaggeredProjection::set_up(const RowMatX& surface_rows, const std::vector<int>& active,
-                                 const std::vector<double>& gap, const VecX& impulses) {
+                                 const std::vector<double>& gap,
+                                 const std::vector<double>* drift, const VecX& impulses) {
   const ReducedConfig& cfg = *cfg_;
   const Eigen::LLT<MatX>& a_llt = *a_llt_;
   const VecX& v = *v_;
@@ -141,6 +144,7 @@ void StaggeredProjection::set_up(const RowMatX& surface_rows, const std::vector<
     jt_.row(2 * i) = surface_rows.row(3 * c);
     jt_.row(2 * i + 1) = surface_rows.row(3 * c + 1);
     b_[i] = gap[i] >= 0.0 ? -gap[i] / h : -cfg.stabilization * gap[i] / h;
+    if (drift) b_[i] -= (*drift)[i] / h;
     lam_n_[i] = std::max(old_[3 * c + 2], 0.0);  // warm start by node id
     lam_t_.segment<2>(2 * i) = old_.segment<2>(3 * c);
   }

@@ -22,15 +22,20 @@ class StaggeredProjection {
   // above the ground) in the metric A = a, with a_llt its Cholesky factor. surface_rows is
   // the model's (3 n_s) x (M + 6) map from reduced to surface-node velocities. `impulses` (3
   // per surface node: two tangential, one normal) warm-starts the solve by node id and
-  // receives its impulses. Returns the number of staggers; info gets the counts and flags.
+  // receives its impulses. `drift` (optional, one per candidate): the part of each
+  // candidate's height change over the step that its velocity row does not predict (the
+  // floating frame's rotation at second order in h omega); the bound on its normal velocity
+  // moves by -drift / h. Returns the number of staggers; info gets the counts and flags.
   int solve(const ReducedConfig& cfg, const RowMatX& surface_rows, const std::vector<int>& active,
             const std::vector<double>& gap, const MatX& a, const Eigen::LLT<MatX>& a_llt,
-            VecX& v, VecX& impulses, NnlsWorkspace& nnls, StepInfo& info);
+            VecX& v, VecX& impulses, NnlsWorkspace& nnls, StepInfo& info,
+            const std::vector<double>* drift = nullptr);
 
  private:
   // One step's set-up: the candidates' rows and bounds, the warm start, E and L^-1.
   void set_up(const RowMatX& surface_rows, const std::vector<int>& active,
-              const std::vector<double>& gap, const VecX& impulses);
+              const std::vector<double>& gap, const std::vector<double>* drift,
+              const VecX& impulses);
   // out = A x for a column-major A (J_n, Y): the fast solver's kernel, Eigen's in the reference.
   template <class Matrix, class Vector>
   void times(const Matrix& a, const Vector& x, ScratchVec& out) const;
