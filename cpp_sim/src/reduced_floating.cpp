@@ -82,25 +82,6 @@ void ReducedModel::floating_node_velocities(const VecX& q, const VecX& qdot, Vec
         u + rot * (om.cross(ws.fl_rs.segment<3>(3 * i)) + ws.fl_uw.segment<3>(3 * i));
 }
 
-void ReducedModel::floating_height_drift(const VecX& q, const VecX& qdot, double h,
-                                         Workspace& ws) const {
-  // Over the step, r_i' = r_i + h U_i w' and x_i' = c + h u' + R exp(h [omega']x) r_i'; the
-  // velocity row predicts x_i + h (u' + R (omega' x r_i + U_i w')). The difference's height,
-  // e_z^T R ((E - I - h [omega']x) r_i + (E - I) h U_i w') with E = exp(h [omega']x), is
-  // second order in h omega'. (ws.fl_uw must hold U_i w': deformation_rows_times(qdot).)
-  const Eigen::Index ns = num_surface_nodes();
-  const Vec3 up = rotation_matrix(q.segment<3>(3)).row(2).transpose();
-  const Vec3 om = qdot.segment<3>(3);
-  const Mat3 turn = rotation_matrix(h * om);
-  VecX& drift = ws.fl_drift;
-  drift.resize(ns);
-  for (Eigen::Index i = 0; i < ns; ++i) {
-    const Vec3 r = ws.fl_rs.segment<3>(3 * i);
-    const Vec3 r_end = r + h * ws.fl_uw.segment<3>(3 * i);
-    drift[i] = up.dot(turn * r_end - r_end - h * om.cross(r));
-  }
-}
-
 void ReducedModel::floating_velocity_row(const Mat3& rot, Eigen::Index c, Workspace& ws) const {
   RowMatX& rows = ws.fl_rows;
   rows.block<3, 3>(3 * c, 0) = (1.0 / std::sqrt(total_mass_)) * Mat3::Identity();
@@ -621,22 +602,54 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   // Candidates as the linear model's: within the margin, or reaching the ground in two steps
   // at their normal velocity under v (the nodes at the step's start, floating_surface's).
   // The rows predict a node's height after the step at first order in h omega; the exact
-  // rotation adds its drift (floating_height_drift), which the candidate test and the bounds
-  // take: without it, a beam driven at 2 body weights (h |omega| up to 0.07) ended steps with
-  // nodes 2.3 mm into the ground, 5.9 mm at 3 body weights (session 51). It is predicted at
-  // the step's start velocity, nearer the step's end than v* is on the ground (on 400 steps
-  // of each walker's gait the re-solve below followed on 17-49 % of steps, 20-98 % from v*).
+  // rotation adds its drift, e_z^T R ((E - I - h [omega]x) r_c + (E - I) h U_c w) with
+  // E = exp(h [omega]x), which the candidate test and the bounds take: without it, a beam
+  // driven at 2 body weights (h |omega| up to 0.07) ended steps with nodes 2.3 mm into the
+  // ground, 5.9 mm at 3 body weights (session 51). The bounds' drift is predicted at the
+  // step's start velocity, nearer the step's end than v* is on the ground (on 400 steps of
+  // each walker's 0.8 body-weight gait the re-solve below followed on 17-48 % of steps, on
+  // 20-98 % with the drift at v*); the candidate test takes its bound (set_velocity's), so
+  // only the candidates' drift is evaluated.
   const double h = cfg.dt, damp = 1.0 + h * cfg.damping_alpha;
-  deformation_rows_times(s.qdot, ws.fl_uw);
-  floating_height_drift(s.q, s.qdot, h, ws);
   floating_node_velocities(s.q, v, ws.fl_vs, ws);
+  const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
+  const Vec3 up = rot.row(2).transpose();  // R^T e_z: e_z^T R x = up . x
+  const double inv_sqrt_m = 1.0 / std::sqrt(total_mass_);
+  // Node c's normal velocity and drift at the velocity `at` (set_velocity's): U_c w is one
+  // 3 x M product.
+  const VecX* at = nullptr;
+  Vec3 u_at, om_at;
+  Mat3 turn;
+  double rot_sq = 0.0, rot_w = 0.0;
+  const auto set_velocity = [&](const VecX& x) {
+    at = &x;
+    u_at = x.head<3>() * inv_sqrt_m;
+    om_at = x.segment<3>(3);
+    turn = rotation_matrix(h * om_at);
+    // |E - I - h [omega]x| <= e^t - 1 - t and |E - I| <= t (t = h |omega|): the drift's bound
+    // (rot_sq |r_c| + rot_w |U_c|).
+    const double t = h * om_at.norm();
+    rot_sq = std::expm1(t) - t;
+    rot_w = t * h * x.tail(nd).norm();
+  };
+  const auto node_at = [&](int c, double& drift) {
+    const Vec3 uw = surface_rows_.block(3 * c, kRigid, 3, nd) * at->tail(nd);
+    const Vec3 r = ws.fl_rs.segment<3>(3 * c);
+    const Vec3 r_end = r + h * uw;
+    drift = up.dot(turn * r_end - r_end - h * om_at.cross(r));
+    return u_at.z() + up.dot(om_at.cross(r) + uw);
+  };
+  const auto drift_bound = [&](int c) {
+    return rot_sq * ws.fl_rs.segment<3>(3 * c).norm() + rot_w * surface_deform_norms_[c];
+  };
+  set_velocity(s.qdot);
   const auto gap_of = [&](int c) { return ws.fl_xs[3 * c + 2] - cfg.ground_height; };
-  const auto vn_of = [&](int c) { return ws.fl_vs[3 * c + 2] + ws.fl_drift[c] / h; };
+  const auto vn_of = [&](int c) { return ws.fl_vs[3 * c + 2] - drift_bound(c) / h; };
   if (pick_candidates(cfg, gap_of, vn_of, impulses, ws, info) == 0) return 0;
   const std::vector<int>& active = ws.contact_active;
   const std::vector<double>& gap = ws.contact_gap;
   ws.contact_drift.resize(active.size());
-  for (size_t i = 0; i < active.size(); ++i) ws.contact_drift[i] = ws.fl_drift[active[i]];
+  for (size_t i = 0; i < active.size(); ++i) node_at(active[i], ws.contact_drift[i]);
   // The candidates' velocity rows (the solve reads only theirs, by surface node id).
   floating_velocity_rows(s, active, ws);
   const RowMatX& rows = ws.fl_rows;
@@ -686,32 +699,49 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   // The drift was predicted, and the candidates picked, before the step's end velocity v was
   // known. Re-solve from v*, warm-started, with the drift at v while it differs by more than
   // the contact tolerance (times dt) from the one solved with, or while a node outside the
-  // candidates ends below its bound (as the linear model's solve_contacts).
-  const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
-  const auto vn_end = [&](int c) { return ws.fl_vs[3 * c + 2] + ws.fl_drift[c] / h; };
+  // candidates ends below its bound (as the linear model's solve_contacts). A node's normal
+  // velocity at v is at least its velocity at v* (ws.fl_vs) less |du| + |d omega| |r_c| +
+  // |U_c| |dw| and its drift's bound; only nodes that bound cannot clear are evaluated.
+  const VecX& v_free = ws.contact_v_free;
+  double du = 0.0, dom = 0.0, dw = 0.0;
+  const auto vn_at_least = [&](int c) {
+    const double r = ws.fl_rs.segment<3>(3 * c).norm(), un = surface_deform_norms_[c];
+    return ws.fl_vs[3 * c + 2] - du - dom * r - un * dw - drift_bound(c) / h;
+  };
+  const auto vn_end = [&](int c) {
+    double drift;
+    const double vn = node_at(c, drift);
+    return vn + drift / h;
+  };
   for (int round = 0;; ++round) {
-    floating_node_velocities(s.q, v, ws.fl_vs, ws);
-    floating_height_drift(s.q, v, h, ws);
+    set_velocity(v);
     double change = 0.0;
     for (size_t i = 0; i < active.size(); ++i) {
-      change = std::max(change, std::abs(ws.fl_drift[active[i]] - ws.contact_drift[i]));
-      ws.contact_drift[i] = ws.fl_drift[active[i]];
+      double drift;
+      node_at(active[i], drift);
+      change = std::max(change, std::abs(drift - ws.contact_drift[i]));
+      ws.contact_drift[i] = drift;
     }
+    du = (v.head<3>() - v_free.head<3>()).norm() * inv_sqrt_m;
+    dom = (v.segment<3>(3) - v_free.segment<3>(3)).norm();
+    dw = (v.tail(nd) - v_free.tail(nd)).norm();
     const size_t before = active.size();
-    const int added = add_missed_candidates(cfg, gap_of, vn_end, vn_end, ws, info);
+    const int added = add_missed_candidates(cfg, gap_of, vn_at_least, vn_end, ws, info);
     if (change < cfg.contact_tolerance * h && added == 0) break;
     if (round == kMaxCandidateRounds) {
       info.contact_converged = false;
       break;
     }
     for (size_t i = before; i < active.size(); ++i) {
-      ws.contact_drift.push_back(ws.fl_drift[active[i]]);
+      ws.contact_drift.emplace_back();
+      node_at(active[i], ws.contact_drift.back());
       floating_velocity_row(rot, active[i], ws);
     }
     v = ws.contact_v_free;
     info.contact_converged = true;  // the last solve's verdict (its v and impulses are kept)
-    staggers += ws.contact->solve(cfg, rows, active, gap, a, a_llt, v, impulses, ws.nnls, info,
-                                  &ws.contact_drift);
+    staggers += added > 0 ? ws.contact->solve(cfg, rows, active, gap, a, a_llt, v, impulses,
+                                              ws.nnls, info, &ws.contact_drift)
+                          : ws.contact->resolve(active, gap, &ws.contact_drift, v, impulses, info);
   }
   return staggers;
 }

@@ -69,6 +69,10 @@ ReducedModel::ReducedModel(const TetMesh& mesh, const StableNeoHookean& material
   }
   normal_cols_ = normal_rows_;
   normal_row_norms_ = normal_rows_.rowwise().norm();
+  surface_deform_norms_.resize(ns);
+  for (int c = 0; c < ns; ++c)
+    surface_deform_norms_[c] =
+        surface_rows_.block(3 * c, kRigid, 3, basis.cols() - kRigid).norm();
   surface_cols_ = surface_rows_;
   faces_.reserve(surface_faces.size());
   for (const auto& f : surface_faces) {

@@ -226,10 +226,9 @@ struct Workspace {
   Eigen::PartialPivLU<MatX> fl_lu;
   // Its surface (floating_surface, floating_node_velocities, floating_drag,
   // floating_contacts): the surface nodes' body and world positions at the step's start,
-  // their world velocities, U w's scratch, the drag law's buffer, their heights' drift over
-  // the step (floating_height_drift) and the contact candidates' (the contact solve's), and
-  // the candidates' velocity rows.
-  VecX fl_rs, fl_xs, fl_vs, fl_uw, fl_speed, fl_drift;
+  // their world velocities, U w's scratch, the drag law's buffer, the contact candidates'
+  // height drift over the step (floating_contacts) and their velocity rows.
+  VecX fl_rs, fl_xs, fl_vs, fl_uw, fl_speed;
   std::vector<double> contact_drift;
   MatX fl_gram;  // floating_drag_fast's W W^T (lower triangle)
   RowMatX fl_rows;
@@ -437,10 +436,6 @@ class ReducedModel {
   void floating_velocity_rows(const ReducedState& s, const std::vector<int>& nodes,
                               Workspace& ws) const;
   void floating_velocity_row(const Mat3& rot, Eigen::Index c, Workspace& ws) const;
-  // The surface nodes' height change over a step at velocities qdot from q that their
-  // velocity rows leave out (second order in h omega) into ws.fl_drift, from
-  // floating_node_velocities' ws.fl_rs and ws.fl_uw at (q, qdot).
-  void floating_height_drift(const VecX& q, const VecX& qdot, double h, Workspace& ws) const;
   // The penalty ground's set-up at the step's start (after floating_surface): every surface
   // node's normal velocity row e_z^T B_i, column-major, into ws.fl_pen_normal_cols, and no
   // node's full rows formed yet (floating_penalty forms a loaded node's on first use).
@@ -615,6 +610,7 @@ class ReducedModel {
   RowMatX normal_rows_;    // n_s x (M + 6): the z rows alone, for the candidate search
   MatX normal_cols_;       // the same, column-major: near_ground's N q, N v (cols_times_pair)
   VecX normal_row_norms_;  // |N_c|: bounds a node's normal velocity change by |N_c| |dv|
+  VecX surface_deform_norms_;  // |U_c| (Frobenius) of each surface node's deformation rows
   MatX surface_cols_;      // surface_rows_ column-major, for the fast drag (cols_times_pair)
   VecX surface_rest_;      // 3 n_s
   std::vector<std::array<int, 3>> faces_;  // indices into surface nodes

@@ -28,6 +28,7 @@
 #include "staggered_projection.h"
 
 #include <algorithm>
+#include <cassert>
 #include <cmath>
 #include <string>
 
@@ -54,10 +55,27 @@ int StaggeredProjection::solve(const ReducedConfig& cfg, const RowMatX& surface_
   mu_ = cfg.friction;
   tol_ = cfg.contact_tolerance;
   eps_ = tol_;  // smoothing of |v_t|: sticking nodes creep at most ~eps
+  set_up(surface_rows, active);
+  return run(active, gap, drift, impulses);
+}
+
+int StaggeredProjection::resolve(const std::vector<int>& active, const std::vector<double>& gap,
+                                 const std::vector<double>* drift, VecX& v, VecX& impulses,
+                                 StepInfo& info) {
+  assert(static_cast<int>(active.size()) == k_ && v.size() == m_);
+  v_ = &v;
+  info_ = &info;
+  return run(active, gap, drift, impulses);
+}
+
+int StaggeredProjection::run(const std::vector<int>& active, const std::vector<double>& gap,
+                             const std::vector<double>* drift, VecX& impulses) {
+  const ReducedConfig& cfg = *cfg_;
+  StepInfo& info = *info_;
   const int k = k_;
   const bool fast = fast_;
   const double tol = tol_;
-  set_up(surface_rows, active, gap, drift, impulses);
+  start(active, gap, drift, impulses);
   impulses.setZero();
 
   // With config.profile, the stagger loop's course in info.stagger_trace (StepInfo's grammar).
@@ -122,34 +140,19 @@ int StaggeredProjection::solve(const ReducedConfig& cfg, const RowMatX& surface_
   return stagger;
 }
 
-void StaggeredProjection::set_up(const RowMatX& surface_rows, const std::vector<int>& active,
-                                 const std::vector<double>& gap,
-                                 const std::vector<double>* drift, const VecX& impulses) {
-  const ReducedConfig& cfg = *cfg_;
+void StaggeredProjection::set_up(const RowMatX& surface_rows, const std::vector<int>& active) {
   const Eigen::LLT<MatX>& a_llt = *a_llt_;
-  const VecX& v = *v_;
   const Eigen::Index m = m_;
   const int k = k_;
   const bool fast = fast_;
-  const double h = cfg.dt;
-  old_ = impulses;
   jn_.resize(k, m);
   jt_.resize(2 * k, m);
-  b_.resize(k);
-  lam_n_.resize(k);
-  lam_t_.resize(2 * k);
   for (int i = 0; i < k; ++i) {
     const int c = active[i];
     jn_.row(i) = surface_rows.row(3 * c + 2);
     jt_.row(2 * i) = surface_rows.row(3 * c);
     jt_.row(2 * i + 1) = surface_rows.row(3 * c + 1);
-    b_[i] = gap[i] >= 0.0 ? -gap[i] / h : -cfg.stabilization * gap[i] / h;
-    if (drift) b_[i] -= (*drift)[i] / h;
-    lam_n_[i] = std::max(old_[3 * c + 2], 0.0);  // warm start by node id
-    lam_t_.segment<2>(2 * i) = old_.segment<2>(3 * c);
   }
-  v_free_ = v;
-  nnls_->carry_valid = false;  // E changes with the step: no factor carries over into it
   // Constant within the step: E^T = L^-1 J_n^T (the LDP's constraint matrix). The velocity
   // response to the impulses, A^-1 J^T lambda, is two triangular solves per stagger: forming
   // A^-1 J_n^T and A^-1 J_t^T once instead takes 3k right-hand sides (k candidates; ~130k
@@ -183,41 +186,65 @@ void StaggeredProjection::set_up(const RowMatX& surface_rows, const std::vector<
   lam_ldp_.resize(k);
   row_gap_.resize(k);
   weight_.resize(k);
+  dv_stagger_.resize(m);
+  v_second_.resize(m);
+  hess_.resize(m, m);
+  wjt_.resize(2 * k, m);
+  v_on_.resize(m);
+  tangent_row_.resize(m);
+  // Every candidate that has been in a loaded set during this step (the pool, ~10 on a
+  // quadruped step) keeps its three columns of Y = L^-1 [J_n,i^T  J_t,i^T], their products
+  // with every other pool column (the pool's Gram matrix) and c_i = J_i v_free, so that a new
+  // loaded set (~5 per quadruped step) gathers its D and c instead of forming them: only a
+  // candidate's first entry costs a triangular solve and its columns' products with the pool.
+  // (The pool's memory is the worker's: its capacity may be a former step's. A re-solve of
+  // the step keeps the pool: v_free is the same.)
+  pool_slot_.assign(k, -1);
+  pool_size_ = 0;
+  pool_y_.resize(m, 0);  // empty, as the pool starts each step (the memory stays)
+  pool_gram_.resize(0, 0);
+  pool_c_.resize(0);
+}
+
+void StaggeredProjection::start(const std::vector<int>& active, const std::vector<double>& gap,
+                                const std::vector<double>* drift, const VecX& impulses) {
+  const ReducedConfig& cfg = *cfg_;
+  const VecX& v = *v_;
+  const Eigen::Index m = m_;
+  const int k = k_;
+  const bool fast = fast_;
+  const double h = cfg.dt;
+  old_ = impulses;
+  b_.resize(k);
+  lam_n_.resize(k);
+  lam_t_.resize(2 * k);
+  for (int i = 0; i < k; ++i) {
+    const int c = active[i];
+    b_[i] = gap[i] >= 0.0 ? -gap[i] / h : -cfg.stabilization * gap[i] / h;
+    if (drift) b_[i] -= (*drift)[i] / h;
+    lam_n_[i] = std::max(old_[3 * c + 2], 0.0);  // warm start by node id
+    lam_t_.segment<2>(2 * i) = old_.segment<2>(3 * c);
+  }
+  v_free_ = v;
+  nnls_->carry_valid = false;  // b changes: no factor carries over into the solve
   // The first stagger is judged against the warm start's velocity, v* + A^-1 J^T lambda_0,
   // the iterate it continues. Judged against v* (as it was until session 51), a first stagger
   // whose normal half found the warm start's friction alone enough to lift every candidate
   // unloaded them all, so its friction half returned v* itself, and the step "converged" at
   // zero impulses with the normal conditions violated (a beam node 0.02 mm into the ground).
   v_prev_ = warm_start_velocity();
-  dv_stagger_.resize(m);
-  v_second_.resize(m);
   if (!fast) {  // the reference compares all 3k contact velocities stagger to stagger
     vc_prev_.resize(3 * k);
     vc_.resize(3 * k);
     vc_prev_.head(k).noalias() = jn_ * v_prev_;
     vc_prev_.tail(2 * k).noalias() = jt_ * v_prev_;
   }
-  hess_.resize(m, m);
-  wjt_.resize(2 * k, m);
   loaded_.clear();
   // The loaded nodes' tangent rows J_t,l (2 nl x (M + 6), column-major), gathered when the loaded
   // set changes, so that their tangential velocities are one product (fast solver).
   jt_l_.resize(0, m);
   jt_l_set_.clear();
-  v_on_.resize(m);
   rows_.reset(k);
-  // Every candidate that has been in a loaded set during this step (the pool, ~10 on a
-  // quadruped step) keeps its three columns of Y = L^-1 [J_n,i^T  J_t,i^T], their products
-  // with every other pool column (the pool's Gram matrix) and c_i = J_i v_free, so that a new
-  // loaded set (~5 per quadruped step) gathers its D and c instead of forming them: only a
-  // candidate's first entry costs a triangular solve and its columns' products with the pool.
-  // (The pool's memory is the worker's: its capacity may be a former step's.)
-  pool_slot_.assign(k, -1);
-  pool_size_ = 0;
-  pool_y_.resize(m, 0);  // empty, as the pool starts each step (the memory stays)
-  pool_gram_.resize(0, 0);
-  pool_c_.resize(0);
-  tangent_row_.resize(m);
 }
 
 template <class Matrix, class Vector>

@@ -30,12 +30,20 @@ class StaggeredProjection {
             const std::vector<double>& gap, const MatX& a, const Eigen::LLT<MatX>& a_llt,
             VecX& v, VecX& impulses, NnlsWorkspace& nnls, StepInfo& info,
             const std::vector<double>* drift = nullptr);
+  // The last solve's problem again, from v = v* and the warm start `impulses`, with new
+  // bounds (gap, drift) on the same candidates: its rows, metric, E, L^-1 and pool are kept.
+  int resolve(const std::vector<int>& active, const std::vector<double>& gap,
+              const std::vector<double>* drift, VecX& v, VecX& impulses, StepInfo& info);
 
  private:
-  // One step's set-up: the candidates' rows and bounds, the warm start, E and L^-1.
-  void set_up(const RowMatX& surface_rows, const std::vector<int>& active,
-              const std::vector<double>& gap, const std::vector<double>* drift,
-              const VecX& impulses);
+  // One step's set-up, kept by resolve: the candidates' rows, E and L^-1, the empty pool.
+  void set_up(const RowMatX& surface_rows, const std::vector<int>& active);
+  // One solve's start: the bounds, the warm start and the first stagger's reference.
+  void start(const std::vector<int>& active, const std::vector<double>& gap,
+             const std::vector<double>* drift, const VecX& impulses);
+  // The stagger loop from start() to the impulses; returns the staggers.
+  int run(const std::vector<int>& active, const std::vector<double>& gap,
+          const std::vector<double>* drift, VecX& impulses);
   // out = A x for a column-major A (J_n, Y): the fast solver's kernel, Eigen's in the reference.
   template <class Matrix, class Vector>
   void times(const Matrix& a, const Vector& x, ScratchVec& out) const;
