@@ -697,8 +697,9 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   int staggers = ws.contact->solve(cfg, rows, active, gap, a, a_llt, v, impulses, ws.nnls, info,
                                    &ws.contact_drift);
   // The drift was predicted, and the candidates picked, before the step's end velocity v was
-  // known. Re-solve from v*, warm-started, with the drift at v while it differs by more than
-  // the contact tolerance (times dt) from the one solved with, or while a node outside the
+  // known. Re-solve from v*, warm-started, with the drift at v while the solve is not the
+  // fixed point under it (a loaded node's drift moved by more than the contact tolerance
+  // times dt, or an unloaded one's bound rose past its velocity), or while a node outside the
   // candidates ends below its bound (as the linear model's solve_contacts). A node's normal
   // velocity at v is at least its velocity at v* (ws.fl_vs) less |du| + |d omega| |r_c| +
   // |U_c| |dw| and its drift's bound; only nodes that bound cannot clear are evaluated.
@@ -715,19 +716,32 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   };
   for (int round = 0;; ++round) {
     set_velocity(v);
-    double change = 0.0;
+    // The solve is still the fixed point under the new drift unless a loaded node's bound
+    // moved (by more than the tolerance), or an unloaded one's rose by more than it and now
+    // exceeds the node's velocity. (A bound that did not move is the solve's own: its slack
+    // is staggering's, as in the linear frame, which a re-solve would not change.)
+    const double tol = cfg.contact_tolerance;
+    bool moved = false;
     for (size_t i = 0; i < active.size(); ++i) {
+      const int c = active[i];
       double drift;
-      node_at(active[i], drift);
-      change = std::max(change, std::abs(drift - ws.contact_drift[i]));
+      const double vn = node_at(c, drift);
+      const double change = drift - ws.contact_drift[i];
       ws.contact_drift[i] = drift;
+      if (impulses[3 * c + 2] > 0.0) {
+        moved = moved || std::abs(change) > tol * h;
+      } else {
+        const double z = gap[i];
+        const double bound = (z >= 0.0 ? -z / h : -cfg.stabilization * z / h) - drift / h;
+        moved = moved || (change < -tol * h && vn < bound - tol);
+      }
     }
     du = (v.head<3>() - v_free.head<3>()).norm() * inv_sqrt_m;
     dom = (v.segment<3>(3) - v_free.segment<3>(3)).norm();
     dw = (v.tail(nd) - v_free.tail(nd)).norm();
     const size_t before = active.size();
     const int added = add_missed_candidates(cfg, gap_of, vn_at_least, vn_end, ws, info);
-    if (change < cfg.contact_tolerance * h && added == 0) break;
+    if (!moved && added == 0) break;
     if (round == kMaxCandidateRounds) {
       info.contact_converged = false;
       break;
