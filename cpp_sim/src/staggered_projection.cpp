@@ -129,8 +129,11 @@ int StaggeredProjection::run(const std::vector<int>& active, const std::vector<d
   }
   for (int i = 0; i < k; ++i) {
     // The reweighted step's impulse -w_i J_t,i v uses the weight of the velocities before the
-    // step, so it can leave the Coulomb disc by the last stagger's change (up to ~0.1% was
-    // measured): report, and warm-start from, its projection on the disc.
+    // step, so it can leave the Coulomb disc: report, and warm-start from, its projection on
+    // the disc. (The velocity is the unprojected impulse's. On converged walking steps it left
+    // the disc by more than 1 % on 4-11 % of the reference's steps and 1-3 % of the fast
+    // solver's, by up to 1.4x on a few. Re-taking the normal half with the projected friction
+    // held moved no solver nearer a tight solve; benchmarks/PROFILE.md, session 52.)
     const double bound = mu_ * lam_n_[i], norm = lam_t_.segment<2>(2 * i).norm();
     if (norm > bound) lam_t_.segment<2>(2 * i) *= bound / norm;
     impulses[3 * active[i]] = lam_t_[2 * i];
