@@ -2,14 +2,15 @@
 
 ``accuracy_solvers.py`` steps each state of a reference trajectory (one open-loop gait, seed
 1, as its first measure) with the reference, the fast solver and a tightly converged
-reference. Where the fast or the reference step lands more than ``--threshold`` (m/s, the
-mass-weighted RMS node velocity) from the tight one, this asks whether the contact problem at
-that state has more than one solution: the reference is warm-started from each answer's
-impulses with ``--tolerance`` (default 1e-8 m/s, up to 4,000 staggers) and Newton at 1e-11. An
-answer the strict reference stays at is a fixed point of staggered projection, so a solution
-of the step's contact problem; two such answers far apart mean the step has two (Coulomb
-friction with an exact normal constraint need not be unique), and which one a solver takes
-depends on its warm start and path, not on its tolerance.
+reference (all with the default friction law, ``friction_smoothing`` 1e-4 m/s, however
+tight their stop). Where the fast or the reference step lands more than ``--threshold``
+(m/s, the mass-weighted RMS node velocity) from the tight one, this asks whether the contact
+problem at that state has more than one solution: the reference is warm-started from each
+answer's impulses with ``--tolerance`` (default 1e-8 m/s, up to 4,000 staggers) and Newton
+at 1e-11. An answer the strict reference stays at is a fixed point of staggered
+projection, so a solution of the step's contact problem; two such answers far apart mean the
+step has two (Coulomb friction with an exact normal constraint need not be unique), and
+which one a solver takes depends on its warm start and path, not on its tolerance.
 
 Printed per flagged step: each solver's gap to the tight step, its loaded contacts, and for
 each warm start (fast, reference, tight) where the strict reference ends, its distance to the
@@ -63,7 +64,8 @@ def main() -> None:
     solvers = {"fast": model(robot, task, "fast", args.frame), "reference": ref}
     tight = model(robot, task, "reference", args.frame, **TIGHT)
     strict = model(robot, task, "reference", args.frame, newton_tolerance=1e-11,
-                   contact_tolerance=args.tolerance, max_stagger_iterations=4000)  # fmt: skip
+                   contact_tolerance=args.tolerance, max_stagger_iterations=4000,
+                   friction_smoothing=TIGHT["friction_smoothing"])  # fmt: skip
     u = gaits(ref, 1, args.steps * ref.dt, seed=1)[0]
     state, flagged = ref.rest_state(), 0
     print(f"{args.robot}, {args.frame} frame, {args.steps} steps of one gait (seed 1); "

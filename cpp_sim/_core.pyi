@@ -361,6 +361,14 @@ class ReducedModel:
     def friction(self, arg1: typing.Any) -> None:
         ...
     @property
+    def friction_smoothing(self) -> typing.Any:
+        """
+        eps (m/s) of staggered projection's smoothed friction, sqrt(|v_t|^2 + eps^2): sticking nodes creep at about eps. None (default): contact_tolerance, so that tightening contact_tolerance alone also sharpens the friction law; set it to keep the law while the stop tightens
+        """
+    @friction_smoothing.setter
+    def friction_smoothing(self, arg1: typing.Any) -> None:
+        ...
+    @property
     def gravity(self) -> typing.Any:
         """
         gravitational acceleration (3,), m/s^2
@@ -458,7 +466,7 @@ class ReducedConfig:
     accepts one; each setting is also a property of the model itself. Values are validated when
     set; `ReducedConfig.SETTINGS` lists the names.
     """
-    SETTINGS: typing.ClassVar[tuple] = ('dt', 'gravity', 'contact', 'solver', 'friction', 'ground_height', 'contact_margin', 'penalty_stiffness', 'fluid_density', 'drag_coefficient', 'damping_alpha', 'damping_beta', 'newton_tolerance', 'max_newton_iterations', 'contact_tolerance', 'max_stagger_iterations', 'stabilization', 'direction', 'max_speed', 'profile', 'frame')
+    SETTINGS: typing.ClassVar[tuple] = ('dt', 'gravity', 'contact', 'solver', 'friction', 'ground_height', 'contact_margin', 'penalty_stiffness', 'fluid_density', 'drag_coefficient', 'damping_alpha', 'damping_beta', 'newton_tolerance', 'max_newton_iterations', 'contact_tolerance', 'friction_smoothing', 'max_stagger_iterations', 'stabilization', 'direction', 'max_speed', 'profile', 'frame')
     __hash__: typing.ClassVar[None] = None
     def __eq__(self, arg0: ReducedConfig) -> bool:
         ...
@@ -565,6 +573,14 @@ class ReducedConfig:
         """
     @friction.setter
     def friction(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def friction_smoothing(self) -> typing.Any:
+        """
+        eps (m/s) of staggered projection's smoothed friction, sqrt(|v_t|^2 + eps^2): sticking nodes creep at about eps. None (default): contact_tolerance, so that tightening contact_tolerance alone also sharpens the friction law; set it to keep the law while the stop tightens
+        """
+    @friction_smoothing.setter
+    def friction_smoothing(self, arg1: typing.Any) -> None:
         ...
     @property
     def gravity(self) -> typing.Any:

@@ -96,9 +96,9 @@ class FullSpaceModel:
         (:func:`softrom_gym.body_frame.following_forces`, taken at the step's start), so it
         is internal at every configuration, as an actuator built into the robot is; the
         reference for a floating frame's actuation (``docs/FLOATING_FRAME.md``).
-    dt, gravity, friction, ground_height, contact_margin, contact_tolerance, stabilization,
-    damping_alpha, damping_beta, newton_tolerance, max_newton_iterations,
-    max_stagger_iterations, fluid_density, drag_coefficient
+    dt, gravity, friction, ground_height, contact_margin, contact_tolerance,
+    friction_smoothing, stabilization, damping_alpha, damping_beta, newton_tolerance,
+    max_newton_iterations, max_stagger_iterations, fluid_density, drag_coefficient
         As the :class:`cpp_sim.ReducedModel` settings of the same names; ``newton_tolerance``
         bounds the mass-weighted RMS of a Newton update, |dv|_M / sqrt(m) (m/s), and
         ``fluid_density`` > 0 switches the quadratic drag on (the swimmers'; kg/m^3).
@@ -118,6 +118,7 @@ class FullSpaceModel:
     ground_height: float = 0.0
     contact_margin: float = 1e-3
     contact_tolerance: float = 1e-4
+    friction_smoothing: float | None = None
     stabilization: float = 0.2
     damping_alpha: float = 0.0
     damping_beta: float = 0.005
@@ -165,6 +166,10 @@ class FullSpaceModel:
         for name in ("dt", "contact_tolerance", "newton_tolerance"):
             if not real(name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if self.friction_smoothing is not None and not real("friction_smoothing") > 0:
+            raise ValueError(
+                f"friction_smoothing must be > 0 or None, got {self.friction_smoothing!r}"
+            )
         if self.contact not in ("staggered", "none"):
             raise ValueError(f"contact must be 'staggered' or 'none', got {self.contact!r}")
         if self.actuation_frame not in ("world", "body"):
@@ -211,9 +216,9 @@ class FullSpaceModel:
             expected = (3 * robot.num_nodes, bc.shape[0] + 6)
             raise ValueError(f"basis has shape {basis.shape}, expected {expected} for this model")
         names = ("dt", "friction", "ground_height", "contact_margin", "contact_tolerance",
-                 "stabilization", "damping_alpha", "damping_beta", "newton_tolerance",
-                 "max_newton_iterations", "max_stagger_iterations", "fluid_density",
-                 "drag_coefficient")  # fmt: skip
+                 "friction_smoothing", "stabilization", "damping_alpha", "damping_beta",
+                 "newton_tolerance", "max_newton_iterations", "max_stagger_iterations",
+                 "fluid_density", "drag_coefficient")  # fmt: skip
         settings = {name: getattr(model, name) for name in names}
         return cls(robot, basis[:, 6:] @ bc, gravity=tuple(model.gravity), contact=contact,
                    actuation_frame=actuation_frame, **settings)  # fmt: skip
@@ -405,7 +410,7 @@ class FullSpaceModel:
             vel = c[:k] + w[:k] @ lam
             return bool(np.max(b - vel) <= tol)
 
-        eps = tol
+        eps = tol if self.friction_smoothing is None else self.friction_smoothing
         previous = c.copy()
         converged = False
         ok = True

@@ -25,18 +25,22 @@ def test_the_centre_of_mass_is_mass_weighted(bar):
         np.testing.assert_allclose(moved, rest, rtol=0, atol=1e-12)
 
 
-def test_is_the_reduced_step_with_a_full_basis(bar):
+@pytest.mark.parametrize("smoothing", [None, 1e-4])
+def test_is_the_reduced_step_with_a_full_basis(bar, smoothing):
     """Dropped 1 cm onto a frictional ground and actuated in two shapes, the full-space model
     follows the reduced reference solver whose B_r spans all 3N directions: the same implicit
-    step, the same staggered projection, in other coordinates."""
+    step, the same staggered projection, in other coordinates; with the friction law's
+    smoothing following the tolerance (None) or set apart from it."""
     sub = full_basis(bar)
     rng = np.random.default_rng(0)
     bc = np.linalg.qr(rng.standard_normal((sub.M, 2)))[0]
     settings = dict(friction=0.5, dt=0.005, newton_tolerance=1e-10, contact_tolerance=1e-6,
-                    max_stagger_iterations=500, max_newton_iterations=50)  # fmt: skip
+                    max_stagger_iterations=500, max_newton_iterations=50,
+                    friction_smoothing=smoothing)  # fmt: skip
     reduced = build_reduced_model(bar, forces="exact", subspace=sub, control_basis=bc,
                                   solver="reference", **settings)  # fmt: skip
     full = FullSpaceModel.matching(reduced, bar, sub.basis)
+    assert full.friction_smoothing == smoothing
     full.project_hessian = False  # the reference's exact Hessian
     bound = 0.6 * np.sqrt(reduced.total_mass) * G
     state = reduced.rest_state()
@@ -243,6 +247,8 @@ def test_settings_and_models_without_a_full_space_counterpart_are_named(bar):
     for bad, match in (({"dt": 0.0}, "dt must be > 0, got 0.0"),
                        ({"newton_tolerance": -1e-6}, "newton_tolerance must be > 0, got -1e-06"),
                        ({"stabilization": 1.5}, r"stabilization must be in \[0, 1\], got 1.5"),
+                       ({"friction_smoothing": 0.0},
+                        "friction_smoothing must be > 0 or None, got 0.0"),
                        ):  # fmt: skip
         with pytest.raises(ValueError, match=match):
             FullSpaceModel(bar, **bad)

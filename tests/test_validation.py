@@ -1,5 +1,7 @@
 """Bad input to the compiled core raises clear Python errors, never crashes."""
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -247,11 +249,26 @@ def test_reduced_settings_refuse_values_outside_their_range():
         ("max_newton_iterations", -3, "max_newton_iterations must be >= 1, got -3"),
         ("ground_height", np.nan, "ground_height must be finite"),
         ("direction", [0.0, 0.0, 0.0], "direction must be a non-zero vector"),
+        ("friction_smoothing", 0.0, "friction_smoothing must be a finite number > 0, got 0"),
     ):
         with pytest.raises(ValueError, match=match):
             cpp_sim.ReducedConfig(**{name: value})
     edge = cpp_sim.ReducedConfig(stabilization=1.0, max_stagger_iterations=1, friction=0.0)
     assert (edge.stabilization, edge.max_stagger_iterations, edge.friction) == (1.0, 1, 0.0)
+
+
+def test_friction_smoothing_is_none_until_set_and_none_restores_the_tolerances():
+    # None (the default) means contact_tolerance, as before the setting existed; a value is
+    # kept through a copy (pickle) and equality, and None sets it back.
+    config = cpp_sim.ReducedConfig()
+    assert config.friction_smoothing is None
+    config.friction_smoothing = 3e-5
+    copy = pickle.loads(pickle.dumps(config))
+    assert copy.friction_smoothing == 3e-5 and copy == config
+    copy.friction_smoothing = None
+    assert copy.friction_smoothing is None and copy != config
+    with pytest.raises(TypeError, match="friction_smoothing must be a real number"):
+        cpp_sim.ReducedConfig(friction_smoothing="1e-4")
 
 
 def test_real_settings_refuse_numpy_bools(tet):

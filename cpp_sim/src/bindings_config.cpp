@@ -124,6 +124,20 @@ const std::vector<Setting>& settings() {
       SOFTROM_POSITIVE(contact_tolerance,
                        "staggered projection stops when contact-node velocities change less "
                        "than this, m/s"),
+      {"friction_smoothing",
+       [](const ReducedConfig& c) -> py::object {
+         if (c.friction_smoothing > 0.0) return py::float_(c.friction_smoothing);
+         return py::none();
+       },
+       [](ReducedConfig& c, py::handle x) {
+         c.friction_smoothing =
+             x.is_none() ? 0.0
+                         : v::positive(v::real(x, "friction_smoothing"), "friction_smoothing");
+       },
+       "eps (m/s) of staggered projection's smoothed friction, sqrt(|v_t|^2 + eps^2): "
+       "sticking nodes creep at about eps. None (default): contact_tolerance, so that "
+       "tightening contact_tolerance alone also sharpens the friction law; set it to keep the "
+       "law while the stop tightens"},
       SOFTROM_COUNT(max_stagger_iterations, v::kMaxStaggerCap,
                     "cap on staggered-projection iterations per step (at most 10000: a step "
                     "is interrupted only between steps)"),

@@ -75,6 +75,12 @@ struct ReducedConfig {
   double newton_tolerance = 1e-6; // on max |dv| / sqrt(m), m/s
   int max_newton_iterations = 30;
   double contact_tolerance = 1e-4;  // m/s on contact-node velocities
+  // eps of the smoothed friction law |v_t|_eps = sqrt(|v_t|^2 + eps^2), m/s; 0: contact_tolerance
+  // (as before the setting existed). Separate so that a tighter stop is not other friction.
+  double friction_smoothing = 0.0;
+  double friction_eps() const {
+    return friction_smoothing > 0.0 ? friction_smoothing : contact_tolerance;
+  }
   int max_stagger_iterations = 60;
   double stabilization = 0.2;     // Baumgarte fraction of a penetration removed per step
   Vec3 direction{1.0, 0.0, 0.0};  // unit task direction d (reward d . v_com dt)

@@ -54,7 +54,7 @@ int StaggeredProjection::solve(const ReducedConfig& cfg, const RowMatX& surface_
   how_ = fast_ ? NnlsSolve::Gram : NnlsSolve::Qr;
   mu_ = cfg.friction;
   tol_ = cfg.contact_tolerance;
-  eps_ = tol_;  // smoothing of |v_t|: sticking nodes creep at most ~eps
+  eps_ = cfg.friction_eps();  // smoothing of |v_t|: sticking nodes creep at most ~eps
   set_up(surface_rows, active);
   return run(active, gap, drift, impulses);
 }
