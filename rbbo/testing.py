@@ -18,12 +18,18 @@ __all__ = ["FaultyObjective"]
 class FaultyObjective:
     """R(B_c, T, seed) = sum(B_c) + seed, except: T = 2 hangs, T = 3 kills the process
     (``os._exit(7)``), T = 4 raises RuntimeError("MPC diverged"), T = 5 returns NaN, T = 6
-    warns (RuntimeWarning "the episode diverged once") and succeeds."""
+    warns (RuntimeWarning "the episode diverged once") and succeeds. With ``load_s`` > 0,
+    unpickling it (a worker's start) takes that long."""
 
     HANG, CRASH, RAISE, NAN, WARN = 2.0, 3.0, 4.0, 5.0, 6.0
 
-    def __init__(self, hang_s: float = 60.0):
+    def __init__(self, hang_s: float = 60.0, load_s: float = 0.0):
         self.hang_s = hang_s
+        self.load_s = load_s
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        time.sleep(self.__dict__.get("load_s", 0.0))
 
     def __call__(self, basis: np.ndarray, T: float, seed: int) -> float:
         if T == self.HANG:

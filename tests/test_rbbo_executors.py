@@ -145,6 +145,27 @@ def test_ray_executor_matches_the_process_pool():
 
 
 @pytest.mark.slow
+def test_ray_executor_times_a_task_from_when_its_actor_is_up():
+    # An actor's start (its process, the imports, the objective unpickled) is not the task's:
+    # on a loaded 2-core machine it outlasted a 5-s limit and failed a task that takes no
+    # time. Here every start takes 3 s against a 2-s limit; the task still succeeds, and a
+    # hang is still stopped at its limit.
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        executor = make_executor("ray", FaultyObjective(hang_s=60, load_s=3.0), workers=1,
+                                 timeout_s=2)  # fmt: skip
+        first = executor.submit(_task(0, 1)).result(timeout=120)
+        hung = executor.submit(_task(1, FaultyObjective.HANG)).result(timeout=120)
+        after = executor.submit(_task(2, 1)).result(timeout=120)  # on the replaced actor
+        executor.shutdown()
+    finally:
+        ray.shutdown()
+    assert (first.status, hung.status, after.status) == ("ok", "failed", "ok")
+    assert "timed out after 2 s" in hung.error and 2.0 <= hung.wall_s < 30.0
+
+
+@pytest.mark.slow
 def test_ray_executor_survives_crash_hang_and_exceptions():
     # The failure paths of the supervisor thread: an actor that hangs is killed at its
     # timeout and one that dies is replaced, each failing only its own task; a shutdown that

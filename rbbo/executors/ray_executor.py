@@ -48,6 +48,10 @@ class _Worker:
     def evaluate(self, task: EvaluationTask):
         return evaluate_task(self.objective, task, self.name)
 
+    def ping(self) -> bool:
+        """Answers once the actor is up (its process started, the objective unpickled)."""
+        return True
+
 
 @dataclass
 class _Slot:
@@ -57,8 +61,10 @@ class _Slot:
     ref: Any = None
     task: EvaluationTask | None = None
     future: Future | None = None
-    started: float = 0.0
+    started: float | None = 0.0  # when the task's clock started (None: the actor is not up)
     restarts: int = 0
+    ready: Any = None  # the actor's ping while it starts; None once it has answered
+    spawned: float = 0.0
 
     @property
     def name(self) -> str:
@@ -78,7 +84,10 @@ class RayExecutor(Executor):
         An existing cluster (``ray.init(address=...)``, e.g. "auto" or "ray://host:10001");
         None starts a local Ray with ``workers`` CPUs unless Ray is already initialised.
     timeout_s : float or None
-        Wall-clock limit per task.
+        Wall-clock limit per task, from when its actor is up: an actor's start (a process,
+        the package's imports, the objective unpickled) is not the task's, and on a loaded
+        machine it took longer than a short limit. An actor that is not up within
+        ``max(60, 10 timeout_s)`` seconds fails its task and is replaced.
     """
 
     def __init__(self, objective, workers: int = 1, address: str | None = None,
@@ -116,6 +125,17 @@ class RayExecutor(Executor):
 
     def _start(self, slot: _Slot) -> None:
         slot.actor = self._actor_cls.remote(self._objective_ref, slot.name)
+        slot.ready, slot.spawned = slot.actor.ping.remote(), time.monotonic()
+
+    def _clock(self, slot: _Slot, now: float) -> None:
+        """Start a busy slot's clock once its actor is up; fail one that does not come up."""
+        if slot.ready is None:
+            return
+        up, _ = self._ray.wait([slot.ready], num_returns=1, timeout=0)
+        if up:
+            slot.ready, slot.started = None, now
+        elif self.timeout_s is not None and now - slot.spawned >= max(60.0, 10 * self.timeout_s):
+            self._fail_and_replace(slot, f"worker did not start in {now - slot.spawned:.0f} s")
 
     def _finish(self, slot: _Slot, outcome) -> None:
         future, slot.future, slot.task, slot.ref = slot.future, None, None, None
@@ -124,7 +144,8 @@ class RayExecutor(Executor):
 
     def _fail_and_replace(self, slot: _Slot, error: str) -> None:
         assert slot.task is not None  # (a busy slot's)
-        outcome = failed(slot.task, slot.name, time.monotonic() - slot.started, error)
+        begun = slot.spawned if slot.started is None else slot.started
+        outcome = failed(slot.task, slot.name, time.monotonic() - begun, error)
         self._ray.kill(slot.actor, no_restart=True)
         slot.restarts += 1
         self._start(slot)
@@ -144,7 +165,8 @@ class RayExecutor(Executor):
                         task, future = self._queue.popleft()
                         if not future.set_running_or_notify_cancel():
                             continue
-                        slot.task, slot.future, slot.started = task, future, time.monotonic()
+                        slot.task, slot.future = task, future
+                        slot.started = None if slot.ready is not None else time.monotonic()
                         slot.ref = slot.actor.evaluate.remote(task)
                 busy = [s for s in self._slots if s.task is not None]
                 if self._closing and not busy and not self._queue:
@@ -155,6 +177,10 @@ class RayExecutor(Executor):
                 continue
             ready, _ = ray.wait([s.ref for s in busy], num_returns=1, timeout=0.2)
             for slot in busy:
+                if slot.ref not in ready:
+                    self._clock(slot, time.monotonic())
+                    if slot.task is None:  # (failed: the actor did not come up)
+                        continue
                 if slot.ref in ready:
                     try:
                         outcome = ray.get(slot.ref)
@@ -163,7 +189,9 @@ class RayExecutor(Executor):
                         continue
                     self._finish(slot, outcome)
                 elif (
-                    self.timeout_s is not None and time.monotonic() - slot.started >= self.timeout_s
+                    self.timeout_s is not None
+                    and slot.started is not None
+                    and time.monotonic() - slot.started >= self.timeout_s
                 ):
                     self._fail_and_replace(slot, f"timed out after {self.timeout_s:g} s")
 
