@@ -411,7 +411,11 @@ class FullSpaceModel:
             return bool(np.max(b - vel) <= tol)
 
         eps = tol if self.friction_smoothing is None else self.friction_smoothing
-        previous = c.copy()
+        # The first stagger is judged against the warm start's velocity, the iterate it
+        # continues, as the reduced core does since session 51: judged against v*, a warm start
+        # whose friction alone lifted every candidate ended the step at once, "converged" at
+        # zero impulses with the normal conditions unmet.
+        previous = c + w @ lam
         converged = False
         ok = True
         stagger = 0

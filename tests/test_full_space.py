@@ -325,3 +325,23 @@ def test_state_from_reduced_names_a_bad_basis(bar):
     full = model.state_from_reduced(sub.basis, state)
     np.testing.assert_allclose(full.x, bar.nodes, atol=1e-12)
     assert full.impulses.shape == (len(bar.surface_nodes), 3)
+
+
+def test_a_resting_body_warm_started_settles_in_one_stagger_as_the_reduced_step(bar):
+    # The first stagger is judged against the warm start's velocity (the reduced core since
+    # session 51, the full space since 52): a body at rest on the ground, warm-started with
+    # the impulses that hold it, converges in one stagger. Judged against v*, which gravity
+    # pulls down by g dt, the full space took two, and a warm start whose friction alone
+    # lifted every candidate could end a step at once with its normal conditions unmet.
+    sub = full_basis(bar)
+    reduced = build_reduced_model(bar, forces="exact", subspace=sub, solver="reference",
+                                  friction=0.5)  # fmt: skip
+    full = FullSpaceModel.matching(reduced, bar, sub.basis)
+    state, fstate = reduced.rest_state(), full.rest_state()
+    staggers = []
+    for _ in range(120):
+        state, info = reduced.step(state)
+        fstate, finfo = full.step(fstate)
+        staggers.append((info["stagger_iterations"], finfo["stagger_iterations"]))
+    assert finfo["contacts"] >= 4 and np.abs(fstate.v).max() < 1e-3  # resting on its face
+    assert staggers[-20:] == [(1, 1)] * 20
