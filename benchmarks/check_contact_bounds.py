@@ -71,6 +71,9 @@ def main(argv: list[str] | None = None) -> None:
                    default=["linear", "floating"])  # fmt: skip
     p.add_argument("--robots", nargs="+", choices=WALKERS, default=list(WALKERS))
     args = p.parse_args(argv)
+    if args.steps < 1 or min(args.amplitudes) <= 0.0:
+        p.error(f"--steps must be at least 1 and --amplitudes positive, got {args.steps} and "
+                f"{args.amplitudes}")  # fmt: skip
     print(f"{args.steps} steps of a 2 Hz stroke, solver={args.solver}; depths in mm")
     print(f"{'robot':10s} {'frame':8s} {'bw':>4s} {'deepest':>8s} {'beyond':>8s} "
           f"{'h|w|':>6s} {'staggers':>8s} {'re-solved':>9s} {'unconv':>6s}")  # fmt: skip

@@ -607,9 +607,9 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
   // driven at 2 body weights (h |omega| up to 0.07) ended steps with nodes 2.3 mm into the
   // ground, 5.9 mm at 3 body weights (session 51). The bounds' drift is predicted at the
   // step's start velocity, nearer the step's end than v* is on the ground (on 400 steps of
-  // each walker's 0.8 body-weight gait the re-solve below followed on 17-48 % of steps, on
-  // 20-98 % with the drift at v*); the candidate test takes its bound (set_velocity's), so
-  // only the candidates' drift is evaluated.
+  // each walker's 0.8 body-weight gait the re-solve below followed on 8-33 % of steps; with
+  // the drift at v*, and session 51's re-solve test, on 20-98 %); the candidate test takes its
+  // bound (set_velocity's), so only the candidates' drift is evaluated.
   const double h = cfg.dt, damp = 1.0 + h * cfg.damping_alpha;
   floating_node_velocities(s.q, v, ws.fl_vs, ws);
   const Mat3 rot = rotation_matrix(s.q.segment<3>(3));
@@ -731,8 +731,7 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
       if (impulses[3 * c + 2] > 0.0) {
         moved = moved || std::abs(change) > tol * h;
       } else {
-        const double z = gap[i];
-        const double bound = (z >= 0.0 ? -z / h : -cfg.stabilization * z / h) - drift / h;
+        const double bound = cfg.normal_velocity_bound(gap[i]) - drift / h;
         moved = moved || (change < -tol * h && vn < bound - tol);
       }
     }

@@ -83,6 +83,11 @@ struct ReducedConfig {
   }
   int max_stagger_iterations = 60;
   double stabilization = 0.2;     // Baumgarte fraction of a penetration removed per step
+  // The least normal velocity a node at height z above the ground may end a step with: it may
+  // reach the plane, and a penetrating node rises by a fraction `stabilization` of its depth.
+  double normal_velocity_bound(double z) const {
+    return z >= 0.0 ? -z / dt : -stabilization * z / dt;
+  }
   Vec3 direction{1.0, 0.0, 0.0};  // unit task direction d (reward d . v_com dt)
   double max_speed = 100.0;       // m/s: an RMS node speed above this counts as divergence
   bool profile = false;           // time the parts of each step into StepInfo (a few % cost)
@@ -546,12 +551,12 @@ class ReducedModel {
     std::vector<char>& member = ws.contact_member;
     member.assign(num_surface_nodes(), 0);
     for (const int c : active) member[c] = 1;
-    const double h = cfg.dt, tol = cfg.contact_tolerance;
+    const double tol = cfg.contact_tolerance;
     int added = 0;
     for (int c = 0; c < num_surface_nodes(); ++c) {
       if (member[c]) continue;
       const double z = gap_of(c);
-      const double bound = (z >= 0.0 ? -z / h : -cfg.stabilization * z / h) - tol;
+      const double bound = cfg.normal_velocity_bound(z) - tol;
       if (vn_at_least(c) >= bound || vn_end(c) >= bound) continue;
       active.push_back(c);
       ws.contact_gap.push_back(z);

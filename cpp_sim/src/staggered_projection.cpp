@@ -223,7 +223,7 @@ void StaggeredProjection::start(const std::vector<int>& active, const std::vecto
   lam_t_.resize(2 * k);
   for (int i = 0; i < k; ++i) {
     const int c = active[i];
-    b_[i] = gap[i] >= 0.0 ? -gap[i] / h : -cfg.stabilization * gap[i] / h;
+    b_[i] = cfg.normal_velocity_bound(gap[i]);
     if (drift) b_[i] -= (*drift)[i] / h;
     lam_n_[i] = std::max(old_[3 * c + 2], 0.0);  // warm start by node id
     lam_t_.segment<2>(2 * i) = old_.segment<2>(3 * c);
