@@ -1,4 +1,6 @@
-// Bindings for the reduced model: ReducedState, ReducedModel, cubature training helper.
+// Bindings for the reduced model: ReducedState, ReducedModel (its settings: bindings_config.cpp),
+// the cubature's training data and the kernels' instruction set (the kernels' and
+// least-distance solves' test hooks: bindings_checks.cpp).
 #include <pybind11/eigen.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -18,7 +20,6 @@
 #include "dense_kernels.h"
 #include "fem_model.h"
 #include "reduced_model.h"
-#include "small_cholesky.h"
 #include "validate.h"
 
 namespace py = pybind11;
@@ -228,11 +229,156 @@ py::array_t<double> controls_in(const ReducedModel& m, py::handle obj, const cha
   return out;
 }
 
+// ReducedModel.step: one step with the GIL released, its StepInfo as a dict (the return type
+// is make_tuple's typed tuple, which the stub shows as tuple[ReducedState, dict]).
+auto step_binding(const ReducedModel& r, const ReducedState& s, py::handle fc) {
+  check_state(r, s);
+  ReducedState out = s;
+  py::array_t<double> f;
+  const double* fp = nullptr;
+  if (!fc.is_none()) {
+    f = controls_in(r, fc, "f_c", 1);
+    fp = f.data();
+  } else if (r.control_dim() > 0) {
+    throw py::value_error("f_c is required: this model has a control basis with C = " +
+                          std::to_string(r.control_dim()));
+  }
+  StepInfo info;
+  const StepInputs in = r.inputs();  // copied while the GIL is held
+  {
+    py::gil_scoped_release release;
+    const ReducedModel::WorkspaceLease ws = r.lend_workspace();
+    info = r.step(in, out, fp, *ws);
+  }
+  py::dict d;
+  d["newton_iterations"] = info.newton_iterations;
+  d["stiffness_evaluations"] = info.stiffness_evaluations;
+  d["stagger_iterations"] = info.stagger_iterations;
+  d["contacts"] = info.contacts;
+  d["normal_iterations"] = info.normal_iterations;
+  d["friction_iterations"] = info.friction_iterations;
+  d["active_rows"] = info.active_rows;
+  d["converged"] = info.converged;
+  d["contact_converged"] = info.contact_converged;
+  d["diverged"] = info.diverged;
+  if (in.config.profile) {
+    d["time_dynamics"] = info.time_dynamics;
+    d["time_drag"] = info.time_drag;
+    d["time_normal"] = info.time_normal;
+    d["time_friction"] = info.time_friction;
+    d["stagger_trace"] = info.stagger_trace;
+  }
+  return py::make_tuple(out, d);
+}
+
+// A rollout's start states: one ReducedState (every rollout starts there) or a sequence of b.
+std::vector<ReducedState> rollout_starts(const ReducedModel& r, py::handle state, int b) {
+  std::vector<ReducedState> starts;
+  if (py::isinstance<ReducedState>(state)) {
+    starts.push_back(state.cast<ReducedState>());
+  } else {
+    for (py::handle item : state) {
+      if (!py::isinstance<ReducedState>(item))
+        throw py::type_error("state must be a ReducedState or a sequence of them");
+      starts.push_back(item.cast<ReducedState>());
+    }
+    if (static_cast<int>(starts.size()) != b)
+      throw py::value_error("state is a sequence of " + std::to_string(starts.size()) +
+                            " states, expected one per rollout (B = " + std::to_string(b) + ")");
+  }
+  for (const ReducedState& s : starts) check_state(r, s);
+  return starts;
+}
+
+// A rollout's thread count: `threads` (an int >= 1, at most b: more would idle), or by
+// default the cores this process may run on.
+int rollout_threads(py::object threads, int b) {
+  if (threads.is_none()) return available_cores();
+  // An integer (numpy's too: anything with __index__), not a bool or a float.
+  const std::string given = py::str(py::repr(threads));
+  if (py::isinstance<py::bool_>(threads) || !PyIndex_Check(threads.ptr()))
+    throw py::type_error("threads must be an int or None, got " + given);
+  const py::int_ want(py::reinterpret_steal<py::object>(PyNumber_Index(threads.ptr())));
+  if (want < py::int_(1)) throw py::value_error("threads must be >= 1, got " + given);
+  // (this also keeps the count an int)
+  return want > py::int_(b) ? b : want.cast<int>();
+}
+
+// ReducedModel.rollout: B rollouts of H steps on the thread pool, the GIL released.
+py::dict rollout_binding(const ReducedModel& r, py::handle state, py::handle controls,
+                         py::object threads, py::handle observe) {
+  py::array_t<double> u = controls_in(r, controls, "controls", 3);
+  constexpr py::ssize_t kMaxCount = std::numeric_limits<int>::max();
+  if (u.shape(0) < 1 || u.shape(1) < 1 || u.shape(0) > kMaxCount || u.shape(1) > kMaxCount)
+    throw py::value_error("controls must have 1 <= B, H <= " + std::to_string(kMaxCount) +
+                          ", got B = " + std::to_string(u.shape(0)) +
+                          ", H = " + std::to_string(u.shape(1)));
+  const int b = static_cast<int>(u.shape(0)), h = static_cast<int>(u.shape(1));
+  const std::vector<ReducedState> starts = rollout_starts(r, state, b);
+  const int nt = rollout_threads(threads, b);
+  const py::ssize_t dim = r.dim(), ni = 3 * r.num_surface_nodes();
+  py::array_t<double> rewards({b, h}), q({py::ssize_t{b}, dim}), qd({py::ssize_t{b}, dim}),
+      imp({py::ssize_t{b}, ni}), com({py::ssize_t{b}, py::ssize_t{h}, py::ssize_t{3}});
+  py::array_t<bool> div(b), conv(b);
+  std::vector<unsigned char> flags(b), conv_flags(b);
+  MatX obs_m;
+  py::ssize_t no = 0;
+  if (!observe.is_none()) {
+    obs_m = matrix_in(observe, "observe", -1, r.dim());
+    no = obs_m.rows();
+  }
+  py::array_t<double> observed({py::ssize_t{b}, py::ssize_t{h}, no});
+  const StepInputs in = r.inputs();  // copied while the GIL is held
+  ReducedModel::RolloutOutputs out;
+  out.rewards = rewards.mutable_data();
+  out.final_q = q.mutable_data();
+  out.final_qdot = qd.mutable_data();
+  out.final_impulses = imp.mutable_data();
+  out.diverged = flags.data();
+  out.converged = conv_flags.data();
+  out.com = com.mutable_data();
+  out.observe = no ? &obs_m : nullptr;
+  out.observed = no ? observed.mutable_data() : nullptr;
+  // Ctrl-C: Python only runs signal handlers on the main thread, so only a rollout
+  // called from it asks (PyErr_CheckSignals sets the KeyboardInterrupt raised below).
+  bool interrupted = false;
+  const std::function<bool()> check_signals = [&interrupted] {
+    py::gil_scoped_acquire gil;
+    interrupted = PyErr_CheckSignals() != 0;
+    return interrupted;
+  };
+  const py::module_ threading = py::module_::import("threading");
+  if (threading.attr("current_thread")().is(threading.attr("main_thread")()))
+    out.interrupt = &check_signals;
+  {
+    py::gil_scoped_release release;
+    r.rollout(in, starts, u.data(), b, h, nt, out);
+  }
+  if (interrupted) throw py::error_already_set();
+  for (int i = 0; i < b; ++i) {
+    div.mutable_data()[i] = flags[i] != 0;
+    conv.mutable_data()[i] = conv_flags[i] != 0;
+  }
+  py::dict d;
+  d["rewards"] = rewards;
+  d["q"] = q;
+  d["qdot"] = qd;
+  d["impulses"] = imp;
+  d["diverged"] = div;
+  d["converged"] = conv;
+  d["com"] = com;
+  if (!observe.is_none()) d["observed"] = observed;
+  return d;
+}
+
 }  // namespace
 
 void bind_config(py::module_& m, py::class_<ReducedModel>& model);
+void bind_checks(py::module_& m);  // bindings_checks.cpp
 
-void bind_reduced(py::module_& m) {
+namespace {
+
+void bind_state(py::module_& m) {
   py::class_<ReducedState>(m, "ReducedState", R"doc(
 State of a reduced model: q_r and qdot_r (M + 6,) and the contact impulses (3 per surface
 node) that warm-start the next contact solve. Copies in, copies out; picklable (by its
@@ -258,7 +404,10 @@ constructor's arguments, so an unpickled state is checked as a new one is).)doc"
       .def("__repr__", [](const ReducedState& s) {
         return "ReducedState(dim=" + std::to_string(s.q.size()) + ")";
       });
+}
 
+// ReducedModel: construction, its sizes and B_c, and stepping (its settings: bind_config).
+py::class_<ReducedModel> bind_model(py::module_& m) {
   py::class_<ReducedModel> model_cls(m, "ReducedModel", R"doc(
 Reduced-order soft body in the simulation space B_r (softrom_gym.rom.build_reduced_model is
 the Python front end that builds the basis and cubature).
@@ -305,147 +454,15 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
           "B_c, (M, C), orthonormal: f_r = B_c f_c acts on the deformation coordinates.")
       .def("rest_state", &ReducedModel::rest_state,
            "The undeformed state at rest: q = qdot = 0 (M + 6,), no contact impulses.")
-      .def(
-          "step",
-          [](const ReducedModel& r, const ReducedState& s, py::handle fc) {
-            check_state(r, s);
-            ReducedState out = s;
-            py::array_t<double> f;
-            const double* fp = nullptr;
-            if (!fc.is_none()) {
-              f = controls_in(r, fc, "f_c", 1);
-              fp = f.data();
-            } else if (r.control_dim() > 0) {
-              throw py::value_error("f_c is required: this model has a control basis with C = " +
-                                    std::to_string(r.control_dim()));
-            }
-            StepInfo info;
-            const StepInputs in = r.inputs();  // copied while the GIL is held
-            {
-              py::gil_scoped_release release;
-              const ReducedModel::WorkspaceLease ws = r.lend_workspace();
-              info = r.step(in, out, fp, *ws);
-            }
-            py::dict d;
-            d["newton_iterations"] = info.newton_iterations;
-            d["stiffness_evaluations"] = info.stiffness_evaluations;
-            d["stagger_iterations"] = info.stagger_iterations;
-            d["contacts"] = info.contacts;
-            d["normal_iterations"] = info.normal_iterations;
-            d["friction_iterations"] = info.friction_iterations;
-            d["active_rows"] = info.active_rows;
-            d["converged"] = info.converged;
-            d["contact_converged"] = info.contact_converged;
-            d["diverged"] = info.diverged;
-            if (in.config.profile) {
-              d["time_dynamics"] = info.time_dynamics;
-              d["time_drag"] = info.time_drag;
-              d["time_normal"] = info.time_normal;
-              d["time_friction"] = info.time_friction;
-              d["stagger_trace"] = info.stagger_trace;
-            }
-            return py::make_tuple(out, d);
-          },
-          py::arg("state"), py::arg("f_c") = py::none(),
-          "One implicit step; returns (new_state, info). A diverged step returns the input "
-          "state and info['diverged'] = True and does not raise (a state or f_c of the wrong "
-          "size raises ValueError).")
-      .def(
-          "rollout",
-          [](const ReducedModel& r, py::handle state, py::handle controls, py::object threads,
-             py::handle observe) {
-            py::array_t<double> u = controls_in(r, controls, "controls", 3);
-            constexpr py::ssize_t kMaxCount = std::numeric_limits<int>::max();
-            if (u.shape(0) < 1 || u.shape(1) < 1 || u.shape(0) > kMaxCount ||
-                u.shape(1) > kMaxCount)
-              throw py::value_error("controls must have 1 <= B, H <= " +
-                                    std::to_string(kMaxCount) + ", got B = " +
-                                    std::to_string(u.shape(0)) + ", H = " +
-                                    std::to_string(u.shape(1)));
-            const int b = static_cast<int>(u.shape(0)), h = static_cast<int>(u.shape(1));
-            std::vector<ReducedState> starts;
-            if (py::isinstance<ReducedState>(state)) {
-              starts.push_back(state.cast<ReducedState>());
-            } else {
-              for (py::handle item : state) {
-                if (!py::isinstance<ReducedState>(item))
-                  throw py::type_error("state must be a ReducedState or a sequence of them");
-                starts.push_back(item.cast<ReducedState>());
-              }
-              if (static_cast<int>(starts.size()) != b)
-                throw py::value_error("state is a sequence of " + std::to_string(starts.size()) +
-                                      " states, expected one per rollout (B = " +
-                                      std::to_string(b) + ")");
-            }
-            for (const ReducedState& s : starts) check_state(r, s);
-            int nt = available_cores();
-            if (!threads.is_none()) {
-              // An integer (numpy's too: anything with __index__), not a bool or a float.
-              const std::string given = py::str(py::repr(threads));
-              if (py::isinstance<py::bool_>(threads) || !PyIndex_Check(threads.ptr()))
-                throw py::type_error("threads must be an int or None, got " + given);
-              const py::int_ want(py::reinterpret_steal<py::object>(PyNumber_Index(threads.ptr())));
-              if (want < py::int_(1)) throw py::value_error("threads must be >= 1, got " + given);
-              // (more threads than rollouts would idle; this also keeps the count an int)
-              nt = want > py::int_(b) ? b : want.cast<int>();
-            }
-            const py::ssize_t dim = r.dim(), ni = 3 * r.num_surface_nodes();
-            py::array_t<double> rewards({b, h}), q({py::ssize_t{b}, dim}), qd({py::ssize_t{b}, dim}),
-                imp({py::ssize_t{b}, ni}), com({py::ssize_t{b}, py::ssize_t{h}, py::ssize_t{3}});
-            py::array_t<bool> div(b), conv(b);
-            std::vector<unsigned char> flags(b), conv_flags(b);
-            MatX obs_m;
-            py::ssize_t no = 0;
-            if (!observe.is_none()) {
-              obs_m = matrix_in(observe, "observe", -1, r.dim());
-              no = obs_m.rows();
-            }
-            py::array_t<double> observed({py::ssize_t{b}, py::ssize_t{h}, no});
-            const StepInputs in = r.inputs();  // copied while the GIL is held
-            ReducedModel::RolloutOutputs out;
-            out.rewards = rewards.mutable_data();
-            out.final_q = q.mutable_data();
-            out.final_qdot = qd.mutable_data();
-            out.final_impulses = imp.mutable_data();
-            out.diverged = flags.data();
-            out.converged = conv_flags.data();
-            out.com = com.mutable_data();
-            out.observe = no ? &obs_m : nullptr;
-            out.observed = no ? observed.mutable_data() : nullptr;
-            // Ctrl-C: Python only runs signal handlers on the main thread, so only a rollout
-            // called from it asks (PyErr_CheckSignals sets the KeyboardInterrupt raised below).
-            bool interrupted = false;
-            const std::function<bool()> check_signals = [&interrupted] {
-              py::gil_scoped_acquire gil;
-              interrupted = PyErr_CheckSignals() != 0;
-              return interrupted;
-            };
-            const py::module_ threading = py::module_::import("threading");
-            if (threading.attr("current_thread")().is(threading.attr("main_thread")()))
-              out.interrupt = &check_signals;
-            {
-              py::gil_scoped_release release;
-              r.rollout(in, starts, u.data(), b, h, nt, out);
-            }
-            if (interrupted) throw py::error_already_set();
-            for (int i = 0; i < b; ++i) {
-              div.mutable_data()[i] = flags[i] != 0;
-              conv.mutable_data()[i] = conv_flags[i] != 0;
-            }
-            py::dict d;
-            d["rewards"] = rewards;
-            d["q"] = q;
-            d["qdot"] = qd;
-            d["impulses"] = imp;
-            d["diverged"] = div;
-            d["converged"] = conv;
-            d["com"] = com;
-            if (!observe.is_none()) d["observed"] = observed;
-            return d;
-          },
-          py::arg("state"), py::arg("controls"), py::arg("threads") = py::none(),
-          py::arg("observe") = py::none(),
-          R"doc(B rollouts of H steps from one state (or a sequence of B states), controls (B, H, C).
+      .def("step", &step_binding,
+           py::arg("state"), py::arg("f_c") = py::none(),
+           "One implicit step; returns (new_state, info). A diverged step returns the input "
+           "state and info['diverged'] = True and does not raise (a state or f_c of the wrong "
+           "size raises ValueError).")
+      .def("rollout", &rollout_binding,
+           py::arg("state"), py::arg("controls"), py::arg("threads") = py::none(),
+           py::arg("observe") = py::none(),
+           R"doc(B rollouts of H steps from one state (or a sequence of B states), controls (B, H, C).
 
 Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 6) and impulses
 (B, 3 n_surface) of the final states, diverged (B,), converged (B,: every step's Newton and
@@ -454,7 +471,13 @@ contact solve reached its tolerance) and com (B, H, 3); with `observe`
 `threads` C++ threads with the GIL released; results do not depend on the thread count. A
 diverged rollout keeps its last good state and earns zero reward from then on. Called from
 the main thread, Ctrl-C stops it within about 0.1 s (after the step in progress) and raises
-KeyboardInterrupt.)doc")
+KeyboardInterrupt.)doc");
+  return model_cls;
+}
+
+// What a model computes at given reduced coordinates, and the solvers' test hooks.
+void bind_queries(py::class_<ReducedModel>& model_cls) {
+  model_cls
       .def(
           "positions",
           [](const ReducedModel& r, py::handle q) {
@@ -559,6 +582,14 @@ KeyboardInterrupt.)doc")
           "cubature, H_k element k's energy Hessian. project=True clamps each H_k to be PSD "
           "first (the implicit step does not: where its Newton matrix is not positive definite "
           "it clamps the summed stiffness instead).");
+}
+
+}  // namespace
+
+void bind_reduced(py::module_& m) {
+  bind_state(m);
+  py::class_<ReducedModel> model_cls = bind_model(m);
+  bind_queries(model_cls);
 
   m.def(
       "reduced_element_forces",
@@ -603,139 +634,5 @@ KeyboardInterrupt.)doc")
       "round differently (fused multiply-adds), so chaotic trajectories computed with the two "
       "part at round-off level.");
 
-  m.def(
-      "_kernel_cols_times",
-      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& x) {
-        if (x.size() != a.cols()) {
-          std::ostringstream msg;
-          msg << "x has " << x.size() << " entries, a has " << a.cols() << " columns";
-          throw py::value_error(msg.str());
-        }
-        const MatX a_owned = a;  // exactly rows x cols, column-major: the kernel's layout
-        VecX out(a.rows());
-        kernels::cols_times(a_owned.data(), a.rows(), a.cols(), x.data(), out.data());
-        return out;
-      },
-      py::arg("a"), py::arg("x"),
-      "A x through the fast solver's matrix-vector kernel (for its tests).");
-
-  m.def(
-      "_kernel_cols_dot",
-      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& x) {
-        if (x.size() != a.rows()) {
-          std::ostringstream msg;
-          msg << "x has " << x.size() << " entries, a has " << a.rows() << " rows";
-          throw py::value_error(msg.str());
-        }
-        const MatX a_owned = a;  // exactly rows x cols, column-major: the kernel's layout
-        VecX out(a.cols());
-        kernels::cols_dot(a_owned.data(), a.rows(), a.cols(), x.data(), out.data());
-        return out;
-      },
-      py::arg("a"), py::arg("x"),
-      "A^T x through the fast solver's column-dot kernel (for its tests).");
-
-  m.def(
-      "_kernel_cols_times_pair",
-      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& x,
-         const Eigen::Ref<const VecX>& y) {
-        if (x.size() != a.cols() || y.size() != a.cols()) {
-          std::ostringstream msg;
-          msg << "x and y have " << x.size() << " and " << y.size() << " entries, a has "
-              << a.cols() << " columns";
-          throw py::value_error(msg.str());
-        }
-        const MatX a_owned = a;
-        VecX out_x(a.rows()), out_y(a.rows());
-        kernels::cols_times_pair(a_owned.data(), a.rows(), a.cols(), x.data(), y.data(),
-                                 out_x.data(), out_y.data());
-        return py::make_tuple(out_x, out_y);
-      },
-      py::arg("a"), py::arg("x"), py::arg("y"),
-      "(A x, A y) through the fast solver's one-pass kernel (for its tests).");
-
-  m.def(
-      "_kernel_cols_dot_times",
-      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& x) {
-        if (x.size() != a.rows()) {
-          std::ostringstream msg;
-          msg << "x has " << x.size() << " entries, a has " << a.rows() << " rows";
-          throw py::value_error(msg.str());
-        }
-        const MatX a_owned = a;
-        VecX dots(a.cols()), out(a.rows());
-        kernels::cols_dot_times(a_owned.data(), a.rows(), a.cols(), x.data(), dots.data(),
-                                out.data());
-        return py::make_tuple(dots, out);
-      },
-      py::arg("a"), py::arg("x"),
-      "(A^T x, A A^T x) through the fast solver's fused kernel (for its tests).");
-
-  m.def(
-      "_kernel_cholesky",
-      [](const Eigen::Ref<const MatX>& a, const Eigen::Ref<const VecX>& b) {
-        const Eigen::Index n = a.rows();
-        if (a.cols() != n || b.size() != n) {
-          std::ostringstream msg;
-          msg << "need a square a and b of its size; got a " << a.rows() << " x " << a.cols()
-              << " and b of " << b.size();
-          throw py::value_error(msg.str());
-        }
-        // As the primal friction half calls them: the lower kernel on a copy with three zero
-        // rows of padding (returned with the factor, so a test sees them kept), the scalar
-        // loops on the upper triangle; each factor then solves A x = b.
-        MatX lower = MatX::Zero(n + 3, n), upper = a;
-        lower.topRows(n).triangularView<Eigen::Lower>() = a;
-        VecX x_lower = b, x_upper = b;
-        const bool lower_ok = kernels::cholesky_lower(lower.data(), n, n + 3);
-        if (lower_ok) small::cholesky_lower_solve(lower.data(), n, n + 3, x_lower.data());
-        const bool upper_ok = small::cholesky_upper(upper.data(), n, n);
-        if (upper_ok) small::cholesky_upper_solve(upper.data(), n, n, x_upper.data());
-        return py::make_tuple(lower_ok, lower, x_lower, upper_ok, upper, x_upper);
-      },
-      py::arg("a"), py::arg("b"),
-      "(ok, L padded with 3 rows, x, ok, U, x): A = L L^T by the lower Cholesky kernel and "
-      "A = U^T U by the scalar loops, each with its solve of A x = b (for their tests).");
-
-  m.def(
-      "_least_distance_sequence",
-      [](const Eigen::Ref<const MatX>& e, const Eigen::Ref<const MatX>& fs,
-         const std::string& solver) {
-        const Eigen::Index k = e.rows(), m = e.cols();
-        if (k < 1 || m < 1 || fs.cols() != k) {
-          std::ostringstream msg;
-          msg << "need e (k x m, k, m >= 1) and fs (S x k); got e " << k << " x " << m
-              << " and fs " << fs.rows() << " x " << fs.cols();
-          throw py::value_error(msg.str());
-        }
-        if (solver != "fast" && solver != "reference")
-          throw py::value_error("solver must be 'fast' or 'reference', got '" + solver + "'");
-        // As the contact solve calls it: g = [E^T; f^T] with only f changing from call to call,
-        // the last call's multipliers as the warm start, and (fast) G^T kept and the factor
-        // carried over.
-        const bool fast = solver == "fast";
-        MatX g(m + 1, k), gt(k, m + 1);
-        g.topRows(m) = e.transpose();
-        gt.leftCols(m) = e;
-        NnlsWorkspace ws;
-        VecX lambda = VecX::Zero(k), x(m);
-        py::list out;
-        for (Eigen::Index s = 0; s < fs.rows(); ++s) {
-          g.row(m) = fs.row(s);
-          gt.col(m) = fs.row(s).transpose();
-          bool converged = true;
-          // least_distance writes x only when the programme is feasible.
-          x.setConstant(std::numeric_limits<double>::quiet_NaN());
-          const bool ok = least_distance(g, x, lambda, converged,
-                                         fast ? NnlsSolve::Gram : NnlsSolve::Qr, ws,
-                                         fast ? gt.data() : nullptr, fast);
-          out.append(py::make_tuple(VecX(x), VecX(lambda), ok, converged));
-        }
-        return out;
-      },
-      py::arg("e"), py::arg("fs"), py::arg("solver") = "fast",
-      "The least-distance programmes min |x| s.t. E x >= f for each row f of fs, solved in "
-      "sequence as the staggered projection's normal half solves them (warm-started, and "
-      "with the fast solver the NNLS factor carried over): a list of (x, lambda, feasible, "
-      "converged), x NaN where infeasible (for its tests).");
+  bind_checks(m);
 }
