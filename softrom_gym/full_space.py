@@ -391,10 +391,10 @@ class FullSpaceModel:
         its bound (a lever: the reduced cross walker's arm, session 51). Such nodes join the
         candidates and the solve is repeated from v*, warm-started from the impulses it found,
         at most ``_MAX_CANDIDATE_ROUNDS`` times, as the reduced core does (49d2956); a step
-        still missing some is reported with ``contact_converged`` False. In nodal coordinates
-        a lever is rare (a rigid body's far node is bounded by the candidates between it and
-        the contact): along 300-step gaits of the cross and beam walkers it never fired, so
-        it is the core's safeguard kept, and the walkers' full-space answers are unchanged."""
+        still missing some is reported with ``contact_converged`` False. Along 300-step
+        full-space gaits of the cross and beam walkers it never fired (candidates are picked
+        two steps ahead, and no mode couples a far node to a near one), so it is the core's
+        safeguard kept, and those answers are unchanged."""
         surface = self._surface
         z = x_n[3 * surface + 2] - self.ground_height
         active = self._candidates(z, v[3 * surface + 2])
