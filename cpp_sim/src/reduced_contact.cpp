@@ -45,9 +45,11 @@ int ReducedModel::solve_contacts(const ReducedConfig& cfg, const VecX& q, const 
   const auto vn_at_least = [&](int c) { return vn_all[c] - normal_row_norms_[c] * dv; };
   for (int round = 0;; ++round) {
     dv = (v - ws.contact_v_free).norm();
+    const size_t solved = active.size();
     if (add_missed_candidates(cfg, gap_of, vn_at_least, vn_end, ws, info) == 0) break;
     if (round == kMaxCandidateRounds) {  // still missing some: say so
       info.contact_converged = false;
+      drop_unsolved_candidates(solved, ws, info);
       break;
     }
     v = ws.contact_v_free;

@@ -743,6 +743,7 @@ int ReducedModel::floating_contacts(const StepInputs& in, const ReducedState& s,
     if (!moved && added == 0) break;
     if (round == kMaxCandidateRounds) {
       info.contact_converged = false;
+      drop_unsolved_candidates(before, ws, info);
       break;
     }
     for (size_t i = before; i < active.size(); ++i) {

@@ -565,6 +565,14 @@ class ReducedModel {
     info.active_rows = static_cast<int>(active.size());
     return added;
   }
+  // When the rounds run out: the candidates add_missed_candidates appended after the first
+  // `solved` were never in a solve; they are dropped, so that active_rows counts the
+  // candidates the step's impulses were solved over (as the full space's mirror does).
+  static void drop_unsolved_candidates(size_t solved, Workspace& ws, StepInfo& info) {
+    ws.contact_active.resize(solved);
+    ws.contact_gap.resize(solved);
+    info.active_rows = static_cast<int>(solved);
+  }
   // Penalty ground force f at (q, v), and, when jac is not null (the Newton matrix needs it;
   // the line search's residuals do not), its velocity Jacobian's symmetric part in *jac and
   // the friction's coupling to the normal force C (not symmetric): the reference solver's in
