@@ -13,9 +13,10 @@ nodes entered and ``b`` left the previous stagger's loaded set (the first stagge
 start's); ``W<i>``: Newton on the held set's fixed point reached the root in ``i`` steps;
 ``w<i><why>``: it failed after ``i`` steps, because a node would leave the set (``l``), a load
 was not positive (``r``), a step was singular (``s``) or at its iteration cap (``c``); ``J``:
-an Aitken jump; ``ok`` / ``cap``: converged / stopped at the stagger cap; ``R``: the step
-solved again from v* (a node outside the candidates ended below the ground, or the floating
-frame's drift moved), its staggers following.
+an Aitken jump; ``ok`` / ``cap``: converged / stopped at the stagger cap; ``n`` (after
+``ok``): a last normal solve, the friction half having left a candidate below its bound by
+more than the tolerance; ``R``: the step solved again from v* (a node outside the candidates
+ended below the ground, or the floating frame's drift moved), its staggers following.
 
 This script steps each robot from rest under seeded actuation (``--actuation random``: 0.5
 body weight in the first three modes, drawn anew every step, as ``profile_step.py`` and
@@ -51,6 +52,7 @@ NEWTON = re.compile(r"^([Ww])(\d+)([lrsc]?)$")
 FAILURES = {"l": "leave", "r": "unloaded", "s": "singular", "c": "cap"}
 COUNTS = (
     "staggers", "held", "changed", "roots", "failed", "newton_steps", "jumps", "resolves",
+    "last_normal",
     *(f"failed_{why}" for why in FAILURES.values()),
 )  # fmt: skip
 
@@ -80,6 +82,8 @@ def parse(trace: str) -> dict:
             counts["jumps"] += 1
         elif token == "R":
             counts["resolves"] += 1
+        elif token == "n":
+            counts["last_normal"] += 1
         elif token not in ("ok", "cap"):
             raise ValueError(f"unknown stagger trace token {token!r} in {trace!r}")
     return counts
@@ -125,6 +129,7 @@ def trace_robot(
         },
         "jumps_per_step": totals["jumps"] / steps,
         "resolves_per_step": totals["resolves"] / steps,
+        "last_normal_per_step": totals["last_normal"] / steps,
         "capped_share": capped / steps,
     }
     return summary, traces
@@ -150,7 +155,7 @@ def main() -> None:
         print(
             f"{'robot':<15} {'staggers':>9} {'held':>6} {'changed':>8} {'newton':>7} "
             f"{'roots':>6} {'steps/try':>10} {'failed l/r/s/c':>20} {'jumps':>6} {'capped':>7} "
-            f"{'re-solves':>9}"
+            f"{'re-solves':>9} {'last n':>7}"
         )
     for name in args.robots:
         s, traces = trace_robot(name, args.steps, args.settle, args.actuation, args.solver)
@@ -163,7 +168,8 @@ def main() -> None:
             f"{s['set_changed_share']:8.0%} {s['newton_tries_per_step']:7.2f} "
             f"{s['newton_roots_per_step']:6.2f} {s['newton_steps_per_try']:10.1f} "
             f"{failed:>20} {s['jumps_per_step']:6.2f} "
-            f"{s['capped_share']:7.1%} {s['resolves_per_step']:9.2f}",
+            f"{s['capped_share']:7.1%} {s['resolves_per_step']:9.2f} "
+            f"{s['last_normal_per_step']:7.2f}",
             flush=True,
         )
         for trace in traces[: args.show]:
@@ -175,7 +181,8 @@ def main() -> None:
             "newton / roots: held-set Newton tries / roots per step; steps/try: Newton steps "
             "per try; failed l/r/s/c: failed tries per step, a node would leave the set / a "
             "load not positive / a singular step / the iteration cap; jumps: Aitken jumps per "
-            "step; capped: share of steps at the stagger cap; re-solves: per step"
+            "step; capped: share of steps at the stagger cap; re-solves: per step; last n: "
+            "last normal solves after a converged stop, per step"
         )
 
 

@@ -495,7 +495,11 @@ class FullSpaceModel:
             if change < tol:
                 converged = True
                 break
-        if not converged:
+        # Capped after a friction half, or converged with a candidate that half left below
+        # its bound by more than the tolerance (the stopping test bounds the last stagger's
+        # change, not that violation): restore the normal constraints, friction held, as the
+        # core does (session 53).
+        if not converged or np.max(b - (c[:k] + w[:k] @ lam)) > tol:
             ok = normal_solve() and ok
         v = v + g @ lam
         lam_t = lam[k:].reshape(k, 2)

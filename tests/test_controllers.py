@@ -154,8 +154,13 @@ def test_gauss_newton_trust_region_bounds_every_knot_move(walker):
     moved = np.abs(gn.plan_.knots - before).max()
     assert 0 < moved <= 3 * 0.05 + 1e-12  # three iterations, each inside the region
     assert all(e >= s for s, e in gn.last_["objectives"])
-    # exploration candidates too: they moved knots by up to the whole bound, as "explore"
-    explorer = GaussNewtonShooting(settings.replace(max_step=0.01, explore=8, explore_noise=0.3))
+    # exploration candidates too: they moved knots by up to the whole bound, as "explore".
+    # (A damping of 1e6 shrinks the Gauss-Newton step to almost nothing, so an exploration
+    # candidate wins on any physics; at 1e-4 whether one beat the step on this seed depended
+    # on the contact solve's last bits, and stopped doing so in session 53.)
+    explorer = GaussNewtonShooting(
+        settings.replace(max_step=0.01, explore=8, explore_noise=0.3, damping=1e6)
+    )
     explorer.reset(walker, seed=0)
     before = explorer.plan_.knots.copy()
     explorer.plan(walker)

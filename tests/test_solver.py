@@ -366,9 +366,13 @@ def test_no_converged_step_leaves_a_node_below_its_bound(robot, scale, steps, fr
     # - the floating frame: the rows predict a node's height at first order in h omega, and
     #   the exact rotation took nodes below it on most steps (0.64 mm on the beam, 0.017 mm
     #   on the cross) until the bounds took the drift.
-    # Staggering stops on the last stagger's change, not the violation, so a node may end a
-    # few tolerances short (measured up to 5.6 contact_tolerance dt on the cross's landing);
-    # the bound allows 10.
+    # Staggering stops on the last stagger's change, and a loaded node's violation after the
+    # friction half is that half's own normal shift, whose change the test sees: where
+    # staggering contracts slowly the violation is many times the change (up to 5.5
+    # contact_tolerance dt here, 16 on the cross at dt = 0.02). A converged step whose friction
+    # half left a candidate below its bound by more than the tolerance now ends with a normal
+    # solve (session 53): measured up to 0.99 tol dt in the linear frame and 1.65 in the
+    # floating frame (the drift's own tol dt); the bound allows 2.5.
     robots = {"beam": beam, "cross": cross}
     model = build_reduced_model(robots[robot](), control_basis=np.eye(20)[:, :3], solver=solver,
                                 frame=frame)  # fmt: skip
@@ -381,7 +385,7 @@ def test_no_converged_step_leaves_a_node_below_its_bound(robot, scale, steps, fr
             bound = (1.0 - model.stabilization) * np.minimum(z0, 0.0)
             worst.append(float((bound - end_gaps(model, state.q)).max()))
     assert len(worst) > 0.95 * steps  # (the reference caps 14 of the beam's 650)
-    assert max(worst) < 10 * model.contact_tolerance * model.dt
+    assert max(worst) < 2.5 * model.contact_tolerance * model.dt
 
 
 def test_stagger_extrapolation_lets_staggering_settle():
@@ -454,6 +458,7 @@ def test_stagger_trace_accounts_for_every_stagger(beam_robot, solver):
     plain = build_reduced_model(beam_robot, **kw)
     state = other = traced.rest_state()
     kinds = set()
+    finals = 0
     for u in gait(traced, 80):
         state, info = traced.step(state, u)
         other, plain_info = plain.step(other, u)
@@ -465,6 +470,10 @@ def test_stagger_trace_accounts_for_every_stagger(beam_robot, solver):
         if not staggers:
             assert tokens == [] and info["active_rows"] == 0
             continue
+        if tokens[-1] == "n":  # a last normal solve: only after a converged stop
+            finals += 1
+            tokens = tokens[:-1]
+            assert tokens[-1] == "ok"
         assert tokens[-1] == ("ok" if info["contact_converged"] else "cap")
         tries = [t for t in tokens if newton.match(t)]
         assert set(tokens) - set(tries) - {"J", "ok", "cap", "R"} == {m.group(0) for m in staggers}
@@ -477,6 +486,8 @@ def test_stagger_trace_accounts_for_every_stagger(beam_robot, solver):
         kinds.update(t[0] for t in tries)
     # (The reference has neither the held loaded set nor Newton on it.)
     assert kinds == ({"N", "S", "W"} | (kinds & {"w"}) if solver == "fast" else {"N"})
+    if solver == "reference":  # its friction half left a node below its bound on some steps
+        assert finals > 0
 
 
 def end_gaps(model, q):

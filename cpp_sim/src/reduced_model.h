@@ -135,6 +135,8 @@ struct StepInfo {
   //                (why: l a node would leave the set, r a load not positive, s a singular
   //                step, c the iteration cap);   J  an Aitken jump;
   //   ok / cap     the end: converged / at max_stagger_iterations (a last normal solve follows);
+  //   n            after ok: a last normal solve, the friction half having left a candidate
+  //                below its bound by more than contact_tolerance;
   //   R            the step solved again from v*, warm-started: a node outside the candidates
   //                ended below its bound, or (floating frame) the height drift moved.
   // Empty when no node is a contact candidate.

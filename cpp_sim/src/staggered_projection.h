@@ -61,6 +61,7 @@ class StaggeredProjection {
   void build_rows(const std::vector<int>& set);
   void friction_half(bool on_set);
   double stagger_change();
+  double normal_violation();
   bool held_set_newton();
   void trace_start();
   void trace_normal(bool on_set);
