@@ -470,7 +470,8 @@ def test_stagger_trace_accounts_for_every_stagger(beam_robot, solver):
         if not staggers:
             assert tokens == [] and info["active_rows"] == 0
             continue
-        if tokens[-1] == "n":  # a last normal solve: only after a converged stop
+        last_normal = tokens[-1] == "n"  # a last normal solve: only after a converged stop
+        if last_normal:
             finals += 1
             tokens = tokens[:-1]
             assert tokens[-1] == "ok"
@@ -480,7 +481,7 @@ def test_stagger_trace_accounts_for_every_stagger(beam_robot, solver):
         for before, after in itertools.pairwise(staggers):
             entered, left = (int(after.group(g) or 0) for g in (3, 4))
             assert int(after.group(2)) == int(before.group(2)) + entered - left
-        if info["contact_converged"]:
+        if info["contact_converged"] and not last_normal:  # (a last solve may load others)
             assert int(staggers[-1].group(2)) == info["contacts"]
         kinds.update(m.group(1) for m in staggers)
         kinds.update(t[0] for t in tries)
