@@ -226,7 +226,8 @@ class ReducedModel:
         
         Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 6) and impulses
         (B, 3 n_surface) of the final states, diverged (B,), converged (B,: every step's Newton and
-        contact solve reached its tolerance) and com (B, H, 3); with `observe`
+        contact solve reached its tolerance; False for a diverged rollout) and com (B, H, 3); with
+        `observe`
         (P x (M + 6)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
         `threads` C++ threads with the GIL released; results do not depend on the thread count. A
         diverged rollout keeps its last good state and earns zero reward from then on. Called from

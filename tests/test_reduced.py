@@ -332,6 +332,47 @@ def test_a_diverged_rollout_earns_no_reward_from_then_on(walker):
     assert np.all(out["rewards"][0, :2] > 0) and np.all(out["rewards"][0, 2:] == 0.0)
 
 
+def test_a_rollout_stopped_by_max_speed_is_not_converged(walker):
+    # A step whose RMS node speed passes max_speed is rejected as diverged, though its
+    # Newton converged; the rollout's later steps are never solved, so the rollout is not
+    # converged (it said converged True with diverged True; a review, session 53).
+    rng = np.random.default_rng(1)
+    controls = 3.0 * np.sqrt(walker.total_mass) * G * rng.standard_normal((2, 30, 3))
+    saved = walker.max_speed
+    walker.max_speed = 0.5
+    try:
+        out = walker.rollout(walker.rest_state(), controls, threads=2)
+    finally:
+        walker.max_speed = saved
+    assert list(out["diverged"]) == [True, True]
+    assert list(out["converged"]) == [False, False]
+
+
+def test_a_rollout_steps_with_the_control_basis_its_controls_were_checked_against(walker):
+    # The caller's code that a rollout runs before it starts (iterating `state`, here) may
+    # assign control_basis; the rollout keeps the B_c its controls were checked against. It
+    # read the controls with the new C's stride: another rollout, and past the buffer's end
+    # for a wider B_c (a review, session 53).
+    rng = np.random.default_rng(0)
+    controls = np.sqrt(walker.total_mass) * G * rng.standard_normal((2, 20, 3))
+    start = walker.rest_state()
+    expected = walker.rollout([start, start], controls, threads=1)
+
+    def starts(width):
+        walker.control_basis = np.eye(20)[:, :width]
+        yield start
+        yield start
+
+    try:
+        for width in (1, 20):
+            walker.control_basis = np.eye(20)[:, :3]
+            out = walker.rollout(starts(width), controls, threads=1)
+            assert walker.C == width  # the assignment took effect, for later calls
+            np.testing.assert_array_equal(out["q"], expected["q"])
+    finally:
+        walker.control_basis = np.eye(20)[:, :3]
+
+
 def test_a_state_pickles_by_value_and_cannot_be_changed_in_place(walker):
     import copy
     import pickle
@@ -453,6 +494,36 @@ def test_ctrl_c_stops_a_long_rollout(threads):
     assert "finished" not in out
     assert proc.returncode != 0 and "KeyboardInterrupt" in err
     assert 'File "<string>", line 10' in err  # raised in the rollout, not before it
+
+
+_NESTED_ROLLOUT = """
+import os, signal, threading
+import numpy as np
+from softrom_gym.robots import beam
+from softrom_gym.rom import build_reduced_model
+model = build_reduced_model(beam(), control_basis=np.eye(20)[:, :3])
+def handler(sig, frame):
+    model.rollout(model.rest_state(), np.zeros((2, 5, 3)), threads=2)
+    print("nested done", flush=True)
+    raise KeyboardInterrupt  # then stop the outer rollout, as Ctrl-C would
+signal.signal(signal.SIGINT, handler)
+threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+try:
+    model.rollout(model.rest_state(), np.zeros((2, 2_000_000, 3)), threads=2)  # minutes
+except KeyboardInterrupt:
+    print("outer interrupted", flush=True)
+"""
+
+
+def test_a_rollout_started_by_a_signal_handler_during_a_rollout_runs(walker):
+    # Ctrl-C's check runs Python signal handlers on the rollout's calling thread, inside the
+    # thread pool's batch; a handler that starts another rollout on 2 threads locked the
+    # pool's call mutex a second time and hung for good (a review, session 53). It now runs
+    # its batch on that thread; the handler then stops the outer rollout.
+    proc = subprocess.run([sys.executable, "-c", _NESTED_ROLLOUT], capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["nested", "done", "outer", "interrupted"]
 
 
 def test_bad_input_raises_clear_errors(walker):

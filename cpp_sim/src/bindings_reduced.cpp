@@ -314,6 +314,11 @@ py::dict rollout_binding(const ReducedModel& r, py::handle state, py::handle con
                           ", got B = " + std::to_string(u.shape(0)) +
                           ", H = " + std::to_string(u.shape(1)));
   const int b = static_cast<int>(u.shape(0)), h = static_cast<int>(u.shape(1));
+  // The inputs are copied here, while the GIL is held and before any of the caller's code
+  // runs (iterating `state`, `threads.__index__`, `observe.__array__`): that code may assign
+  // control_basis, and the controls were checked against this C (a C read later strode
+  // through the buffer with another width, past its end for a wider one).
+  const StepInputs in = r.inputs();
   const std::vector<ReducedState> starts = rollout_starts(r, state, b);
   const int nt = rollout_threads(threads, b);
   const py::ssize_t dim = r.dim(), ni = 3 * r.num_surface_nodes();
@@ -328,7 +333,6 @@ py::dict rollout_binding(const ReducedModel& r, py::handle state, py::handle con
     no = obs_m.rows();
   }
   py::array_t<double> observed({py::ssize_t{b}, py::ssize_t{h}, no});
-  const StepInputs in = r.inputs();  // copied while the GIL is held
   ReducedModel::RolloutOutputs out;
   out.rewards = rewards.mutable_data();
   out.final_q = q.mutable_data();
@@ -466,7 +470,8 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
 
 Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 6) and impulses
 (B, 3 n_surface) of the final states, diverged (B,), converged (B,: every step's Newton and
-contact solve reached its tolerance) and com (B, H, 3); with `observe`
+contact solve reached its tolerance; False for a diverged rollout) and com (B, H, 3); with
+`observe`
 (P x (M + 6)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
 `threads` C++ threads with the GIL released; results do not depend on the thread count. A
 diverged rollout keeps its last good state and earns zero reward from then on. Called from

@@ -65,7 +65,8 @@ void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>
     std::copy(s.impulses.data(), s.impulses.data() + ni,
               out.final_impulses + static_cast<size_t>(b) * ni);
     out.diverged[b] = bad ? 1 : 0;
-    if (out.converged) out.converged[b] = converged ? 1 : 0;
+    // (A diverged rollout's later steps were never solved, whatever its last step's flags.)
+    if (out.converged) out.converged[b] = converged && !bad ? 1 : 0;
   };
   threads = std::max(1, std::min(threads, batch));
   if (threads == 1) {

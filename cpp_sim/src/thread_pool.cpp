@@ -65,8 +65,23 @@ void ThreadPool::work(const std::function<void(int)>& fn) {
   }
 }
 
+namespace {
+// True on a thread while it runs a batch: a Python signal handler run by the batch's poll
+// (Ctrl-C's check) may start another rollout on the same thread, which would lock
+// call_mutex_ a second time and hang for good.
+thread_local bool t_in_batch = false;
+}  // namespace
+
 void ThreadPool::run(int threads, int n, const std::function<void(int)>& fn,
                      const std::function<void()>* poll) {
+  if (t_in_batch) {  // re-entered from this thread's poll: run the nested batch here, serially
+    for (int i = 0; i < n; ++i) fn(i);
+    return;
+  }
+  struct InBatch {
+    InBatch() { t_in_batch = true; }
+    ~InBatch() { t_in_batch = false; }
+  } in_batch;
   std::lock_guard<std::mutex> call(call_mutex_);
   const int helpers = std::max(0, std::min(threads, n) - 1);
   int started = helpers;

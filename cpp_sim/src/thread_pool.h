@@ -23,7 +23,8 @@ class ThreadPool {
 
   // Runs fn(task) for every task in [0, n) on up to `threads` threads (the caller included)
   // and returns when all are done. The first exception a task throws is rethrown here after
-  // the others have stopped taking tasks. Calls from several threads are serialised.
+  // the others have stopped taking tasks. Calls from several threads are serialised; a call
+  // made from within `poll` on the calling thread (a signal handler) runs its tasks there.
   // `poll`, when given, is called on the calling thread about every kPollInterval while it
   // waits for the other workers to finish (it may tell the tasks to stop: Ctrl-C).
   void run(int threads, int n, const std::function<void(int)>& fn,
