@@ -41,7 +41,7 @@ class FEMModel:
         """
         Internal elastic forces -dE/dx (N, 3) in N.
         """
-    def step(self, x: typing.Any, v: typing.Any, dt: typing.SupportsFloat | typing.SupportsIndex, fixed: typing.Any = None) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]:
+    def step(self, x: typing.Any, v: typing.Any, dt: typing.Any, fixed: typing.Any = None) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]:
         """
         One implicit Euler step; returns (x_new, v_new), each (N, 3).
         

@@ -63,6 +63,8 @@ def main(argv: list[str] | None = None) -> None:
     for n in range(1, steps + 1):
         try:
             x, v = fem.step(x, v, args.dt)
+        except ValueError as exc:  # a dt the step refuses (1 / dt^2 overflows): a usage error
+            parser.error(f"--dt: {exc}")
         except RuntimeError as exc:  # (a diverged step: one line, not a traceback)
             parser.exit(1, f"{parser.prog}: step {n} (t = {n * args.dt:g} s, dt = {args.dt:g} "
                            f"s) failed: {exc}\n")  # fmt: skip

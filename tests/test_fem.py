@@ -309,11 +309,18 @@ def test_demo_drops_a_robot_and_names_bad_arguments(capsys):
         assert exc.value.code == 2
         # one line, as rbbo's usage errors are, not argparse's usage block first
         assert capsys.readouterr().err == f"softrom-demo: error: {message}\n"
-    # a step that diverges (M / dt^2 overflows) ends in one line naming the step, not a traceback
+    # a dt whose M / dt^2 overflows is refused by the step, and named in one usage line
     with pytest.raises(SystemExit) as exc:
         main(["--robot", "beam", "--dt", "1e-300"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == (
+        "softrom-demo: error: --dt: dt is too small: 1 / dt^2 overflows, got 1e-300\n"
+    )
+    # a step that fails (a step of 1e150 s) ends in one line naming the step, not a traceback
+    with pytest.raises(SystemExit) as exc:
+        main(["--robot", "beam", "--dt", "1e150", "--seconds", "1e151"])
     assert exc.value.code == 1
-    assert "step 1 (t = 1e-300 s, dt = 1e-300 s) failed: implicit Euler" in capsys.readouterr().err
+    assert "step 1 (t = 1e+150 s, dt = 1e+150 s) failed: implicit Euler" in capsys.readouterr().err
 
 
 def test_the_demo_says_a_warning_in_one_line(monkeypatch, say_warning):

@@ -99,6 +99,15 @@ def test_bad_step_arguments(tet):
         fem.step(nodes, v, 0.0)
     with pytest.raises(ValueError, match="dt must be a finite number > 0, got -0.1"):
         fem.step(nodes, v, -0.1)
+    # A bool is no time step (True ran a 1-s step), as it is no setting; a dt whose 1 / dt^2
+    # overflows is named, not reported as a diverged step.
+    for flag in (True, np.True_):
+        with pytest.raises(TypeError, match="dt must be a real number, got (True|np.True_)"):
+            fem.step(nodes, v, flag)
+    with pytest.raises(ValueError, match="dt is too small: 1 / dt\\^2 overflows, got 1e-160"):
+        fem.step(nodes, v, 1e-160)
+    x_new, _ = fem.step(nodes, v, 1)  # an int is a real number
+    assert np.all(np.isfinite(x_new))
     with pytest.raises(ValueError, match=r"x has shape \(3, 3\), expected \(4, 3\)"):
         fem.step(nodes[:3], v, 0.01)
     with pytest.raises(ValueError, match=r"v has shape \(4, 2\), expected \(4, 3\)"):

@@ -3,6 +3,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <cmath>
 #include <memory>
 #include <mutex>
 #include <sstream>
@@ -232,11 +233,19 @@ density : float
           "(a 9x9 eigensolver for solver='reference', the closed-form eigensystem otherwise).")
       .def(
           "step",
-          [](FEMModel& f, py::handle x, py::handle vel, double dt, py::handle fixed) {
+          [](FEMModel& f, py::handle x, py::handle vel, py::handle dt_in, py::handle fixed) {
             const int n = f.mesh().num_nodes;
             VecX xv = v::real_matrix(x, "x", n, 3);
             VecX vv = v::real_matrix(vel, "v", n, 3);
-            v::positive(dt, "dt");
+            // A real number, not a bool (dt=True ran a 1-s step), and one whose 1 / dt^2 (the
+            // Newton matrix's mass term) is finite: below ~1e-154 it overflowed, and the step
+            // failed as "diverged" instead of naming dt.
+            const double dt = v::positive(v::real(dt_in, "dt"), "dt");
+            if (!std::isfinite(1.0 / (dt * dt))) {
+              std::ostringstream msg;
+              msg << "dt is too small: 1 / dt^2 overflows, got " << dt;
+              throw py::value_error(msg.str());
+            }
             std::vector<char> mask = v::node_mask(fixed, "fixed", n);
             VecX xo, vo;
             {

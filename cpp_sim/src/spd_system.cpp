@@ -118,7 +118,8 @@ void SpdSystem::factorize(Factorization kind) {
     if (!ldlt_analysed_) ldlt_.analyzePattern(matrix_);
     ldlt_analysed_ = true;
     ldlt_.factorize(matrix_);
-    ok = ldlt_.info() == Eigen::Success;
+    // Eigen flags a zero pivot only; a negative one (an indefinite matrix) must fail too.
+    ok = ldlt_.info() == Eigen::Success && ldlt_.vectorD().minCoeff() > 0.0;
   }
   if (!ok) throw std::runtime_error("implicit Euler: sparse factorisation failed");
   factorized_ = true;
