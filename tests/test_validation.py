@@ -257,13 +257,18 @@ def test_reduced_settings_refuse_values_outside_their_range():
         ("max_stagger_iterations", 0, "max_stagger_iterations must be >= 1, got 0"),
         ("max_newton_iterations", -3, "max_newton_iterations must be >= 1, got -3"),
         ("ground_height", np.nan, "ground_height must be finite"),
+        # (at 1e160 m the contact solve's bounds overflowed and the step fell freely,
+        # reported as not diverged; a review, session 53)
+        ("ground_height", -1.0001e9, r"ground_height must lie within \+-1e\+09 m, got -1.0001e"),
         ("direction", [0.0, 0.0, 0.0], "direction must be a non-zero vector"),
         ("friction_smoothing", 0.0, "friction_smoothing must be a finite number > 0, got 0"),
     ):
         with pytest.raises(ValueError, match=match):
             cpp_sim.ReducedConfig(**{name: value})
-    edge = cpp_sim.ReducedConfig(stabilization=1.0, max_stagger_iterations=1, friction=0.0)
+    edge = cpp_sim.ReducedConfig(stabilization=1.0, max_stagger_iterations=1, friction=0.0,
+                                 ground_height=1e9)  # fmt: skip
     assert (edge.stabilization, edge.max_stagger_iterations, edge.friction) == (1.0, 1, 0.0)
+    assert edge.ground_height == 1e9
 
 
 def test_friction_smoothing_is_none_until_set_and_none_restores_the_tolerances():

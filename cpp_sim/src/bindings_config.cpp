@@ -103,6 +103,14 @@ const std::vector<Setting>& settings() {
        [](ReducedConfig& c, py::handle x) {
          const double z = v::real(x, "ground_height");
          if (!std::isfinite(z)) throw py::value_error("ground_height must be finite");
+         // A plane 1e9 m away is no scene; far beyond (1e160 m) the contact solve's bounds,
+         // |z| / dt, overflowed and the step fell freely, not reported as diverged.
+         constexpr double kMaxGroundHeight = 1e9;
+         if (std::abs(z) > kMaxGroundHeight) {
+           std::ostringstream msg;
+           msg << "ground_height must lie within +-" << kMaxGroundHeight << " m, got " << z;
+           throw py::value_error(msg.str());
+         }
          c.ground_height = z;
        },
        "height of the ground plane z = ground_height, m"},
