@@ -377,6 +377,12 @@ class FullSpaceModel:
         jac = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(size, size))
         return force.ravel(), jac
 
+    def _normal_velocity_bound(self, z: np.ndarray) -> np.ndarray:
+        """The least normal velocity a node at height z above the ground may end a step with
+        (the core's ``normal_velocity_bound``): it may reach the plane, and a penetrating
+        node rises by a fraction ``stabilization`` of its depth."""
+        return np.where(z >= 0.0, -z / self.dt, -self.stabilization * z / self.dt)
+
     def _candidates(self, z: np.ndarray, vn: np.ndarray) -> np.ndarray:
         """The contact candidates among the surface nodes at heights z above the ground with
         contact-free normal velocities vn: every node on or near the ground, or reaching it
@@ -404,9 +410,8 @@ class FullSpaceModel:
         if len(active) == 0:
             return v, impulses, info
         tol = self.contact_tolerance
-        # the least normal velocity a node at height z may end with (the core's
-        # normal_velocity_bound), less the tolerance staggering stops within
-        bound = np.where(z >= 0.0, -z / self.dt, -self.stabilization * z / self.dt) - tol
+        # (less the tolerance staggering stops within)
+        bound = self._normal_velocity_bound(z) - tol
         staggers = 0
         for round_ in range(_MAX_CANDIDATE_ROUNDS + 1):
             v_end, impulses, info = self._solve_candidates(x_n, v, factor, warm, active)
@@ -429,7 +434,7 @@ class FullSpaceModel:
                           active: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:  # fmt: skip
         """The staggered projection of v on the surface nodes ``active`` (indices into the
         surface nodes), warm-started from ``warm`` (n_s, 3)."""
-        h, mu, tol = self.dt, self.friction, self.contact_tolerance
+        mu, tol = self.friction, self.contact_tolerance
         surface = self._surface
         z = x_n[3 * surface + 2] - self.ground_height
         impulses = np.zeros((len(surface), 3))
@@ -445,8 +450,7 @@ class FullSpaceModel:
         w = g[rows]  # the Delassus matrix J A^-1 J^T
         w = 0.5 * (w + w.T)
         c = v[rows]  # contact velocities of v*
-        gap = z[active]
-        b = np.where(gap >= 0.0, -gap / h, -self.stabilization * gap / h)
+        b = self._normal_velocity_bound(z[active])
         lam = np.concatenate([np.maximum(warm[active, 2], 0.0), warm[active, :2].ravel()])
         wnn = cho_factor(w[:k, :k], lower=True)
         low = np.tril(wnn[0])
