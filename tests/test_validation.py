@@ -122,6 +122,9 @@ def test_bad_step_arguments(tet):
         fem.step(nodes, v, 0.01, fixed=[9])
     with pytest.raises(ValueError, match=r"fixed contains node index 4 out of range \[0, 4\)"):
         fem.step(nodes, v, 0.01, fixed=[4])  # one past the last node
+    # A 0/1 integer mask read as indices would fix nodes 0 and 1, not the nodes it marks.
+    with pytest.raises(ValueError, match=r"fixed lists node index 1 more than once.*astype"):
+        fem.step(nodes, v, 0.01, fixed=np.array([0, 1, 1, 0]))
     with pytest.raises(TypeError, match="x must be an array, got None"):
         fem.energy(None)
 

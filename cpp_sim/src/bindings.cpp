@@ -261,7 +261,7 @@ density : float
           R"doc(One implicit Euler step; returns (x_new, v_new), each (N, 3).
 
 Newton's method on the incremental potential with a backtracking line search and a sparse
-Cholesky solve (see ``solver``). ``fixed`` (boolean mask (N,) or node indices; empty fixes
+Cholesky solve (see ``solver``). ``fixed`` (boolean mask (N,) or distinct node indices; empty fixes
 none) clamps nodes in place.
 Raises RuntimeError if the step diverges.)doc")
       .def_property_readonly(

@@ -183,6 +183,14 @@ inline std::vector<char> node_mask(py::handle obj, const char* name, int n) {
       if (i < 0 || i >= n)
         throw py::value_error(std::string(name) + " contains node index " + std::to_string(i) +
                               " out of range [0, " + std::to_string(n) + ")");
+      // A repeated index means nothing as a list of nodes, and is what a 0/1 integer mask
+      // (np.array([0, 1, 1, 0])) looks like when read as indices: it would fix nodes 0 and 1
+      // instead of the nodes it marks. Refuse it and say how to pass a mask.
+      if (mask[i])
+        throw py::value_error(std::string(name) + " lists node index " + std::to_string(i) +
+                              " more than once; node indices must be distinct (for a 0/1 "
+                              "mask, pass a boolean array, e.g. " +
+                              name + ".astype(bool))");
       mask[i] = 1;
     }
   } else {
