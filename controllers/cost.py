@@ -119,6 +119,14 @@ def evaluate(
     if window is not None and (isinstance(window, bool) or not isinstance(window, (int, np.integer))
                                or window < 1):  # fmt: skip
         raise ValueError(f"window must be an integer >= 1 or None, got {window!r}")
+    # (a dt <= 0 gave NaN or -inf objectives, and a direction of length 10 scaled R and the
+    # lateral term tenfold: named here, as the other arguments are)
+    if isinstance(dt, bool) or not isinstance(dt, (int, float, np.number)) or not 0 < dt < np.inf:
+        raise ValueError(f"dt must be a finite number > 0 (the control period, s), got {dt!r}")
+    d = np.asarray(direction, dtype=float)
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or abs(np.linalg.norm(d) - 1.0) > 1e-6:
+        raise ValueError(f"direction must be a unit vector of shape (3,), got {direction!r}")
+    direction = d
     start = np.asarray(start_com, dtype=float)
     # (a start of another shape is named here, not by numpy further on)
     if start.shape not in ((3,), (b, 3)):

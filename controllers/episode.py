@@ -166,6 +166,8 @@ def run_episode(
         isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
     ):
         raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+    if seed is not None:
+        seed = int(seed)  # (gymnasium's reset refuses numpy integers, as np.arange gives them)
     if video is not None and getattr(env, "render_mode", None) != "rgb_array":
         raise ValueError("video needs an env made with render_mode='rgb_array'")
     if video is not None:

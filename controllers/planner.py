@@ -29,7 +29,7 @@ import numpy as np
 from .cost import Evaluation, evaluate
 from .gaits import gait_grid
 from .settings import PlannerSettings, _check_positive
-from .spline import SplinePlan
+from .spline import SplinePlan, _positive_int
 
 __all__ = ["EnvAPI", "Planner", "PlannerSettings", "check_physical_actions"]
 
@@ -292,7 +292,9 @@ class Planner(ABC):
         """R - Λ of a batch of knots (B, K, C) from ``state``, in one batched rollout.
 
         ``knots`` are in units of the action bound (clipped to [-1, 1] with the controls);
-        ``horizon`` (default: the plan's) rolls each out over that many env steps. Scored with
+        ``horizon`` (default: the plan's) rolls each out over that many env steps, reading the
+        same spline from the plan's clock (an open plan holds its last value past its own
+        horizon; a periodic one repeats its cycle). Scored with
         the settings' weights and window, as the shipped planners score theirs; counts the
         rollouts in ``last_["rollouts"]``.
         """
@@ -305,10 +307,15 @@ class Planner(ABC):
                 f"knots has shape {knots.shape}, expected (B, {expected[0]}, {expected[1]}): "
                 "a batch of B plans' knots (one plan's knots K x C: knots[None])"
             )
-        if horizon is not None and horizon != plan.horizon:
-            plan = SplinePlan(horizon, plan.num_knots, plan.control_dim, plan.kind, plan.period)
-            plan.offset = self.spline.offset
-        return self._evaluate_controls(state, np.clip(plan.controls(knots), -1.0, 1.0), horizon)
+        if horizon is None:
+            controls = plan.controls(knots)
+        else:
+            # The plan's own weights over the longer (or shorter) time: a new SplinePlan of
+            # that horizon would space an open plan's knots over it, stretching the plan.
+            horizon = _positive_int("horizon", horizon)
+            weights = plan.weights(plan.offset + np.arange(horizon))
+            controls = np.einsum("hk,...kc->...hc", weights, knots)
+        return self._evaluate_controls(state, np.clip(controls, -1.0, 1.0), horizon)
 
     def _evaluate(self, state: Any, knots: np.ndarray, horizon: int | None = None) -> Evaluation:
         """Deprecated name of :meth:`evaluate_knots`."""

@@ -11,6 +11,7 @@ and plot these rows; ``rbbo reproduce`` regenerates both into its report.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -57,6 +58,7 @@ def gn_cost_against_c(
 
     if not _is_int(repeats) or repeats < 1:
         raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
+    # (planner_changes win over the threads argument; each row reports the threads used)
     changes = {"threads": threads, "iterations": 1, "gait_seed": False,
                **(planner_changes or {})}  # fmt: skip
     rows = []
@@ -75,7 +77,7 @@ def gn_cost_against_c(
             env.close()
         row = {"C": c, "K": planner.settings.knots, "H": planner.settings.horizon,
                "rollouts": int(planner.last_["rollouts"]), "iteration_s": min(walls),
-               "threads": threads}  # fmt: skip
+               "threads": planner.settings.threads}  # fmt: skip
         rows.append(row)
         if on_row is not None:
             on_row(row)
@@ -97,12 +99,17 @@ def reward_against_c(
     """Task reward R of one closed-loop episode per (C, seed), identity bases.
 
     R is the distance along d between t = ``start`` and the end (m), without Λ (a lean in the
-    first seconds earns nothing). Returns one dict per episode (keys C, seed, R_m, R_bl,
-    R_total_m, planner, seconds, start).
+    first seconds earns nothing). The env's registered time limit is raised to ``seconds``
+    where it is shorter, so every episode runs the time asked for. An episode that diverges
+    before ``start`` gets R = 0 (its row's ``stop`` says "diverged", ``seconds`` when). The
+    ``threads`` argument is the planner's unless ``planner_changes`` sets its own. Returns
+    one dict per episode (keys C, seed, R_m, R_bl, R_total_m, planner, seconds, start, stop,
+    threads).
     """
     import gymnasium as gym
 
     import softrom_gym  # noqa: F401  (registers the envs)
+    from softrom_gym.registration import control_period
 
     # (isinstance first: np.isfinite of a str or None is numpy's TypeError, naming nothing)
     number = (int, float, np.integer, np.floating)
@@ -113,21 +120,30 @@ def reward_against_c(
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("give at least one seed")
+    changes = {"threads": threads, **(planner_changes or {})}
     rows = []
     for c in _check_cs(cs):
+        # the registered time limit (env steps) must not cut the seconds asked for short: a
+        # 10.5-s episode was truncated at 10 s, and a start past 10 s then failed after it ran
+        make_kwargs: dict[str, Any] = {"control_dim": c}
+        period = control_period(env_id, control_dim=c)
+        limit = gym.spec(env_id).max_episode_steps
+        if period is not None and limit is not None:
+            make_kwargs["max_episode_steps"] = max(limit, math.ceil(seconds / period - 1e-9))
         for seed in seeds:
-            env = gym.make(env_id, control_dim=c)
+            env = gym.make(env_id, **make_kwargs)
             try:
-                mpc, every = default_planner(env_id, planner, threads=threads,
-                                             **(planner_changes or {}))  # fmt: skip
+                mpc, every = default_planner(env_id, planner, **changes)
                 res = run_episode(env, mpc, seconds, replan_every=every, seed=seed,
                                   progress=False)  # fmt: skip
             finally:
                 env.close()
-            r = res.distance_between(start)
+            # (an episode that diverged before start travelled nothing after it)
+            r = res.distance_between(min(start, res.seconds))
             row = {"C": c, "seed": seed, "R_m": r, "R_bl": r / res.body_length,
                    "R_total_m": res.R, "planner": planner, "seconds": res.seconds,
-                   "start": start}  # fmt: skip
+                   "start": start, "stop": res.stop_reason,
+                   "threads": mpc.settings.threads}  # fmt: skip
             rows.append(row)
             if on_row is not None:
                 on_row(row)

@@ -787,6 +787,13 @@ def test_evaluate_checks_what_it_is_given(walker):
         with pytest.raises(ValueError, match=f"window must be an integer >= 1 or None, got "
                            f"{window}"):  # fmt: skip
             evaluate(out, np.zeros((2, 4, 3)), *args, window=window)
+    # (dt <= 0 gave NaN or -inf objectives; a direction of length 10 scaled R tenfold)
+    for dt in (0.0, -0.025, float("nan"), True):
+        with pytest.raises(ValueError, match=f"dt must be a finite number > 0 .*got {dt!r}"):
+            evaluate(out, np.zeros((2, 4, 3)), state.q[:3], args[1], dt, CostWeights())
+    for direction in ([10.0, 0.0, 0.0], [1.0, 0.0], [np.nan, 0.0, 0.0]):
+        with pytest.raises(ValueError, match="direction must be a unit vector of shape"):
+            evaluate(out, np.zeros((2, 4, 3)), state.q[:3], direction, 0.025, CostWeights())
 
 
 def test_evaluate_is_r_minus_lambda_of_the_module_docstring():
@@ -1271,9 +1278,69 @@ def test_reward_against_c_rows_are_each_episodes_distances(monkeypatch):
     rows = studies.reward_against_c("softrom_gym/BeamWalk-v0", cs=[2], seeds=[4], seconds=0.2,
                                     start=0.05)  # fmt: skip
     assert seen == [(2, 4, 0.2)]
+    # (the made-up episode has no stop reason)
     assert rows == [{"C": 2, "seed": 4, "R_m": pytest.approx(0.60), "R_bl": pytest.approx(0.75),
                      "R_total_m": pytest.approx(0.64), "planner": "mppi",
-                     "seconds": pytest.approx(0.2), "start": 0.05}]  # fmt: skip
+                     "seconds": pytest.approx(0.2), "start": 0.05, "stop": "",
+                     "threads": 2}]  # fmt: skip
+
+
+def test_reward_against_c_runs_past_the_time_limit_and_scores_an_early_stop(monkeypatch):
+    """The registered 10-s limit truncated a 10.5-s study episode at 10 s, and a start past the
+    end (the limit, or a divergence) failed after the episode had run. A threads setting in
+    planner_changes met the threads argument as a duplicate keyword."""
+    import controllers.studies as studies
+
+    limits, threads = [], []
+
+    def diverged_at_0_2_s(env, planner, seconds, **kwargs):
+        limits.append(env.spec.max_episode_steps)
+        threads.append(planner.settings.threads)
+        result = _made_up_episode(planner=planner.name)
+        result.stop_reason = "diverged"
+        return result
+
+    monkeypatch.setattr(studies, "run_episode", diverged_at_0_2_s)
+    rows = studies.reward_against_c("softrom_gym/BeamWalk-v0", cs=[2], seeds=[0], seconds=10.5,
+                                    start=10.2, planner_changes={"threads": 1})  # fmt: skip
+    assert limits == [420]  # 10.5 s of 0.025-s control periods, where 400 were registered
+    assert threads == [1]
+    assert rows[0]["R_m"] == 0.0 and rows[0]["stop"] == "diverged" and rows[0]["threads"] == 1
+    assert rows[0]["R_total_m"] == pytest.approx(0.64)
+
+
+def test_evaluate_knots_over_a_longer_horizon_holds_an_open_plan_and_repeats_a_cycle(walker):
+    """A longer horizon made a new SplinePlan of that horizon, which spaced an open plan's knots
+    over it: the same knots were scored as a plan stretched in time."""
+    for period in (None, 5.0):
+        planner = MPPI(MPPISettings(horizon=10, knots=4, samples=2, period=period,
+                                    gait_seed=False, threads=1))  # fmt: skip
+        planner.reset(walker, seed=0)
+        state = walker.get_wrapper_attr("get_state")()
+        knots = np.random.default_rng(1).uniform(-1, 1, (1, 4, 3))
+        plan = planner.plan_
+        scored = []
+        planner._evaluate_controls = lambda state, u, horizon, scored=scored: scored.append(u)
+        planner.evaluate_knots(state, knots, horizon=20)
+        u = scored[0][0]
+        assert u.shape == (20, 3)
+        np.testing.assert_allclose(u[:10], np.clip(plan.controls(knots)[0], -1, 1), atol=1e-14)
+        if period is None:
+            np.testing.assert_allclose(u[10:], np.tile(u[9], (10, 1)), atol=1e-14)
+        else:
+            np.testing.assert_allclose(u[5:], u[:15], atol=1e-14)
+        for horizon in (0, 2.5, True):
+            with pytest.raises(ValueError, match=f"horizon must be a positive integer, got "
+                               f"{horizon!r}"):  # fmt: skip
+                planner.evaluate_knots(state, knots, horizon=horizon)
+
+
+def test_an_episode_takes_a_numpy_integer_seed(walker):
+    # validated as a seed, then handed to gymnasium's reset, which refuses numpy integers
+    planner = MPPI(MPPISettings(horizon=4, knots=2, samples=2, threads=1))
+    for seed in np.arange(1, 2):
+        result = run_episode(walker, planner, 0.05, seed=seed, progress=False)
+        assert result.seconds == pytest.approx(0.05)
 
 
 def test_cli_names_more_bad_arguments_and_takes_an_unversioned_id_and_replan_interval(
