@@ -226,9 +226,9 @@ class ReducedModel:
         
         Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 6) and impulses
         (B, 3 n_surface) of the final states, diverged (B,), converged (B,: every step's Newton and
-        contact solve reached its tolerance; False for a diverged rollout) and com (B, H, 3); with
-        `observe`
-        (P x (M + 6)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
+        contact solve reached its tolerance; False for a diverged rollout), good_steps (B,: the
+        steps solved before the one that diverged; H for a rollout that did not) and com (B, H, 3);
+        with `observe` (P x (M + 6)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
         `threads` C++ threads with the GIL released; results do not depend on the thread count. A
         diverged rollout keeps its last good state and earns zero reward from then on. Called from
         the main thread, Ctrl-C stops it within about 0.1 s (after the step in progress) and raises
@@ -426,7 +426,7 @@ class ReducedModel:
     @property
     def penalty_stiffness(self) -> typing.Any:
         """
-        N/m per node for contact='penalty' (0: the body's weight over its resting nodes per 1 mm of sink, plus 0.25 m_i / dt^2: they sink a little under 1 mm)
+        N/m per node for contact='penalty', at most 1e12 (0: the body's weight over its resting nodes per 1 mm of sink, plus 0.25 m_i / dt^2: they sink a little under 1 mm)
         """
     @penalty_stiffness.setter
     def penalty_stiffness(self, arg1: typing.Any) -> None:
@@ -634,7 +634,7 @@ class ReducedConfig:
     @property
     def penalty_stiffness(self) -> typing.Any:
         """
-        N/m per node for contact='penalty' (0: the body's weight over its resting nodes per 1 mm of sink, plus 0.25 m_i / dt^2: they sink a little under 1 mm)
+        N/m per node for contact='penalty', at most 1e12 (0: the body's weight over its resting nodes per 1 mm of sink, plus 0.25 m_i / dt^2: they sink a little under 1 mm)
         """
     @penalty_stiffness.setter
     def penalty_stiffness(self, arg1: typing.Any) -> None:

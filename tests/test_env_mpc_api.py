@@ -147,6 +147,24 @@ def test_divergence_is_marked_as_lost_steps_from_the_diverging_step_on():
     np.testing.assert_array_equal(out["rewards"][1, 3:], 0.0)
 
 
+def test_a_robot_at_rest_before_it_diverges_loses_only_the_steps_from_the_divergence():
+    """Where a rollout diverged was guessed from where its COM froze: a swimmer at rest (no
+    gravity, no reset noise, no control) had every step marked lost, where step() terminated
+    on the fourth. The core now says how many steps it solved (``good_steps``)."""
+    env = gym.make("softrom_gym/SoftRobot-v0", robot="beam", task="swim", action_scale=1e9,
+                   reset_noise_scale=0.0)  # fmt: skip
+    env.reset(seed=0)
+    controls = np.zeros((1, 6, 3))
+    controls[0, 3:] = env.get_wrapper_attr("action_bound")
+    out = env.get_wrapper_attr("rollout")(env.get_wrapper_attr("get_state")(), controls)
+    assert out["diverged"][0]
+    np.testing.assert_array_equal(out["rewards"][0, :3], 0.0)  # (at rest: as a frozen robot)
+    np.testing.assert_array_equal(out["lost"], [[0, 0, 0, 1, 1, 1]])
+    terminated = [env.step(u.astype(np.float32))[2] for u in controls[0]]
+    assert terminated == [False, False, False, True, True, True]
+    env.close()
+
+
 @pytest.mark.filterwarnings("ignore:.*a tetrahedron is inverted")
 @pytest.mark.filterwarnings("ignore:.*the robot has turned")
 def test_a_diverging_step_reports_what_rollout_predicts_for_it():

@@ -325,11 +325,12 @@ def test_a_diverged_rollout_earns_no_reward_from_then_on(walker):
     qdot = rest.qdot
     qdot[0] = 0.4 * np.sqrt(walker.total_mass)
     start = cpp_sim.ReducedState(rest.q, qdot, rest.impulses)
-    controls = np.zeros((1, 6, 3))
+    controls = np.zeros((2, 6, 3))
     controls[0, 2:] = 1e15  # diverges at the third step
     out = walker.rollout(start, controls, threads=1)
-    assert out["diverged"][0]
+    assert list(out["diverged"]) == [True, False]
     assert np.all(out["rewards"][0, :2] > 0) and np.all(out["rewards"][0, 2:] == 0.0)
+    assert list(out["good_steps"]) == [2, 6]  # the steps solved before the divergence
 
 
 def test_a_rollout_stopped_by_max_speed_is_not_converged(walker):

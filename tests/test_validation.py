@@ -264,14 +264,22 @@ def test_reduced_settings_refuse_values_outside_their_range():
         # reported as not diverged; a review, session 53)
         ("ground_height", -1.0001e9, r"ground_height must lie within \+-1e\+09 m, got -1.0001e"),
         ("direction", [0.0, 0.0, 0.0], "direction must be a non-zero vector"),
+        # (from about 1e22 N/m the penalty normal force was round-off noise: friction
+        # vanished on steps reported converged; a review, session 54)
+        (
+            "penalty_stiffness",
+            1.0001e12,
+            r"penalty_stiffness must be at most 1e\+12 N/m per node, got 1.0001e\+12",
+        ),
+        ("penalty_stiffness", -1.0, "penalty_stiffness must be a finite number >= 0, got -1"),
         ("friction_smoothing", 0.0, "friction_smoothing must be a finite number > 0, got 0"),
     ):
         with pytest.raises(ValueError, match=match):
             cpp_sim.ReducedConfig(**{name: value})
     edge = cpp_sim.ReducedConfig(stabilization=1.0, max_stagger_iterations=1, friction=0.0,
-                                 ground_height=1e9)  # fmt: skip
+                                 ground_height=1e9, penalty_stiffness=1e12)  # fmt: skip
     assert (edge.stabilization, edge.max_stagger_iterations, edge.friction) == (1.0, 1, 0.0)
-    assert edge.ground_height == 1e9
+    assert edge.ground_height == 1e9 and edge.penalty_stiffness == 1e12
 
 
 def test_friction_smoothing_is_none_until_set_and_none_restores_the_tolerances():

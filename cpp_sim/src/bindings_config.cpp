@@ -117,9 +117,24 @@ const std::vector<Setting>& settings() {
       SOFTROM_NON_NEGATIVE(contact_margin,
                            "m: surface nodes predicted closer than this to the ground are "
                            "contact candidates"),
-      SOFTROM_NON_NEGATIVE(penalty_stiffness,
-                           "N/m per node for contact='penalty' (0: the body's weight over its resting nodes "
-                           "per 1 mm of sink, plus 0.25 m_i / dt^2: they sink a little under 1 mm)"),
+      {"penalty_stiffness",
+       [](const ReducedConfig& c) -> py::object { return py::float_(c.penalty_stiffness); },
+       [](ReducedConfig& c, py::handle x) {
+         const double k = v::non_negative(v::real(x, "penalty_stiffness"), "penalty_stiffness");
+         // Far beyond any ground (the defaults are 1e2-1e4 N/m), k times a velocity's
+         // round-off outweighs a node's share of the weight: from about 1e22 N/m the normal
+         // force was noise, friction vanished, and every step still reported converged.
+         constexpr double kMaxPenaltyStiffness = 1e12;
+         if (k > kMaxPenaltyStiffness) {
+           std::ostringstream msg;
+           msg << "penalty_stiffness must be at most " << kMaxPenaltyStiffness
+               << " N/m per node, got " << k;
+           throw py::value_error(msg.str());
+         }
+         c.penalty_stiffness = k;
+       },
+       "N/m per node for contact='penalty', at most 1e12 (0: the body's weight over its "
+       "resting nodes per 1 mm of sink, plus 0.25 m_i / dt^2: they sink a little under 1 mm)"},
       SOFTROM_NON_NEGATIVE(fluid_density, "kg/m^3; > 0 turns quadratic surface drag on"),
       SOFTROM_NON_NEGATIVE(drag_coefficient, "C_d of the quadratic drag"),
       SOFTROM_NON_NEGATIVE(damping_alpha, "Rayleigh damping on all reduced coordinates, 1/s"),

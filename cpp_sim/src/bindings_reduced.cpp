@@ -326,6 +326,7 @@ py::dict rollout_binding(const ReducedModel& r, py::handle state, py::handle con
       imp({py::ssize_t{b}, ni}), com({py::ssize_t{b}, py::ssize_t{h}, py::ssize_t{3}});
   py::array_t<bool> div(b), conv(b);
   std::vector<unsigned char> flags(b), conv_flags(b);
+  py::array_t<int> good(b);
   MatX obs_m;
   py::ssize_t no = 0;
   if (!observe.is_none()) {
@@ -340,6 +341,7 @@ py::dict rollout_binding(const ReducedModel& r, py::handle state, py::handle con
   out.final_impulses = imp.mutable_data();
   out.diverged = flags.data();
   out.converged = conv_flags.data();
+  out.good_steps = good.mutable_data();
   out.com = com.mutable_data();
   out.observe = no ? &obs_m : nullptr;
   out.observed = no ? observed.mutable_data() : nullptr;
@@ -370,6 +372,7 @@ py::dict rollout_binding(const ReducedModel& r, py::handle state, py::handle con
   d["impulses"] = imp;
   d["diverged"] = div;
   d["converged"] = conv;
+  d["good_steps"] = good;
   d["com"] = com;
   if (!observe.is_none()) d["observed"] = observed;
   return d;
@@ -470,9 +473,9 @@ fluid_density > 0; actuation f_r = B_c f_c on deformation coordinates only.)doc"
 
 Returns a dict: rewards (B, H) = d . v_com dt per step, q / qdot (B, M + 6) and impulses
 (B, 3 n_surface) of the final states, diverged (B,), converged (B,: every step's Newton and
-contact solve reached its tolerance; False for a diverged rollout) and com (B, H, 3); with
-`observe`
-(P x (M + 6)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
+contact solve reached its tolerance; False for a diverged rollout), good_steps (B,: the
+steps solved before the one that diverged; H for a rollout that did not) and com (B, H, 3);
+with `observe` (P x (M + 6)), also observed (B, H, P) = observe @ q_r after each step. Rollouts run on
 `threads` C++ threads with the GIL released; results do not depend on the thread count. A
 diverged rollout keeps its last good state and earns zero reward from then on. Called from
 the main thread, Ctrl-C stops it within about 0.1 s (after the step in progress) and raises

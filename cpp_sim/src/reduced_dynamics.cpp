@@ -21,6 +21,10 @@ namespace softrom {
 
 namespace {
 
+// The penalty step's refinement of S^-1 r is kept while its residual is at most this fraction
+// of r; beyond it the Newton step is solved exactly (step_reference's penalty branch).
+constexpr double kRefinementResidual = 0.1;
+
 // The quasi-Newton direction dv = -H g, H the m x m inverse estimate (column-major).
 void newton_direction(const MatX& h_inv, const VecX& g, VecX& dv) {
   const Eigen::Index m = g.size();
@@ -234,6 +238,12 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     // one step of refinement on S's factor, d = S^-1 (r + h C S^-1 r), with C applied through
     // its rows: as few iterations as the exact solve, where forming C and its LU made the step
     // 0.71-0.82x as fast (benchmarks/PROFILE.md, session 50).
+    // The refinement is the first term of a Neumann series in h S^-1 C, so it holds only while
+    // that is small. On a ground some thousand times stiffer than the default it is not
+    // (spectral radius 0.7-1.4): the refined step was far off, the line search failed, and
+    // Newton drifted to velocities of tens of m/s. So the refined step's own residual,
+    // (S - h C) d1 - r = h C (d0 - d1), is checked (one more product with C's rows), and where
+    // it is not small against r the step is solved exactly, by LU as the reference solver does.
     if (penalty && !fast_kernels) {
       a -= h * ws.j_pen_coupling;
       ws.ref_lu.compute(a);
@@ -250,7 +260,16 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
         ws.pen_rhs = r;
         ws.pen_rhs.noalias() += h * ws.pen_cx;
         ldlt.solveInPlace(ws.pen_rhs);
-        dv.swap(ws.pen_rhs);
+        dv -= ws.pen_rhs;  // d0 - d1
+        penalty_coupling_times(dv, ws.pen_cx, ws);
+        if (h * ws.pen_cx.norm() > kRefinementResidual * r.norm()) {
+          penalty_coupling_matrix(ws, ws.j_pen_coupling);
+          a -= h * ws.j_pen_coupling;
+          ws.ref_lu.compute(a);
+          dv.noalias() = ws.ref_lu.solve(r);
+        } else {
+          dv.swap(ws.pen_rhs);
+        }
       }
     }
     dv = -dv;

@@ -392,6 +392,7 @@ class ReducedModel {
     double* final_impulses = nullptr;  // B x 3 n_s
     unsigned char* diverged = nullptr; // B
     unsigned char* converged = nullptr;// B: every step's Newton and contact solve converged
+    int* good_steps = nullptr;         // B: the steps before the one that diverged (H if none)
     double* com = nullptr;             // B x H x 3 (optional)
     const MatX* observe = nullptr;     // P x dim (optional)
     double* observed = nullptr;        // B x H x P

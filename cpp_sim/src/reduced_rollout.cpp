@@ -33,6 +33,7 @@ void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>
     Workspace& ws = *lease;
     ReducedState s = starts[starts.size() == 1 ? 0 : b];
     bool bad = false, converged = true;
+    int good = horizon;
     const bool polls = out.interrupt && std::this_thread::get_id() == caller;
     for (int t = 0; t < horizon; ++t) {
       if (out.interrupt) {
@@ -45,6 +46,7 @@ void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>
       if (!bad) {
         const StepInfo info = step(in, s, controls + bt * c, ws);
         bad = info.diverged;
+        if (bad) good = t;
         converged = converged && info.converged && info.contact_converged;
         if (!bad) reward = d.dot(com_velocity(s.qdot)) * h;
       }
@@ -65,6 +67,7 @@ void ReducedModel::rollout(const StepInputs& in, const std::vector<ReducedState>
     std::copy(s.impulses.data(), s.impulses.data() + ni,
               out.final_impulses + static_cast<size_t>(b) * ni);
     out.diverged[b] = bad ? 1 : 0;
+    if (out.good_steps) out.good_steps[b] = good;
     // (A diverged rollout's later steps were never solved, whatever its last step's flags.)
     if (out.converged) out.converged[b] = converged && !bad ? 1 : 0;
   };

@@ -18,14 +18,6 @@ from ..robots import Robot
 __all__ = ["PlanningAPI"]
 
 
-def _first_frozen_substep(rewards: np.ndarray, com: np.ndarray) -> int:
-    """The sub-step at which a diverged rollout froze: from the diverging step on, the C++
-    core keeps the last good state (the COM stops, bit for bit) and pays zero reward."""
-    frozen = (rewards == 0.0) & np.all(com == com[-1], axis=1)
-    moving = np.flatnonzero(~frozen)
-    return int(moving[-1]) + 1 if moving.size else 0
-
-
 class PlanningAPI:
     """The methods a planner uses, mixed into :class:`SoftRobotEnv` (which sets the
     attributes below): its state, a state's centre of mass, and :meth:`rollout`."""
@@ -157,11 +149,10 @@ class PlanningAPI:
         observed = out["observed"].reshape(b, h, k, -1)[:, :, -1]
         theta = observed[..., :n_orient]
         rewards = out["rewards"].reshape(b, h, k)
-        # The C++ core zeroes the reward of every sub-step from the diverging one on; a step
-        # is lost when any of its sub-steps is.
-        lost = np.zeros((b, h))
-        for i in np.flatnonzero(out["diverged"]):
-            lost[i, _first_frozen_substep(rewards[i].ravel(), out["com"][i]) // k :] = 1.0
+        # A step is lost when any of its sub-steps is: the diverging one and every one after
+        # it, as the core counts them (guessed from where the COM froze, a robot that was
+        # at rest before it diverged had every step lost).
+        lost = (np.arange(h)[None, :] >= (out["good_steps"] // k)[:, None]).astype(float)
         result = {
             "rewards": rewards.sum(axis=2),
             "com": com,
