@@ -133,7 +133,11 @@ def plot_convergence(opt: RBBO, path: str | Path) -> Path:
     # Gr(M, C), 1 at its optimum
     synthetic = (opt.objective_spec or {}).get("kind") == "synthetic"
     axes[0].set_ylabel("R (synthetic objective)" if synthetic else "reward R per second")
-    axes[1].legend(loc="lower right", fontsize=8)
+    if axes[1].get_legend_handles_labels()[0]:  # (none when no evaluation succeeded)
+        axes[1].legend(loc="lower right", fontsize=8)
+    else:
+        axes[1].text(0.5, 0.5, "no successful evaluation yet", ha="center", va="center",
+                     transform=axes[1].transAxes)  # fmt: skip
     problem = (opt.store.config.get("problem") or {}).get("env_id", "") if opt.store else ""
     fig.suptitle(f"RBBO {problem}  Gr({opt.config.sim_dim}, {opt.config.control_dim}), "
                  f"{opt.config.fidelity.upper()}")  # fmt: skip

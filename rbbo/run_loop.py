@@ -114,6 +114,8 @@ def run(
     budget_s = cfg.budget_s if budget_s is None else budget_s
     if max_evaluations is None and budget_s is None:
         raise ValueError("give max_evaluations or budget_s (here or in the config)")
+    if max_evaluations == math.inf and budget_s == math.inf:
+        raise ValueError("max_evaluations and budget_s are both unlimited (math.inf): give one")
     # (math.inf stands for "no limit of this kind", as the command line passes it)
     if max_evaluations is not None and max_evaluations != math.inf:
         _positive_int("max_evaluations", max_evaluations)

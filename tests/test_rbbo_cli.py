@@ -319,6 +319,25 @@ def test_resume_with_a_new_limit_replaces_the_stored_ones(tmp_path, capsys):
     assert f"has reached its limit ({done + 3} evaluations; it has" in capsys.readouterr().err
 
 
+def test_a_run_that_stores_no_limit_is_resumed_only_with_one(tmp_path, capsys):
+    """RBBO.create without a limit, then run(max_evaluations=...), stores none: a plain
+    rbbo resume searched with no limit at all, on a finished run too (a review, session 54)."""
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+
+    run = tmp_path / "run"
+    objective = SyntheticObjective(6, 2)
+    with RBBO.create(run, RBBOConfig(6, 2, n_init=2, n_confirm=2),
+                     objective_spec=objective.spec()) as opt:  # fmt: skip
+        opt.run(objective, max_evaluations=4)
+    before = (run / "history.jsonl").read_bytes()
+    assert main(["resume", str(run), "--no-progress", "--executor", "serial"]) == 2
+    assert f"{run} stores no limit: give --iterations or --budget" in capsys.readouterr().err
+    assert (run / "history.jsonl").read_bytes() == before
+    assert main(["resume", str(run), "--iterations", "5", "--no-progress",
+                 "--executor", "serial"]) == 0  # fmt: skip
+    assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == 5
+
+
 def test_a_lowered_limit_given_to_resume_is_the_runs_from_then_on(tmp_path, capsys):
     from rbbo import RBBO, RBBOConfig, SyntheticObjective
 
@@ -656,6 +675,14 @@ def test_r_is_measured_from_the_first_env_step_after_the_settle_time():
     assert _measured_from(objective(0.51)) == pytest.approx(0.525)
     assert _measured_from(objective(2.0)) == pytest.approx(2.0)
     assert _measured_from(objective(0.51, frame_skip=10)) == pytest.approx(0.55)
+    # (--t-max 1.01 after a 1-s settle time passed optimize's check, and every evaluation
+    # then failed: the episode is round(1.01 / 0.025) = 40 whole steps, R counts from the 40th)
+    from rbbo.cli.rollout import _measures_r
+
+    assert not _measures_r(objective(1.0), 1.01)
+    assert not _measures_r(objective(1.0), 1.0125)  # (40.5 steps round to 40)
+    assert _measures_r(objective(1.0), 1.02)
+    assert not _measures_r(objective(0.51), 0.52) and _measures_r(objective(0.51), 0.55)
 
 
 def test_evaluations_that_keep_failing_exit_1_with_one_line(tmp_path, capsys, monkeypatch):
@@ -678,6 +705,24 @@ def test_evaluations_that_keep_failing_exit_1_with_one_line(tmp_path, capsys, mo
     assert len(_history(run)) == 10
     monkeypatch.undo()
     assert main(["resume", str(run), "--no-progress"]) == 0
+
+
+def test_a_run_none_of_whose_evaluations_succeeded_names_no_best_basis(tmp_path, capsys,
+                                                                     monkeypatch):  # fmt: skip
+    """The closing line named best_basis.npy where no evaluation had succeeded and none was
+    written (a review, session 54)."""
+    from rbbo.objective import SyntheticObjective
+
+    def broken(self, basis, T, seed):
+        raise OSError("simulator library missing")
+
+    monkeypatch.setattr(SyntheticObjective, "__call__", broken)
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", *TINY, "--iterations", "2", "--executor", "serial",
+                 "--out", str(run)]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert not (run / "best_basis.npy").exists()
+    assert f"run directory: {run}  (best basis: none yet, plot:" in out
 
 
 @pytest.mark.parametrize(("limit", "shown"), [(["--iterations", "5"], "5/5"),

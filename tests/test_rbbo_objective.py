@@ -16,6 +16,7 @@ from rbbo.objective import (
     EnvObjective,
     SyntheticObjective,
     make_objective,
+    measured_steps,
     objective_differences,
     parse_objective_spec,
     settled_reward_rate,
@@ -136,6 +137,11 @@ def test_env_objective_rejects_bad_input():
     objective = EnvObjective("rbbo_test/StandIn-v0", 20, 3, settle_time=2.0)
     with pytest.raises(ValueError, match="T = 1.5 s must exceed the settle time 2.0 s"):
         objective(np.eye(20)[:, :3], 1.5, 0)
+    # past the settle time but not by a whole step: named before the episode is simulated
+    objective.episode = lambda *args: pytest.fail("the episode was simulated")
+    with pytest.raises(ValueError, match=r"T = 2.01 s is 80 steps of 0.025 s, none of them "
+                       r"from the settle time 2.0 s on"):  # fmt: skip
+        objective(np.eye(20)[:, :3], 2.01, 0)
 
 
 def test_settled_reward_counts_a_short_episode_as_zero_for_the_rest():
@@ -160,6 +166,9 @@ def test_settled_step_is_the_step_starting_at_the_settle_time_despite_round_off(
         assert [settled_step(dt, k * dt) for k in range(200)] == list(range(200))
     assert settled_step(0.01, 0.07) == 7
     assert settled_step(STEP, 1.01) == 41
+    # the steps R counts: whole steps of the episode from the settled one on
+    assert measured_steps(STEP, 1.0, 1.01) == 0 and measured_steps(STEP, 1.0, 1.05) == 2
+    assert measured_steps(STEP, 0.0, 0.001) == 1  # (an episode runs at least one step)
 
 
 def test_settled_reward_divides_by_the_time_from_the_first_counted_step():

@@ -1,6 +1,7 @@
 """The RBBO loop (rbbo.optimizer): ask/tell, quality vs random search, BOCA, resume."""
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -516,6 +517,10 @@ def test_a_reader_cannot_write_into_a_run(tmp_path):
 def test_run_needs_a_stopping_rule():
     with pytest.raises(ValueError, match="give max_evaluations or budget_s"):
         RBBO(RBBOConfig(4, 2)).run(SyntheticObjective(4, 2))
+    # (math.inf is "no limit of this kind": both of them is no stopping rule either)
+    with pytest.raises(ValueError, match="both unlimited"):
+        RBBO(RBBOConfig(4, 2)).run(SyntheticObjective(4, 2), max_evaluations=math.inf,
+                                   budget_s=math.inf)  # fmt: skip
 
 
 def test_cma_es_baseline_updates_within_a_small_budget():

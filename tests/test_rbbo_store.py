@@ -409,6 +409,45 @@ def test_every_write_is_fsynced_with_its_data_before_it_returns(tmp_path, monkey
     assert [e.index for e in RunStore.open(run, repair=False).history()] == [0, 1]
 
 
+@pytest.mark.parametrize("fault", ["short write", "fsync"])
+def test_a_failed_append_leaves_nothing_behind_so_it_can_be_written_again(
+    tmp_path, monkeypatch, fault
+):
+    """A full disk's short write left a torn fragment, and a failed fsync a whole line, in
+    the history; the evaluation stays pending, so RBBO.run or tell writes it again, after
+    them, and every later resume refused the run as corrupted (a review, session 54)."""
+    import errno
+    import os
+
+    store = RunStore.create(tmp_path / "run", {"x": 1})
+    store.append(_evaluation(0))
+    before = (tmp_path / "run" / "history.jsonl").read_bytes()
+    real_write, real_fsync = os.write, os.fsync
+
+    def short_write(fd, data):  # half the line reaches the file, then the disk is full
+        monkeypatch.setattr(os, "write", failing_write)
+        return real_write(fd, bytes(data[: len(data) // 2]))
+
+    def failing_write(fd, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def failing_fsync(fd):
+        monkeypatch.setattr(os, "fsync", real_fsync)  # (once: the undo's own fsync works)
+        raise OSError(errno.EIO, "Input/output error")
+
+    if fault == "short write":
+        monkeypatch.setattr(os, "write", short_write)
+    else:
+        monkeypatch.setattr(os, "fsync", failing_fsync)
+    with pytest.raises(OSError, match="No space left|Input/output"):
+        store.append(_evaluation(1))
+    monkeypatch.undo()
+    assert (tmp_path / "run" / "history.jsonl").read_bytes() == before
+    store.append(_evaluation(1))  # the same evaluation again, once the disk takes it
+    store.close()
+    assert [e.index for e in RunStore.open(tmp_path / "run", repair=False).history()] == [0, 1]
+
+
 def test_more_corrupted_run_files_are_named(tmp_path):
     store = RunStore.create(tmp_path / "run", {})
     store.append(_evaluation(0))
@@ -424,14 +463,26 @@ def test_more_corrupted_run_files_are_named(tmp_path):
         with pytest.raises(RunDirectoryError, match=match):
             RunStore.open(tmp_path / "run", repair=False).history()
     history.write_bytes(good)
-    (tmp_path / "run" / "best_basis.npy").write_bytes(b"not an array")
-    with pytest.raises(RunDirectoryError, match="best_basis.npy is corrupted"):
-        RunStore.open(tmp_path / "run", repair=False).best_basis()
-    for text in ("{oops", "[1, 2]", "null"):  # (JSON, but no summary: a hand edit)
-        (tmp_path / "run" / "summary.json").write_text(text)
+    # (an empty file raised numpy's EOFError, a traceback; a vector was handed on as B_c)
+    vector = tmp_path / "vector.npy"
+    np.save(vector, np.ones(3))
+    for data in (b"not an array", b"", vector.read_bytes()):
+        (tmp_path / "run" / "best_basis.npy").write_bytes(data)
+        with pytest.raises(RunDirectoryError, match="best_basis.npy is corrupted"):
+            RunStore.open(tmp_path / "run", repair=False).best_basis()
+    # (not UTF-8: a UnicodeDecodeError traceback in rbbo report and rbbo resume)
+    for data in (b"{oops", b"[1, 2]", b"null", b"\xff\xfe{}"):  # (JSON, but no summary: an edit)
+        (tmp_path / "run" / "summary.json").write_bytes(data)
         with pytest.raises(RunDirectoryError, match="summary.json is corrupted"):
             RunStore.open(tmp_path / "run", repair=False).summary()
     assert RunStore.open(tmp_path / "run", repair=False).sessions() == []  # none recorded
+    # a B_c of another shape than the run's (M, C)
+    store = RunStore.create(tmp_path / "run2", {"rbbo": {"sim_dim": 4, "control_dim": 2}})
+    store.save_best(np.eye(4)[:, :3])
+    with pytest.raises(RunDirectoryError, match=r"not a finite B_c of shape \(4, 2\)"):
+        store.best_basis()
+    store.save_best(np.eye(4)[:, :2])
+    np.testing.assert_array_equal(store.best_basis(), np.eye(4)[:, :2])
     with pytest.raises(ValueError, match=r"basis must be an \(M, C\) array, got shape \(3,\)"):
         Evaluation(0, np.ones(3), 1.0, 1.0)
 

@@ -99,5 +99,7 @@ def _execute(opt, executor, max_evaluations, budget_s, progress: bool,
         plot = "none"
     else:
         plot = png.name
-    print(f"run directory: {opt.store.path}  (best basis: best_basis.npy, plot: {plot})")
+    # (no best_basis.npy is written when no evaluation succeeded)
+    best = "best_basis.npy" if (opt.store.path / "best_basis.npy").is_file() else "none yet"
+    print(f"run directory: {opt.store.path}  (best basis: {best}, plot: {plot})")
     return 0

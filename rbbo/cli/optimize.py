@@ -13,6 +13,7 @@ from .arguments import _env_kwargs, merged_mpc_changes
 from .errors import UsageError, _bad_input
 from .execution import _execute, _make_executor
 from .objectives import _check_controllers, _objective_of, _resolve_env
+from .rollout import _measured_from, _measures_r
 
 
 def _duration_text(seconds: float) -> str:
@@ -117,6 +118,17 @@ def cmd_optimize(args) -> int:
         with _bad_input():  # the env is made here: a bad --env-kwarg fails now, named
             problem["N"] = objective.node_count()
             objective.planner()  # and a bad --mpc setting, not as failed evaluations
+        # on the env-step grid: --t-max 1.01 past a 1-s settle time is 40 steps of 25 ms, none
+        # of them measured, and every evaluation failed after its episode
+        for flag, seconds in (
+            ("--t-max", args.t_max),
+            *((("--t-min", args.t_min),) if args.fidelity == "boca" else ()),
+        ):
+            if not _measures_r(objective, seconds):
+                raise UsageError(f"{flag} {seconds:g} leaves no env step from --settle-time "
+                                 f"{args.settle_time:g} on (R is measured from the first "
+                                 f"step at or after it, {_measured_from(objective):g} s, and "
+                                 f"the episode runs whole steps): give more")  # fmt: skip
     out = args.out
     if out is None:
         name = args.env_id.split("/")[-1].split(":")[0]
@@ -182,6 +194,10 @@ def cmd_resume(args) -> int:
         iterations, budget = args.iterations, args.budget
         if iterations is None and budget is None:
             iterations, budget = opt.config.max_evaluations, opt.config.budget_s
+            if iterations is None and budget is None:
+                # (a run made by the library, RBBO.create without a limit and run() with one:
+                # resumed without one it searched with none, finished or not)
+                raise UsageError(f"{store.path} stores no limit: give --iterations or --budget")
         elif (iterations, budget) != (opt.config.max_evaluations, opt.config.budget_s):
             old = _limits_text(opt.config.max_evaluations, opt.config.budget_s)
             with _bad_input():

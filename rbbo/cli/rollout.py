@@ -26,7 +26,7 @@ def cmd_rollout(args) -> int:
     seconds = args.seconds or opt.config.t_max
     # A video of the first seconds is worth having (how the robot settles); R, measured from
     # the settle time on, is what a replay without --video is for.
-    if isinstance(objective, EnvObjective) and not seconds > _measured_from(objective):
+    if isinstance(objective, EnvObjective) and not _measures_r(objective, seconds):
         if not args.video:
             raise UsageError(f"--seconds {seconds:g} must exceed the run's settle time "
                              f"{objective.settle_time:g} s, from which R is measured (from "
@@ -62,6 +62,20 @@ def _measured_from(objective) -> float:
     if step is None:
         return objective.settle_time
     return settled_step(step, objective.settle_time) * step
+
+
+def _measures_r(objective, seconds: float) -> bool:
+    """Whether an episode of ``seconds`` has env steps from the settle time on
+    (:func:`~rbbo.objective.measured_steps`): it runs round(seconds / dt) whole steps, so
+    seconds just past the settle time (1.01 s after 1 s, at 0.025 s a step) may have none."""
+    from softrom_gym.registration import control_period
+
+    from ..objective import measured_steps
+
+    step = control_period(objective.env_id, **objective.env_kwargs)
+    if step is None:
+        return seconds > objective.settle_time
+    return measured_steps(step, objective.settle_time, seconds) > 0
 
 
 def _check_video_name(video: Path) -> None:
@@ -116,7 +130,7 @@ def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> 
             if not clips:
                 raise UsageError("no video was written (does the env render rgb_array frames?)")
             shutil.move(str(clips[0]), video)
-    if not seconds > _measured_from(objective):
+    if not _measures_r(objective, seconds):
         print(f"video: {video} ({seconds:g} s; no R, which is measured from the run's settle "
               f"time {objective.settle_time:g} s on)")  # fmt: skip
         return 0

@@ -26,7 +26,7 @@ from .env_keywords import NO_TIME_LIMIT, SET_BY_RBBO
 from .env_keywords import _check_env_keywords as _check_env_keywords
 from .planner import planner_record
 from .protocol import Objective, ObjectiveMismatch, PlannerMismatch, SimulationSpaceMismatch
-from .reward import settled_reward_rate, settled_step
+from .reward import measured_steps, settled_reward_rate, settled_step
 from .spec import _SYNTHETIC_KEYS as _SYNTHETIC_KEYS
 from .spec import make_objective, objective_differences, parse_objective_spec
 from .synthetic import SyntheticObjective
@@ -41,6 +41,7 @@ __all__ = [
     "SimulationSpaceMismatch",
     "SyntheticObjective",
     "make_objective",
+    "measured_steps",
     "objective_differences",
     "parse_objective_spec",
     "planner_record",

@@ -18,7 +18,7 @@ from ..grassmann import _check_dims
 from .env_keywords import NO_TIME_LIMIT, _check_env_keywords
 from .planner import planner_record
 from .protocol import PlannerMismatch, SimulationSpaceMismatch
-from .reward import settled_reward_rate
+from .reward import measured_steps, settled_reward_rate
 
 
 def _plain(value: Any) -> Any:
@@ -337,12 +337,18 @@ class EnvObjective:
         if not T > self.settle_time:
             raise ValueError(f"T = {T} s must exceed the settle time {self.settle_time} s")
         env = self._env_for(basis)
+        dt = self.step_seconds(env)
+        if measured_steps(dt, self.settle_time, T) <= 0:
+            # (named before the episode, which would be simulated for nothing)
+            raise ValueError(f"T = {T} s is {max(1, round(T / dt))} steps of {dt:g} s, none "
+                             f"of them from the settle time {self.settle_time} s on: R would "
+                             "measure nothing")  # fmt: skip
         result = self.episode(basis, T, seed, env)
         if str(getattr(result, "stop_reason", "")).startswith("truncated"):
             # (an env of the user's own wrapping): R would read the lost seconds as zero
             raise RuntimeError(f"the env's time limit ended the T = {T:g} s episode at "
                                f"{result.seconds:g} s")  # fmt: skip
-        dt = getattr(result, "dt", None) or self.step_seconds(env)
+        dt = getattr(result, "dt", None) or dt
         return settled_reward_rate(result, dt, self.settle_time, T)
 
     def spec(self) -> dict[str, Any]:

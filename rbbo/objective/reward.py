@@ -1,6 +1,7 @@
 """R from an MPC episode: the task reward per second from the settle time on.
 
-:func:`settled_step` is the first env step R counts; :func:`settled_reward_rate` the reward
+:func:`settled_step` is the first env step R counts, :func:`measured_steps` how many it counts;
+:func:`settled_reward_rate` the reward
 per second from there to the episode's end, an early end counting as zero reward.
 """
 
@@ -14,6 +15,14 @@ import numpy as np
 def settled_step(step_seconds: float, settle_time: float) -> int:
     """The first env step that R counts: the first starting at or after the settle time."""
     return int(np.ceil(settle_time / step_seconds - 1e-9))
+
+
+def measured_steps(step_seconds: float, settle_time: float, seconds: float) -> int:
+    """The env steps R counts in an episode of ``seconds``: its ``round(seconds / dt)`` whole
+    steps (``controllers.run_episode``) from :func:`settled_step` on; 0 or less when R would
+    measure nothing (T = 1.01 s past a 1-s settle time at dt = 0.025 s is 40 steps, the
+    settle time's 40)."""
+    return max(1, round(seconds / step_seconds)) - settled_step(step_seconds, settle_time)
 
 
 def settled_reward_rate(result, step_seconds: float, settle_time: float, seconds: float) -> float:

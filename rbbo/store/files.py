@@ -47,17 +47,36 @@ def _make_dirs(path: Path) -> None:
 def _append_line(path: Path, line: str, end_partial: bool = False) -> None:
     """Append ``line`` and a newline durably (written, flushed and fsynced; a file it creates
     has its directory fsynced too, which the file's fsync does not reach); with
-    ``end_partial``, after a newline if the file ends inside a line."""
+    ``end_partial``, after a newline if the file ends inside a line.
+
+    An append that fails (a full disk's short write, a failed fsync, an interrupt) is undone
+    before the error propagates: the file is cut back to its length before it, so the caller
+    may write the line again. (A torn fragment was left, and the retry's line glued onto it;
+    a line whose fsync failed was written twice. Either made the history unreadable.)
+    """
     new = not path.exists()
-    with open(path, "a+b") as f:
-        data = line.encode() + b"\n"
-        if end_partial and f.seek(0, os.SEEK_END) > 0:
-            f.seek(-1, os.SEEK_END)
-            if f.read(1) != b"\n":
+    data = line.encode() + b"\n"
+    fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT, 0o666)
+    try:
+        size = os.lseek(fd, 0, os.SEEK_END)
+        if end_partial and size > 0:
+            os.lseek(fd, size - 1, os.SEEK_SET)
+            if os.read(fd, 1) != b"\n":
                 data = b"\n" + data
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
+        try:
+            view = memoryview(data)
+            while view:  # (a short write is not an error until the next one fails)
+                view = view[os.write(fd, view) :]
+            os.fsync(fd)
+        except BaseException:
+            try:
+                os.ftruncate(fd, size)
+                os.fsync(fd)
+            except OSError:
+                pass  # (best effort: the error that matters is the append's)
+            raise
+    finally:
+        os.close(fd)
     if new:
         _fsync_dir(path.parent)
 

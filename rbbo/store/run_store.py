@@ -293,9 +293,25 @@ class RunStore:
             raise RunDirectoryError(f"{self.path} has no {BEST} yet: no session of the run has "
                                     "finished (resume it with rbbo resume)")  # fmt: skip
         try:
-            return np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as exc:
+            basis = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:  # (EOFError: an empty file)
             raise RunDirectoryError(f"{path} is corrupted: {exc}") from exc
+        settings = self.config.get("rbbo") if isinstance(self.config, dict) else None
+        dims = None
+        if isinstance(settings, dict):
+            dims = (settings.get("sim_dim"), settings.get("control_dim"))
+        expected = dims if dims and all(isinstance(d, int) for d in dims) else None
+        if (
+            basis.ndim != 2
+            or basis.dtype.kind != "f"
+            or not np.all(np.isfinite(basis))
+            or (expected is not None and basis.shape != expected)
+        ):
+            raise RunDirectoryError(
+                f"{path} is corrupted: it holds a {basis.dtype} array of shape {basis.shape}, "
+                f"not a finite B_c of shape {expected or '(M, C)'}"
+            )
+        return basis
 
     def write_summary(self, summary: dict[str, Any]) -> None:
         self._require_writer("its summary cannot change")
@@ -309,8 +325,8 @@ class RunStore:
         if not path.is_file():
             return None
         try:
-            summary = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
+            summary = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:  # (torn text, or bytes)
             raise RunDirectoryError(f"{path} is corrupted: {exc}") from exc
         if not isinstance(summary, dict):  # (a hand edit: its readers look keys up in it)
             raise RunDirectoryError(f"{path} is corrupted: it holds no JSON object")
