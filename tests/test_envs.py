@@ -206,6 +206,29 @@ def test_copies_step_exactly_as_the_original():
         np.testing.assert_array_equal(c.reset()[0], obs)
 
 
+def test_a_copy_carries_its_cubature_rule_and_does_not_train_one(monkeypatch):
+    """An unpickled env got its rule again from the receiving process's cache: retrained
+    there (4.75 s on the quadruped), and under another BLAS kernel with weights 1e-13 apart,
+    so the copy no longer stepped bitwise as the original (a review, session 54)."""
+    import softrom_gym.rom.model as rom_model
+
+    env = gym.make("softrom_gym/SoftRobot-v0", robot="beam", sim_dim=6, resolution=6)
+    base = env.unwrapped
+    data = pickle.dumps(env)
+
+    def no_training(*args, **kwargs):
+        pytest.fail("the copy trained (or loaded) a cubature rule")
+
+    monkeypatch.setattr(rom_model, "train_cubature", no_training)
+    copy_ = pickle.loads(data).unwrapped
+    np.testing.assert_array_equal(copy_.cubature.elements, base.cubature.elements)
+    np.testing.assert_array_equal(copy_.cubature.weights, base.cubature.weights)
+    state = base.get_state()
+    controls = np.full((1, 5, 3), 0.5 * base.action_bound)
+    np.testing.assert_array_equal(copy_.rollout(state, controls)["q"],
+                                  base.rollout(state, controls)["q"])  # fmt: skip
+
+
 def test_direction_sets_the_reward_axis():
     a = gym.make("softrom_gym/SoftRobot-v0", robot="beam", direction=0.0).unwrapped
     b = gym.make("softrom_gym/SoftRobot-v0", robot="beam", direction=np.pi).unwrapped
@@ -657,6 +680,9 @@ def test_more_bad_env_arguments_are_named_before_anything_is_built(monkeypatch):
         ({"direction": float("inf")}, "direction angle must be finite, got inf"),
         ({"direction": [0.0, 0.0]}, r"a non-zero 2-vector, got \[0.0, 0.0\]"),
         ({"direction": [1.0, 0.0, 0.0]}, r"a non-zero 2-vector, got \[1.0, 0.0, 0.0\]"),
+        # (True was read as 1 rad)
+        ({"direction": True}, r"a non-zero 2-vector, got True"),
+        ({"direction": [True, False]}, r"a non-zero 2-vector, got \[True, False\]"),
         ({"control_basis": basis}, r"control_basis contains non-finite values, e.g. inf at "
                                    r"\(4, 1\)"),
         ({"material": {"youngs": 1e5}}, r"unknown material parameter\(s\) \['youngs'\]"),
@@ -955,6 +981,29 @@ def test_vector_env_autoresets_in_the_same_step_as_gymnasium_s_vector_envs():
                            rf"got {bad!r}"):  # fmt: skip
             gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, autoreset_mode=bad,
                          vectorization_mode="vector_entry_point")  # fmt: skip
+
+
+def test_vector_env_refuses_to_step_a_robot_no_reset_has_started_as_sync_vector_env_does():
+    """A step before reset stepped every robot from rest, its distance counted from the
+    origin (-0.066 m on the tripod), where SyncVectorEnv raises ResetNeeded; a first reset
+    with a partial reset_mask left the others so (a review, session 54)."""
+    from gymnasium.error import ResetNeeded
+    from gymnasium.vector import AutoresetMode
+
+    ours, sync = _vector_pair(AutoresetMode.NEXT_STEP)
+    zero = np.zeros((2, 3), dtype=np.float32)
+    for env in (ours, sync):
+        with pytest.raises(ResetNeeded):
+            env.step(zero)
+    with pytest.raises(ResetNeeded, match=r"sub-environment\(s\) \[0, 1\] were never reset"):
+        ours.step(zero)
+    ours.reset(seed=0, options={"reset_mask": np.array([True, False])})
+    with pytest.raises(ResetNeeded, match=r"sub-environment\(s\) \[1\] were never reset"):
+        ours.step(zero)
+    ours.reset(options={"reset_mask": np.array([False, True])})
+    ours.step(zero)
+    np.testing.assert_array_equal(ours.reset(seed=3)[0], sync.reset(seed=3)[0])
+    _assert_same_step(ours.step(zero), sync.step(zero))
 
 
 def test_vector_env_without_autoreset_resets_by_mask_and_names_ended_envs_it_is_stepped_with():

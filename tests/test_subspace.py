@@ -161,6 +161,13 @@ def test_subspace_is_cached_on_disk(robot, subspace, monkeypatch):
         patch.setattr(module, "dense_eigh", no_eigensolve)
         again = build_subspace(robot, 20)
     np.testing.assert_array_equal(again.basis, subspace.basis)
+    # a numpy integer is the same M (its repr, np.int64(20), was hashed: a second entry)
+    with monkeypatch.context() as patch:
+        patch.setattr(module.spla, "eigsh", no_eigensolve)
+        patch.setattr(module, "dense_eigh", no_eigensolve)
+        numpy_m = build_subspace(robot, np.int64(20), num_derivatives=np.int32(20 // 3))
+    assert type(numpy_m.M) is int
+    np.testing.assert_array_equal(numpy_m.basis, subspace.basis)
     # A corrupt cache entry is rebuilt, not fatal, and said so. (Only this one: the cache is
     # the session's, and other tests' entries, corrupted, would warn there.)
     from softrom_gym.rom.cache import mesh_key

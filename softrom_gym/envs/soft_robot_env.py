@@ -12,7 +12,7 @@ from gymnasium import spaces
 import cpp_sim
 
 from ..robots import Robot
-from ..rom import build_reduced_model, build_subspace
+from ..rom import build_reduced_model, build_subspace, train_cubature
 from .arguments import (
     check_on_ground,
     check_sizes_and_scales,
@@ -205,9 +205,13 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
                                   frame)  # fmt: skip
         # verbose: a new robot or M takes seconds to minutes to build, once; say so on stderr
         self.subspace = build_subspace(self.robot, sim_dim, verbose=True)
+        # kept, and pickled with the env: a copy unpickled in another process must not get
+        # its rule again from that process's cache (retrained there: seconds, and weights
+        # that differ in the last bits under another BLAS, so the copy stepped differently)
+        self.cubature = train_cubature(self.robot, self.subspace, verbose=True)
         self.model = build_reduced_model(
-            self.robot, sim_dim, subspace=self.subspace, control_basis=self.control_basis,
-            verbose=True, **settings,
+            self.robot, sim_dim, subspace=self.subspace, cubature=self.cubature,
+            control_basis=self.control_basis, **settings,
         )  # fmt: skip
         mass = self.robot.fem_model().mass
         self._sqrt_m = float(np.sqrt(mass.sum()))
@@ -284,9 +288,11 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
         # (an array unpickles writeable: read-only again, as checked_control_basis made it)
         self.control_basis = self.control_basis.copy()
         self.control_basis.flags.writeable = False
+        # (an env pickled before it kept its rule gets one as its constructor did)
         self.model = build_reduced_model(
             self.robot, self.control_basis.shape[0], subspace=self.subspace,
-            control_basis=self.control_basis, **model_settings,
+            cubature=getattr(self, "cubature", None), control_basis=self.control_basis,
+            **model_settings,
         )  # fmt: skip
 
     # ---------------------------------------------------------------- control space

@@ -127,6 +127,9 @@ class SoftRobotVectorEnv(VectorEnv):
         # Robots whose episode ended: reset by the next step (NEXT_STEP), or refused by it
         # until reset(options={"reset_mask": ...}) (DISABLED); never set under SAME_STEP.
         self._autoreset = np.zeros(num_envs, dtype=bool)
+        # Robots no reset has started: step refuses them, as SyncVectorEnv's sub-envs do (they
+        # stepped from rest, their distance counted from the origin, not their centre of mass)
+        self._never_reset = np.ones(num_envs, dtype=bool)
         # each robot's last observation: what a reset_mask reset returns for those it skips
         self._last_obs = np.zeros(self.observation_space.shape, dtype=np.float32)
         self._rngs = [seeding.np_random()[0] for _ in range(num_envs)]
@@ -216,6 +219,7 @@ class SoftRobotVectorEnv(VectorEnv):
             self._last_obs[i], info = self._reset_one(i, options)
             infos = self._add_info(infos, info, i)
         self._autoreset[mask] = False
+        self._never_reset[mask] = False
         return self._last_obs.copy(), infos
 
     def _reset_options(self, options: dict | None) -> tuple[dict | None, np.ndarray]:
@@ -250,6 +254,12 @@ class SoftRobotVectorEnv(VectorEnv):
         if not np.all(np.isfinite(a)):
             rows = sorted({int(i) for i in np.argwhere(~np.isfinite(a))[:, 0]})
             raise ValueError(f"actions contains non-finite values (env indices {rows})")
+        if self._never_reset.any():
+            never = np.flatnonzero(self._never_reset).tolist()
+            raise ResetNeeded(
+                f"sub-environment(s) {never} were never reset: call reset() (or reset with a "
+                "reset_mask that includes them) before step()"
+            )
         if self.autoreset_mode is AutoresetMode.DISABLED and self._autoreset.any():
             pending = np.flatnonzero(self._autoreset).tolist()
             raise ResetNeeded(

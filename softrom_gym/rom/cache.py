@@ -36,13 +36,22 @@ def cache_dir() -> Path:
     return base / "softrom"
 
 
+def _plain(value: object) -> object:
+    """A numpy scalar as the Python number it equals: under NumPy 2 repr(np.int64(20)) is
+    "np.int64(20)", so sim_dim=np.int64(20) (a loop over np.arange) missed the cache entry of
+    sim_dim=20 and stored a duplicate."""
+    return value.item() if isinstance(value, np.generic) else value
+
+
 def mesh_key(robot: Robot, *extra: object) -> str:
     """Hash of mesh, material and ``extra`` parameters, for on-disk caches."""
     h = hashlib.sha256()
     h.update(CACHE_VERSION.encode())
     h.update(np.ascontiguousarray(robot.nodes).tobytes())
     h.update(np.ascontiguousarray(robot.tets).tobytes())
-    h.update(repr((robot.youngs_modulus, robot.poisson_ratio, robot.density, extra)).encode())
+    material = (robot.youngs_modulus, robot.poisson_ratio, robot.density)
+    key = (*(_plain(m) for m in material), tuple(_plain(e) for e in extra))
+    h.update(repr(key).encode())
     return h.hexdigest()[:24]
 
 

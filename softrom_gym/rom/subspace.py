@@ -211,7 +211,7 @@ def build_subspace(
         from the cache).
     """
     n = robot.num_nodes
-    integer("M", M)
+    M = integer("M", M)  # (a numpy integer becomes an int: the cache key, and Subspace.M)
     max_m = 3 * n - 6
     if M < 1:
         raise ValueError(f"M must be >= 1 deformation mode, got {M}")
@@ -223,7 +223,7 @@ def build_subspace(
     if num_derivatives is None:
         num_derivatives = M // 3 if M >= 6 else 0
     else:  # 1.5 was a slice-index TypeError deep in the build, True silently one derivative
-        integer("num_derivatives", num_derivatives)
+        num_derivatives = integer("num_derivatives", num_derivatives)
     if not 0 <= num_derivatives < M:
         raise ValueError(f"num_derivatives must be in [0, M), got {num_derivatives} for M = {M}")
     num_modes = M - num_derivatives
