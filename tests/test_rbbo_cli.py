@@ -234,6 +234,10 @@ def _error(capsys, argv):
         (["optimize", "synthetic:foo=1"], "bad synthetic option 'foo=1'"),
         (["optimize", "Nope-v0"], "unknown ENV_ID 'Nope-v0'; registered: softrom_gym/BeamWalk-v0"),
         (["optimize", "synthetic", "--address", "auto"], "--address is for --executor ray"),
+        (
+            ["optimize", "synthetic", "--executor", "serial", "--timeout", "30s"],
+            "--timeout is for --executor process or ray",
+        ),
         (["optimize", "synthetic", "--fidelity", "boca", "--t-min", "12"], "--t-min 12.0 must be"),
         (["optimize", "synthetic", "--init", "-1"], "--init: expected an integer >= 0, got '-1'"),
         (["optimize", "synthetic", "--settle-time", "-1"], "--settle-time: expected a number >= 0"),

@@ -82,6 +82,12 @@ def cmd_optimize(args) -> int:
                          "searches episode lengths between them)")  # fmt: skip
     if args.address and args.executor != "ray":
         raise UsageError("--address is for --executor ray")
+    # (the serial executor evaluates in this process and cannot stop an evaluation: a
+    # --timeout given with it was ignored without a word)
+    if args.timeout is not None and args.executor == "serial":
+        raise UsageError("--timeout is for --executor process or ray: the serial executor "
+                         "evaluates in this process and cannot stop an evaluation")  # fmt: skip
+    timeout = _EXECUTION_DEFAULTS["timeout_s"] if args.timeout is None else args.timeout
     budget, iterations = args.budget, args.iterations
     if budget is None and iterations is None:
         budget = 30 * 60.0
@@ -134,7 +140,7 @@ def cmd_optimize(args) -> int:
         name = args.env_id.split("/")[-1].split(":")[0]
         out = Path("runs") / f"{name}-{datetime.now():%Y%m%d-%H%M%S}"
     execution = {"executor": args.executor, "workers": args.workers,
-                 "timeout_s": args.timeout, "address": args.address,
+                 "timeout_s": timeout, "address": args.address,
                  "deterministic": args.deterministic}  # fmt: skip
     executor = _make_executor(objective, execution)
     try:

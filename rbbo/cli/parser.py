@@ -136,8 +136,9 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--executor", choices=["process", "ray", "serial"], default="process",
                      help="where evaluations run (default process)")  # fmt: skip
     opt.add_argument("--address", help="Ray cluster address (with --executor ray)")
-    opt.add_argument("--timeout", type=parse_duration, default=600.0,
-                     help="per-evaluation limit (default 10m)")  # fmt: skip
+    opt.add_argument("--timeout", type=parse_duration, default=None,
+                     help="per-evaluation limit (default 10m; not with --executor serial, "
+                     "which cannot stop an evaluation)")  # fmt: skip
     opt.add_argument("--seed", type=_nonnegative_int, default=0,
                      help="seeds the initial design, the acquisition's random starts and the "
                      "MPC seeds seed, seed + 1, ... (default 0)")  # fmt: skip
