@@ -4,8 +4,11 @@ For every (benchmark, planner): one closed-loop episode of ``--seconds`` per see
 defaults of :mod:`controllers.defaults`, on ``--threads`` rollout threads. Reports the mean
 wall time of one replan, the real-time factor (simulated seconds advanced per replan / wall
 seconds per replan; >= 1 keeps up with the robot), and the distance along d between
-t = ``--start`` and the end, per second and in body lengths (mean over seeds). Writes the
-rows to ``bench_mpc.csv`` in ``--out`` (default ``runs/bench_mpc``).
+t = ``--start`` and the end, per second and in body lengths (mean over seeds). An episode
+that diverges counts no distance after it stops, over the same span (as rbbo's R does), and
+the row's ``stops`` (CSV and ``--json``) counts why the episodes ended. The real-time factor
+is computed from the mean replan wall time. Writes the rows to ``bench_mpc.csv`` in ``--out``
+(default ``runs/bench_mpc``), rewritten after each row.
 
 ``plan/phys`` (CSV ``plan_over_physics``, with ``physics_wall_s``) is the ratio measured side
 by side: the episode's replan wall time over that of its physics floor. Each replan's
@@ -101,19 +104,23 @@ class PhysicsFloor(gym.Wrapper):
 
 
 def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
-    walls, physics, distances, lengths, rtfs = [], [], [], [], []
+    walls, physics, distances, lengths = [], [], [], []
+    stops: dict[str, int] = {}
     plan_total = physics_total = inside_total = 0.0
     start = time.perf_counter()
+    t0 = args.start if args.seconds > args.start else 0.0
+    span = args.seconds - t0
     for seed in args.seeds:
         env = PhysicsFloor(gym.make(env_id))
         planner, every = default_planner(env_id, planner_name, threads=args.threads,
                                          **args.changes)  # fmt: skip
         res = run_episode(env, planner, args.seconds, replan_every=every, seed=seed,
                           progress=args.progress)  # fmt: skip
-        t0 = args.start if args.seconds > args.start else 0.0
+        stops[res.stop_reason] = stops.get(res.stop_reason, 0) + 1
         walls.append(float(np.mean(res.replan_wall_s)))
-        rtfs.append(res.realtime_factor(every))
-        distances.append(res.distance_between(t0))
+        # An episode that diverged travelled nothing after it stopped (rbbo's R counts it so):
+        # its distance from t0 (none, when it stopped before t0) over the span asked for.
+        distances.append(res.distance_between(min(t0, res.seconds)))
         lengths.append(res.body_length)
         if len(env.wall_s) != res.replans:  # every replan is followed by the step that replays it
             raise RuntimeError(f"{res.replans} replans but {len(env.wall_s)} replays")
@@ -122,7 +129,6 @@ def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
         physics_total += float(np.sum(env.wall_s))
         inside_total += float(np.sum(env.inside_s))
         env.close()
-    span = args.seconds - args.start if args.seconds > args.start else args.seconds
     return {
         "env_id": env_id,
         "controller": planner_name,
@@ -130,13 +136,15 @@ def measure(env_id: str, planner_name: str, args: argparse.Namespace) -> dict:
         "physics_wall_s": float(np.mean(physics)),
         "plan_over_physics": plan_total / physics_total,
         "rollout_share": inside_total / plan_total,
-        "realtime_factor": float(np.mean(rtfs)),
+        # (from the mean wall time, as replan_wall_s is: not the mean of per-seed ratios)
+        "realtime_factor": every * res.dt / float(np.mean(walls)),
         "distance_per_s": float(np.mean(distances)) / span,
         "distance_bl": float(np.mean(distances) / lengths[0]),
         "distance_bl_std": float(np.std(distances) / lengths[0]),
         "seconds": args.seconds,
         "start": args.start if args.seconds > args.start else 0.0,
         "seeds": len(args.seeds),
+        "stops": ",".join(f"{k}:{v}" for k, v in sorted(stops.items())),
         "replan_every": every,
         "horizon": planner.settings.horizon,
         "threads": args.threads,
@@ -191,6 +199,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         for planner in args.planners:
             row = measure(env_id, planner, args)
             rows.append(row)
+            write_csv(rows, args.out / "bench_mpc.csv")  # (each row as it is measured)
             if args.json:
                 print(json.dumps(row), flush=True)
             else:
@@ -199,7 +208,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
                       f"{row['distance_per_s']:>8.4f} {row['distance_bl']:>7.3f} "
                       f"{row['distance_bl_std']:>7.3f}",
                       flush=True)  # fmt: skip
-    write_csv(rows, args.out / "bench_mpc.csv")
     return rows
 
 

@@ -18,7 +18,10 @@ start and to the tight answer, and a verdict on the start: a *solution* (the str
 reference stays within a tenth of the threshold), *stopped short* (it converges elsewhere:
 the solver stopped while its iterates crept, each stagger changing the contact velocities by
 less than the tolerance), or *left unsettled* (4,000 staggers at the strict tolerance do not
-converge). The last line counts the verdicts on the solvers' flagged answers.
+converge). Answers whose step did not report convergence, and tight steps that did not
+converge themselves, are marked. The last line counts the flagged steps (and those of them
+whose tight step did not converge), and the solvers' flagged answers by whether they
+reported converged and by verdict.
 (benchmarks/PROFILE.md, session 52.)
 
     python benchmarks/check_two_solutions.py [--robot tripod-walk] [--frame floating]
@@ -71,15 +74,30 @@ def main() -> None:
     print(f"{args.robot}, {args.frame} frame, {args.steps} steps of one gait (seed 1); "
           f"flagged: a solver's step > {args.threshold:g} m/s from the tight one")  # fmt: skip
     verdicts = {"solution": 0, "stopped short": 0, "left unsettled": 0}
+    # The flagged answers by whether their step reported converged (Newton and contact), and
+    # the flagged steps whose tight yardstick did not itself converge: both were counted alike
+    # (a review, session 54).
+    reported = {"reported converged": 0, "not converged": 0}
+    tight_unconverged = 0
     for n in range(args.steps):
-        best, _ = tight.step(state, u[n])
-        answers = {name: m.step(state, u[n])[0] for name, m in solvers.items()}
+        best, best_info = tight.step(state, u[n])
+        steps = {name: m.step(state, u[n]) for name, m in solvers.items()}
+        answers = {name: s for name, (s, _) in steps.items()}
+        converged = {name: bool(i["converged"] and i["contact_converged"])
+                     for name, (_, i) in steps.items()}  # fmt: skip
+        tight_ok = bool(best_info["converged"] and best_info["contact_converged"])
         gaps = {name: velocity_gap(ref, mass, s, best) for name, s in answers.items()}
         if max(gaps.values()) > args.threshold:
             flagged += 1
+            tight_unconverged += not tight_ok
+            for name in gaps:
+                if gaps[name] > args.threshold:
+                    reported["reported converged" if converged[name] else "not converged"] += 1
             print(f"step {n}: " + ", ".join(
-                f"{name} {gaps[name]:.2e} m/s ({loaded(answers[name])} loaded)" for name in gaps
-            ) + f"; tight {loaded(best)} loaded")  # fmt: skip
+                f"{name} {gaps[name]:.2e} m/s ({loaded(answers[name])} loaded"
+                + ("" if converged[name] else ", not converged") + ")" for name in gaps
+            ) + f"; tight {loaded(best)} loaded"
+              + ("" if tight_ok else ", not converged itself"))  # fmt: skip
             for name, answer in {**answers, "tight": best}.items():
                 warm = cpp_sim.ReducedState(state.q, state.qdot, answer.impulses)
                 end, info = strict.step(warm, u[n])
@@ -92,7 +110,9 @@ def main() -> None:
                       f"from it, {velocity_gap(ref, mass, end, best):.2e} from tight, "
                       f"converged {settled}: {verdict}")  # fmt: skip
         state = answers["reference"]
-    print(f"{flagged} of {args.steps} steps flagged; the answers beyond the threshold: "
+    print(f"{flagged} of {args.steps} steps flagged ({tight_unconverged} with the tight step "
+          "itself not converged); the answers beyond the threshold: "
+          + ", ".join(f"{v} {k}" for k, v in reported.items()) + "; "
           + ", ".join(f"{v} {k}" for k, v in verdicts.items()))  # fmt: skip
 
 
