@@ -43,14 +43,16 @@ def gn_cost_against_c(
     threads: int | None = 2,
     planner_changes: dict[str, Any] | None = None,
     on_row: Callable[[dict], None] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> list[dict]:
     """Wall time of one Gauss-Newton iteration from the reset state, per C.
 
     One iteration is the K C + 1 finite-difference rollouts plus the batched line search, so
     its rollouts grow linearly in C and the normal equations cubically. ``planner_changes``
     override the benchmark's default settings (e.g. a shorter horizon); the gait seed is off
-    so only the iteration is timed. Best of ``repeats``. Returns one dict per C (keys C, K,
-    H, rollouts, iteration_s, threads).
+    so only the iteration is timed. Best of ``repeats``. ``env_kwargs`` go to ``gym.make``
+    beside ``control_dim`` (e.g. ``sim_dim``). Returns one dict per C (keys C, K, H,
+    rollouts, iteration_s, threads).
     """
     import gymnasium as gym
 
@@ -63,7 +65,7 @@ def gn_cost_against_c(
                **(planner_changes or {})}  # fmt: skip
     rows = []
     for c in _check_cs(cs):
-        env = gym.make(env_id, control_dim=c)
+        env = gym.make(env_id, **{**(env_kwargs or {}), "control_dim": c})
         try:
             env.reset(seed=0)
             planner, _ = default_planner(env_id, "gn", **changes)
@@ -95,6 +97,7 @@ def reward_against_c(
     threads: int | None = 2,
     planner_changes: dict[str, Any] | None = None,
     on_row: Callable[[dict], None] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> list[dict]:
     """Task reward R of one closed-loop episode per (C, seed), identity bases.
 
@@ -102,7 +105,8 @@ def reward_against_c(
     first seconds earns nothing). The env's registered time limit is raised to ``seconds``
     where it is shorter, so every episode runs the time asked for. An episode that diverges
     before ``start`` gets R = 0 (its row's ``stop`` says "diverged", ``seconds`` when). The
-    ``threads`` argument is the planner's unless ``planner_changes`` sets its own. Returns
+    ``threads`` argument is the planner's unless ``planner_changes`` sets its own;
+    ``env_kwargs`` go to ``gym.make`` beside ``control_dim`` (e.g. ``sim_dim``). Returns
     one dict per episode (keys C, seed, R_m, R_bl, R_total_m, planner, seconds, start, stop,
     threads).
     """
@@ -125,8 +129,8 @@ def reward_against_c(
     for c in _check_cs(cs):
         # the registered time limit (env steps) must not cut the seconds asked for short: a
         # 10.5-s episode was truncated at 10 s, and a start past 10 s then failed after it ran
-        make_kwargs: dict[str, Any] = {"control_dim": c}
-        period = control_period(env_id, control_dim=c)
+        make_kwargs: dict[str, Any] = {**(env_kwargs or {}), "control_dim": c}
+        period = control_period(env_id, **make_kwargs)
         limit = gym.spec(env_id).max_episode_steps
         if period is not None and limit is not None:
             make_kwargs["max_episode_steps"] = max(limit, math.ceil(seconds / period - 1e-9))

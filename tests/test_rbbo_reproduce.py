@@ -5,6 +5,7 @@ resume without new work, and its usage errors."""
 import json
 import math
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -368,6 +369,13 @@ def test_other_settings_on_an_existing_directory_are_refused(reproduction, capsy
         (["--control-dim", "30"], "control_dim 30 exceeds sim_dim 20"),
         # C = M passed the plan, wrote reproduce.json, then RBBOConfig's traceback
         (["--control-dim", "20"], "control_dim 20 must be below sim_dim 20 for the RBBO runs"),
+        # (A,B kept A without a word)
+        (["--direction-env", "BeamWalk-v0,CrossWalk-v0"], "give one benchmark, got BeamWalk"),
+        # a per-dimension setting of another length than C: stored, then a traceback in a run
+        (["--mpc", "noise=0.3:0.1"], "noise has 2 standard deviations"),
+        # of the right length, but the reward-vs-C study runs C = 1 with it
+        (["--mpc", "noise=0.3:0.1:0.1"], "stage 'studies' runs the reward-vs-C study at C = 1"),
+        (["--stages", "studies", "--study-seconds", "1.5"], "study_seconds 1.5 must exceed"),
     ],
 )
 def test_bad_arguments_are_one_line_usage_errors(argv, needle, tmp_path, capsys):
@@ -459,6 +467,11 @@ def test_plan_validates_and_round_trips():
         ReproducePlan(rl_steps={"ppo": 500_000})
     with pytest.raises(ValueError, match="steps of sac must be a positive integer, got 0"):
         ReproducePlan(rl_steps={"ppo": 5, "sac": 0})
+    # a tuple setting (--mpc noise=0.3:0.1:0.1) is stored as a list: the same plan, not
+    # "other settings" (no later session of such a reproduction could run; a review)
+    tupled = ReproducePlan(planner_kwargs={"noise": (0.3, 0.1, 0.1)})
+    assert tupled.differences(ReproducePlan.from_dict(json.loads(json.dumps(
+        tupled.to_dict())))) == []  # fmt: skip
 
 
 @pytest.mark.parametrize(
@@ -482,6 +495,14 @@ def test_plan_validates_and_round_trips():
         ({"reward_cs": []}, r"reward_cs must be integers in 1..20, got \[\]"),
         ({"controller": "ilqr"}, "unknown planner 'ilqr'; registered: gn, mppi .*import path"),
         ({"executor": "dask"}, "unknown executor 'dask'"),
+        # (counted twice in the tables, or trained twice at once in one folder)
+        ({"benchmarks": ["CrossSwim-v0", "softrom_gym/CrossSwim-v0"]},
+         "benchmarks lists CrossSwim-v0 more than once"),
+        ({"perturbations_deg": [10.0, 10.0]}, "perturbations_deg lists 10.0 more than once"),
+        ({"rl_algos": ["ppo", "ppo"]}, "rl_algos lists ppo more than once"),
+        ({"cost_cs": [1, 1]}, "cost_cs lists 1 more than once"),
+        # (the reward-vs-C study failed hours in, and the fix was then "other settings")
+        ({"study_seconds": 1.5}, "study_seconds 1.5 must exceed settle_time 2.0"),
     ],
 )  # fmt: skip
 def test_a_plan_names_each_bad_setting(kwargs, match):
@@ -553,6 +574,89 @@ def test_rl_stage_without_stable_baselines3_is_a_usage_error(
     # a status runs nothing, so it needs nothing: it reads what the RL stage wrote
     assert main(["reproduce", "--out", str(reproduction), "--status"]) == 0
     assert any(x.startswith("rl ") for x in capsys.readouterr().out.splitlines())
+
+
+def test_a_measurement_with_a_failed_seed_is_not_recorded_as_done(
+    reproduction, tmp_path, monkeypatch, capsys
+):
+    """A timeout or a crashed worker's seed was written as nan and the row counted done: a
+    later session with a longer timeout skipped it, and the perturbation's mean was taken
+    over the seeds that survived (a review, session 54). Such rows are measured again."""
+    import shutil
+
+    import rbbo.reproduce.stages as stages
+    from rbbo.reproduce.csv_rows import _rewrite_csv
+    from rbbo.reproduce.tables import read_rows
+
+    out = tmp_path / "copy"
+    shutil.copytree(reproduction, out)
+    # a row as a version that recorded failed seeds wrote it
+    rows = read_rows(out / "perturbation.csv")
+    rows[1]["R_seeds"] = "nan " + rows[1]["R_seeds"].split(" ", 1)[1]
+    _rewrite_csv(out / "perturbation.csv", rows, list(rows[0]))
+    failing = {"on": True}
+    real = stages._evaluate_seeds
+
+    def one_seed_fails(plan, objective, basis, seeds, log=None):
+        values = real(plan, objective, basis, seeds, log)
+        return [math.nan, *values[1:]] if failing["on"] else values
+
+    monkeypatch.setattr(stages, "_evaluate_seeds", one_seed_fails)
+    assert main([*TINY, "--out", str(out), "--stages", "perturbation"]) == 0
+    assert len(read_rows(out / "perturbation-superseded.csv")) == 1
+    assert len(read_rows(out / "perturbation.csv")) == 2  # the failed offset not recorded
+    assert "seeds failed (their errors above); not recorded" in capsys.readouterr().err
+    failing["on"] = False
+    assert main([*TINY, "--out", str(out), "--stages", "perturbation"]) == 0
+    rows = read_rows(out / "perturbation.csv")
+    assert len(rows) == 3 and not any("nan" in r["R_seeds"] for r in rows)
+
+
+def test_the_studies_of_c_run_the_plans_m_and_time_one_curve_on_one_thread_count(
+    tmp_path, monkeypatch
+):
+    """The studies built their envs at M = 20 whatever --sim-dim said, and a session on other
+    workers appended cost rows timed on another thread count to the same curve (a review,
+    session 54)."""
+    import controllers.studies
+    from rbbo.reproduce.csv_rows import _append_row
+    from rbbo.reproduce.stages import studies
+    from rbbo.reproduce.tables import read_rows
+
+    calls = []
+
+    def cost(env_id, cs, **kwargs):
+        calls.append(("cost", list(cs), kwargs["env_kwargs"], kwargs["threads"]))
+
+    def reward(env_id, cs, seeds, **kwargs):
+        calls.append(("reward", list(cs), kwargs["env_kwargs"]))
+
+    monkeypatch.setattr(controllers.studies, "gn_cost_against_c", cost)
+    monkeypatch.setattr(controllers.studies, "reward_against_c", reward)
+    plan = ReproducePlan(sim_dim=10, cost_cs=[1, 2], reward_cs=[1], study_seeds=1, workers=1,
+                         stages=["studies"])  # fmt: skip
+    path = tmp_path / "studies" / "cost_vs_c.csv"
+    _append_row(path, {"C": 1, "iteration_s": 0.5, "threads": 2})  # another session's
+    _append_row(path, {"C": 2, "iteration_s": 0.5, "threads": 1})
+    log = []
+    studies(tmp_path, plan, log.append)
+    assert calls == [("cost", [1], {"sim_dim": 10}, 1), ("reward", [1], {"sim_dim": 10})]
+    assert [r["C"] for r in read_rows(tmp_path / "studies" / "cost_vs_c-superseded.csv")] == ["1"]
+    assert any("timed on another thread count" in line for line in log)
+
+
+def test_the_reports_budget_is_that_of_the_sessions_that_searched():
+    # a --stages studies --budget-per-benchmark 5m session made the report read "Budget per
+    # benchmark 45 / 5 min", though no run had 5 minutes (a review, session 54)
+    from rbbo.reproduce.document import _searching
+    from rbbo.reproduce.report_text import _session_values
+
+    sessions = [
+        {"stages": ["table", "bo"], "budget_s": 2700.0},
+        {"stages": ["studies"], "budget_s": 300.0},
+        {"budget_s": 1800.0},
+    ]  # (recorded before sessions named their stages)
+    assert _session_values(_searching(sessions), "budget_s", 2700.0) == "45 / 30"
 
 
 def test_a_replaced_best_basis_is_measured_again_its_old_rows_kept(reproduction, tmp_path):
@@ -1629,23 +1733,33 @@ def test_the_rl_stage_is_done_when_every_basis_it_trains_has_its_rows(tmp_path):
     from rbbo.reproduce.status import rl_bases, stage_progress
 
     plan = ReproducePlan(benchmarks=["CrossSwim-v0"], rl_benchmarks=["CrossSwim-v0"],
-                         stages=["rl"])  # fmt: skip
+                         stages=["rl"], rl_algos=["ppo"], rl_steps=64)  # fmt: skip
     run = tmp_path / "runs" / "CrossSwim-v0-boca"
     run.mkdir(parents=True)
     np.save(
         run / "best_basis.npy", np.linalg.qr(np.random.default_rng(2).standard_normal((20, 3)))[0]
     )
     table = tmp_path / "rl" / "CrossSwim-v0" / "baselines.csv"
-    _append_row(table, {"env": "CrossSwim-v0", "method": "ppo", "basis": "identity"})
+
+    def final(env, basis, steps=64, method="ppo"):
+        return {"env": env, "method": method, "basis": basis, "final": True, "env_steps": steps}
+
+    _append_row(table, final("CrossSwim-v0", "identity"))
     assert stage_progress(tmp_path, plan)["rl"] == (0, 1)
     (other,) = (name for name in rl_bases(tmp_path, plan, "CrossSwim-v0")[0] if name != "identity")
-    _append_row(table, {"env": "CrossSwim-v0", "method": "ppo", "basis": other})
+    _append_row(table, {**final("CrossSwim-v0", other, 32), "final": False})  # a checkpoint
+    assert stage_progress(tmp_path, plan)["rl"] == (0, 1)
+    _append_row(table, final("CrossSwim-v0", other))
     assert stage_progress(tmp_path, plan)["rl"] == (1, 1)
+    # a later session that trains longer, or another algorithm, is not done by these rows
+    # (its status and report called it done; a review, session 54)
+    for more in ({"rl_steps": 128}, {"rl_algos": ["ppo", "sac"]}):
+        assert stage_progress(tmp_path, replace(plan, **more))["rl"] == (0, 1), more
     (tmp_path / "rl" / "BeamWalk-v0").mkdir()  # an earlier session's, not finished
     assert stage_progress(tmp_path, plan)["rl"] == (1, 2)
     # finished: its Table I run has no B_c, so the identity's rows are all it trains
     _append_row(tmp_path / "rl" / "BeamWalk-v0" / "baselines.csv",
-                {"env": "BeamWalk-v0", "method": "ppo", "basis": "identity"})  # fmt: skip
+                final("BeamWalk-v0", "identity"))  # fmt: skip
     assert stage_progress(tmp_path, plan)["rl"] == (2, 2)
 
 

@@ -62,6 +62,19 @@ def _names(valid: tuple[str, ...]):
     return parse
 
 
+def _one_name(valid: tuple[str, ...]):
+    """One benchmark name (--direction-env A,B kept A without a word)."""
+    names = _names(valid)
+
+    def parse(text: str) -> str:
+        given = names(text)
+        if len(given) != 1:
+            raise argparse.ArgumentTypeError(f"give one benchmark, got {', '.join(given)}")
+        return given[0]
+
+    return parse
+
+
 def _mpc_changes(text: str) -> dict[str, Any]:
     from ..cli.arguments import mpc_changes_arg
 
@@ -152,7 +165,7 @@ def add_parser(sub, parse_duration, positive_int, positive_float) -> argparse.Ar
     p.add_argument("--transfer-sim-dim", type=positive_int, default=defaults.transfer_sim_dim,
                    help="M of the richer model the transfer stage measures Table I's bases in "
                    f"(default {defaults.transfer_sim_dim})")  # fmt: skip
-    p.add_argument("--direction-env", type=_names(BENCHMARKS), default=[defaults.direction_env],
+    p.add_argument("--direction-env", type=_one_name(BENCHMARKS), default=defaults.direction_env,
                    help=f"benchmark of the directions stage (default "
                    f"{defaults.direction_env})")  # fmt: skip
     p.add_argument("--directions", type=positive_int, default=defaults.directions,
@@ -211,7 +224,7 @@ def _plan(args) -> ReproducePlan:
         t_min=args.t_min, t_max=args.t_max, settle_time=args.settle_time, n_init=args.init,
         confirm_seeds=args.confirm_seeds, seed=args.seed, stages=args.stages,
         transfer_sim_dim=args.transfer_sim_dim,
-        direction_env=args.direction_env[0], directions=args.directions,
+        direction_env=args.direction_env, directions=args.directions,
         direction_budget_s=args.direction_budget, perturbations_deg=args.perturbations,
         cost_cs=args.cost_cs, reward_cs=args.reward_cs, study_seeds=args.study_seeds,
         study_seconds=args.study_seconds, rl_benchmarks=args.rl_benchmarks,
@@ -326,7 +339,21 @@ def command(args, usage_error: type[Exception]) -> int:
             from controllers import default_planner
 
             for bench in plan.benchmarks:
-                default_planner(plan.env_id(bench), plan.controller, **plan.planner_kwargs)
+                planner, _ = default_planner(plan.env_id(bench), plan.controller,
+                                             **plan.planner_kwargs)  # fmt: skip
+                # (a per-dimension setting of another length than C failed as a traceback
+                # once a run started, after reproduce.json had stored it)
+                planner.settings.check_control_dim(plan.control_dim)
+                if "studies" in plan.stages:  # the reward-vs-C study runs each C
+                    for c in plan.reward_cs:
+                        try:
+                            planner.settings.check_control_dim(c)
+                        except ValueError as exc:
+                            raise ValueError(
+                                f"{exc} (stage 'studies' runs the reward-vs-C "
+                                f"study at C = {c} with the same --mpc; give one "
+                                "number, or leave the stage out)"
+                            ) from None
     except (ValueError, TypeError) as exc:
         raise usage_error(str(exc)) from exc
     if args.status:

@@ -40,6 +40,13 @@ from .transfer import format_transfer_markdown, transfer_rows
 __all__ = ["write_report"]
 
 
+def _searching(sessions: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The sessions that ran Table I's or the BO comparison's searches, whose budget_s the
+    report gives (a session of other stages only listed its budget beside theirs, as if a run
+    had had it); a session recorded before its stages were is kept."""
+    return [s for s in sessions if not s.get("stages") or {"table", "bo"} & set(s["stages"])]
+
+
 def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
                  copy_to: Path | None = None) -> dict[str, Any]:  # fmt: skip
     """Write table1.{csv,md}, the figures and REPORT.md into ``out`` (and the same report,
@@ -83,8 +90,9 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
     beside = "; the BO run beside it had the same" if progress["bo"][0] or panels else ""
     each = f", each of its {plan.repeats} runs" if plan.repeats > 1 else ""
     workers = _session_values(sessions, "workers", plan.workers)
+    budget = _session_values(_searching(sessions), "budget_s", plan.budget_s)
     lines += [f"Total wall time {total / 60:.1f} min on {_machine(sessions)}. Budget per "
-              f"benchmark {_session_values(sessions, 'budget_s', plan.budget_s)} min{cap} "
+              f"benchmark {budget} min{cap} "
               f"(BOCA{each}{beside}), {workers} worker{'' if workers == '1' else 's'}"
               f"{_told_in_order(sessions, plan.deterministic)}, "
               f"controller {plan.controller}, M = {plan.sim_dim}, "
@@ -240,7 +248,8 @@ def write_report(out: Path, plan: ReproducePlan, document: dict[str, Any],
               "projection in reduced coordinates; the paper's absolute R are in its own units.",
               "- Our R_init is the identity basis under our MPC (gait-seeded periodic MPPI or "
               "Gauss-Newton), which already walks; a stronger baseline leaves less to gain.",
-              f"- Our budget is {_session_values(sessions, 'budget_s', plan.budget_s)} min{cap} "
+              f"- Our budget is "
+              f"{_session_values(_searching(sessions), 'budget_s', plan.budget_s)} min{cap} "
               f"per benchmark on {_machine(sessions)} "
               "against the paper's 10 hours on 48 cores"
               + (f", so RBBO saw {min(counts)}"

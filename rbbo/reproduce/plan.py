@@ -3,6 +3,7 @@ and the paper's numbers it is compared with (:data:`PAPER_TABLE1`)."""
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
@@ -243,6 +244,20 @@ class ReproducePlan:
             cs = getattr(self, name)
             if not cs or any(not isinstance(c, int) or not 1 <= c <= self.sim_dim for c in cs):
                 raise ValueError(f"{name} must be integers in 1..{self.sim_dim}, got {cs!r}")
+        # A name or number given twice was measured (or trained, concurrently in one folder)
+        # twice, and counted twice in the tables' averages.
+        for name in ("benchmarks", "rl_benchmarks", "rl_algos", "perturbations_deg", "cost_cs",
+                     "reward_cs"):  # fmt: skip
+            values = getattr(self, name)
+            repeated = sorted({v for v in values if values.count(v) > 1}, key=str)
+            if repeated:
+                raise ValueError(f"{name} lists {', '.join(map(str, repeated))} more than once")
+        if "studies" in self.stages and not self.settle_time < self.study_seconds:
+            # (the reward-vs-C study measures R from the settle time: it failed after the
+            # stages before it, hours in, and the corrected value was then "other settings")
+            raise ValueError(f"study_seconds {self.study_seconds} must exceed settle_time "
+                             f"{self.settle_time}, from which the reward-vs-C study measures "
+                             "R (or leave out stage 'studies')")  # fmt: skip
         if not isinstance(self.controller, str):
             raise TypeError(f"controller must be a planner name (str), got {self.controller!r}")
         if self.controller not in ("mppi", "gn"):
@@ -276,7 +291,10 @@ class ReproducePlan:
 
     def differences(self, other: ReproducePlan) -> list[str]:
         """Names of the experiment-defining settings in which ``other`` differs."""
-        mine, theirs = self.to_dict(), other.to_dict()
+        # (as stored: reproduce.json holds a tuple setting, --mpc noise=0.3:0.1:0.1, as a
+        # list, and the same command compared unequal to its own stored plan)
+        mine = json.loads(json.dumps(self.to_dict()))
+        theirs = json.loads(json.dumps(other.to_dict()))
         return [k for k in mine if k not in self.RESUMABLE and mine[k] != theirs[k]]
 
     def ordered_stages(self) -> list[str]:

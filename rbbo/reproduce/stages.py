@@ -29,13 +29,22 @@ from .tables import basis_digest, read_rows
 
 
 def _evaluate_seeds(plan: ReproducePlan, objective: EnvObjective, basis: np.ndarray,
-                    seeds: tuple[int, ...]) -> list[float]:  # fmt: skip
-    """R of ``basis`` at T_max on each seed, the seeds spread over the workers."""
+                    seeds: tuple[int, ...], log: Log | None = None) -> list[float]:  # fmt: skip
+    """R of ``basis`` at T_max on each seed, the seeds spread over the workers (nan for a
+    seed whose evaluation failed, its error logged)."""
     with make_executor(plan.executor, objective, plan.workers, plan.timeout_s) as executor:
         futures = [executor.submit(EvaluationTask(i, basis, plan.t_max, (s,)))
                    for i, s in enumerate(seeds)]  # fmt: skip
         outcomes = [f.result() for f in futures]
-    return [o.R if o.status == "ok" else math.nan for o in outcomes]
+    for seed, o in zip(seeds, outcomes, strict=True):
+        if o.status != "ok" and log is not None:
+            log(f"  seed {seed} failed: {o.error}")
+    return [o.R if o.status == "ok" and o.R is not None else math.nan for o in outcomes]
+
+
+def _has_failed_seed(row: dict[str, str]) -> bool:
+    """A row one of whose seeds failed (written as nan by a version that recorded them)."""
+    return any(math.isnan(float(v)) for v in row.get("R_seeds", "").split())
 
 
 def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Path:
@@ -54,6 +63,12 @@ def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Pa
     if moved:
         log(f"[perturbation] {moved} offsets of another B_c moved to "
             "perturbation-superseded.csv; measuring them again")  # fmt: skip
+    # A row with a failed seed (a timeout, a crashed worker) was recorded as done, and its
+    # mean taken over the seeds that survived: measured again instead.
+    failed = _supersede(path, _has_failed_seed)
+    if failed:
+        log(f"[perturbation] {failed} offsets with a failed seed moved to "
+            "perturbation-superseded.csv; measuring them again")  # fmt: skip
     base_deg = math.degrees(float((_run_spec(opt).get("env_kwargs") or {})
                                   .get("direction", 0.0)))  # fmt: skip
     seeds = opt.config.fresh_seeds
@@ -68,13 +83,18 @@ def perturbation(out: Path, plan: ReproducePlan, base_run: Path, log: Log) -> Pa
             continue
         objective = _objective(plan, plan.direction_env, base_deg + offset)
         start = time.perf_counter()
-        values = _evaluate_seeds(plan, objective, basis, seeds)
+        values = _evaluate_seeds(plan, objective, basis, seeds, log)
+        if any(math.isnan(v) for v in values):
+            log(f"[perturbation] {offset:+g} deg: {sum(map(math.isnan, values))} of "
+                f"{len(values)} seeds failed (their errors above); not recorded, "
+                "measured again by the next session")  # fmt: skip
+            continue
         _append_row(path, {"offset_deg": offset, "direction_deg": base_deg + offset,
-                           "R_mean": float(np.nanmean(values)),
+                           "R_mean": float(np.mean(values)),
                            "R_seeds": " ".join(f"{v:.6g}" for v in values),
                            "wall_s": time.perf_counter() - start,
                            "run": str(base_run), "basis_digest": digest})  # fmt: skip
-        log(f"[perturbation] {offset:+g} deg: R = {np.nanmean(values):.4g}")
+        log(f"[perturbation] {offset:+g} deg: R = {np.mean(values):.4g}")
     return path
 
 
@@ -86,20 +106,28 @@ def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
     folder = out / "studies"
     env_id = plan.env_id(plan.direction_env)
     cost_path = folder / "cost_vs_c.csv"
+    # The cost study times Gauss-Newton whatever the plan's controller: pass on only the
+    # overrides that are Gauss-Newton settings (horizon, knots, ...; not MPPI's samples).
+    gn_fields = {f.name for f in fields(GaussNewtonSettings)}
+    gn_changes = {k: v for k, v in plan.planner_kwargs.items() if k in gn_fields}
+    # One curve is timed on one thread count: a session on other workers (a setting that may
+    # change between sessions) moves the rows timed on another count aside, and times them
+    # again, where they were mixed into one curve.
+    threads = gn_changes.get("threads", plan.workers)
+    moved = _supersede(cost_path, lambda r: str(r.get("threads", "")) not in ("", str(threads)))
+    if moved:
+        log(f"[cost vs C] {moved} rows timed on another thread count moved to "
+            f"cost_vs_c-superseded.csv; timing them again on {threads}")  # fmt: skip
     done = {int(r["C"]) for r in read_rows(cost_path)}
     todo = [c for c in plan.cost_cs if c not in done]
     if todo:
-        # The cost study times Gauss-Newton whatever the plan's controller: pass on only the
-        # overrides that are Gauss-Newton settings (horizon, knots, ...; not MPPI's samples).
-        gn_fields = {f.name for f in fields(GaussNewtonSettings)}
-        gn_changes = {k: v for k, v in plan.planner_kwargs.items() if k in gn_fields}
 
         def cost_row(r: dict) -> None:
             _append_row(cost_path, r)
             log(f"[cost vs C] C = {r['C']}: {r['iteration_s']:.3f} s")
 
         gn_cost_against_c(env_id, todo, threads=plan.workers, planner_changes=gn_changes,
-                          on_row=cost_row)  # fmt: skip
+                          on_row=cost_row, env_kwargs={"sim_dim": plan.sim_dim})  # fmt: skip
     reward_path = folder / "reward_vs_c.csv"
 
     def reward_row(r: dict) -> None:
@@ -113,7 +141,8 @@ def studies(out: Path, plan: ReproducePlan, log: Log) -> Path:
             reward_against_c(env_id, [c], seeds, planner=plan.controller,
                              seconds=plan.study_seconds, start=plan.settle_time,
                              threads=plan.workers, planner_changes=dict(plan.planner_kwargs),
-                             on_row=reward_row)  # fmt: skip
+                             on_row=reward_row,
+                             env_kwargs={"sim_dim": plan.sim_dim})  # fmt: skip
     return folder
 
 

@@ -121,9 +121,22 @@ def rl_bases(out: Path, plan: ReproducePlan, bench: str) -> tuple[dict[str, np.n
 def _rl_jobs_done(out: Path, plan: ReproducePlan, bench: str) -> bool:
     """Whether one benchmark's RL stage has finished for the bases it must cover
     (:func:`rl_bases`): its table (baselines.csv, written when every job of a call has
-    finished) has rows for each of them."""
+    finished) has each planned algorithm's final row on each of them, trained for the steps
+    planned now (a later session may ask for more steps or another algorithm, which a
+    check of the bases alone called done); for a plan without stage rl, rows of each."""
+    from ..rl import steps_per_algo
+
     rows = read_rows(out / "rl" / bench / "baselines.csv")
-    return bool(rows) and set(rl_bases(out, plan, bench)[0]) <= {r["basis"] for r in rows}
+    bases = rl_bases(out, plan, bench)[0]
+    if "rl" not in plan.stages:
+        # A session of other stages carries the RL defaults, not what was trained: the
+        # stage is done when its table has rows for each basis.
+        return bool(rows) and set(bases) <= {r["basis"] for r in rows}
+    planned = steps_per_algo(plan.rl_steps, tuple(plan.rl_algos))
+    trained = {(r["method"], r["basis"]): int(float(r["env_steps"] or 0)) for r in rows
+               if str(r.get("final", "")).lower() == "true"}  # fmt: skip
+    return all(trained.get((algo, basis), -1) >= steps
+               for basis in bases for algo, steps in planned.items())  # fmt: skip
 
 
 def _current_offsets(out: Path, plan: ReproducePlan) -> list[dict[str, str]]:

@@ -43,6 +43,7 @@ def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Pa
     from ..optimizer import RBBO
     from ..store import RunDirectoryError
     from .runner import _append_row, _evaluate_seeds, _objective, _run_spec, _supersede
+    from .stages import _has_failed_seed
 
     path = out / "transfer.csv"
     m_to = plan.transfer_sim_dim
@@ -55,6 +56,12 @@ def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Pa
     if moved:
         log(f"[transfer] {benchmark}: the best B_c changed since it was measured; the old "
             "row is in transfer-superseded.csv")  # fmt: skip
+    # A row with a failed seed (a timeout, a crashed worker) was recorded as done: measured
+    # again instead.
+    failed = _supersede(path, lambda r: r["benchmark"] == benchmark and _has_failed_seed(r))
+    if failed:
+        log(f"[transfer] {benchmark}: {failed} rows with a failed seed moved to "
+            "transfer-superseded.csv; measuring them again")  # fmt: skip
     done = {(r["benchmark"], r["basis"]) for r in read_rows(path) if int(r["M"]) == m_to}
     todo = [b for b in BASES if (benchmark, b) not in done]
     if not todo:
@@ -80,15 +87,21 @@ def measure_transfer(out: Path, plan: ReproducePlan, benchmark: str, run_dir: Pa
     for name in todo:
         mapped = map_control_basis(bases[name], robot, m_from, m_to)
         start = time.perf_counter()
-        values = _evaluate_seeds(plan, objective, mapped, seeds)
+        values = _evaluate_seeds(plan, objective, mapped, seeds, log)
+        if any(np.isnan(values)):
+            log(f"[transfer] {benchmark} {name} B_c at M = {m_to}: "
+                f"{int(np.isnan(values).sum())} of {len(values)} seeds failed (their errors "
+                "above); not recorded, measured again by the next "
+                "session")  # fmt: skip
+            continue
         _append_row(path, {"benchmark": benchmark, "basis": name, "M": m_to,
-                           "R_mean": float(np.nanmean(values)),
+                           "R_mean": float(np.mean(values)),
                            "R_seeds": " ".join(f"{v:.6g}" for v in values),
                            "seeds": " ".join(str(s) for s in seeds),
                            "wall_s": time.perf_counter() - start,
                            "run": str(run_dir),
                            "basis_digest": basis_digest(bases[name])})  # fmt: skip
-        log(f"[transfer] {benchmark} {name} B_c at M = {m_to}: R = {np.nanmean(values):.4g}")
+        log(f"[transfer] {benchmark} {name} B_c at M = {m_to}: R = {np.mean(values):.4g}")
     return path
 
 
