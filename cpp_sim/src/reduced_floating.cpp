@@ -308,7 +308,9 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
   } else {
     elastic_reference(ws.fl_qe, false, nullptr, &ws.fl_fe, evaluate_k ? &ws.fl_k : nullptr);
   }
-  const MatX& k_el = evaluate_k ? ws.fl_k : *stiffness;
+  // (A pointer: without the Jacobian `stiffness` may be null, and binding *stiffness to a
+  // reference was undefined behaviour even though k_el is then never read; UBSan, session 54.)
+  const MatX* k_el = evaluate_k ? &ws.fl_k : stiffness;
 
   for (int a = 0; a < 3; ++a) ws.fl_yw[a].noalias() = co.y[a] * w;  // (dS/dz_k w)_a
   const Vec3 pi = body.inertia * om + body.s * w;
@@ -379,7 +381,7 @@ void ReducedModel::floating_residual(const StepInputs& in, const ReducedState& s
     const int b = (a + 1) % 3, lo = std::min(a, b), hi = std::max(a, b);
     jww.noalias() += (h * h * om[lo] * om[hi]) * co.c_pair[lo + hi - 1];
   }
-  jww.noalias() += (h * h) * k_el.bottomRightCorner(nd, nd);
+  jww.noalias() += (h * h) * k_el->bottomRightCorner(nd, nd);
   if (cfg.damping_beta > 0.0) jww += (h * cfg.damping_beta) * k_rest_.bottomRightCorner(nd, nd);
   if (actuated) {
     // d Q_a / dz_k = -[dS_k^T a + S^T I^-1 (dS_k f - dI_k a)], (dS_k f)_a = (Y_a f)_k,
