@@ -66,7 +66,7 @@ def full_space_distances(env_id: str, m: int, gaits: list, seconds: float, start
     env.reset(seed=seed)
     basis = np.asarray(u.subspace.basis)
     model = FullSpaceModel.matching(u.model, u.robot, basis, actuation_frame=actuation_frame)
-    start_state = model.state_from_reduced(basis, u.get_state())
+    start_state = model.state_from_reduced(basis, u.get_state(), model=u.model)
     steps, first = round(seconds / u.dt), round(start / u.dt)
     k = u.frame_skip
     moved = []

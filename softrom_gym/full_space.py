@@ -37,7 +37,7 @@ costs tens of milliseconds per step on the benchmark robots.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TypedDict
 
 import numpy as np
@@ -103,7 +103,10 @@ class FullSpaceModel:
     dt, gravity, friction, ground_height, contact_margin, contact_tolerance,
     friction_smoothing, stabilization, damping_alpha, damping_beta, newton_tolerance,
     max_newton_iterations, max_stagger_iterations, fluid_density, drag_coefficient
-        As the :class:`cpp_sim.ReducedModel` settings of the same names; ``newton_tolerance``
+        As the :class:`cpp_sim.ReducedModel` settings of the same names (``damping_beta``
+        times the rest stiffness K_0 on world velocities, the linear model's damping: once
+        the body has turned it brakes rigid spin too, which ``FEMModel.step``'s K(x_n) and
+        the floating frame's do not; README, the M limits); ``newton_tolerance``
         bounds the mass-weighted RMS of a Newton update, |dv|_M / sqrt(m) (m/s), and
         ``fluid_density`` > 0 switches the quadratic drag on (the swimmers'; kg/m^3).
     contact : {"staggered", "none"}
@@ -134,6 +137,8 @@ class FullSpaceModel:
     fluid_density: float = 0.0
     drag_coefficient: float = 1.0
     actuation_frame: str = "world"
+    # The frame of the reduced model ``matching`` made this one from ("linear" otherwise).
+    _reduced_frame: str = field(default="linear", init=False, repr=False)
 
     def __post_init__(self) -> None:
         n = self.robot.num_nodes
@@ -224,8 +229,10 @@ class FullSpaceModel:
                  "newton_tolerance", "max_newton_iterations", "max_stagger_iterations",
                  "fluid_density", "drag_coefficient")  # fmt: skip
         settings = {name: getattr(model, name) for name in names}
-        return cls(robot, basis[:, 6:] @ bc, gravity=tuple(model.gravity), contact=contact,
+        full = cls(robot, basis[:, 6:] @ bc, gravity=tuple(model.gravity), contact=contact,
                    actuation_frame=actuation_frame, **settings)  # fmt: skip
+        full._reduced_frame = str(model.frame)  # (state_from_reduced needs the model then)
+        return full
 
     # -- states ----------------------------------------------------------------------------
     def rest_state(self) -> FullSpaceState:
@@ -233,14 +240,34 @@ class FullSpaceModel:
         n, ns = self.robot.num_nodes, len(self._surface)
         return FullSpaceState(self.robot.nodes.copy(), np.zeros((n, 3)), np.zeros((ns, 3)))
 
-    def state_from_reduced(self, basis: np.ndarray, state: cpp_sim.ReducedState
-                           ) -> FullSpaceState:  # fmt: skip
+    def state_from_reduced(
+        self,
+        basis: np.ndarray,
+        state: cpp_sim.ReducedState,
+        model: cpp_sim.ReducedModel | None = None,
+    ) -> FullSpaceState:
         """x = X + B_r q, v = B_r q_dot; the contact impulses carry over per surface node.
 
         ``basis`` is B_r (3N, M + 6), the reduced model's; a wrong shape, a complex or a
-        non-finite entry raises ValueError (they were a matmul error or a state of NaNs)."""
+        non-finite entry raises ValueError (they were a matmul error or a state of NaNs).
+        Given the reduced ``model``, the nodes are its ``positions(q)`` and
+        ``velocities(q, q_dot)`` instead, which a floating-frame model needs: its q is the
+        centre of mass, the rotation and the deformation, not coordinates in B_r (read as
+        those, a beam 60 steps into a stroke was placed 0.16 m off). A model ``matching`` made
+        from a floating-frame one refuses to go without it."""
         n = self.robot.num_nodes
         q = np.asarray(state.q)
+        if model is not None:
+            if model.num_nodes != n or model.dim != q.size:
+                raise ValueError(f"model has {model.num_nodes} nodes and dimension {model.dim}, "
+                                 f"expected {n} and the state's {q.size}")  # fmt: skip
+            x = np.asarray(model.positions(q), dtype=np.float64)
+            v = np.asarray(model.velocities(q, np.asarray(state.qdot)), dtype=np.float64)
+            impulses = np.asarray(state.impulses, dtype=np.float64).reshape(-1, 3).copy()
+            return FullSpaceState(x, v, impulses)
+        if self._reduced_frame != "linear":
+            raise ValueError("this model matches a floating-frame reduced model, whose q is not "
+                             "coordinates in B_r: pass model= (the reduced model)")  # fmt: skip
         basis = real_array("basis", basis)
         if basis.shape != (3 * n, q.size):
             raise ValueError(f"basis has shape {basis.shape}, expected (3N, M + 6) = "

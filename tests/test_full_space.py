@@ -327,6 +327,27 @@ def test_state_from_reduced_names_a_bad_basis(bar):
     assert full.impulses.shape == (len(bar.surface_nodes), 3)
 
 
+def test_a_floating_frame_state_maps_through_its_model(bar):
+    """A floating frame's q is (centre of mass, rotation, deformation), not coordinates in
+    B_r: read as those, a beam 60 steps into a stroke was placed 0.16 m off (a review,
+    session 54). Given the model, the state is its positions and velocities; without it, a
+    matching model of a floating-frame one refuses."""
+    sub = full_basis(bar)
+    floating = build_reduced_model(bar, forces="exact", subspace=sub, frame="floating",
+                                   control_basis=np.eye(sub.M)[:, :3])  # fmt: skip
+    model = FullSpaceModel.matching(floating, bar, sub.basis)
+    state = floating.rest_state()
+    for _ in range(20):  # turning and moving: q is no longer B_r coordinates
+        state, _ = floating.step(state, np.array([0.0, 3.0, -2.0]) * np.sqrt(floating.total_mass))
+    with pytest.raises(ValueError, match="pass model="):
+        model.state_from_reduced(sub.basis, state)
+    full = model.state_from_reduced(sub.basis, state, model=floating)
+    np.testing.assert_array_equal(full.x, floating.positions(state.q))
+    np.testing.assert_array_equal(full.v, floating.velocities(state.q, state.qdot))
+    wrong = sub.basis @ state.q  # (the linear frame's reading)
+    assert np.abs(full.x.ravel() - (bar.nodes.ravel() + wrong)).max() > 1e-6
+
+
 def test_a_resting_body_warm_started_settles_in_one_stagger_as_the_reduced_step(bar):
     # The first stagger is judged against the warm start's velocity (the reduced core since
     # session 51, the full space since 52): a body at rest on the ground, warm-started with

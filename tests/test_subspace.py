@@ -487,3 +487,30 @@ def test_model_and_cubature_arguments_are_named(robot, subspace):
     ):
         with pytest.raises(error, match=match):
             train_cubature(robot, subspace, cache=False, **kwargs)
+
+
+def test_cubature_training_ends_when_no_candidate_improves_the_fit(monkeypatch):
+    """A round whose picks NNLS all pruned left the selection as it was, and the next round
+    picked them again, forever: near-duplicate elements (mirror images) and an error the
+    rule cannot reach stalled 131 of 200 such problems (a review, session 54)."""
+    import softrom_gym.rom.cubature as cubature
+
+    real, calls = cubature.nnls, [0]
+
+    def counted(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] > 1000:
+            raise RuntimeError("the training stalled: over 1,000 NNLS rounds")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cubature, "nnls", counted)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        calls[0] = 0
+        a = rng.random((30, 12))
+        a[:, 6:] = a[:, :6] * (1 + 1e-15 * rng.standard_normal((1, 6)))
+        b = a[:, :6] @ rng.random(6) + 0.3 * rng.standard_normal(30)  # not reachable exactly
+        selected, weights, err = cubature._greedy_nnls(a, b, 1e-6, 12, False)
+        assert err > 1e-6 and np.all(weights > 0) and len(set(selected)) == len(selected)
+        residual = np.linalg.norm(b - a[:, selected] @ weights) / np.linalg.norm(b)
+        assert residual == pytest.approx(err)

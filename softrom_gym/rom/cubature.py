@@ -45,8 +45,9 @@ def sample_poses(
 
     Deformation column j gets a Gaussian coefficient scaled by 1 / omega_j (stiffer columns
     move less, as they do in motion), scaled so the pose's largest node displacement is
-    between 2% and 30% of the robot's size. The linearised rotation gets a random axis and an
-    angle whose largest node displacement is up to 5% of the size (about 0.1 rad, the turns
+    between 2% and 30% of the robot's size in its largest coordinate (up to ~43 % as a node's
+    whole displacement). The linearised rotation gets a random axis and an angle whose
+    largest coordinate displacement is up to 5% of the size (about 0.1 rad, the turns
     the benchmark robots make): larger training turns spend the rule's accuracy on the
     stretch a linearised turn carries, at the expense of deformation.
     """
@@ -92,7 +93,13 @@ def _greedy_nnls(
     residual = b.copy()
     err = 1.0
     batch = 4  # candidates added per round; NNLS then prunes the useless ones
-    while err > tolerance and len(selected) < max_elements:
+    # A round whose picks NNLS all prunes leaves the set as it was, and the next round picks
+    # them again: at a tolerance near round-off (1e-16), with duplicated elements, training
+    # never ended (a review, session 54). Such a round stops it, and so does a round cap.
+    for _ in range(20 * max_elements):
+        if not (err > tolerance and len(selected) < max_elements):
+            break
+        before = list(selected)  # (selected grows in place below)
         score = (a.T @ residual) / norms
         score[selected] = -np.inf
         room = max_elements - len(selected)  # NNLS only prunes: never pick past the cap
@@ -106,6 +113,8 @@ def _greedy_nnls(
         weights = weights[keep]
         residual = b - a[:, selected] @ weights
         err = float(np.linalg.norm(residual) / bnorm)
+        if selected == before:
+            break  # (no candidate can improve the fit: the training error is final)
         if verbose and len(selected) % 20 < batch:
             print(f"softrom_gym:   {len(selected)} elements, training error {err:.4f} "
                   f"(target {tolerance:g})", file=sys.stderr, flush=True)  # fmt: skip
