@@ -397,6 +397,12 @@ def test_robot_and_from_mesh_name_bad_shapes_resolutions_and_scales(tmp_path):
     with pytest.raises(ValueError, match=r"tets has shape \(1, 3\), expected \(T, 4\)"):
         Robot("x", nodes, tets[:, :3])
     robot = ROBOTS["beam"](resolution=6)
+    # a tetrahedron listed twice, in any vertex order: its mass counted twice and its faces
+    # taken for inner ones (a review, session 54)
+    twice = np.vstack([robot.tets, robot.tets[3][[1, 0, 3, 2]]])
+    with pytest.raises(ValueError, match=rf"tets\[3\] and tets\[{robot.num_tets}\] are the "
+                       "same tetrahedron"):  # fmt: skip
+        Robot("x", robot.nodes, twice)
     with pytest.raises(ValueError, match=rf"positions has shape \(3, 3\), expected "
                        rf"\({robot.num_nodes}, 3\)"):  # fmt: skip
         robot.surface(np.zeros((3, 3)))
