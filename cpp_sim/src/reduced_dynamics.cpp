@@ -244,11 +244,9 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
     // Newton drifted to velocities of tens of m/s. So the refined step's own residual,
     // (S - h C) d1 - r = h C (d0 - d1), is checked (one more product with C's rows), and where
     // it is not small against r the step is solved exactly, by LU as the reference solver does.
-    if (penalty && !fast_kernels) {
-      a -= h * ws.j_pen_coupling;
-      ws.ref_lu.compute(a);
-      dv.noalias() = ws.ref_lu.solve(r);
-    } else {
+    // One exact path: the reference solver's, and the fast one's where its refinement fails.
+    bool exact_coupling = penalty && !fast_kernels;
+    if (!exact_coupling) {
       dv = r;
       ldlt.solveInPlace(dv);
       // (Not on the iteration that certifies the step: the certificate stays what it was
@@ -262,15 +260,18 @@ StepInfo ReducedModel::step_reference(const StepInputs& in, ReducedState& s, con
         ldlt.solveInPlace(ws.pen_rhs);
         dv -= ws.pen_rhs;  // d0 - d1
         penalty_coupling_times(dv, ws.pen_cx, ws);
-        if (h * ws.pen_cx.norm() > kRefinementResidual * r.norm()) {
+        exact_coupling = h * ws.pen_cx.norm() > kRefinementResidual * r.norm();
+        if (exact_coupling) {
           penalty_coupling_matrix(ws, ws.j_pen_coupling);
-          a -= h * ws.j_pen_coupling;
-          ws.ref_lu.compute(a);
-          dv.noalias() = ws.ref_lu.solve(r);
         } else {
           dv.swap(ws.pen_rhs);
         }
       }
+    }
+    if (exact_coupling) {
+      a -= h * ws.j_pen_coupling;
+      ws.ref_lu.compute(a);
+      dv.noalias() = ws.ref_lu.solve(r);
     }
     dv = -dv;
     info.newton_iterations = it + 1;

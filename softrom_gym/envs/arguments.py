@@ -49,13 +49,9 @@ def is_trimesh(value: object) -> bool:
 def task_direction(direction: float | np.ndarray) -> np.ndarray:
     """The task direction d as a unit 3-vector in the ground plane, from an angle in radians
     (about z, from +x) or a non-zero 2-vector."""
-    raw = np.asarray(direction, dtype=object) if not isinstance(direction, np.ndarray) else None
-    if (
-        isinstance(direction, (bool, np.bool_))
-        or (isinstance(direction, np.ndarray) and direction.dtype == np.bool_)
-        or (raw is not None and any(isinstance(x, (bool, np.bool_)) for x in raw.ravel()))
-    ):
-        # (True was read as 1 rad, as every other numeric argument refuses a bool)
+    # (True was read as 1 rad, as every other numeric argument refuses a bool; as objects,
+    # a bool array's entries are numpy bools)
+    if any(isinstance(x, (bool, np.bool_)) for x in np.asarray(direction, dtype=object).ravel()):
         raise ValueError(
             f"direction must be an angle in radians or a non-zero 2-vector, got {direction!r}"
         )
