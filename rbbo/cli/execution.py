@@ -59,6 +59,7 @@ def _execute(opt, executor, max_evaluations, budget_s, progress: bool,
              deterministic: bool = False) -> int:  # fmt: skip
     from ..optimizer import EvaluationsFailing
     from ..report import format_table, plot_convergence, report_row
+    from ..store import BEST
 
     callback, close = _progress(opt, max_evaluations, budget_s, progress)
     # None is "no limit" here; to run() it would mean "the limit stored in the config"
@@ -100,6 +101,6 @@ def _execute(opt, executor, max_evaluations, budget_s, progress: bool,
     else:
         plot = png.name
     # (no best_basis.npy is written when no evaluation succeeded)
-    best = "best_basis.npy" if (opt.store.path / "best_basis.npy").is_file() else "none yet"
+    best = BEST if (opt.store.path / BEST).is_file() else "none yet"
     print(f"run directory: {opt.store.path}  (best basis: {best}, plot: {plot})")
     return 0

@@ -296,11 +296,10 @@ class RunStore:
             basis = np.load(path, allow_pickle=False)
         except (ValueError, OSError, EOFError) as exc:  # (EOFError: an empty file)
             raise RunDirectoryError(f"{path} is corrupted: {exc}") from exc
-        settings = self.config.get("rbbo") if isinstance(self.config, dict) else None
-        dims = None
-        if isinstance(settings, dict):
-            dims = (settings.get("sim_dim"), settings.get("control_dim"))
-        expected = dims if dims and all(isinstance(d, int) for d in dims) else None
+        settings = self.config.get("rbbo")  # (an RBBO run's (M, C); a bare store has none)
+        dims = (settings.get("sim_dim"), settings.get("control_dim")) if isinstance(
+            settings, dict) else (None, None)  # fmt: skip
+        expected = dims if all(isinstance(d, int) for d in dims) else None
         if (
             basis.ndim != 2
             or basis.dtype.kind != "f"
