@@ -2,7 +2,9 @@
 
 Each (algorithm, basis) trains in ``OUT/<algo>-<basis>/``: ``checkpoints/step_<n>.zip`` every
 ``checkpoint_every`` env steps and at the end, with ``step_<n>.json`` (its training wall time)
-beside it (SAC also keeps the latest replay buffer, so a resume continues the same run),
+beside it (the latest also keeps ``step_<n>_state.pkl``: the generators and the training env
+part-way through its episode; SAC also keeps the latest replay buffer; so a resume goes on
+bitwise as the job trained straight through),
 ``final.zip``, ``run.json`` (what was trained: a re-run with
 the same OUT continues from the latest checkpoint and refuses another env, basis or seed; a
 larger ``steps`` trains the same run further, SAC keeping the replay-buffer size it was

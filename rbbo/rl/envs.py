@@ -32,4 +32,22 @@ def _make_env(env_id: str, basis: np.ndarray, env_kwargs: dict, rescale: bool, *
     box = env.action_space
     assert isinstance(box, gym.spaces.Box)  # (softrom's envs act in a Box, as RescaleAction needs)
     one = np.ones(box.shape, dtype=box.dtype)  # float: a cast warning
-    return gym.wrappers.RescaleAction(env, -one, one)
+    return _unit_box(env, -one, one)
+
+
+def _unit_box(env, low: np.ndarray, high: np.ndarray):
+    """``gymnasium.wrappers.RescaleAction(env, low, high)``, picklable.
+
+    A checkpoint pickles the training env (its episode part-way, its generator) so that a
+    resumed job goes on as the job run straight through; gymnasium's wrapper holds its
+    rescaling in closures, which pickle cannot store, so this one is rebuilt from its
+    arguments (the same class's arithmetic, so the actions are bitwise those of the original).
+    """
+    import gymnasium as gym
+
+    class PicklableRescaleAction(gym.wrappers.RescaleAction):
+        def __reduce__(self):
+            k = self._saved_kwargs
+            return (_unit_box, (self.env, k["min_action"], k["max_action"]))
+
+    return PicklableRescaleAction(env, low, high)

@@ -7,13 +7,19 @@ from the latest checkpoint (see the package's docstring for the folder's layout)
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import pickle
+import random
 import sys
 import time
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
+
+import numpy as np
 
 from ..store import _append_line, _atomic_write, _fsync_dir, _make_dirs
 from .algorithms import require_sb3
@@ -42,6 +48,73 @@ def _save_durably(save: Callable[[Path], object], tmp: Path, path: Path) -> None
         os.fsync(f.fileno())
     os.replace(tmp, path)
     _fsync_dir(path.parent)
+
+
+@contextlib.contextmanager
+def _generators_kept() -> Iterator[None]:
+    """Leave the global generators (Python's, numpy's, torch's) as they were found.
+
+    An evaluation between two training segments must not move the training's random streams,
+    or the job would depend on whether (and how often) it was evaluated.
+    """
+    import torch
+
+    # (numpy's legacy global generator: SB3's buffers draw their minibatches from it)
+    kept = random.getstate(), np.random.get_state(), torch.get_rng_state()  # noqa: NPY002
+    try:
+        yield
+    finally:
+        random.setstate(kept[0])
+        np.random.set_state(kept[1])  # noqa: NPY002
+        torch.set_rng_state(kept[2])
+
+
+def _training_state(model) -> bytes:
+    """What a checkpoint's zip leaves out and a resume needs to go on as if never stopped.
+
+    SB3's ``load`` seeds every generator from the job's seed again and resets the env: the
+    generators (Python's, numpy's, torch's, the action space's) and the training env itself
+    (its episode part-way: the simulator's state, the time limit's count, the Monitor's
+    returns, the env's own generator) are pickled here, with the observation the next action
+    is taken from.
+    """
+    import torch
+
+    return pickle.dumps({
+        "python": random.getstate(), "numpy": np.random.get_state(),  # noqa: NPY002
+        "torch": torch.get_rng_state(),
+        "action_space": model.action_space.np_random.bit_generator.state,
+        "env": model.get_env(), "last_obs": model._last_obs,
+        "episode_starts": model._last_episode_starts,
+    })  # fmt: skip
+
+
+def _restore_training_state(model, path: Path) -> bool:
+    """Put back what :func:`_training_state` saved, after SB3's ``load``; False if unreadable.
+
+    A state that cannot be read (written by another version of a library it pickles) leaves
+    the model as ``load`` made it: the job goes on from the checkpoint's weights, as before
+    these states were kept, with a warning that it no longer repeats the job run straight
+    through.
+    """
+    import torch
+
+    try:
+        state = pickle.loads(path.read_bytes())
+        model.set_env(state["env"], force_reset=False)
+    except Exception as e:  # any unpickling failure: the weights still resume
+        warnings.warn(f"{path} could not be read ({type(e).__name__}: {e}); training goes on "
+                      "from the checkpoint's weights with the env reset and the generators "
+                      "seeded again, so it will not repeat a job trained straight through",
+                      stacklevel=2)  # fmt: skip
+        return False
+    model._last_obs = state["last_obs"]
+    model._last_episode_starts = state["episode_starts"]
+    random.setstate(state["python"])
+    np.random.set_state(state["numpy"])  # noqa: NPY002
+    torch.set_rng_state(state["torch"])
+    model.action_space.np_random.bit_generator.state = state["action_space"]
+    return True
 
 
 def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluation, seed,
@@ -94,6 +167,11 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
         model = cls.load(ckpts / f"step_{done[-1]}.zip", env=train_env, device="cpu")
         if algo == "sac" and (ckpts / f"step_{done[-1]}_replay.pkl").is_file():
             model.load_replay_buffer(ckpts / f"step_{done[-1]}_replay.pkl")
+        state = ckpts / f"step_{done[-1]}_state.pkl"
+        # (a checkpoint from before these states were kept resumes from its weights alone)
+        if state.is_file() and _restore_training_state(model, state):
+            train_env.close()  # the model trains on in the env it was stopped in
+            train_env = model.get_env()
     elif algo == "ppo":
         # Checkpoints fall on rollout ends (after the update): one rollout per checkpoint
         # interval, rounded up to the minibatch (64), at most SB3's default 2048.
@@ -118,6 +196,9 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
             _save_durably(m.save_replay_buffer, ckpts / "tmp_replay.pkl",
                           ckpts / f"step_{n}_replay.pkl")  # fmt: skip
         if save:
+            state = _training_state(m)
+            _save_durably(lambda p: p.write_bytes(state), ckpts / "tmp_state.pkl",
+                          ckpts / f"step_{n}_state.pkl")  # fmt: skip
             # its training wall time beside it, for a resume whose log lost the row
             _atomic_write(ckpts / f"step_{n}.json", json.dumps({"wall_s": wall}).encode())
             _save_durably(m.save, ckpts / "tmp_step.zip", ckpts / f"step_{n}.zip")
@@ -125,11 +206,12 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
             # only the latest is ever resumed; the previous one goes only now that the new
             # checkpoint is on disk, else a power loss could leave the previous zip without
             # its buffer (and SAC would resume with an empty one)
-            for old in ckpts.glob("step_*_replay.pkl"):
-                if old.name != f"step_{n}_replay.pkl":
+            for old in [*ckpts.glob("step_*_replay.pkl"), *ckpts.glob("step_*_state.pkl")]:
+                if old.name not in (f"step_{n}_replay.pkl", f"step_{n}_state.pkl"):
                     old.unlink()
         t0 = time.perf_counter()
-        dist = evaluate_policy(m, eval_env, seeds, seconds, settle)
+        with _generators_kept():
+            dist = evaluate_policy(m, eval_env, seeds, seconds, settle)
         clock["eval"] += time.perf_counter() - t0
         wall = wall if save else wall_at.get(n, wall)
         line = {"steps": n, "physics_steps": n * frame_skip, "wall_s": wall, **key,
@@ -175,11 +257,13 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
 
             bar = tqdm(total=steps, initial=model.num_timesteps, desc=f"{algo} {name}",
                        unit="step", file=sys.stderr, dynamic_ncols=True)  # fmt: skip
-        model.learn(steps - model.num_timesteps, callback=Checkpoints(),
-                    reset_num_timesteps=not done)  # fmt: skip
-        if bar is not None:
-            bar.close()
-        model.logger.close()
+        try:
+            model.learn(steps - model.num_timesteps, callback=Checkpoints(),
+                        reset_num_timesteps=not done)  # fmt: skip
+        finally:  # (an interrupt included: SB3's log file is closed, not left to the collector)
+            if bar is not None:
+                bar.close()
+            model.logger.close()
     n = model.num_timesteps
     if trained:
         checkpoint(model)
