@@ -23,8 +23,10 @@ enum class FEMSolver {
   // Newton iteration.
   kReference,
   // The fast step: closed-form projection (snh_eigensystem.h), the upper triangle assembled in
-  // place on a pre-permuted pattern (spd_system.h), the symbolic analysis done once, and the
-  // last factorisation skipped when a bound proves the Newton step is already below tolerance.
+  // place on a pre-permuted pattern (spd_system.h), the symbolic analysis done once, the
+  // last factorisation skipped when a bound proves the Newton step is already below tolerance,
+  // and the exact K(x) (where it keeps the Newton matrix positive definite) once an iteration
+  // fails to cut the step tenfold, where the projected K's Newton converges only linearly.
   // They differ in the sparse Cholesky only: supernodal (dense panels, the default and
   // fastest, supernodal_cholesky.h) or Eigen's simplicial LL^T / LDL^T.
   kSupernodalLLT,
@@ -96,6 +98,8 @@ class FEMModel {
   void assemble(const VecX& x, bool project, SpMat& k) const;
   // The PSD-projected stiffness's upper triangle on system_'s pattern, written into k.
   void assemble_projected_upper(const VecX& x, std::vector<double>& k) const;
+  // The exact (unprojected) stiffness's upper triangle on the same pattern.
+  void assemble_exact_upper(const VecX& x, std::vector<double>& k) const;
   double incremental_potential(const VecX& x, const VecX& x_tilde, const VecX& x_n,
                                const SpMat& damping_k, double dt) const;
 
