@@ -145,3 +145,25 @@ def test_matching_passes_the_frame_and_both_frames_agree_from_rest(bar):
         if k == 0:
             np.testing.assert_allclose(sb.x, sw.x, rtol=0, atol=1e-12)
     assert np.abs(sb.x - sw.x).max() > 1e-6
+
+
+def test_bad_nodes_masses_and_fields_are_named(bar):
+    # A NaN node surfaced as "SVD did not converge", a NaN field as NaN forces, nodes on a
+    # line as "Singular matrix", a wrong shape as a broadcasting error (a review, session 55).
+    mass = np.asarray(bar.fem_model().mass)
+    rest = bar.nodes - mass @ bar.nodes / mass.sum()
+    field = np.zeros_like(rest)
+    bad_x = bar.nodes.copy()
+    bad_x[2, 1] = np.nan
+    for call, error, match in (
+        (lambda: best_fit_rotation(bad_x, rest, mass), ValueError, "x has a non-finite entry"),
+        (lambda: best_fit_rotation(bar.nodes, rest, -mass), ValueError, "mass must be > 0"),
+        (lambda: best_fit_rotation(bar.nodes, rest[:-1], mass), ValueError,
+         r"rest has shape \(15, 3\), expected \(16, 3\)"),
+        (lambda: following_forces(bar.nodes, rest, mass, field * np.nan), ValueError,
+         "field has a non-finite entry"),
+        (lambda: following_forces(np.outer(np.arange(16.0), [1.0, 0.0, 0.0]), rest, mass,
+                                  field), ValueError, "lie on one line"),
+    ):  # fmt: skip
+        with pytest.raises(error, match=match):
+            call()

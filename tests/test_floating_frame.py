@@ -274,6 +274,40 @@ def test_rotation_composes_exactly_and_stays_within_pi(bar):
     assert max(angles) > 3.0  # it did turn past pi and wrap
 
 
+def test_an_unconverged_step_returns_no_worse_an_answer_than_its_start(bar):
+    # Spun at h |omega| = 2.5-3.5 rad a step about random axes, some steps' Newton iteration
+    # fails (its line search too, 8 halvings without a decrease). It used to go on by t = 1/256
+    # regardless and return its last iterate: |r| three times the start's (57.6 -> 186), the
+    # kinetic energy 4x, reported only as unconverged. Now it returns the iterate of least
+    # residual, and a step that came no nearer a solution than its start is diverged.
+    from softrom_gym.robots.robot import Robot
+
+    stiff = Robot("bar", bar.nodes, bar.tets, youngs_modulus=1e7)
+    model = build_reduced_model(stiff, subspace=build_subspace(stiff, 6), contact="none",
+                                frame="floating", gravity=[0.0, 0.0, 0.0], damping_alpha=0.0,
+                                damping_beta=0.0, dt=0.01, max_speed=1e9)  # fmt: skip
+    rng = np.random.default_rng(1)
+    axes = rng.standard_normal((40, 3))
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    q = model.rest_state().q
+    failed = 0
+    for spin in (250.0, 350.0):
+        for axis in axes:
+            qdot = np.zeros_like(q)
+            qdot[3:6] = spin * axis
+            start = _state(model, q, qdot)
+            after, info = model.step(start)
+            if info["converged"]:
+                continue
+            failed += 1
+            if info["diverged"]:
+                continue
+            r0, _ = model._floating_residual(start, np.zeros(0), start.qdot)
+            r1, _ = model._floating_residual(start, np.zeros(0), after.qdot)
+            assert np.linalg.norm(r1) < np.linalg.norm(r0)
+    assert failed >= 5  # (2 of 40 at 250 rad/s, 9 at 350: the case is exercised)
+
+
 @pytest.mark.parametrize("fluid_density", [0.0, 1000.0])
 def test_a_complete_basis_reproduces_the_full_space_with_body_following_actuation(
     bar, fluid_density
@@ -445,6 +479,26 @@ def test_a_dropped_block_lands_and_rests_as_in_the_linear_frame(box):
         assert -1e-4 < low - model.ground_height < 1e-6
     np.testing.assert_allclose(paths["floating"], paths["linear"], rtol=0, atol=1e-7)
     assert capped["floating"] == capped["linear"] and len(capped["linear"]) <= 2
+
+
+@pytest.mark.parametrize("turn", [2.0 * np.pi + 0.5, np.pi + 0.5, -3.0 * np.pi - 0.25])
+def test_a_reset_to_a_state_turned_past_pi_reports_its_rotation_within_pi(turn):
+    # The orientation observed and reported after reset(options={"state": ...}) is that of the
+    # rotation vector of angle <= pi, as after any step (it read 6.78 rad for 2 pi + 0.5).
+    import gymnasium as gym
+
+    env = gym.make("softrom_gym/CrossSwim-v0", frame="floating")
+    base = env.unwrapped
+    rest = base.model.rest_state()
+    q = rest.q.copy()
+    q[3:6] = [0.0, 0.0, turn]
+    _, info = env.reset(options={"state": cpp_sim.ReducedState(q, rest.qdot, rest.impulses)})
+    wrapped = (turn + np.pi) % (2.0 * np.pi) - np.pi
+    assert abs(info["orientation"] - abs(wrapped)) < 1e-12  # (the angle |theta|)
+    theta = base.get_state().q[3:6]
+    assert np.linalg.norm(theta) <= np.pi
+    turned = Rotation.from_rotvec([0.0, 0.0, turn]).as_matrix()
+    np.testing.assert_allclose(Rotation.from_rotvec(theta).as_matrix(), turned, atol=1e-12)
 
 
 @pytest.mark.filterwarnings("ignore:.*symmetric and normalized space")

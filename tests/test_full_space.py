@@ -336,6 +336,12 @@ def test_a_floating_frame_state_maps_through_its_model(bar):
     floating = build_reduced_model(bar, forces="exact", subspace=sub, frame="floating",
                                    control_basis=np.eye(sub.M)[:, :3])  # fmt: skip
     model = FullSpaceModel.matching(floating, bar, sub.basis)
+    # the floating frame's actuation turns with the body, torque-free: so, by default, does
+    # its counterpart's (a world-fixed field kept them 3.7-5.6 mm apart at every dt)
+    assert model.actuation_frame == "body"
+    linear = build_reduced_model(bar, forces="exact", subspace=sub,
+                                 control_basis=np.eye(sub.M)[:, :3])  # fmt: skip
+    assert FullSpaceModel.matching(linear, bar, sub.basis).actuation_frame == "world"
     state = floating.rest_state()
     for _ in range(20):  # turning and moving: q is no longer B_r coordinates
         state, _ = floating.step(state, np.array([0.0, 3.0, -2.0]) * np.sqrt(floating.total_mass))
@@ -408,3 +414,16 @@ def test_a_node_the_candidates_missed_joins_them_and_the_step_is_solved_again(ba
     _, finfo = missing.step(missing.rest_state())
     assert not finfo["contact_converged"]
     assert finfo["active_rows"] == info["active_rows"] - 1
+
+
+def test_a_diverging_newton_step_says_so():
+    # Full Newton steps, as the reduced reference takes them, far outside the envs' settings
+    # (4 m/s random node velocities at dt = 20 ms): the iterate overflowed the material and
+    # the error blamed the state x, which the caller never gave.
+    nodes, tets = voxels_to_tets(np.ones((6, 3, 3), dtype=bool), 0.05)
+    robot = Robot("block", nodes, tets, youngs_modulus=3e4)
+    v0 = 4.0 * np.random.default_rng(0).standard_normal(nodes.shape)
+    model = FullSpaceModel(robot, contact="none", gravity=(0, 0, 0), dt=0.02, damping_beta=0.0)
+    state = model.rest_state()
+    with pytest.raises(FloatingPointError, match="the Newton step diverged at iteration"):
+        model.step(type(state)(state.x, v0, state.impulses))

@@ -232,6 +232,7 @@ struct Workspace {
   // torque rows).
   FloatingBody fl_body;
   VecX fl_x, fl_trial, fl_r, fl_dx, fl_z, fl_qe, fl_fe, fl_fa, fl_p0, fl_g, fl_q, fl_load;
+  VecX fl_best;  // the floating Newton's iterate of least residual (an unconverged step's answer)
   VecX fl_tmp, fl_dv;
   std::array<VecX, 3> fl_yw, fl_yf;
   MatX fl_jac, fl_k, fl_e, fl_ya, fl_sti;

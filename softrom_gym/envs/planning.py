@@ -49,6 +49,15 @@ class PlanningAPI:
         if state.impulses.shape != (impulses,):
             raise ValueError(f"state has {state.impulses.size} contact impulses, expected "
                              f"{impulses} (3 per surface node of this env's robot)")  # fmt: skip
+        theta = np.asarray(state.q[3:6])
+        angle = float(np.linalg.norm(theta))
+        if str(self.model.frame) == "floating" and angle > np.pi:
+            # The same rotation by its vector of angle <= pi, as every step keeps it: the
+            # orientation observed and reported after reset(options={"state": ...}) read
+            # 6.78 rad for 2 pi + 0.5 (0.5 from the first step on).
+            q = np.array(state.q)
+            q[3:6] = theta * (1.0 - 2.0 * np.pi * round(angle / (2.0 * np.pi)) / angle)
+            return cpp_sim.ReducedState(q, np.array(state.qdot), np.array(state.impulses))
         return state.copy()
 
     def center_of_mass(self, state: cpp_sim.ReducedState | None = None) -> np.ndarray:
