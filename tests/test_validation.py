@@ -310,3 +310,64 @@ def test_real_settings_refuse_numpy_bools(tet):
     assert cpp_sim.ReducedConfig(friction=np.float64(0.3)).friction == 0.3
     fem.newton_tolerance = np.float32(1e-5)
     assert fem.newton_tolerance == pytest.approx(1e-5)
+
+
+def test_constructors_refuse_bools_and_a_tetrahedron_listed_twice(tet):
+    # pybind11 converts True to 1.0: FEMModel(nodes, tets, True, 0.3, True) built a 1 Pa,
+    # 1 kg/m^3 model; and a tetrahedron listed twice (any vertex order) counted twice.
+    nodes, tets = tet
+    with pytest.raises(TypeError, match="youngs_modulus must be a real number, got True"):
+        make(nodes, tets, e=True)
+    with pytest.raises(TypeError, match="density must be a real number, got True"):
+        make(nodes, tets, rho=np.True_)
+    with pytest.raises(TypeError, match="poisson_ratio must be a real number, got False"):
+        make(nodes, tets, nu=False)
+    assert make(nodes, tets, e=50000).youngs_modulus == 50000.0  # an int is a real number
+    nodes2 = np.vstack([nodes, [[1.0, 1.0, 1.0]]])
+    twice = np.array([[0, 1, 2, 3], [1, 2, 3, 4], [1, 2, 0, 3]])  # [1, 2, 0, 3]: an even turn
+    with pytest.raises(ValueError, match=r"tets\[0\] and tets\[2\] are the same tetrahedron"):
+        make(nodes2, twice)
+
+
+def test_coordinates_that_overflow_are_named_not_returned_as_nan():
+    # Finite q can give NaN nodes: a floating frame's rotation vector near 1e300 has no norm,
+    # coordinates near 1e200 overflow det F (min_volume_ratio passed the NaN over and read
+    # +inf, "nothing inverted"); the element forces of huge poses overflow the material.
+    from softrom_gym.robots.robot import Robot
+    from softrom_gym.robots.voxel import voxels_to_tets
+    from softrom_gym.rom import build_reduced_model, build_subspace
+
+    nodes, tets = voxels_to_tets(np.ones((2, 1, 1), dtype=bool), 0.1)
+    robot = Robot("pair", nodes, tets, youngs_modulus=2e4)
+    sub = build_subspace(robot, 4)
+    model = build_reduced_model(robot, subspace=sub, frame="floating", contact="none")
+    q = np.zeros(model.dim)
+    q[3:6] = 1e300
+    with pytest.raises(ValueError, match=r"the positions at q are not finite \(largest"):
+        model.positions(q)
+    with pytest.raises(ValueError, match="the velocities at q are not finite"):
+        model.velocities(q, np.zeros_like(q))
+    q = np.zeros(model.dim)
+    q[6:] = 1e200
+    with pytest.raises(ValueError, match="the volume ratios at q are not finite"):
+        model.min_volume_ratio(q)
+    fem = robot.fem_model()
+    basis = sub.basis[:, 3:]
+    with pytest.raises(ValueError, match=r"the element forces is not finite at poses\[1\]"):
+        cpp_sim.reduced_element_forces(
+            fem, basis, np.vstack([np.zeros(basis.shape[1]), np.full(basis.shape[1], 1e160)])
+        )
+
+
+def test_reduced_settings_refuse_a_tiny_dt_and_choices_that_are_not_strings():
+    with pytest.raises(ValueError, match="dt is too small: 1 / dt\\^2 overflows, got 1e-160"):
+        cpp_sim.ReducedConfig(dt=1e-160)
+
+    class Named:
+        def __str__(self) -> str:
+            return "none"
+
+    for name in ("contact", "solver", "frame"):
+        with pytest.raises(TypeError, match=f"{name} must be a str, got"):
+            cpp_sim.ReducedConfig(**{name: Named()})
+    assert cpp_sim.ReducedConfig(contact=np.str_("none")).contact == "none"

@@ -19,8 +19,11 @@ namespace v = softrom::validate;
 
 // FEMModel(nodes, tets, E, nu, rho), validated: the binding's constructor, and the reduced
 // model's (bindings_reduced.cpp), which builds its mesh and masses through it.
-std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, double youngs_modulus,
-                                   double poisson_ratio, double density) {
+std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, v::RealArgument e,
+                                   v::RealArgument nu, v::RealArgument rho) {
+  const double youngs_modulus = e.get("youngs_modulus");
+  const double poisson_ratio = nu.get("poisson_ratio");
+  const double density = rho.get("density");
   VecX x = v::real_matrix(nodes, "nodes", -1, 3);
   if (x.size() < 12) throw py::value_error("nodes must hold at least 4 nodes");
   std::vector<Tet> t = v::tet_array(tets, "tets");

@@ -123,6 +123,10 @@ void bind_checks(py::module_& m) {
         }
         if (solver != "fast" && solver != "reference")
           throw py::value_error("solver must be 'fast' or 'reference', got '" + solver + "'");
+        // (The contact solve's rows are finite by construction; an inf here was answered
+        // "feasible, converged" at x = 0.)
+        if (!e.allFinite() || !fs.allFinite())
+          throw py::value_error("e and fs must be finite");
         // As the contact solve calls it: g = [E^T; f^T] with only f changing from call to call,
         // the last call's multipliers as the warm start, and (fast) G^T kept and the factor
         // carried over.

@@ -71,15 +71,34 @@ const char* contact_name(ContactModel c) {
         doc                                                                                 \
   }
 
+// A named choice's value: a str (numpy's too), not anything whose str() matches.
+std::string choice(py::handle x, const char* name) {
+  if (!py::isinstance<py::str>(x))
+    throw py::type_error(std::string(name) + " must be a str, got " + std::string(py::repr(x)));
+  return x.cast<std::string>();
+}
+
 const std::vector<Setting>& settings() {
   static const std::vector<Setting> table = {
-      SOFTROM_POSITIVE(dt, "time step h, s"),
+      {"dt", [](const ReducedConfig& c) -> py::object { return py::float_(c.dt); },
+       [](ReducedConfig& c, py::handle x) {
+         const double dt = v::positive(v::real(x, "dt"), "dt");
+         // (As FEMModel.step: below ~1e-154, 1 / dt^2 overflows, and the penalty ground's
+         // step reported a divergence instead of naming dt.)
+         if (!std::isfinite(1.0 / (dt * dt))) {
+           std::ostringstream msg;
+           msg << "dt is too small: 1 / dt^2 overflows, got " << dt;
+           throw py::value_error(msg.str());
+         }
+         c.dt = dt;
+       },
+       "time step h, s"},
       {"gravity", [](const ReducedConfig& c) { return vec3_out(c.gravity); },
        [](ReducedConfig& c, py::handle x) { c.gravity = vec3(x, "gravity"); },
        "gravitational acceleration (3,), m/s^2"},
       {"contact", [](const ReducedConfig& c) -> py::object { return py::str(contact_name(c.contact)); },
        [](ReducedConfig& c, py::handle x) {
-         const std::string s = py::str(x);
+         const std::string s = choice(x, "contact");
          if (s == "staggered") c.contact = ContactModel::Staggered;
          else if (s == "penalty") c.contact = ContactModel::Penalty;
          else if (s == "none") c.contact = ContactModel::None;
@@ -91,7 +110,7 @@ const std::vector<Setting>& settings() {
          return py::str(c.solver == Solver::Fast ? "fast" : "reference");
        },
        [](ReducedConfig& c, py::handle x) {
-         const std::string s = py::str(x);
+         const std::string s = choice(x, "solver");
          if (s == "fast") c.solver = Solver::Fast;
          else if (s == "reference") c.solver = Solver::Reference;
          else throw py::value_error("solver must be 'fast' or 'reference'; got '" + s + "'");
@@ -203,7 +222,7 @@ const std::vector<Setting>& settings() {
          return py::str(c.frame == Frame::Floating ? "floating" : "linear");
        },
        [](ReducedConfig& c, py::handle x) {
-         const std::string s = py::str(x);
+         const std::string s = choice(x, "frame");
          if (s == "linear") c.frame = Frame::Linear;
          else if (s == "floating") c.frame = Frame::Floating;
          else throw py::value_error("frame must be 'linear' or 'floating'; got '" + s + "'");

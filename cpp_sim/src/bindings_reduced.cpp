@@ -26,8 +26,8 @@ namespace py = pybind11;
 using namespace softrom;
 namespace v = softrom::validate;
 
-std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, double youngs_modulus,
-                                   double poisson_ratio, double density);  // bindings.cpp
+std::unique_ptr<FEMModel> make_fem(py::handle nodes, py::handle tets, v::RealArgument e,
+                                   v::RealArgument nu, v::RealArgument rho);  // bindings.cpp
 
 namespace {
 
@@ -122,8 +122,9 @@ ReducedState make_state(py::handle q, py::handle qdot, py::handle impulses) {
   return s;
 }
 
-std::unique_ptr<ReducedModel> make_reduced(py::handle nodes, py::handle tets, double e, double nu,
-                                           double rho, py::handle basis, py::handle cub_elements,
+std::unique_ptr<ReducedModel> make_reduced(py::handle nodes, py::handle tets, v::RealArgument e,
+                                           v::RealArgument nu, v::RealArgument rho,
+                                           py::handle basis, py::handle cub_elements,
                                            py::handle cub_weights, py::handle surface_nodes,
                                            py::handle surface_faces) {
   // Reuse the FEM model's validation and rest data.
@@ -489,14 +490,20 @@ void bind_queries(py::class_<ReducedModel>& model_cls) {
       .def(
           "positions",
           [](const ReducedModel& r, py::handle q) {
-            return v::positions_out(r.positions(vector_in(q, "q", r.dim())));
+            const VecX qv = vector_in(q, "q", r.dim());
+            const VecX x = r.positions(qv);
+            // (Finite q can give NaN: a rotation vector near 1e300 overflows its norm.)
+            v::finite_coordinates(x, "positions", qv);
+            return v::positions_out(x);
           },
           py::arg("q"), "Node positions (N, 3) of reduced coordinates q (in the model's `frame`).")
       .def(
           "velocities",
           [](const ReducedModel& r, py::handle q, py::handle qdot) {
-            return v::positions_out(
-                r.velocities(vector_in(q, "q", r.dim()), vector_in(qdot, "qdot", r.dim())));
+            const VecX qv = vector_in(q, "q", r.dim());
+            const VecX x = r.velocities(qv, vector_in(qdot, "qdot", r.dim()));
+            v::finite_coordinates(x, "velocities", qv);
+            return v::positions_out(x);
           },
           py::arg("q"), py::arg("qdot"),
           "Node velocities (N, 3) of reduced coordinates q and velocities qdot (in the model's "
@@ -504,7 +511,12 @@ void bind_queries(py::class_<ReducedModel>& model_cls) {
       .def(
           "min_volume_ratio",
           [](const ReducedModel& r, py::handle q) {
-            return r.min_volume_ratio(vector_in(q, "q", r.dim()));
+            const VecX qv = vector_in(q, "q", r.dim());
+            const double j = r.min_volume_ratio(qv);
+            // (A NaN determinant would be passed over by the minimum, and overflowing nodes
+            // read as "nothing inverted", +inf.)
+            v::finite_coordinates(Eigen::Matrix<double, 1, 1>::Constant(j), "volume ratios", qv);
+            return j;
           },
           py::arg("q"),
           "min det F over every tetrahedron at reduced coordinates q: the smallest "
@@ -625,6 +637,10 @@ void bind_reduced(py::module_& m) {
             }
           }
         }
+        for (Eigen::Index s = 0; s < p.rows(); ++s)
+          v::finite_result(Eigen::Map<const VecX>(o + s * nt * md, nt * md),
+                           "the element forces", p.row(s).transpose(), "poses[" +
+                           std::to_string(s) + "]");
         return out;
       },
       py::arg("fem"), py::arg("basis"), py::arg("poses"),

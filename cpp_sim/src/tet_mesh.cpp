@@ -1,7 +1,9 @@
 #include "tet_mesh.h"
 
+#include <algorithm>
 #include <sstream>
 #include <stdexcept>
+#include <utility>
 
 namespace softrom {
 
@@ -47,6 +49,23 @@ TetMesh::TetMesh(const VecX& rest_positions, std::vector<Tet> tetrahedra)
     if (!used[i]) {
       std::ostringstream msg;
       msg << "node " << i << " is not used by any tetrahedron (remove unreferenced nodes)";
+      throw std::invalid_argument(msg.str());
+    }
+  // A tetrahedron listed twice (in any vertex order) would count its mass and stiffness twice
+  // (Robot refuses it too; this is cpp_sim's own constructor's check).
+  std::vector<std::pair<Tet, size_t>> sorted(tets.size());
+  for (size_t e = 0; e < tets.size(); ++e) {
+    sorted[e] = {tets[e], e};
+    std::sort(sorted[e].first.begin(), sorted[e].first.end());
+  }
+  std::sort(sorted.begin(), sorted.end());
+  for (size_t k = 1; k < sorted.size(); ++k)
+    if (sorted[k].first == sorted[k - 1].first) {
+      const Tet& t = tets[sorted[k - 1].second];
+      std::ostringstream msg;
+      msg << "tets[" << sorted[k - 1].second << "] and tets[" << sorted[k].second
+          << "] are the same tetrahedron [" << t[0] << ", " << t[1] << ", " << t[2] << ", "
+          << t[3] << "]: each element must be listed once";
       throw std::invalid_argument(msg.str());
     }
 }

@@ -100,6 +100,21 @@ inline bool is_bool(py::handle x) {
          py::isinstance(x, py::module_::import("numpy").attr("bool_"));
 }
 
+// A constructor's real-number argument, converted as a double argument is (so its stub reads
+// the same), remembering whether it came as a bool: pybind11 converts True to 1.0, and
+// FEMModel(nodes, tets, True, 0.3, True) built a 1 Pa, 1 kg/m^3 model.
+struct RealArgument {
+  double value = 0.0;
+  bool was_bool = false;
+  // The value, or TypeError naming the argument when it was a bool.
+  double get(const char* name) const {
+    if (was_bool)
+      throw py::type_error(std::string(name) + " must be a real number, got " +
+                           (value != 0.0 ? "True" : "False"));
+    return value;
+  }
+};
+
 // A Python real number (numpy's too) as a double, never a bool (Python's or numpy's), or
 // TypeError naming the setting.
 inline double real(py::handle x, const char* name) {
@@ -218,6 +233,27 @@ inline void finite_result(double r, const char* what, const VecX& input, const c
   finite_result(Eigen::Matrix<double, 1, 1>::Constant(r), what, input, input_name);
 }
 
+template <typename Derived>
+inline void finite_result(const Eigen::DenseBase<Derived>& r, const char* what, const VecX& input,
+                          const std::string& input_name) {
+  finite_result(r, what, input, input_name.c_str());
+}
+
+// Node coordinates (or a quantity made of them) computed from reduced coordinates q must be
+// finite: finite q can still overflow (coordinates near 1e155 square to inf, a rotation vector
+// near 1e300 has no norm), and NaN read as a position or a volume ratio would be silently
+// wrong.
+template <typename Derived>
+inline void finite_coordinates(const Eigen::DenseBase<Derived>& r, const char* what,
+                               const VecX& q) {
+  if (r.allFinite()) return;
+  std::ostringstream msg;
+  msg << "the " << what << " at q are not finite (largest |q| = "
+      << (q.size() ? q.cwiseAbs().maxCoeff() : 0.0)
+      << "): the coordinates overflow double precision there";
+  throw py::value_error(msg.str());
+}
+
 // (N, 3) float64 numpy array from a 3N vector.
 inline py::array_t<double> positions_out(const VecX& x) {
   py::array_t<double> out({static_cast<py::ssize_t>(x.size() / 3), static_cast<py::ssize_t>(3)});
@@ -226,3 +262,23 @@ inline py::array_t<double> positions_out(const VecX& x) {
 }
 
 }  // namespace softrom::validate
+
+namespace pybind11::detail {
+
+template <>
+struct type_caster<softrom::validate::RealArgument> {
+  PYBIND11_TYPE_CASTER(softrom::validate::RealArgument,
+                       io_name("typing.SupportsFloat | typing.SupportsIndex", "float"));
+  bool load(handle src, bool convert) {
+    make_caster<double> inner;
+    if (!inner.load(src, convert)) return false;
+    value.value = cast_op<double>(inner);
+    value.was_bool = softrom::validate::is_bool(src);
+    return true;
+  }
+  static handle cast(const softrom::validate::RealArgument& v, return_value_policy, handle) {
+    return PyFloat_FromDouble(v.value);
+  }
+};
+
+}  // namespace pybind11::detail
