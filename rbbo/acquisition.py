@@ -113,7 +113,8 @@ def make_problem(function: GrassmannFunction, sim_dim: int, control_dim: int) ->
     """A pymanopt Problem on Grassmann(M, C) that *minimises* -function (pymanopt minimises).
 
     Cost and Euclidean gradient share one evaluation: the last point is cached, since
-    pymanopt asks for them separately at the same point.
+    pymanopt asks for them separately at the same point. A gradient that is not finite raises
+    a ValueError (a non-finite value is left to the optimiser, whose line search rejects it).
     """
     manifold = Grassmann(*_check_dims(sim_dim, control_dim))
     cache: dict = {"x": None}
@@ -121,6 +122,10 @@ def make_problem(function: GrassmannFunction, sim_dim: int, control_dim: int) ->
     def evaluate(point):
         if cache["x"] is None or not np.array_equal(cache["x"], point):
             value, grad = function.value_and_gradient(point)
+            # (a NaN gradient reached the retraction's SVD: "SVD did not converge")
+            if not np.all(np.isfinite(grad)):
+                raise ValueError(f"the function's gradient is not finite at a point where its "
+                                 f"value is {float(value)!r}")  # fmt: skip
             cache.update(x=np.array(point, copy=True), value=float(value), grad=grad)
         return cache
 
@@ -200,13 +205,23 @@ def maximize_on_grassmann(
     """Maximise a smooth function of B_c on Gr(M, C) from several starts.
 
     Candidate starts are the incumbents, ``n_perturbations`` random perturbations of each,
-    and ``n_random`` Haar-random points; the ``n_starts`` best by value are refined with the
-    chosen optimiser (a failing run is redone with ConjugateGradient) and the best point
-    found is returned (a start, where no local run improves on it).
+    and ``n_random`` (>= 0) Haar-random points; the ``n_starts`` best by value (those with a
+    finite value first) are refined with the chosen optimiser (a failing run is redone with
+    ConjugateGradient; a start where that fails too is passed over) and the best point with
+    a finite value is returned (a start, where no local run improves on it). A ValueError
+    says so where neither a start nor a local run reaches a finite value.
+
+    ``perturbation_scale`` (finite, >= 0) is the tangent norm of the middle perturbation.
     """
     m, c = _check_dims(sim_dim, control_dim)
     if optimizer not in OPTIMIZERS:
         raise ValueError(f"unknown optimizer {optimizer!r}; valid: {list(OPTIMIZERS)}")
+    # (-1 was taken as 0, and a NaN scale reached numpy's SVD: "SVD did not converge")
+    if isinstance(n_random, bool) or not isinstance(n_random, (int, np.integer)) or n_random < 0:
+        raise ValueError(f"n_random must be an integer >= 0, got {n_random!r}")
+    if not 0.0 <= perturbation_scale < np.inf:
+        raise ValueError(f"perturbation_scale must be a finite number >= 0, got "
+                         f"{perturbation_scale!r}")  # fmt: skip
     with single_threaded_blas():
         return _maximize(function, m, c, incumbents, np.random.default_rng(rng), optimizer,
                          n_random, n_perturbations, perturbation_scale, n_starts,
@@ -230,25 +245,37 @@ def _maximize(function, m, c, incumbents, rng, optimizer, n_random, n_perturbati
     if not candidates:
         raise ValueError("no starts: give incumbents or n_random > 0")
     starts = np.concatenate(candidates)
-    values = function.values(starts)
-    order = np.argsort(-values)[: max(n_starts, 1)]
+    values = np.asarray(function.values(starts), dtype=float)
+    # Non-finite values rank last (a NaN start ranked first and, as the best value so far,
+    # made every finite optimum compare as no better); a run from one may still find one.
+    finite = np.isfinite(values)
+    order = np.argsort(-np.where(finite, values, -np.inf))[: max(n_starts, 1)]
 
     problem = make_problem(function, m, c)
-    best = AcquisitionResult(starts[order[0]], float(values[order[0]]), optimizer)
+    first = order[0]
+    best = AcquisitionResult(starts[first], float(values[first]) if finite[first] else -np.inf,
+                             optimizer)  # fmt: skip
+    failure = None
     for i in order:
-        try:
-            result = _optimizer(optimizer, max_iterations, min_gradient_norm).run(
-                problem, initial_point=starts[i]
-            )
-            ok = np.isfinite(result.cost)
-        except (np.linalg.LinAlgError, FloatingPointError, ValueError):
-            ok = False
-        if not ok:
+        result = _run(optimizer, problem, starts[i], max_iterations, min_gradient_norm)
+        if isinstance(result, Exception) or not np.isfinite(result.cost):
             best.fallback_used = True
-            result = _optimizer("cg", max_iterations, min_gradient_norm).run(
-                problem, initial_point=starts[i]
-            )
+            result = _run("cg", problem, starts[i], max_iterations, min_gradient_norm)
+        if isinstance(result, Exception):  # (the fallback failed too: pass this start over)
+            failure = result
+            continue
         best.results.append(result)
-        if -result.cost > best.value:
+        if np.isfinite(result.cost) and -result.cost > best.value:
             best.basis, best.value = result.point, float(-result.cost)
+    if not np.isfinite(best.value):
+        raise ValueError(f"no start and no local run reached a finite value (the best starts' "
+                         f"values: {values[order]!r}; last failure: {failure!r})")  # fmt: skip
     return best
+
+
+def _run(name, problem, start, max_iterations, min_gradient_norm):
+    """One local run from ``start``: its result, or the exception that ended it."""
+    try:
+        return _optimizer(name, max_iterations, min_gradient_norm).run(problem, initial_point=start)
+    except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
+        return exc

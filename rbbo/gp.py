@@ -11,8 +11,17 @@ from two matrix-vector products with the (n, M^2) matrix of P_i:
     d k_i / d B = (2 / l^2) k_i P_i B
 
 The latent-function posterior is returned (the WhiteKernel noise models MPC seed noise, and
-the acquisition should not reward it). Observations are standardised (zero mean, unit
-variance) before fitting; :meth:`GrassmannGP.predict` returns original units.
+the acquisition should not reward it). Its variance is read from the lower Cholesky factor
+L of K (K = L L^T, the noise on its diagonal), as scikit-learn does,
+
+    sigma^2(B) = s^2 - ||L^-1 k(B)||^2,
+
+and never through an explicit K^-1: with the noise at its floor (1e-6) and a long length
+scale K reaches cond ~1e9, where s^2 - k^T K^-1 k with a formed inverse was off by up to
+half of sigma, and jagged along a line (steps of 1e-5 moved the UCB by ~1e-4 where its
+slope was ~0.3), which the acquisition's line search read as slope.
+Observations are standardised (zero mean, unit variance) before fitting;
+:meth:`GrassmannGP.predict` returns original units.
 """
 
 from __future__ import annotations
@@ -22,7 +31,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg import cho_solve, cholesky, solve_triangular
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, WhiteKernel
@@ -71,6 +80,28 @@ def _real_bases(bases) -> np.ndarray:
     if np.iscomplexobj(bases):  # (float() would drop the imaginary part with a warning only)
         raise TypeError(f"bases must be real, got a {np.asarray(bases).dtype} array")
     return np.asarray(bases, dtype=float)
+
+
+def _standardise(y: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """(y_mean, y_std, (y - y_mean) / y_std) of finite observations y, robust to their scale.
+
+    y is divided by a = max |y| first: y.std() of |y| > ~1e154 overflowed (NaN predictions),
+    and 1e-300-sized y lost their digits. y whose spread is at most 1e-12 of a (rounding) is
+    a constant: y_std = a (1 where y = 0), and the standardised y are ~0, not NaN.
+    """
+    a = float(np.max(np.abs(y)))
+    if a == 0.0:
+        return 0.0, 1.0, np.zeros_like(y)
+    u = y / a  # |u| <= 1: the mean and the std below cannot overflow
+    u_mean, u_std = float(u.mean()), float(u.std())
+    # (relative to a: an absolute 1e-12 took y ~ 1e-13 with std 1.4e-14 for a constant)
+    if u_std <= 1e-12:
+        u_std = 1.0
+    y_mean, y_std = a * u_mean, a * u_std
+    if not (np.isfinite(y_mean) and 0.0 < y_std < np.inf):  # (only subnormal y get here)
+        raise ValueError(f"y = {y!r} has a spread (std {a * u_std!r}) that float64 cannot "
+                         "standardise")  # fmt: skip
+    return y_mean, y_std, (u - u_mean) / u_std
 
 
 def _parts(kernel):
@@ -178,8 +209,9 @@ class GrassmannGP:
             if z is None:
                 raise ValueError("this GP models fidelity: pass z (one value per basis)")
             z = np.asarray(z, dtype=float).ravel()
-            if z.shape[0] != b.shape[0] or not np.all(np.isfinite(z)):
-                raise ValueError(f"z must hold {b.shape[0]} finite values, got {z!r}")
+            # (the fidelity kernel would take z = 7 and model a trajectory longer than T_max)
+            if z.shape[0] != b.shape[0] or not np.all((z >= 0.0) & (z <= 1.0)):
+                raise ValueError(f"z must hold {b.shape[0]} finite values in [0, 1], got {z!r}")
         else:
             z = np.ones(b.shape[0])
         return b, y, z
@@ -201,10 +233,7 @@ class GrassmannGP:
             return self._fit(*self._check_data(bases, y, z))
 
     def _fit(self, b, y, z) -> GrassmannGP:
-        self.y_mean_ = float(y.mean())
-        std = float(y.std())
-        self.y_std_ = std if std > 1e-12 * max(1.0, abs(self.y_mean_)) else 1.0
-        ys = (y - self.y_mean_) / self.y_std_
+        self.y_mean_, self.y_std_, ys = _standardise(y)
         gpr = GaussianProcessRegressor(
             self._initial_kernel(),
             alpha=1e-10,
@@ -251,14 +280,16 @@ class GrassmannGP:
         jitter = 0.0
         for _ in range(6):
             try:
-                factor = cho_factor(k + jitter * np.eye(len(k)), lower=True)
+                # (cholesky, not cho_factor: its upper triangle is zero, not K's)
+                factor = cholesky(k + jitter * np.eye(len(k)), lower=True)
                 break
             except np.linalg.LinAlgError:
                 jitter = max(10 * jitter, 1e-8)
         else:  # pragma: no cover - the noise floor keeps K well conditioned
             raise np.linalg.LinAlgError("GP covariance is not positive definite")
-        self.alpha_ = cho_solve(factor, ys)
-        self.k_inv_ = cho_solve(factor, np.eye(len(k)))
+        # L alone (no K^-1): sigma^2 = s^2 - ||L^-1 k||^2 keeps its accuracy at cond(K) ~1e9
+        self.chol_ = factor
+        self.alpha_ = cho_solve((factor, True), ys)
 
     def conditioned_on(self, bases: np.ndarray, y: np.ndarray, z=None) -> GrassmannGP:
         """A copy with the same hyperparameters, conditioned on more data (original units).
@@ -269,7 +300,11 @@ class GrassmannGP:
             raise RuntimeError("fit the GP before conditioning it on more data")
         b, y, z = self._check_data(bases, y, z)
         out = copy.copy(self)
-        ys = (y - self.y_mean_) / self.y_std_
+        with np.errstate(over="ignore"):  # (checked below, naming the values)
+            ys = (y - self.y_mean_) / self.y_std_
+        if not np.all(np.isfinite(ys)):
+            raise ValueError(f"y = {y!r} is beyond float64 on the GP's scale (y_mean = "
+                             f"{self.y_mean_!r}, y_std = {self.y_std_!r})")  # fmt: skip
         with single_threaded_blas():
             out._condition(
                 np.concatenate([self.bases_, b]),
@@ -309,7 +344,9 @@ class GrassmannGP:
         zq = np.broadcast_to(np.asarray(z, dtype=float), (b.shape[0],))
         k = self._cross(b, zq)
         mu = self.alpha_ @ k
-        var = self._fitted().signal_variance - np.sum(k * (self.k_inv_ @ k), axis=0)
+        # one triangular solve for all m queries: O(n^2 m); (unchecked: a NaN query gives NaN)
+        u = solve_triangular(self.chol_, k, lower=True, check_finite=False)
+        var = self._fitted().signal_variance - np.sum(u * u, axis=0)
         return mu, np.sqrt(np.maximum(var, 1e-14))
 
     def predict(self, bases: np.ndarray, z: float | np.ndarray = 1.0):
@@ -337,13 +374,26 @@ class GrassmannGP:
     def ucb_and_gradient(self, basis: np.ndarray, sqrt_beta: float, z: float = 1.0):
         """GP-UCB mu + beta^(1/2) sigma at one B_c and its Euclidean gradient (standardised).
 
+        Parameters
+        ----------
+        basis : (M, C) or (1, M, C)
+            B_c (not checked for orthonormality: the acquisition's hot path).
+        sqrt_beta : float
+            beta^(1/2).
+        z : float
+            Fidelity in [0, 1] (ignored without fidelity).
+
         Returns
         -------
         value : float
         gradient : (M, C) ndarray, d value / d B_c in the ambient R^(M x C)
         mu, sigma : floats (standardised)
         """
-        b = self._query(basis)[0]
+        query = self._query(basis)
+        if len(query) != 1:  # (a stack of bases used its first and dropped the rest)
+            raise ValueError(f"ucb_and_gradient takes one basis ({self.sim_dim}, "
+                             f"{self.control_dim}), got shape {np.shape(basis)}")  # fmt: skip
+        b = query[0]
         hp = self._fitted()
         q = (b @ b.T).ravel()
         overlap = self.proj_ @ q
@@ -353,8 +403,10 @@ class GrassmannGP:
             assert h is not None  # (a fidelity GP fits h)
             k = k * np.exp(-0.5 * (self.z_ - z) ** 2 / h**2)
         mu = float(k @ self.alpha_)
-        v = self.k_inv_ @ k
-        sigma = float(np.sqrt(max(hp.signal_variance - float(k @ v), 1e-14)))
+        u = solve_triangular(self.chol_, k, lower=True, check_finite=False)  # L^-1 k
+        sigma = float(np.sqrt(max(hp.signal_variance - float(u @ u), 1e-14)))
+        # K^-1 k = L^-T (L^-1 k): the gradient's, from the solve above (O(n^2), no inverse)
+        v = solve_triangular(self.chol_, u, lower=True, trans="T", check_finite=False)
         # d mu = alpha . dk ;  d sigma = -(K^-1 k) . dk / sigma ;  dk_i = (2 / l^2) k_i P_i B
         w = k * (self.alpha_ - (sqrt_beta / sigma) * v)
         m = self.sim_dim

@@ -105,8 +105,10 @@ def orthonormalize(a: np.ndarray) -> np.ndarray:
     Used to map an unconstrained M x C matrix (e.g. a CMA-ES sample) onto Gr(M, C).
     """
     a = np.asarray(a, dtype=float)
-    if a.ndim != 2 or a.shape[1] > a.shape[0]:
-        raise ValueError(f"orthonormalize needs an M x C matrix with C <= M, got {a.shape}")
+    # (C = 0 reached numpy's "zero-size array to reduction operation minimum")
+    if a.ndim != 2 or not 1 <= a.shape[1] <= a.shape[0]:
+        raise ValueError(f"orthonormalize needs an M x C matrix with 1 <= C <= M, got shape "
+                         f"{a.shape}")  # fmt: skip
     if not np.all(np.isfinite(a)):
         raise ValueError("orthonormalize got non-finite values")
     q, r = np.linalg.qr(a)

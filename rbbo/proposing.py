@@ -118,8 +118,8 @@ def propose(
     in_flight = [p for p in opt.pending.values() if p.kind not in CONFIRM_KINDS]
     taken = [(e.basis, e.T) for e in opt.evaluations] + [(p.basis, p.T) for p in in_flight]
     optima = sorted(
-        ((-float(r.cost), r.point) for r in result.results
-         if not np.array_equal(r.point, result.basis)),
+        ((-float(r.cost), r.point) for r in result.results  # (a NaN key would misorder)
+         if np.isfinite(r.cost) and not np.array_equal(r.point, result.basis)),
         key=lambda v: -v[0],
     )  # fmt: skip
     choices = [(result.value, result.basis), *optima, (None, None)]

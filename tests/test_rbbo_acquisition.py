@@ -464,3 +464,78 @@ def test_lrbfgs_drops_a_pair_whose_curvature_the_transport_turns_negative():
 def test_lrbfgs_needs_c1_strictly_below_c2():
     with pytest.raises(ValueError, match="need 0 < c1 < c2 < 1, got c1 = 0.5, c2 = 0.5"):
         LRBFGS(c1=0.5, c2=0.5)
+
+
+class _Broken(TraceQuadratic):
+    """tr(B^T A B), A = diag(0, 1, ..., M - 1), but where (B B^T)[0, 0] > 0.5 (B near e_0) its
+    value is NaN (``part="value"``) or its gradient is (``part="gradient"``)."""
+
+    def __init__(self, part):
+        super().__init__(np.diag(np.arange(M, dtype=float)))
+        self.part = part
+
+    def value_and_gradient(self, b):
+        value, grad = super().value_and_gradient(b)
+        if (b @ b.T)[0, 0] > 0.5:
+            return (np.nan, grad) if self.part == "value" else (value, np.full_like(grad, np.nan))
+        return value, grad
+
+    def values(self, bases):
+        return np.array([self.value_and_gradient(b)[0] for b in bases])
+
+
+def _near_e0(rng):
+    return gr.orthonormalize(np.eye(M)[:, :C] + 0.3 * rng.standard_normal((M, C)))
+
+
+def test_a_start_of_nan_value_does_not_hide_the_finite_optimum_its_run_finds(rng):
+    """The best value so far started at the best start's: a NaN there compared as no better
+    than every finite optimum, and a NaN was returned; non-finite starts now rank last."""
+    top = float(np.sum(np.arange(M)[-C:]))  # (A's C largest eigenvalues)
+    start = _near_e0(rng)
+    assert np.isnan(_Broken("value").values(start[None])[0])
+    result = maximize_on_grassmann(_Broken("value"), M, C, incumbents=start, n_random=0,
+                                   n_perturbations=0, rng=0)  # fmt: skip
+    assert result.value == pytest.approx(top, rel=1e-8)
+    # a finite start ranks above a NaN one (n_starts = 1: the one run is from the other)
+    other = gr.identity_basis(M, C)[::-1].copy()  # (rows reversed: the span of e_(M-C)..)
+    result = maximize_on_grassmann(_Broken("value"), M, C, incumbents=np.stack([start, other]),
+                                   n_random=0, n_perturbations=0, n_starts=1)  # fmt: skip
+    assert result.value == pytest.approx(top, rel=1e-8)
+    everywhere_nan = type("NaN", (TraceQuadratic,), {
+        "value_and_gradient": lambda self, b: (np.nan, np.zeros_like(b)),
+        "values": lambda self, bases: np.full(len(bases), np.nan),
+    })(None)  # fmt: skip
+    with pytest.raises(ValueError, match="no start and no local run reached a finite value"):
+        maximize_on_grassmann(everywhere_nan, M, C, n_random=4, rng=0)
+
+
+def test_a_nan_gradient_is_named_and_its_start_passed_over(rng):
+    """A NaN gradient reached the retraction's SVD ("SVD did not converge", from the
+    ConjugateGradient fallback too): it is a ValueError now, and a start whose runs both end
+    in one is passed over."""
+    start = _near_e0(rng)
+    problem = make_problem(_Broken("gradient"), M, C)
+    with pytest.raises(ValueError, match="gradient is not finite at a point where its value"):
+        problem.riemannian_gradient(start)
+    result = maximize_on_grassmann(_Broken("gradient"), M, C, incumbents=start, n_random=8,
+                                   n_starts=9, rng=0)  # fmt: skip
+    assert result.fallback_used
+    assert result.value == pytest.approx(float(np.sum(np.arange(M)[-C:])), rel=1e-8)
+    # only the start there: nothing improves on it, and it is returned
+    result = maximize_on_grassmann(_Broken("gradient"), M, C, incumbents=start, n_random=0,
+                                   n_perturbations=0)  # fmt: skip
+    assert result.results == [] and np.array_equal(result.basis, start)
+
+
+def test_maximiser_names_a_bad_start_count_or_perturbation_scale(rng):
+    """n_random = -1 was taken as 0, and a NaN perturbation scale reached numpy's SVD."""
+    f = TraceQuadratic(_symmetric(rng))
+    inc = gr.identity_basis(M, C)
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError, match=rf"n_random must be an integer >= 0, got {bad}"):
+            maximize_on_grassmann(f, M, C, incumbents=inc, n_random=bad)
+    for bad in (np.nan, np.inf, -0.1):
+        with pytest.raises(ValueError, match=rf"perturbation_scale must be a finite number >= "
+                                             rf"0, got {bad}"):  # fmt: skip
+            maximize_on_grassmann(f, M, C, incumbents=inc, perturbation_scale=bad)

@@ -197,3 +197,10 @@ def test_canonical_does_not_take_a_row_in_the_span_of_earlier_ones_for_a_pivot()
     for seed in range(20):
         q = ortho_group.rvs(2, random_state=seed)
         np.testing.assert_allclose(gr.canonical(b @ q), expected, atol=1e-12)
+
+
+def test_orthonormalize_names_a_matrix_without_columns():
+    """C = 0 reached numpy's "zero-size array to reduction operation minimum"."""
+    for shape in ((5, 0), (0, 0)):
+        with pytest.raises(ValueError, match=rf"1 <= C <= M, got shape \({shape[0]}, 0\)"):
+            gr.orthonormalize(np.zeros(shape))

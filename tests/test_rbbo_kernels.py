@@ -10,7 +10,7 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, WhiteKernel
 
 from rbbo import grassmann as gr
-from rbbo.gp import GrassmannGP
+from rbbo.gp import GPHyperparameters, GrassmannGP
 from rbbo.kernels import FidelityKernel, GrassmannKernel
 
 M, C = 7, 2
@@ -340,14 +340,17 @@ def test_gp_log_marginal_likelihood_is_that_of_the_model_it_predicts_with(rng):
                                                         rel=1e-9)  # fmt: skip
 
 
-def test_gp_of_constant_observations_predicts_that_constant(rng):
-    """y without spread keeps y_std = 1 (dividing by its zero std would give NaN everywhere)."""
+@pytest.mark.parametrize("value", [3.0, -1e-200, 1e200])
+def test_gp_of_constant_observations_predicts_that_constant(rng, value):
+    """y without spread is scaled by max |y| alone (dividing by its zero std would give NaN
+    everywhere), whatever its size; y = 0 keeps y_std = 1."""
     bases = gr.random_points(M, C, 5, rng)
-    gp = GrassmannGP(M, C, random_state=0).fit(bases, np.full(5, 3.0))
-    assert gp.y_std_ == 1.0
+    gp = GrassmannGP(M, C, random_state=0).fit(bases, np.full(5, value))
+    assert gp.y_std_ == abs(value)
     mu, sd = gp.predict(gr.random_points(M, C, 4, rng))
-    np.testing.assert_allclose(mu, 3.0, atol=1e-6)
+    np.testing.assert_allclose(mu, value, rtol=1e-6)
     assert np.all(np.isfinite(sd))
+    assert GrassmannGP(M, C).fit(bases, np.zeros(5)).y_std_ == 1.0
 
 
 def test_gp_names_bad_data_wherever_it_is(rng):
@@ -366,3 +369,119 @@ def test_gp_names_bad_data_wherever_it_is(rng):
         gp.conditioned_on(bases, np.zeros(4))
     gp.fit(bases, np.arange(4.0))
     assert gp.n_observations == 4
+
+
+def _ill_conditioned_gp(seed=2):
+    """A GP whose K has cond 4.5e8: 40 of its 45 bases within 0.4 of one subspace W, the noise
+    at the default floor (1e-6) and the length scale at the default upper bound (20), as a
+    fit on a noiseless objective ends up (the hyperparameters pinned here, not fitted)."""
+    rng = np.random.default_rng(seed)
+    w = gr.random_points(M, C, rng=rng)
+    near = []
+    for _ in range(40):
+        near.append(_retract(w, _tangent(w, rng), rng.uniform(0.02, 0.4)))
+    bases = np.concatenate([gr.random_points(M, C, 5, rng), np.stack(near)])
+    y = np.linalg.norm(np.swapaxes(bases, 1, 2) @ w, axis=(1, 2)) ** 2
+    gp = GrassmannGP(M, C, length_scale_bounds="fixed", noise_bounds="fixed",
+                     signal_bounds="fixed")  # fmt: skip
+    gp.hyperparameters = GPHyperparameters(10.0, 20.0, None, 1e-6)  # (held by "fixed")
+    return gp.fit(bases, y), w, rng
+
+
+def _tangent(b, rng):
+    """A unit tangent direction of Gr(M, C) at b."""
+    d = rng.standard_normal(b.shape)
+    d -= b @ (b.T @ d)
+    return d / np.linalg.norm(d)
+
+
+def _retract(b, d, t):
+    u, _, vt = np.linalg.svd(b + t * d, full_matrices=False)
+    return u @ vt
+
+
+def test_gp_sd_is_accurate_where_the_covariance_is_ill_conditioned():
+    """sigma = (s^2 - ||L^-1 k||^2)^(1/2) against 40-digit arithmetic on the same float64 K and
+    k: within 1e-6 relative (measured 8e-9). s^2 - k^T K^-1 k with an explicit K^-1 was off by
+    up to 30 % here (28-54 % at n = 115-200 with M = 20, C = 3)."""
+    import mpmath  # (the test extra's)
+
+    gp, _, _ = _ill_conditioned_gp()
+    hp = gp.hyperparameters
+    query = gp.bases_[-10:]
+    _, sd = gp.predict_standardized(query)
+
+    # K and k as the GP forms them, then sigma in 40 digits (a Cholesky solve as well: its
+    # rounding, ~1e-40 cond(K), is far below the tolerance)
+    k = hp.signal_variance * np.exp(-(C - gp.proj_ @ gp.proj_.T) / hp.length_scale**2)
+    k[np.diag_indices_from(k)] += hp.noise_variance + 1e-10
+    kq = hp.signal_variance * np.exp(-(C - gp.proj_ @ gr.projectors(query).T) / 400.0)
+    assert np.linalg.cond(k) > 1e8  # (what makes the explicit inverse lose sigma)
+    mpmath.mp.dps = 40
+    chol = mpmath.cholesky(mpmath.matrix(k.tolist()))
+    reference = []
+    for col in kq.T:
+        u: list = []  # L^-1 k, by forward substitution
+        for i, ki in enumerate(col):
+            u.append((ki - sum(chol[i, j] * u[j] for j in range(i))) / chol[i, i])
+        reference.append(float(mpmath.sqrt(hp.signal_variance - sum(x * x for x in u))))
+    np.testing.assert_allclose(sd, reference, rtol=1e-6)
+    # ucb_and_gradient's sigma (the acquisition's), and BOCA's through predict_standardized
+    sd_ucb = [gp.ucb_and_gradient(b, 2.0)[3] for b in query]
+    np.testing.assert_allclose(sd_ucb, reference, rtol=1e-6)
+
+
+def test_gp_ucb_gradient_matches_finite_differences_where_the_covariance_is_ill_conditioned():
+    """Along a geodesic-like curve from bases near W the UCB is smooth and its slope the
+    gradient's (central differences at h = 1e-5: within 9e-7 relative). With the explicit
+    K^-1 the UCB was jagged at that scale (differences 0.4-11 times off, of either sign):
+    noise that the acquisition's line search reads as slope."""
+    gp, w, rng = _ill_conditioned_gp()
+    h = 1e-5
+    for _ in range(4):
+        b = _retract(w, _tangent(w, rng), 0.2)
+        d = _tangent(b, rng)
+        _, grad, _, _ = gp.ucb_and_gradient(b, 2.0)
+        hi = gp.ucb_and_gradient(_retract(b, d, h), 2.0)[0]
+        lo = gp.ucb_and_gradient(_retract(b, d, -h), 2.0)[0]
+        assert (hi - lo) / (2 * h) == pytest.approx(np.sum(grad * d), rel=1e-4, abs=1e-6)
+
+
+@pytest.mark.parametrize("scale", [1e-13, 1e200, -1e300])
+def test_gp_predictions_scale_with_y_whatever_its_size(rng, scale):
+    """y is standardised after dividing by max |y|: y.std() of |y| > ~1e154 overflowed (NaN
+    predictions), and y ~ 1e-13 counted as a constant (its std below an absolute 1e-12)."""
+    bases = gr.random_points(M, C, 8, rng)
+    y = rng.standard_normal(8)
+    query = gr.random_points(M, C, 4, rng)
+    mu, sd = GrassmannGP(M, C, random_state=0).fit(bases, y).predict(query)
+    mu_s, sd_s = GrassmannGP(M, C, random_state=0).fit(bases, scale * y).predict(query)
+    np.testing.assert_allclose(mu_s / scale, mu, rtol=1e-6)
+    np.testing.assert_allclose(sd_s / abs(scale), sd, rtol=1e-6)
+
+
+def test_gp_names_observations_beyond_float64_on_its_scale(rng):
+    """y near the float64 limit fit (their mean overflowed); a fantasy whose distance to their
+    mean is beyond float64 is named, not conditioned on as inf."""
+    bases = gr.random_points(M, C, 4, rng)
+    gp = GrassmannGP(M, C, random_state=0).fit(bases[:3], [1.0e308, 1.1e308, 1.2e308])
+    mu, _ = gp.predict(bases[:3])
+    np.testing.assert_allclose(mu, [1.0e308, 1.1e308, 1.2e308], rtol=1e-2)  # (noise fitted)
+    with pytest.raises(ValueError, match=r"y = array\(\[-1.5e\+308\]\) is beyond float64"):
+        gp.conditioned_on(bases[3:], [-1.5e308])
+
+
+def test_gp_names_a_fidelity_outside_0_1_and_a_stack_given_as_one_basis(rng):
+    """z = 7 was fitted (a trajectory seven times past T_max to the fidelity kernel), and
+    ucb_and_gradient given three bases used the first."""
+    bases = gr.random_points(M, C, 5, rng)
+    y = rng.standard_normal(5)
+    for z in (np.full(5, 7.0), np.array([0.0, 0.5, 1.0, -0.1, 1.0])):
+        with pytest.raises(ValueError, match=r"z must hold 5 finite values in \[0, 1\], got"):
+            GrassmannGP(M, C, fidelity=True).fit(bases, y, z)
+    gp = GrassmannGP(M, C, fidelity=True, random_state=0).fit(bases, y, np.linspace(0, 1, 5))
+    with pytest.raises(ValueError, match=r"z must hold 1 finite values in \[0, 1\]"):
+        gp.conditioned_on(bases[:1], [0.0], [1.5])
+    with pytest.raises(ValueError, match=r"takes one basis \(7, 2\), got shape \(3, 7, 2\)"):
+        gp.ucb_and_gradient(bases[:3], 1.0)
+    assert gp.ucb_and_gradient(bases[:1], 1.0)[0] == gp.ucb_and_gradient(bases[0], 1.0)[0]
