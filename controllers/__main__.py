@@ -126,17 +126,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.replan_every is not None and args.replan_every < 1:
         parser.error(f"--replan-every must be >= 1, got {args.replan_every}")
     if args.video is not None:
-        from .episode import _check_video_path
+        from .episode import _check_video_path, _imageio
 
         try:
             _check_video_path(args.video)
-        except ValueError as exc:
+            _imageio(args.video.suffix)  # a missing extra, named now, not after the episode
+        except (ValueError, ImportError) as exc:
             parser.error(str(exc))
     import gymnasium as gym
 
     import softrom_gym  # noqa: F401  (registers the envs)
 
-    from .episode import EpisodeResult, run_episode
+    from .episode import EpisodeResult, _one_line, run_episode
 
     env_id = args.env_id if "/" in args.env_id else f"softrom_gym/{args.env_id}"
     kwargs: dict[str, Any] = dict(args.env_kwarg)
@@ -175,6 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.replan_every is not None:
         replan_every = args.replan_every
     start = time.perf_counter()
+    video_error: Exception | None = None
     try:
         result = run_episode(env, planner, args.seconds, replan_every=replan_every,
                              seed=args.seed, progress=not args.no_progress,
@@ -185,12 +187,23 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{env_id.split('/')[-1]} {partial.summary()}")
         print("interrupted", file=sys.stderr)
         return 130
+    except (OSError, ValueError, RuntimeError) as exc:
+        # the episode ran, and its video could not be written (a full disk, say): its result
+        # rides on the error, and is printed before the error, not lost in a traceback
+        ran: EpisodeResult | None = getattr(exc, "result", None)
+        if ran is None:
+            raise
+        result, video_error = ran, exc
     finally:
         env.close()
     wall = time.perf_counter() - start
     rtf = result.realtime_factor(replan_every)
     print(f"{env_id.split('/')[-1]} {result.summary()}; planning real-time factor {rtf:.3f} "
           f"(simulated s per wall s of replanning), episode wall {wall:.0f} s")  # fmt: skip
+    if video_error is not None:
+        print(f"{parser.prog}: error: the video {args.video} was not written: "
+              f"{_one_line(video_error)}", file=sys.stderr)  # fmt: skip
+        return 1
     return 0
 
 

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import importlib
 import os
+import secrets
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -147,8 +150,26 @@ def run_episode(
     progress : bool
         Show a tqdm progress bar.
     video : path, optional
-        Write the episode as a video (needs imageio with ffmpeg, and an rgb_array env);
-        ``~`` is the home folder. The folder must exist.
+        Write the episode as a video (needs an rgb_array env, and imageio, with
+        imageio-ffmpeg for all but .gif: ``pip install 'softrom[video]'``); ``~`` is the home
+        folder. The folder must exist and be writable, and the path must not be a folder:
+        all checked before the episode. It is written under a temporary name and renamed
+        into place, so that a failed write leaves an earlier video of that name as it was.
+        A GIF keeps the frames whose delays (which GIF counts in 1/100 s) add up to the
+        video's running time, so that it plays at the speed an .mp4 does.
+
+    Returns
+    -------
+    EpisodeResult
+
+    Raises
+    ------
+    KeyboardInterrupt
+        Ctrl-C, with the steps recorded so far as its ``result`` (see :class:`EpisodeResult`).
+    Exception
+        A video that cannot be written after the episode (a full disk, say) raises the
+        writer's error with the episode's :class:`EpisodeResult` as its ``result``: the
+        episode is not lost to it.
     """
     if not isinstance(planner, Planner):
         raise TypeError(f"planner must be a controllers.Planner, got {type(planner).__name__}")
@@ -174,7 +195,7 @@ def run_episode(
         # "~" is the home folder, as in a robot's mesh path and export_trajectory's path
         video = os.path.expanduser(os.fspath(video))
         _check_video_path(video)  # before the episode, not after it
-        _imageio()
+        _imageio(Path(video).suffix)
     api = EnvAPI(env)  # (planner.reset refuses an action wrapper: check_physical_actions)
     steps = max(1, round(seconds / api.dt))
     try:
@@ -204,15 +225,28 @@ def run_episode(
             replan_every,
         )  # fmt: skip
         if video is not None and len(frames) > 1:
-            _write_video(video, frames, _fps(api.dt))  # the frames so far
+            try:
+                _write_video(video, frames, _fps(api.dt))  # the frames so far
+            except (Exception, KeyboardInterrupt) as exc:  # (a second Ctrl-C skips it)
+                # the interrupt, carrying the steps, is what the caller is owed; the video
+                # is said, not raised in its place (which would drop the steps with it)
+                warnings.warn(f"the video {video} of the steps so far was not written: "
+                              f"{_one_line(exc)}", RuntimeWarning, stacklevel=2)  # fmt: skip
         raise
     finally:
         if bar is not None:
             bar.close()
+    result = _result(planner, api, env, record, com, states, replan_steps, wall, records, stop,
+                     replan_every)  # fmt: skip
     if video is not None:
-        _write_video(video, frames, _fps(api.dt))
-    return _result(planner, api, env, record, com, states, replan_steps, wall, records, stop,
-                   replan_every)  # fmt: skip
+        try:
+            _write_video(video, frames, _fps(api.dt))
+        except BaseException as exc:
+            # the episode is the user's, and it ran: it rides on the error (a Ctrl-C in a
+            # long video's encoding too), as an interrupt's steps ride on the interrupt
+            exc.result = result  # type: ignore[attr-defined]
+            raise
+    return result
 
 
 def _closed_loop(env, planner, api, steps, replan_every, record, com, states, replan_steps, wall,
@@ -296,6 +330,12 @@ _VIDEO_SUFFIXES = {".mp4", ".m4v", ".mov", ".mkv", ".avi", ".webm", ".gif"}
 
 
 def _check_video_path(video: str | os.PathLike) -> None:
+    """Raise ValueError, naming ``video``, if a video cannot be written there.
+
+    Checked before the episode: a video path that was a folder, or in a folder one cannot
+    write in, failed only once the whole episode had run, with a traceback that dropped the
+    episode's result.
+    """
     path = Path(os.path.expanduser(os.fspath(video)))  # (as run_episode reads it)
     if path.suffix.lower() not in _VIDEO_SUFFIXES:
         raise ValueError(f"video {os.fspath(video)!r}: the file name must end in one of "
@@ -303,6 +343,17 @@ def _check_video_path(video: str | os.PathLike) -> None:
     if not path.parent.is_dir():
         raise ValueError(f"video {os.fspath(video)!r}: the folder {os.fspath(path.parent)!r} "
                          "does not exist")  # fmt: skip
+    if path.is_dir():
+        raise ValueError(f"video {os.fspath(video)!r} is a folder; give a file name, e.g. "
+                         f"{os.fspath(path / ('episode' + path.suffix))!r}")  # fmt: skip
+    if path.exists() and not os.access(path, os.W_OK):
+        raise ValueError(f"video {os.fspath(video)!r} exists and is read-only")
+    try:  # the video is written under a temporary name in the folder: try one
+        _temporary_name(path).unlink()
+    except OSError as exc:
+        where = os.fspath(path.parent)
+        raise ValueError(f"video {os.fspath(video)!r}: cannot write in the folder {where!r} "
+                         f"({exc.strerror or exc})") from None  # fmt: skip
 
 
 def _progress(total: int, enabled: bool, name: str):
@@ -313,7 +364,12 @@ def _progress(total: int, enabled: bool, name: str):
     return tqdm(total=total, desc=name, unit="step", leave=False)
 
 
-def _imageio():
+def _imageio(suffix: str = ".gif"):
+    """``imageio.v2``, once the packages a video of ``suffix`` needs are known importable.
+
+    A container written through ffmpeg also needs imageio-ffmpeg, which imageio imports only
+    when it opens the file: checked here, before the episode, not met after it.
+    """
     try:
         import imageio.v2 as imageio
     except ImportError:
@@ -321,6 +377,14 @@ def _imageio():
             "writing a video needs imageio: pip install 'softrom[video]' (imageio and "
             "imageio-ffmpeg)"
         ) from None
+    if suffix.lower() in _FFMPEG_SUFFIXES:
+        try:
+            importlib.import_module("imageio_ffmpeg")  # (it ships no type information)
+        except ImportError:
+            raise ImportError(
+                f"writing a {suffix} video needs imageio-ffmpeg: pip install 'softrom[video]' "
+                "(imageio and imageio-ffmpeg)"
+            ) from None
     return imageio
 
 
@@ -336,9 +400,79 @@ def _fps(dt: float) -> int:
     return max(1, round(1.0 / dt))
 
 
+def _gif_timing(count: int, fps: int) -> tuple[list[int], list[int]]:
+    """Which of ``count`` frames a GIF shows at ``fps``, and for how long each (ms).
+
+    GIF stores a frame's delay in 1/100 s, and a delay under 2/100 s is played by browsers as
+    1/10 s: 1000 / 40 = 25 ms was stored as 20 ms, and a 40-fps episode played at 50 fps.
+    Here frame i is due at i / fps, to the 1/100 s; each frame shown lasts until the next one
+    kept is due, at least 2/100 s, so the delays add up to count / fps (to 1/100 s) and the
+    GIF plays in real time, as the .mp4 of the frames does.
+    """
+    due = [round(i * 100 / fps) for i in range(count + 1)]  # (1/100 s)
+    keep, delays = [], []
+    i = 0
+    while i < count:
+        j = i + 1
+        while j < count and due[j] - due[i] < 2:
+            j += 1
+        keep.append(i)
+        delays.append(10 * max(2, due[j] - due[i]))
+        i = j
+    return keep, delays
+
+
 def _write_video(path: str | os.PathLike, frames: list[np.ndarray], fps: int) -> None:
-    if Path(path).suffix.lower() in _FFMPEG_SUFFIXES:
+    """Write ``frames`` to ``path`` at ``fps``: under a temporary name in its folder (with its
+    suffix, which picks the writer), fsynced, then renamed over ``path``, so that a failed or
+    interrupted write leaves no truncated video and an earlier one of that name as it was."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    imageio = _imageio(suffix)
+    if suffix in _FFMPEG_SUFFIXES:
         timing: dict[str, Any] = {"fps": fps, "macro_block_size": 2}
     else:  # a GIF: imageio's pillow writer takes each frame's duration (ms); fps is deprecated
-        timing = {"duration": 1000.0 / fps}
-    _imageio().mimwrite(os.fspath(path), frames, **timing)
+        keep, delays = _gif_timing(len(frames), fps)
+        frames = [frames[i] for i in keep]
+        timing = {"duration": delays}
+    temp = _temporary_name(path)
+    try:
+        imageio.mimwrite(os.fspath(temp), frames, **timing)
+        with open(temp, "rb+") as f:  # (the writer closed it; its data may not be on disk)
+            os.fsync(f.fileno())
+        os.replace(temp, path)
+    except BaseException:
+        temp.unlink(missing_ok=True)
+        raise
+    _fsync_dir(path.parent)
+
+
+def _temporary_name(path: Path) -> Path:
+    """A new, hidden name beside ``path`` that keeps its suffix (ffmpeg picks the container
+    by it), created empty so that it stays this call's."""
+    while True:
+        temp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
+        try:
+            os.close(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:  # pragma: no cover - a 32-bit collision
+            continue
+        return temp
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a rename in folder ``path`` durable (a file's fsync does not reach its name)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # pragma: no cover - platforms without directory fds
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _one_line(exc: BaseException) -> str:
+    """The first line of an error's message (ffmpeg's add its command and output), or its
+    type's name when it has none (a KeyboardInterrupt)."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    return lines[0] if lines else type(exc).__name__

@@ -24,11 +24,12 @@ class SoftwareRenderer:
     width, height : int
         Image size in pixels.
     distance : float
-        Camera distance from the target, m.
+        Camera distance from the target, m (> 0).
     azimuth, elevation : float
-        Camera direction, degrees.
+        Camera direction, degrees; the elevation in (-90, 90) (straight above or below, the
+        image's horizontal is undefined).
     fov : float
-        Vertical field of view, degrees.
+        Vertical field of view, degrees, in (0, 180).
     cell : float
         Side of the ground's checker squares, m; the arrow's lift off the ground and the
         distance over which the ground fades scale with it (see :func:`ground_cell`).
@@ -48,6 +49,17 @@ class SoftwareRenderer:
             raise ValueError(f"image must be at least 8 x 8 pixels, got {width} x {height}")
         if not (np.isfinite(cell) and cell > 0):
             raise ValueError(f"cell must be a length > 0 m, got {cell!r}")
+        # checked here, not met as a picture: a camera at or behind its target drew a blank
+        # frame, a zero field of view raised OverflowError, and a camera straight above or
+        # below has no "right" (its view is the cross product of parallel vectors: NaN)
+        if not (np.isfinite(distance) and distance > 0):
+            raise ValueError(f"distance must be a length > 0 m, got {distance!r}")
+        if not (np.isfinite(fov) and 0 < fov < 180):
+            raise ValueError(f"fov must be an angle in (0, 180) degrees, got {fov!r}")
+        if not np.isfinite(azimuth):
+            raise ValueError(f"azimuth must be a finite angle in degrees, got {azimuth!r}")
+        if not (np.isfinite(elevation) and -90 < elevation < 90):
+            raise ValueError(f"elevation must be an angle in (-90, 90) degrees, got {elevation!r}")
         self.width, self.height = int(width), int(height)
         self.cell = float(cell)
         self.distance, self.azimuth, self.elevation, self.fov = distance, azimuth, elevation, fov

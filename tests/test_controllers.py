@@ -3,6 +3,7 @@
 Small robots (a 28-node beam, 6 modes) and short horizons keep these fast."""
 
 import dataclasses
+import errno
 import sys
 
 import gymnasium as gym
@@ -585,6 +586,130 @@ def test_a_video_of_control_periods_over_two_seconds_plays_one_frame_a_second(tm
 
     with Image.open(video) as gif:
         assert gif.n_frames == 3 and gif.info["duration"] == 1000
+
+
+def test_a_gif_plays_in_real_time(tmp_path):
+    # GIF counts delays in 1/100 s: 1000 / 40 fps = 25 ms was stored as 20 ms, and a 40-fps
+    # episode played at 50 fps (0.8 of real time)
+    env = small_env("walk", render_mode="rgb_array")
+    video = tmp_path / "walk.gif"
+    res = run_episode(env, MPPI(MPPISettings(horizon=4, knots=2, samples=2)), 0.5, seed=0,
+                      progress=False, video=video)  # fmt: skip
+    from PIL import Image
+
+    with Image.open(video) as gif:
+        delays = []
+        for i in range(gif.n_frames):
+            gif.seek(i)
+            delays.append(gif.info["duration"])
+    assert min(delays) >= 20  # (browsers play a shorter delay as 100 ms)
+    # 21 frames of 25 ms each: the episode's 0.5 s and its first frame's 25 ms, to 1/100 s
+    assert sum(delays) == pytest.approx(1000 * (res.seconds + res.dt), abs=10)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.gif"]  # (no temporary file)
+
+
+def test_a_video_path_that_is_a_folder_fails_before_the_episode(tmp_path, capsys, monkeypatch):
+    # it passed the check, and the write failed after the whole episode, with a traceback
+    # and without the episode's result
+    env = small_env("walk", render_mode="rgb_array")
+    planner = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
+    (tmp_path / "walk.mp4").mkdir()
+    with pytest.raises(ValueError, match=r"walk.mp4' is a folder; give a file name"):
+        run_episode(env, planner, 0.1, seed=0, progress=False, video=tmp_path / "walk.mp4")
+    assert planner.plan_ is None
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["BeamWalk-v0", "--video", str(tmp_path / "walk.mp4")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "walk.mp4' is a folder" in err
+    # a folder one cannot write in: found by trying, before the episode
+    import controllers.episode as episode
+
+    def refused(path):
+        raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+    monkeypatch.setattr(episode, "_temporary_name", refused)
+    with pytest.raises(ValueError, match=r"cannot write in the folder .* \(Permission denied"):
+        run_episode(env, planner, 0.1, seed=0, progress=False, video=tmp_path / "a.mp4")
+    assert planner.plan_ is None
+
+
+def test_a_video_that_cannot_be_written_hands_back_the_episode(tmp_path, capsys, monkeypatch):
+    # a write that failed after the episode (a full disk) raised without the episode's result
+    import imageio.v2 as imageio
+
+    def full_disk(uri, *args, **kwargs):
+        with open(uri, "wb") as f:
+            f.write(b"part of a video")
+        raise OSError(errno.ENOSPC, "No space left on device\n\nFFMPEG COMMAND: ...")
+
+    video = tmp_path / "walk.mp4"
+    video.write_bytes(b"an earlier video")
+    monkeypatch.setattr(imageio, "mimwrite", full_disk)
+    env = small_env("walk", render_mode="rgb_array")
+    with pytest.raises(OSError, match="No space left") as exc:
+        run_episode(env, MPPI(MPPISettings(horizon=4, knots=2, samples=2)), 0.1, seed=0,
+                    progress=False, video=video)  # fmt: skip
+    result = exc.value.result
+    assert result.stop_reason == "time" and result.rewards.size == 4 and len(result.states) == 5
+    # the earlier video is as it was, and no part of the new one is left beside it
+    assert video.read_bytes() == b"an earlier video"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.mp4"]
+    # the command line prints the episode's line, then the error on one line: exit 1
+    code = cli_main(["BeamWalk-v0", "--planner", "gn", "--seconds", "0.05", "--horizon", "4",
+                     "--window", "all", "--iterations", "1", "--no-progress", "--video",
+                     str(video)])  # fmt: skip
+    out, err = capsys.readouterr()
+    assert code == 1 and out.startswith("BeamWalk-v0 gn: 0.05 s") and "real-time factor" in out
+    # (the lines before it, if any, are the env's first build of the robot's model)
+    assert err.endswith("\n") and err.splitlines()[-1] == (
+        f"python -m controllers: error: the video {video} was not written: [Errno 28] No space "
+        "left on device"
+    )
+
+
+def test_an_interrupted_episodes_failed_video_leaves_it_the_steps(tmp_path, monkeypatch):
+    import imageio.v2 as imageio
+
+    def full_disk(uri, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(imageio, "mimwrite", full_disk)
+    env = _InterruptAt(small_env("walk", render_mode="rgb_array"), 3)
+    said = r"so_far.gif of the steps so far was not written: \[Errno 28\]"
+    with pytest.warns(RuntimeWarning, match=said), pytest.raises(KeyboardInterrupt) as interrupt:
+        run_episode(env, MPPI(MPPISettings(horizon=4, knots=2, samples=2)), 0.2, seed=0,
+                    progress=False, video=tmp_path / "so_far.gif")  # fmt: skip
+    assert interrupt.value.result.rewards.size == 2
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_mp4_without_imageio_ffmpeg_fails_before_the_episode(tmp_path, capsys, monkeypatch):
+    # imageio was checked, imageio-ffmpeg (which .mp4 needs) only met after the episode, as
+    # imageio's "Could not find a backend", which does not name the extra
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # import raises ImportError
+    env = small_env("walk", render_mode="rgb_array")
+    planner = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
+    with pytest.raises(ImportError, match=r"a \.mp4 video needs imageio-ffmpeg: pip install "
+                       r"'softrom\[video\]'"):  # fmt: skip
+        run_episode(env, planner, 0.1, seed=0, progress=False, video=tmp_path / "a.mp4")
+    assert planner.plan_ is None
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["BeamWalk-v0", "--video", str(tmp_path / "a.mp4")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "pip install 'softrom[video]'" in err
+    # a GIF needs no ffmpeg
+    run_episode(env, planner, 0.05, seed=0, progress=False, video=tmp_path / "a.gif")
+    # without imageio, the command line's error is one usage line too, before the env is made
+    monkeypatch.setitem(sys.modules, "imageio", None)
+    monkeypatch.setitem(sys.modules, "imageio.v2", None)
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["BeamWalk-v0", "--video", str(tmp_path / "b.gif")])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == ("python -m controllers: error: writing a video needs "
+                                       "imageio: pip install 'softrom[video]' (imageio and "
+                                       "imageio-ffmpeg)\n")  # fmt: skip
 
 
 def test_an_action_wrapper_that_rescales_is_refused():

@@ -730,6 +730,24 @@ def test_render_without_a_render_mode_warns_and_draws_nothing():
         SoftwareRenderer(width=100, height=7)
 
 
+@pytest.mark.parametrize(("camera", "message"), [
+    ({"distance": 0.0}, "distance must be a length > 0 m, got 0.0"),
+    ({"distance": -1.0}, "distance must be a length > 0 m, got -1.0"),
+    ({"distance": float("nan")}, "distance must be a length > 0 m, got nan"),
+    ({"fov": 0.0}, r"fov must be an angle in \(0, 180\) degrees, got 0.0"),
+    ({"fov": 180.0}, r"fov must be an angle in \(0, 180\) degrees, got 180.0"),
+    ({"elevation": 90.0}, r"elevation must be an angle in \(-90, 90\) degrees, got 90.0"),
+    ({"azimuth": float("inf")}, "azimuth must be a finite angle in degrees, got inf"),
+])  # fmt: skip
+def test_a_software_renderer_refuses_a_camera_that_cannot_see(camera, message):
+    # a distance of 0 or less drew a blank frame, and a field of view of 0 raised
+    # OverflowError at the first frame
+    from softrom_gym.rendering import SoftwareRenderer
+
+    with pytest.raises(ValueError, match=message):
+        SoftwareRenderer(**camera)
+
+
 def test_a_material_given_with_a_meshed_robot_is_the_envs_and_leaves_the_robot_alone():
     """make(robot=Robot, material=...) replaces the material of the env's copy (the path was
     never run: only robot names and meshes were given a material)."""
