@@ -2,7 +2,8 @@
 (``--planner package.module:ClassName`` runs a planner of one's own).
 
 Runs one closed-loop episode with the benchmark's defaults (:mod:`controllers.defaults`)
-and prints a one-line summary: distance between t = 2 s and the end (m and body lengths),
+and prints a one-line summary: distance between t = 2 s (t = 0 in episodes of 2 s or less)
+and the end (m and body lengths),
 the task reward R, the mean tilt |theta|, the sideways path length, the mean effort, and the
 wall time per replan; ``--video`` records the episode.
 """

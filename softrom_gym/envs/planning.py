@@ -106,8 +106,9 @@ class PlanningAPI:
 
         * ``rewards`` (B, H): the paper's R per step, d · (com_t - com_{t-1}) (m).
         * ``com`` (B, H, 3): centre of mass (m).
-        * ``theta`` (B, H, 3): linearised orientation, the rotation vector vs. rest (rad);
-          ``orientation`` (B, H) is its norm.
+        * ``theta`` (B, H, 3): orientation, the rotation vector vs. rest (rad): linearised in
+          the linear frame, the exact rotation with ``frame="floating"``; ``orientation``
+          (B, H) is its norm.
         * ``lateral`` (B, H): |motion orthogonal to d in the ground plane| this step (m).
         * ``effort`` (B, H): |f_c / a|^2 (dimensionless).
         * ``lost`` (B, H): 1.0 on the step a rollout diverges and on every step after it,

@@ -62,12 +62,15 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
 
     | index          | observation                                             | unit   |
     |----------------|---------------------------------------------------------|--------|
-    | 0              | centre-of-mass height above the ground                  | m      |
+    | 0              | centre-of-mass height above ``ground_height`` (¹)       | m      |
     | 1..3           | centre-of-mass velocity (x, y, z)                       | m/s    |
     | 4..6           | orientation (rotation vector vs. rest)                  | rad    |
     | 7..9           | angular velocity (x, y, z)                              | rad/s  |
     | 10..9+M        | deformation coordinates q_d of B_r                      | m·kg½  |
     | 10+M..9+2M     | their velocities                                        | m·kg½/s|
+
+    (¹) The ground plane z = ``ground_height`` (0 by default), a swimmer's too: there it is
+    the height above the plane the robot starts resting on, not above a floor.
 
     In the default ``frame="linear"`` orientation is the rotation vector of B_r's linearised
     rotation coordinates (small-angle: faithful to a few tenths of a radian, see
