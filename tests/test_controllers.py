@@ -1002,7 +1002,7 @@ def test_cli_runs_an_episode_and_rejects_bad_arguments(capsys):
     help_ = " ".join(cli_parser().format_help().split())
     assert "--env-kwarg robot=my_robot.stl --env-kwarg task=swim" in help_
     # and the description said only "Watch a planner walk", not what it prints
-    assert "prints a one-line summary: distance between t = 2 s and the end" in help_
+    assert "prints a one-line summary: distance between t = 2 s (t = 0 in episodes" in help_
     assert ":mod:" not in help_ and "``" not in help_
     with pytest.raises(SystemExit) as exc:
         cli_main([])
