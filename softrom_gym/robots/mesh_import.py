@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from fractions import Fraction
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -62,7 +63,172 @@ def _load(
     )
 
 
-def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
+# trimesh's ray test counts a hit up to 1e-6 (in the mesh's units) behind a ray's start, so
+# within about that of the surface its answer is its own: centres that near are left to it.
+_NEAR = 1e-6
+# A bound on the rounding of _orient's determinant per unit of its two products' magnitudes
+# (Shewchuk's orient2d bound is 3 eps + 16 eps**2; this leaves room to spare).
+_ORIENT_ERR = 8 * float(np.finfo(np.float64).eps)
+
+
+def _orient(
+    ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, px: np.ndarray, py: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which side of the line from a to b the point p lies on, in the xy-plane, exactly.
+
+    Returns
+    -------
+    sign : (n,) int8
+        +1 left of a -> b, -1 right. A point on the line is taken as (px + e, py + e**2) for
+        an infinitesimal e > 0 (simulation of simplicity): that puts it strictly on one side
+        of every line through two distinct points, and on the same side whichever triangle
+        the edge is read from. 0 only where a and b coincide in xy.
+    det : (n,) float
+        Twice the signed area of (a, b, p), correctly rounded where it was computed exactly.
+    err : (n,) float
+        A bound on the rounding of ``det``.
+    """
+    left = (ax - px) * (by - py)
+    right = (ay - py) * (bx - px)
+    det = left - right
+    err = _ORIENT_ERR * (np.abs(left) + np.abs(right))
+    sign = np.sign(det).astype(np.int8)
+    # Where the rounding could flip the sign, two triangles sharing an edge could both count a
+    # column that passes along it, or neither: those (and any near underflow) are exact.
+    unsure = np.flatnonzero(~(np.abs(det) > err) | (np.abs(det) < 1e-280))
+    if unsure.size:
+        coords = (v[unsure].tolist() for v in (ax, ay, bx, by, px, py))
+        exact = [
+            (Fraction(x0) - Fraction(x2)) * (Fraction(y1) - Fraction(y2))
+            - (Fraction(y0) - Fraction(y2)) * (Fraction(x1) - Fraction(x2))
+            for x0, y0, x1, y1, x2, y2 in zip(*coords, strict=True)
+        ]
+        sign[unsure] = [(e > 0) - (e < 0) for e in exact]
+        det[unsure] = [float(e) for e in exact]
+        err[unsure] = np.abs(det[unsure]) * np.finfo(np.float64).eps
+    on_line = np.flatnonzero(sign == 0)
+    if on_line.size:
+        # det + e (ay - by) + e**2 (bx - ax) for the moved point: the first non-zero term
+        tie = np.sign(ay[on_line] - by[on_line])
+        tie = np.where(tie != 0, tie, np.sign(bx[on_line] - ax[on_line]))
+        sign[on_line] = tie
+    return sign, det, err
+
+
+def _inside(surface: trimesh.Trimesh, axes: list[np.ndarray]) -> np.ndarray:
+    """Which centres of a voxel grid lie inside a closed surface: what
+    ``surface.contains`` gives for them, in a fraction of the time.
+
+    ``contains`` casts two rays from each point and intersects them with the triangles near
+    their paths: a minute for a 20k-face mesh at resolution 20. Here one vertical line per
+    (x, y) column of centres is intersected with the triangles whose footprint holds it, and
+    a centre is inside when an odd number of crossings lie below it (ray parity, as there).
+    The footprint test is exact, with ties (a line along an edge or through a vertex) broken
+    consistently, so each crossing is counted once. The centres a crossing's rounding could
+    put on either side, and those within ``_NEAR`` of the surface, where the two ray tests
+    need not agree (on it, ``contains`` itself is undefined), are given ``contains``'s own
+    answer.
+
+    Parameters
+    ----------
+    surface : trimesh.Trimesh
+        A closed surface (each edge shared by two faces; winding is not used).
+    axes : list of three (n_a,) float arrays
+        The centres' coordinates along x, y and z, ascending.
+
+    Returns
+    -------
+    (n_x, n_y, n_z) bool
+    """
+    xs, ys, zs = (np.asarray(a, dtype=np.float64) for a in axes)
+    shape = (len(xs), len(ys), len(zs))
+    tri = np.asarray(surface.triangles, dtype=np.float64)  # (T, 3, 3)
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    # The columns within _NEAR of each face's footprint, as index ranges along x and y
+    i0 = np.searchsorted(xs, lo[:, 0] - _NEAR, side="left")
+    i1 = np.searchsorted(xs, hi[:, 0] + _NEAR, side="right")
+    j0 = np.searchsorted(ys, lo[:, 1] - _NEAR, side="left")
+    j1 = np.searchsorted(ys, hi[:, 1] + _NEAR, side="right")
+    nj = j1 - j0
+    per_face = (i1 - i0) * nj
+    face = np.repeat(np.arange(len(tri)), per_face)
+    rank = np.arange(len(face)) - np.repeat(np.cumsum(per_face) - per_face, per_face)
+    col_i = i0[face] + rank // nj[face]
+    col_j = j0[face] + rank % nj[face]
+    column = col_i * shape[1] + col_j
+    a, b, c = (tri[face, v] for v in range(3))
+    px, py = xs[col_i], ys[col_j]
+    # Each edge's side of the column, and twice the area of the triangle it makes with it:
+    # the weight of the vertex opposite, for the height where the column crosses the face.
+    s_ab, w_c, e_c = _orient(a[:, 0], a[:, 1], b[:, 0], b[:, 1], px, py)
+    s_bc, w_a, e_a = _orient(b[:, 0], b[:, 1], c[:, 0], c[:, 1], px, py)
+    s_ca, w_b, e_b = _orient(c[:, 0], c[:, 1], a[:, 0], a[:, 1], px, py)
+    crosses = (s_ab == s_bc) & (s_bc == s_ca) & (s_ab != 0)
+
+    # Faces within _NEAR of the column (of an edge's line, or a footprint that is a point)
+    def off_line(w: np.ndarray, err: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        length = np.hypot(q[:, 0] - p[:, 0], q[:, 1] - p[:, 1])
+        return (np.abs(w) > _NEAR * length * (1 + 1e-9) + err) | (length == 0)
+
+    far = off_line(w_c, e_c, a, b) & off_line(w_a, e_a, b, c) & off_line(w_b, e_b, c, a)
+    point = (a[:, :2] == b[:, :2]).all(axis=1) & (b[:, :2] == c[:, :2]).all(axis=1)
+    seen = np.flatnonzero(crosses | ~far | point)
+
+    # The height of each such face's plane over the column: the weights' mean of its
+    # corners' heights (inside the footprint, where it crosses the face)
+    w = np.stack([w_a[seen], w_b[seen], w_c[seen]], axis=1)
+    w_err = e_a[seen] + e_b[seen] + e_c[seen]
+    total = w.sum(axis=1)
+    spread = np.abs(w).sum(axis=1)  # = |total| inside the footprint
+    heights = np.stack([a[seen, 2], b[seen, 2], c[seen, 2]], axis=1)
+    z_lo, z_hi = heights.min(axis=1), heights.max(axis=1)
+    mid, half = 0.5 * (z_lo + z_hi), 0.5 * (z_hi - z_lo)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        z_plane = mid + ((heights - mid[:, None]) * w).sum(axis=1) / total
+        # A bound on its rounding, from the weights' (w_err) and then the sums' (to first
+        # order, twice over); unbounded where the footprint's area is all rounding.
+        slack = np.abs(total) - w_err
+        z_err = 2 * w_err * half * (1 + spread / slack) / slack
+        z_err += 16 * np.finfo(np.float64).eps * (np.abs(mid) + half * (1 + spread / slack))
+        z_err[~(slack > 0)] = np.inf
+        # The centres within _NEAR of the face over a _NEAR-wide disc about the column lie
+        # within (1 + slope) _NEAR <= 1.5 |normal| / |normal_z| _NEAR of that height.
+        normal = np.cross(b[seen] - a[seen], c[seen] - a[seen])
+        steep = np.linalg.norm(normal, axis=1) / np.abs(normal[:, 2])
+        reach = z_err + 1.5 * _NEAR * steep
+    z_plane = np.where(np.isfinite(z_plane), z_plane, mid)
+    reach = np.where(np.isfinite(reach), reach, np.inf)  # (-inf, +inf): the face's heights
+    d_lo = np.maximum(z_plane - reach, z_lo - _NEAR)
+    d_hi = np.minimum(z_plane + reach, z_hi + _NEAR)
+    # Where the column crosses the face: the plane's height, in the corners' range as the
+    # exact one is (it is in doubt where rounding moved it)
+    hit = crosses[seen]
+    z_hit = np.clip(z_plane[hit], z_lo[hit], z_hi[hit])
+    hit_col = column[seen[hit]]
+
+    # Crossings below each centre, counted up its column
+    n_col, n_z = shape[0] * shape[1], shape[2]
+    above = np.searchsorted(zs, z_hit, side="right")  # the first centre above the crossing
+    count = np.bincount(hit_col * (n_z + 1) + above, minlength=n_col * (n_z + 1))
+    inside = (np.cumsum(count.reshape(n_col, n_z + 1), axis=1)[:, :n_z] % 2).astype(bool)
+
+    # Centres in doubt, also counted up their columns (+1 where a window opens, -1 after)
+    d_col = column[seen]
+    start = np.searchsorted(zs, d_lo, side="left")
+    stop = np.searchsorted(zs, d_hi, side="right")
+    keep = stop > start
+    marks = np.bincount(d_col[keep] * (n_z + 1) + start[keep], minlength=n_col * (n_z + 1))
+    marks -= np.bincount(d_col[keep] * (n_z + 1) + stop[keep], minlength=n_col * (n_z + 1))
+    doubt = np.cumsum(marks.reshape(n_col, n_z + 1), axis=1)[:, :n_z] > 0
+    inside = inside.reshape(shape)
+    doubt = doubt.reshape(shape)
+    if doubt.any():
+        ix, iy, iz = np.nonzero(doubt)
+        inside[ix, iy, iz] = surface.contains(np.stack([xs[ix], ys[iy], zs[iz]], axis=1))
+    return inside
+
+
+def _solid_bodies(surface: trimesh.Trimesh, axes: list[np.ndarray]) -> int:
     """The number of closed shells enclosing material (a shell facing inwards, a cavity, is
     not one). Refuses shells that overlap: where they do, the surface's ray test is undefined
     (it gave another robot on each call), and a cavity that reaches outside every solid.
@@ -80,15 +246,17 @@ def _solid_bodies(surface: trimesh.Trimesh, centres: np.ndarray) -> int:
         (boxes[:, None, 0] < boxes[None, :, 1]) & (boxes[None, :, 0] < boxes[:, None, 1]), axis=-1
     )
     np.fill_diagonal(meets, False)
-    winding = np.zeros(len(centres), dtype=int)
+    winding = np.zeros([len(a) for a in axes], dtype=int)
     # Shells alone in their box cannot overlap; a cavity is tested even alone, as it must lie
     # inside a solid.
     for k in np.flatnonzero(meets.any(axis=1) | (np.array(volumes) < 0)):
+        # the centres in the shell's box (a block of the grid: the axes ascend)
         lo, hi = boxes[k]
-        near = np.flatnonzero(np.all((centres >= lo) & (centres <= hi), axis=1))
-        if near.size:
-            inside = shells[k].contains(centres[near])
-            winding[near[inside]] += 1 if volumes[k] > 0 else -1
+        span = [np.flatnonzero((a >= lo[d]) & (a <= hi[d])) for d, a in enumerate(axes)]
+        if all(s.size for s in span):
+            block = tuple(slice(s[0], s[-1] + 1) for s in span)
+            inside = _inside(shells[k], [a[s] for a, s in zip(axes, block, strict=True)])
+            winding[block][inside] += 1 if volumes[k] > 0 else -1
     if winding.max(initial=0) > 1:
         raise ValueError(
             f"the mesh has {solids} closed shells, and some overlap (a voxel centre lies inside "
@@ -136,9 +304,11 @@ def from_mesh(
     """Turn a watertight surface mesh into a conforming tetrahedral :class:`Robot`.
 
     The mesh is voxelised on a grid of ``resolution`` voxels along its longest side; a voxel
-    is filled when its centre is inside the surface (``trimesh.Trimesh.contains``), which
-    keeps the volume unbiased. Filled voxels are split into six tetrahedra each, and only the
-    largest face-connected piece is kept. The result rests on z = 0, centred on the z axis.
+    is filled when its centre is inside the surface (by ray parity, as
+    ``trimesh.Trimesh.contains`` tells it, but with one ray per column of voxels: seconds
+    for a 100k-face scan), which keeps the volume unbiased. Filled voxels are split into six
+    tetrahedra each, and only the largest face-connected piece is kept. The result rests on
+    z = 0, centred on the z axis.
 
     Parameters
     ----------
@@ -230,9 +400,8 @@ def from_mesh(
     # Centre the grid on the mesh so the voxelisation is symmetric for symmetric shapes.
     origin = 0.5 * (lo + hi) - 0.5 * pitch * counts
     axes = [origin[a] + pitch * (np.arange(counts[a]) + 0.5) for a in range(3)]
-    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    bodies = _solid_bodies(surface, centres)
-    occ = surface.contains(centres).reshape(counts)
+    bodies = _solid_bodies(surface, axes)
+    occ = _inside(surface, axes)
     if not occ.any():
         with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume
             volume = abs(float(surface.volume))
