@@ -165,7 +165,10 @@ def _modal_derivatives(
             km = fem.stiffness(nodes - eps * u)
             dk_cache[i] = (kp - km) / (2 * eps)
         rhs = -(dk_cache[i] @ modes[:, j])
-        rhs -= mr @ (rigid.T @ rhs)  # the force is free of net force/torque up to round-off
+        # The force has no net force, and a net torque only at second order (dK/du_i u_j of
+        # the rest state is not exactly torque-free): projected out, so phi is solvable with
+        # K singular on the rigid motions.
+        rhs -= mr @ (rigid.T @ rhs)
         phi = solve(rhs)
         phi -= rigid @ (mr.T @ phi)
         derivs.append(phi)
