@@ -28,7 +28,10 @@ __all__ = ["resume"]
 def resume(cls: type[RBBO], path, *, read_only: bool = False) -> RBBO:
     """The optimiser of run directory ``path``, rebuilt from its records (see
     :meth:`RBBO.resume`, which calls this with its class)."""
+    from .optimizer import CONFIG_VERSION  # (here: the optimizer imports this module)
+
     store = RunStore.open(path, repair=not read_only)
+    _check_version(store, CONFIG_VERSION)
     settings = store.config.get("rbbo")
     if not isinstance(settings, dict):
         raise RunDirectoryError(f"{store.path}/config.json has no 'rbbo' settings")
@@ -42,6 +45,7 @@ def resume(cls: type[RBBO], path, *, read_only: bool = False) -> RBBO:
         if value is not None and not isinstance(value, dict):
             raise RunDirectoryError(f"{store.path}/config.json has invalid settings: {key!r} "
                                     f"must be a JSON object, got {value!r}")  # fmt: skip
+    _check_problem(store)
     opt = cls(config, store=store, objective_spec=store.config.get("objective"))
     history = store.history()
     _check_history(store, history, config)
@@ -55,6 +59,38 @@ def resume(cls: type[RBBO], path, *, read_only: bool = False) -> RBBO:
         opt._elapsed_offset = max(e.elapsed_s for e in history)
     _warm_start_from(opt, history)
     return opt
+
+
+def _check_version(store: RunStore, current: int) -> None:
+    """Refuse a config.json that a newer rbbo wrote (``version`` above ``current``): its
+    settings and records may mean what this code cannot know, and a resume would write its
+    own into them. A run without a version (made before it was recorded) is read as the
+    first."""
+    version = store.config.get("version")
+    if version is None:
+        return
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise RunDirectoryError(f"{store.path}/config.json has invalid settings: 'version' "
+                                f"must be a positive integer, got {version!r}")  # fmt: skip
+    if version > current:
+        raise RunDirectoryError(f"{store.path}/config.json is version {version}, written by a "
+                                f"newer rbbo (this one reads versions up to {current}): "
+                                "upgrade rbbo to use this run")  # fmt: skip
+
+
+def _check_problem(store: RunStore) -> None:
+    """Refuse a hand-edited ``problem`` (what ``rbbo optimize`` stored for the report's
+    problem and N columns) whose values the report could not print, naming the value."""
+    problem = store.config.get("problem") or {}
+    env_id, nodes = problem.get("env_id"), problem.get("N")
+    if env_id is not None and not isinstance(env_id, str):
+        raise RunDirectoryError(f"{store.path}/config.json has invalid settings: problem "
+                                f"env_id must be a string, got {env_id!r}")  # fmt: skip
+    if nodes is not None and (isinstance(nodes, bool) or not isinstance(nodes, int)
+                              or nodes < 0):  # fmt: skip
+        raise RunDirectoryError(f"{store.path}/config.json has invalid settings: problem N "
+                                f"must be a count of nodes (an integer >= 0) or null, got "
+                                f"{nodes!r}")  # fmt: skip
 
 
 def _check_history(store: RunStore, history: list[Evaluation], config: RBBOConfig) -> None:

@@ -146,6 +146,8 @@ def test_env_kwargs_reach_the_env_and_the_run_directory(tmp_path, capsys, monkey
 
 
 def test_rollout_video_without_imageio_is_a_usage_error(tmp_path, capsys, monkeypatch):
+    import controllers.episode  # noqa: F401 - the real checks, under the stand-in package below
+
     monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
     run = tmp_path / "env-run"
     assert main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
@@ -155,8 +157,37 @@ def test_rollout_video_without_imageio_is_a_usage_error(tmp_path, capsys, monkey
     monkeypatch.setitem(sys.modules, "imageio", None)  # import imageio raises ImportError
     monkeypatch.setitem(sys.modules, "imageio.v2", None)
     err = _error(capsys, ["rollout", str(run), "--video", str(tmp_path / "a.mp4")])
-    assert "--video needs imageio: pip install 'softrom[video]'" in err
+    assert "--video: writing a video needs imageio: pip install 'softrom[video]'" in err
     assert not (tmp_path / "a.mp4").exists()
+
+
+def test_rollout_video_that_could_not_be_written_is_a_usage_error_before_the_episode(
+    tmp_path, capsys, monkeypatch
+):
+    # --video checked imageio only: without imageio-ffmpeg, or to a folder, the episode ran
+    # whole and then failed to write (a traceback, or the episode's result lost)
+    import controllers.episode  # noqa: F401 - the real checks, under the stand-in package below
+
+    calls = []
+    monkeypatch.setitem(sys.modules, "controllers", _fake_controllers(calls))
+    run = tmp_path / "env-run"
+    assert main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
+                 "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",
+                 "--executor", "serial", "--no-progress", "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    episodes = len(calls)
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # import raises ImportError
+    err = _error(capsys, ["rollout", str(run), "--video", str(tmp_path / "a.mp4")])
+    assert "--video: writing a .mp4 video needs imageio-ffmpeg: pip install 'softrom[video]'" in err
+    monkeypatch.delitem(sys.modules, "imageio_ffmpeg")
+    (tmp_path / "clip.mp4").mkdir()
+    err = _error(capsys, ["rollout", str(run), "--video", str(tmp_path / "clip.mp4")])
+    assert f"--video {str(tmp_path / 'clip.mp4')!r} is a folder; give a file name" in err
+    (tmp_path / "file").write_text("")
+    video = tmp_path / "file" / "a.mp4"
+    err = _error(capsys, ["rollout", str(run), "--video", str(video)])
+    assert f"--video {video}: cannot create its folder {tmp_path / 'file'}" in err
+    assert len(calls) == episodes  # refused before any episode
 
 
 def test_rollout_video_of_the_settling_seconds_prints_no_r(tmp_path, capsys, monkeypatch):
@@ -164,7 +195,7 @@ def test_rollout_video_of_the_settling_seconds_prints_no_r(tmp_path, capsys, mon
 
     monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
     # the stand-in controllers write no video: imageio is not needed
-    monkeypatch.setattr(rbbo.cli.rollout, "_require_imageio", lambda: None)
+    monkeypatch.setattr(rbbo.cli.rollout, "_require_imageio", lambda suffix: None)
     run = tmp_path / "env-run"
     assert main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
                  "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",
@@ -189,7 +220,7 @@ def test_rollout_video_name_without_a_video_suffix_is_a_usage_error(tmp_path, ca
     import rbbo.cli.rollout
 
     monkeypatch.setitem(sys.modules, "controllers", _fake_controllers([]))
-    monkeypatch.setattr(rbbo.cli.rollout, "_require_imageio", lambda: None)
+    monkeypatch.setattr(rbbo.cli.rollout, "_require_imageio", lambda suffix: None)
     run = tmp_path / "env-run"
     assert main(["optimize", "rbbo_test/StandIn-v0", "--sim-dim", "6", "--control-dim", "2",
                  "--init", "2", "--iterations", "2", "--t-max", "4", "--confirm-seeds", "1",
@@ -884,7 +915,9 @@ def test_report_reads_a_run_that_is_still_writing_and_changes_nothing(tmp_path, 
     with open(run / "history.jsonl", "a") as f:
         f.write('{"index": 9, "R')  # the line the run's process is writing right now
     before = (run / "history.jsonl").read_bytes()
-    (run / "best_basis.npy").unlink()  # as a run whose first session has not finished
+    # as a run whose first session has not finished (both are written when one does)
+    (run / "best_basis.npy").unlink()
+    (run / "summary.json").unlink()
     assert main(["report", str(run)]) == 0
     assert (run / "history.jsonl").read_bytes() == before
     assert not (run / "best_basis.npy").exists()
@@ -1212,3 +1245,143 @@ def test_optimize_and_resume_with_a_planner_of_ones_own_in_worker_processes(
         assert len([h for h in _history(run) if not h["kind"].startswith("confirm")]) == 3
     finally:
         sys.modules.pop("own_rbbo_planner", None)
+
+
+def test_resume_gives_a_run_a_new_timeout_and_keeps_it(tmp_path, capsys, monkeypatch):
+    # rbbo resume had no --timeout: a run whose evaluations timed out could only be resumed
+    # into more timeouts
+    import rbbo.cli.optimize as cli_optimize
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+
+    run = tmp_path / "run"
+    execution = {"executor": "process", "workers": 1, "timeout_s": 0.2, "address": None,
+                 "deterministic": False}  # fmt: skip
+    RBBO.create(run, RBBOConfig(6, 2, n_init=3, max_evaluations=1, n_confirm=0),
+                objective_spec=SyntheticObjective(6, 2, delay=0.5).spec(),
+                extra={"execution": execution}).close()  # fmt: skip
+    made = []
+    real = cli_optimize._make_executor
+    monkeypatch.setattr(cli_optimize, "_make_executor",
+                        lambda objective, execution: made.append(dict(execution))
+                        or real(objective, execution))  # fmt: skip
+    assert main(["resume", str(run), "--timeout", "1m", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert (f"{run}: its per-evaluation limit (--timeout) is now 60 s (was 0.2 s), stored in "
+            "config.json for later resumes") in err  # fmt: skip
+    assert [(h["status"], h["error"]) for h in _history(run)] == [("ok", None)]  # 0.5 s > 0.2 s
+    assert json.loads((run / "config.json").read_text())["execution"]["timeout_s"] == 60.0
+    # a later plain resume (an interrupted run's hint) keeps it
+    assert main(["resume", str(run), "--iterations", "2", "--executor", "serial",
+                 "--no-progress"]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert [m["timeout_s"] for m in made] == [60.0, 60.0]
+    # refused as optimize refuses it, changing nothing
+    before = (run / "config.json").read_bytes()
+    for argv in (["--executor", "serial", "--timeout", "5m"], ["--timeout", "-5m"],
+                 ["--timeout", "5q"]):  # fmt: skip
+        err = _error(capsys, ["resume", str(run), *argv])
+        assert ("--timeout is for --executor process or ray" in err
+                or "argument --timeout: duration must be positive, got '-5m'" in err
+                or "argument --timeout: invalid duration '5q'" in err), err  # fmt: skip
+    serial = tmp_path / "serial"
+    RBBO.create(serial, RBBOConfig(6, 2, n_init=3, max_evaluations=1, n_confirm=0),
+                objective_spec=SyntheticObjective(6, 2).spec(),
+                extra={"execution": {**execution, "executor": "serial"}}).close()  # fmt: skip
+    err = _error(capsys, ["resume", str(serial), "--timeout", "5m"])
+    assert "--timeout is for --executor process or ray: the serial executor" in err
+    assert (run / "config.json").read_bytes() == before
+    assert len(made) == 2  # (each refused before its executor was made)
+    # a resume refused for another reason stores no timeout either
+    unlimited = tmp_path / "unlimited"
+    RBBO.create(unlimited, RBBOConfig(6, 2, n_init=3, n_confirm=0),
+                objective_spec=SyntheticObjective(6, 2).spec(),
+                extra={"execution": execution}).close()  # fmt: skip
+    kept = (unlimited / "config.json").read_bytes()
+    assert "stores no limit" in _error(capsys, ["resume", str(unlimited), "--timeout", "5m"])
+    assert (unlimited / "config.json").read_bytes() == kept
+
+
+def test_edited_run_files_are_named_in_one_line(tmp_path, capsys):
+    # an edited config.json's problem or version, or a history field of the wrong type, gave
+    # tracebacks in report, resume and confirm (ValueError: Unknown format code 'd', TypeError)
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+                 "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    config = json.loads((run / "config.json").read_text())
+    history = (run / "history.jsonl").read_text()
+
+    def edited(**changes):
+        (run / "config.json").write_text(json.dumps({**config, **changes}))
+        return [_error(capsys, [command, str(run)]) for command in ("report", "resume", "confirm")]
+
+    for err in edited(problem={"env_id": 5, "N": None}):
+        assert "config.json has invalid settings: problem env_id must be a string, got 5" in err
+    for err in edited(problem={"env_id": "synthetic", "N": "abc"}):
+        assert "problem N must be a count of nodes (an integer >= 0) or null, got 'abc'" in err
+    for err in edited(version=99):
+        assert (f"{run}/config.json is version 99, written by a newer rbbo (this one reads "
+                "versions up to 1): upgrade rbbo to use this run") in err  # fmt: skip
+    for err in edited(version="1"):
+        assert "'version' must be a positive integer, got '1'" in err
+    (run / "config.json").write_text(json.dumps({k: v for k, v in config.items()
+                                                 if k != "version"}))  # fmt: skip
+    assert main(["report", str(run)]) == 0  # (a run made before versions were recorded)
+    capsys.readouterr()
+    (run / "config.json").write_text(json.dumps(config))
+    lines = history.splitlines()
+    record = json.loads(lines[1])
+    record["elapsed_s"] = "x"
+    (run / "history.jsonl").write_text("\n".join([lines[0], json.dumps(record), *lines[2:]]) + "\n")
+    for command in ("report", "resume", "confirm"):
+        err = _error(capsys, [command, str(run)])
+        assert (f"{run / 'history.jsonl'} line 2 is corrupted (elapsed_s must be a number of "
+                "seconds >= 0, got 'x')") in err  # fmt: skip
+    assert (run / "history.jsonl").read_text() != history  # (as edited: nothing rewritten)
+
+
+def test_a_finished_run_whose_best_basis_was_deleted_says_so_and_resume_writes_it(tmp_path, capsys):
+    # the report said "no session has finished" of a run that had
+    from rbbo.store import RunDirectoryError, RunStore
+
+    run = tmp_path / "run"
+    assert main(["optimize", "synthetic", *TINY, "--iterations", "4", "--executor", "serial",
+                 "--out", str(run)]) == 0  # fmt: skip
+    capsys.readouterr()
+    best = (run / "best_basis.npy").read_bytes()
+    (run / "best_basis.npy").unlink()
+    assert main(["report", str(run)]) == 0
+    err = capsys.readouterr().err
+    assert (f"best_basis.npy is missing (written when a session finished; rbbo resume {run} "
+            "writes it again)") in err  # fmt: skip
+    with pytest.raises(RunDirectoryError, match=r"best_basis.npy is missing: it was written "
+                       rf"\(evaluation \d+'s basis\) when a session of the run finished; "
+                       f"rbbo resume {run} writes it again"):  # fmt: skip
+        RunStore.open(run, repair=False).best_basis()
+    assert main(["resume", str(run), "--no-progress"]) == 0
+    assert (run / "best_basis.npy").read_bytes() == best
+
+
+INTERRUPTED_IMPORT = """
+import sys
+
+
+class Interrupt:  # Ctrl-C while the simulator's Python side loads
+    def find_spec(self, name, path=None, target=None):
+        if name == "softrom_gym":
+            raise KeyboardInterrupt
+        return None
+
+
+sys.meta_path.insert(0, Interrupt())
+from rbbo.cli import main  # as the console script does
+
+sys.exit(main())
+"""
+
+
+def test_ctrl_c_while_the_command_line_starts_exits_130_without_a_traceback(tmp_path):
+    # the imports ran before main's handler: a KeyboardInterrupt traceback, exit status -2
+    proc = subprocess.run([sys.executable, "-c", INTERRUPTED_IMPORT, "report", str(tmp_path)],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert (proc.returncode, proc.stderr) == (130, "\ninterrupted\n")

@@ -295,3 +295,79 @@ def test_ctrl_c_stops_a_run_on_its_own_pool_without_waiting_for_an_evaluation_in
     assert [e.index for e in opt.history] == [1]
     opt.store.close()
     assert RBBO.resume(tmp_path / "run").ask().index == 0
+
+
+def _killed(process) -> None:
+    """SIGKILL a worker process of a pool and wait until it is dead."""
+    import os
+    import signal
+
+    os.kill(process.pid, signal.SIGKILL)
+    process.join(timeout=30)
+    assert not process.is_alive()
+
+
+def test_a_worker_that_dies_while_idle_is_replaced_and_the_next_task_runs():
+    # (the OOM killer, a stray kill) the next task was sent to the dead worker and recorded
+    # as failed for good, "could not reach the worker: [Errno 32] Broken pipe", never run
+    with ProcessExecutor(FaultyObjective(), workers=1, timeout_s=60) as pool:
+        assert pool.submit(_task(0, 1)).result(timeout=60).status == "ok"
+        _killed(pool._slots[0].process)
+        outcomes = [pool.submit(_task(i, 1)).result(timeout=60) for i in (1, 2)]
+    assert [(o.index, o.status, o.worker) for o in outcomes] == [
+        (1, "ok", "process-0.1"), (2, "ok", "process-0.1")]  # fmt: skip
+
+
+def test_a_task_its_dead_worker_could_not_take_runs_on_a_new_one(monkeypatch):
+    # the dead worker not yet noticed (its death between two looks of the pool) when a task
+    # is sent to it: the send fails, and the task, which never ran, is queued again first
+    from rbbo.executors.process import ProcessExecutor as Pool
+
+    monkeypatch.setattr(Pool, "_check_idle", lambda self, slot: None)
+    with Pool(FaultyObjective(), workers=1, timeout_s=60) as pool:
+        assert pool.submit(_task(0, 1)).result(timeout=60).status == "ok"
+        _killed(pool._slots[0].process)
+        futures = [pool.submit(_task(i, 1)) for i in (1, 2)]
+        outcomes = [f.result(timeout=60) for f in futures]
+    assert [(o.index, o.status, o.worker) for o in outcomes] == [
+        (1, "ok", "process-0.1"), (2, "ok", "process-0.1")]  # fmt: skip
+
+
+ORPHAN = """
+import time
+from rbbo.executors import ProcessExecutor
+from rbbo.testing import FaultyObjective
+import numpy as np
+from rbbo.executors import EvaluationTask
+
+pool = ProcessExecutor(FaultyObjective(hang_s=120), workers=1)
+future = pool.submit(EvaluationTask(0, np.eye(3)[:, :1], FaultyObjective.HANG, (0,)))
+while not future.running():
+    time.sleep(0.01)
+time.sleep(0.5)  # (the task sent: the worker is in its evaluation)
+print(pool._slots[0].process.pid, flush=True)
+time.sleep(120)
+"""
+
+
+def test_a_worker_whose_run_was_killed_exits_at_once_and_quietly():
+    # kill -9 of the run skips its shutdown: its workers ran their evaluations on (up to
+    # the evaluation's length), then printed a BrokenPipeError traceback for the result
+    import os
+    import signal
+    import subprocess
+
+    run = subprocess.Popen([sys.executable, "-c", ORPHAN], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        worker = int(run.stdout.readline())
+    finally:
+        run.kill()
+    try:
+        # the worker shares the run's pipes: they reach their end when it too has exited
+        out, err = run.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.kill(worker, signal.SIGKILL)  # it outlived its run: not left to the machine
+        run.communicate()
+        raise
+    assert (out, err) == ("", "")

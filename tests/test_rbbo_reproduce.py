@@ -2131,3 +2131,25 @@ def test_an_optimisation_run_stopped_by_an_error_releases_its_run_directory(tmp_
                            text=True, timeout=120)  # fmt: skip
     assert child.returncode == 0, child.stderr
     assert child.stdout.strip() == "1"
+
+
+def test_a_run_refused_for_another_plan_is_closed_so_the_next_try_gets_the_same_answer(
+    tmp_path,
+):
+    # A run of another plan is refused by name; it must also be closed at once: a second
+    # writer in one process is refused, so a run left open by the refusal made the next
+    # attempt read "in use by another writer in this process" instead.
+    from rbbo import RBBO
+    from rbbo.reproduce.optimisation_runs import _config, _objective, optimise
+    from rbbo.store import RunDirectoryError
+
+    plan = ReproducePlan(benchmarks=["CrossSwim-v0"], stages=["table"])
+    objective = _objective(plan, "CrossSwim-v0")
+    path = tmp_path / "run"
+    other = _config(plan, "boca", 60.0, repeat=1)  # another seed
+    RBBO.create(path, other, objective_spec=objective.spec()).close()
+    kept = []  # (the tracebacks kept, as a caller's handler may: they hold the frame's run)
+    for _ in range(2):
+        with pytest.raises(RunDirectoryError, match="was made with seed = 1, this plan has 0") as e:
+            optimise(path, plan, objective, "boca", 60.0, False, lambda line: None)
+        kept.append(e)

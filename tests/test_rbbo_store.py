@@ -20,7 +20,7 @@ def test_roundtrip_is_exact(tmp_path):
     basis = np.linalg.qr(np.random.default_rng(0).standard_normal((4, 2)))[0]
     store.append(Evaluation(0, basis, 4.5, 0.123456789012345678, seeds=[3], kind="initial"))
     store.append(_evaluation(1, status="failed"))
-    again = RunStore.open(tmp_path / "run")
+    again = RunStore.open(tmp_path / "run", repair=False)  # (a reader, beside the writer)
     assert again.config == {"sim_dim": 4, "control_dim": 2}
     hist = again.history()
     np.testing.assert_array_equal(hist[0].basis, basis)
@@ -36,6 +36,7 @@ def test_truncated_last_line_is_dropped_with_a_warning(tmp_path):
         store.append(_evaluation(i))
     with open(store.history_path, "a") as f:
         f.write(_evaluation(3).to_json()[:40])  # a write cut short by kill -9
+    store.close()
     with pytest.warns(TruncatedHistoryWarning, match="dropped a truncated last line") as caught:
         reopened = RunStore.open(tmp_path)
     # it names the caller's line, not one inside rbbo (it named rbbo/restore.py's after the
@@ -44,7 +45,7 @@ def test_truncated_last_line_is_dropped_with_a_warning(tmp_path):
     assert [e.index for e in reopened.history()] == [0, 1, 2]
     assert (tmp_path / "history.jsonl.truncated").read_text().startswith('{"index": 3')
     reopened.append(_evaluation(4))  # appends land on a clean line
-    assert [e.index for e in RunStore.open(tmp_path).history()] == [0, 1, 2, 4]
+    assert [e.index for e in RunStore.open(tmp_path, repair=False).history()] == [0, 1, 2, 4]
 
 
 def test_a_whole_last_line_without_its_newline_is_kept(tmp_path, recwarn):
@@ -54,11 +55,12 @@ def test_a_whole_last_line_without_its_newline_is_kept(tmp_path, recwarn):
     with open(store.history_path, "a") as f:
         f.write(_evaluation(2).to_json())  # the write stopped before its newline
     assert [e.index for e in RunStore.open(tmp_path, repair=False).history()] == [0, 1]
+    store.close()
     reopened = RunStore.open(tmp_path)
     assert not recwarn.list and not (tmp_path / "history.jsonl.truncated").exists()
     assert [e.index for e in reopened.history()] == [0, 1, 2]
     reopened.append(_evaluation(3))
-    assert [e.index for e in RunStore.open(tmp_path).history()] == [0, 1, 2, 3]
+    assert [e.index for e in RunStore.open(tmp_path, repair=False).history()] == [0, 1, 2, 3]
 
 
 def test_read_only_open_skips_a_line_being_written_and_changes_nothing(tmp_path):
@@ -78,6 +80,7 @@ def test_corrupted_line_in_the_middle_is_an_error(tmp_path):
     with open(store.history_path, "a") as f:
         f.write("{not json}\n")
     store.append(_evaluation(2))
+    store.close()
     with pytest.raises(RunDirectoryError, match=r"history.jsonl line 2 is corrupted"):
         RunStore.open(tmp_path).history()
 
@@ -128,6 +131,21 @@ def test_evaluation_validation():
         ("index", 1.5, "index must be an integer, got 1.5"),
         ("basis", [[1.0, None], [0.0, 1.0]], "basis holds non-finite values"),
         ("kind", "bogus", "kind must be one of .*, got 'bogus'"),
+        # (these were never checked: report, resume and confirm met them as TypeErrors)
+        ("elapsed_s", "x", "elapsed_s must be a number of seconds >= 0, got 'x'"),
+        ("elapsed_s", None, "elapsed_s must be a number of seconds >= 0, got None"),
+        ("wall_s", "x", "wall_s must be a number of seconds >= 0, got 'x'"),
+        ("wall_s", -1.0, "wall_s must be a number of seconds >= 0, got -1.0"),
+        ("seeds", "ab", "seeds must be a list of integers, got 'ab'"),
+        ("seeds", [0.5], r"seeds must be a list of integers, got \[0.5\]"),
+        ("R_seeds", 3, "R_seeds must be a list of finite numbers, got 3"),
+        ("R_seeds", ["a"], r"R_seeds must be a list of finite numbers, got \['a'\]"),
+        ("R", "x", "R must be a number or null, got 'x'"),
+        ("gp", "x", "gp must be null or an object of numbers, got 'x'"),
+        ("gp", {"length_scale": "x"}, "gp must be null or an object of numbers"),
+        ("duplicates_skipped", "x", "duplicates_skipped must be an integer >= 0, got 'x'"),
+        ("worker", 5, "worker must be a string, got 5"),
+        ("error", 5, "error must be a string or null, got 5"),
     ],
 )
 def test_an_edited_line_of_the_wrong_type_is_named(tmp_path, key, value, match):
@@ -139,13 +157,14 @@ def test_an_edited_line_of_the_wrong_type_is_named(tmp_path, key, value, match):
     with open(store.history_path, "a") as f:
         f.write(json.dumps(record) + "\n")
     with pytest.raises(RunDirectoryError, match=rf"history.jsonl line 2 is corrupted \({match}"):
-        RunStore.open(tmp_path).history()
+        RunStore.open(tmp_path, repair=False).history()
 
 
 def test_a_run_killed_before_its_history_existed_reads_as_empty(tmp_path):
     store = RunStore.create(tmp_path / "run", {"rbbo": {}})
     store.history_path.unlink()  # as if killed between writing config.json and the history
     assert RunStore.open(tmp_path / "run", repair=False).history() == []
+    store.close()
     RunStore.open(tmp_path / "run")  # resuming makes it again
     assert (tmp_path / "run" / "history.jsonl").is_file()
 
@@ -173,13 +192,39 @@ def test_a_second_process_cannot_write_a_run_directory(tmp_path):
 
     run = tmp_path / "run"
     store = RunStore.create(run, {"sim_dim": 4, "control_dim": 2})
-    again = RunStore.open(run)  # this process's stores share the lock
     assert f"is in use by another process (pid {os.getpid()})" in probe("write")
     assert probe("read") == "opened\n"  # readers take no lock
     store.close()
-    assert "in use" in probe("write")  # still held by the second store
-    again.close()
     assert probe("write") == "opened\n"
+
+
+def test_a_second_writer_in_the_same_process_is_refused_and_readers_are_not(tmp_path):
+    # Stores of one process shared the lock: a second RBBO.resume beside an open one handed
+    # out the same evaluation index, both were told, and the next resume found the history
+    # corrupted ("evaluation 4 is recorded on line 5 already").
+    import os
+
+    from rbbo import RBBO, RBBOConfig, SyntheticObjective
+
+    run = tmp_path / "run"
+    fast = {"acq_random": 64, "acq_starts": 2, "acq_max_iterations": 30, "gp_restarts": 0}
+    opt = RBBO.create(run, RBBOConfig(6, 2, n_init=3, max_evaluations=10, n_confirm=0, **fast))
+    opt.run(SyntheticObjective(6, 2), max_evaluations=4, confirm=False)
+    refused = (rf"{run} is in use by another writer in this process \(pid {os.getpid()}\): "
+               r"close it first \(RBBO.close\(\), or leave its with block\)")  # fmt: skip
+    with pytest.raises(RunDirectoryError, match=refused):
+        RBBO.resume(run)
+    (tmp_path / "link").symlink_to(run)  # (the same directory by another name)
+    with pytest.raises(RunDirectoryError, match="in use by another writer in this process"):
+        RunStore.open(tmp_path / "link")
+    reader = RBBO.resume(run, read_only=True)  # readers take no lock
+    assert [e.index for e in reader.history] == [0, 1, 2, 3]
+    proposal = opt.ask()  # the open writer goes on, unharmed by the refusals
+    opt.tell(proposal.index, 0.5)
+    opt.close()
+    with RBBO.resume(run) as again:  # once it is closed, a resume writes
+        again.tell(again.ask().index, 0.6)
+    assert [e.index for e in RBBO.resume(run, read_only=True).history] == [0, 1, 2, 3, 4, 5]
 
 
 def test_update_config_merges_rewrites_and_needs_the_lock(tmp_path):

@@ -11,27 +11,38 @@ source location.
 
 from __future__ import annotations
 
+import importlib
 import sys
-
-from .._warn import say_warnings_as
-from .baselines import cmd_baselines
-from .errors import UsageError
-from .optimize import cmd_confirm, cmd_optimize, cmd_resume
-from .parser import _parser
-from .report import cmd_report
-from .rollout import cmd_rollout
-from .signals import _terminate_as_interrupt
+from collections.abc import Callable
+from typing import Any
 
 
 def cmd_reproduce(args) -> int:
     from ..reproduce.cli import command
+    from .errors import UsageError
 
     return command(args, UsageError)
 
 
-COMMANDS = {"optimize": cmd_optimize, "resume": cmd_resume, "confirm": cmd_confirm,
-            "report": cmd_report,
-            "rollout": cmd_rollout, "baselines": cmd_baselines,
+def _command(module: str, name: str) -> Callable[[Any], int]:
+    """Subcommand ``name`` of module ``module`` of this package, imported when it runs: the
+    commands' modules import numpy, scipy and the simulator's Python side (a second or more),
+    which `import rbbo.cli` must not, so that an interrupt while they load reaches
+    :func:`main`'s handler."""
+
+    def command(args) -> int:
+        return getattr(importlib.import_module(f".{module}", __package__), name)(args)
+
+    command.__name__ = command.__qualname__ = name
+    return command
+
+
+COMMANDS = {"optimize": _command("optimize", "cmd_optimize"),
+            "resume": _command("optimize", "cmd_resume"),
+            "confirm": _command("optimize", "cmd_confirm"),
+            "report": _command("report", "cmd_report"),
+            "rollout": _command("rollout", "cmd_rollout"),
+            "baselines": _command("baselines", "cmd_baselines"),
             "reproduce": cmd_reproduce}  # fmt: skip
 
 
@@ -42,9 +53,20 @@ def main(argv: list[str] | None = None) -> int:
     rbbo``) it also prints the warnings of the process as ``rbbo: warning:`` lines; a call
     with an argument list leaves the caller's warning display alone.
     """
-    from ..objective import ObjectiveMismatch, SimulationSpaceMismatch
-    from ..optimizer import EvaluationsFailing
-    from ..store import RunDirectoryError
+    try:
+        # Imported here, not with the module: they take a second or more (numpy, scipy, the
+        # simulator's Python side), and Ctrl-C while they load is an interrupt like any other
+        # (status 130, one line), not a KeyboardInterrupt traceback.
+        from .._warn import say_warnings_as
+        from ..objective import ObjectiveMismatch, SimulationSpaceMismatch
+        from ..optimizer import EvaluationsFailing
+        from ..store import RunDirectoryError
+        from .errors import UsageError
+        from .parser import _parser
+        from .signals import _terminate_as_interrupt
+    except KeyboardInterrupt:
+        print("\ninterrupted", file=sys.stderr)
+        return 130
 
     if argv is None:
         say_warnings_as("rbbo")

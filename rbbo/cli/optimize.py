@@ -35,6 +35,11 @@ _EXECUTION_DEFAULTS = {"executor": "process", "workers": 1, "timeout_s": 600.0,
                        "address": None, "deterministic": False}  # fmt: skip
 
 
+# optimize's and resume's refusal of --timeout for the serial executor
+_SERIAL_TIMEOUT = ("--timeout is for --executor process or ray: the serial executor "
+                   "evaluates in this process and cannot stop an evaluation")  # fmt: skip
+
+
 def _stored_execution(store) -> dict:
     """The run's stored execution settings (config.json's "execution", defaults filled in),
     checked as ``rbbo optimize`` checks its options, so that a hand-edited one is named with
@@ -85,8 +90,7 @@ def cmd_optimize(args) -> int:
     # (the serial executor evaluates in this process and cannot stop an evaluation: a
     # --timeout given with it was ignored without a word)
     if args.timeout is not None and args.executor == "serial":
-        raise UsageError("--timeout is for --executor process or ray: the serial executor "
-                         "evaluates in this process and cannot stop an evaluation")  # fmt: skip
+        raise UsageError(_SERIAL_TIMEOUT)
     timeout = _EXECUTION_DEFAULTS["timeout_s"] if args.timeout is None else args.timeout
     budget, iterations = args.budget, args.iterations
     if budget is None and iterations is None:
@@ -150,6 +154,15 @@ def cmd_optimize(args) -> int:
     except BaseException:
         executor.shutdown(wait=False)
         raise
+    try:
+        return _optimize(opt, executor, args, spec, iterations, budget)
+    finally:
+        opt.close()  # (see cmd_resume)
+
+
+def _optimize(opt, executor, args, spec: dict, iterations: int | None,
+              budget: float | None) -> int:  # fmt: skip
+    """:func:`cmd_optimize` once its run directory is made: notes, then the search."""
     # notes once the input is known good (a usage error stays one line)
     if iterations is not None and iterations <= args.init + 1:
         print(f"note: --iterations {iterations} <= 1 + --init {args.init}: the initial design "
@@ -167,14 +180,31 @@ def cmd_optimize(args) -> int:
                     args.deterministic)  # fmt: skip
 
 
+def _timeout_text(seconds: float | None) -> str:
+    """A per-evaluation limit as resume prints it: '10 min', or 'none' (None: no limit)."""
+    return "none" if seconds is None else _duration_text(seconds)
+
+
 def cmd_resume(args) -> int:
     from ..optimizer import RBBO
 
     opt = RBBO.resume(args.run_dir)
+    # Closed when the command returns, whichever way: the run directory's lock is given back
+    # then, not when the collector finds the RBBO (an exception's traceback keeps it), so that
+    # a caller in this process (a notebook, a test) may open the run again at once.
+    try:
+        return _resume(opt, args)
+    finally:
+        opt.close()
+
+
+def _resume(opt, args) -> int:
+    """:func:`cmd_resume` on the run ``opt`` it opened."""
     store = opt.store
     assert store is not None  # (resume opens the run's store)
     objective = _objective_of(opt)
     execution = _stored_execution(store)
+    stored_timeout = execution["timeout_s"]
     if args.workers:
         execution["workers"] = args.workers
     if args.executor:
@@ -188,6 +218,12 @@ def cmd_resume(args) -> int:
         if execution["executor"] != "ray":
             raise UsageError("--address is for --executor ray")
         execution["address"] = args.address
+    if args.timeout is not None:
+        # (as optimize refuses it: the serial executor, the run's or this session's, would
+        # ignore it without a word)
+        if execution["executor"] == "serial":
+            raise UsageError(_SERIAL_TIMEOUT)
+        execution["timeout_s"] = args.timeout
     started = time.monotonic()
     # built before a new limit is written: a command refused for its executor (--workers 2
     # with --executor serial, a missing Ray) changes nothing in the run
@@ -210,6 +246,14 @@ def cmd_resume(args) -> int:
                 opt.set_limits(iterations, budget)
             print(f"{store.path}: its limit is now {_limits_text(iterations, budget)} (was "
                   f"{old}), stored in config.json for later resumes", file=sys.stderr)  # fmt: skip
+        if args.timeout is not None and args.timeout != stored_timeout:
+            # The run's, as its limits are (written once they are known good): evaluations
+            # that timed out are given longer, and a later plain `rbbo resume` (an interrupted
+            # run's hint) keeps to it rather than spending evaluations on the old one.
+            store.update_config({"execution": {"timeout_s": args.timeout}})
+            print(f"{store.path}: its per-evaluation limit (--timeout) is now "
+                  f"{_timeout_text(args.timeout)} (was {_timeout_text(stored_timeout)}), "
+                  "stored in config.json for later resumes", file=sys.stderr)  # fmt: skip
         at_limit = not opt.can_submit(iterations, budget)
         # (a run at its limit whose confirmation is done has nothing left to resume; one
         # whose confirmation an interrupt cut short is confirmed below)
@@ -234,9 +278,18 @@ def cmd_resume(args) -> int:
 
 def cmd_confirm(args) -> int:
     from ..optimizer import RBBO
-    from ..report import format_table, report_row
 
     opt = RBBO.resume(args.run_dir)
+    try:
+        return _confirm(opt, args)
+    finally:
+        opt.close()  # (see cmd_resume)
+
+
+def _confirm(opt, args) -> int:
+    """:func:`cmd_confirm` on the run ``opt`` it opened."""
+    from ..report import format_table, report_row
+
     store = opt.store
     assert store is not None  # (resume opens the run's store)
     if not opt.finished and opt.config.n_confirm > 0:

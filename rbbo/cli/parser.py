@@ -173,6 +173,10 @@ def _parser() -> argparse.ArgumentParser:
         help="run this session's evaluations elsewhere (default: the run's)",
     )
     res.add_argument("--address", help="Ray cluster address (with --executor ray)")
+    res.add_argument("--timeout", type=parse_duration, default=None,
+                     help="new per-evaluation limit, e.g. 20m (default: the run's; stored for "
+                     "later resumes; not with --executor serial, which cannot stop an "
+                     "evaluation)")  # fmt: skip
     res.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     about = ("measure R_init and R* of a finished run again (after an upgrade, or on another "

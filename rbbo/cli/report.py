@@ -65,8 +65,15 @@ def cmd_report(args) -> int:
             png = None
         # the recommendation (R*'s B_c) is written when a session finishes, never by a report
         best = Path(run_dir) / BEST
-        found = (f"best basis {best}" if best.is_file() else
-                 f"no {BEST} yet (no session has finished: rbbo resume {run_dir})")  # fmt: skip
+        assert opt.store is not None  # (load opens the run's store)
+        if best.is_file():
+            found = f"best basis {best}"
+        elif opt.store.summarised_best_index() is not None:
+            # a session finished and wrote it with summary.json: it was deleted since
+            found = (f"{BEST} is missing (written when a session finished; rbbo resume "
+                     f"{run_dir} writes it again)")  # fmt: skip
+        else:
+            found = f"no {BEST} yet (no session has finished: rbbo resume {run_dir})"
         plot = "no plot" if png is None else f"plot {png}"
         print(f"{run_dir}: {plot}, {found}", file=sys.stderr)
     if rows:

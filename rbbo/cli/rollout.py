@@ -42,8 +42,7 @@ def cmd_rollout(args) -> int:
               f"optimum {objective.value(objective.optimum):.6g}")  # fmt: skip
         return 0
     if args.video:
-        _check_video_name(args.video)  # before the env is built and the episode run
-        _require_imageio()  # before the episode, so a missing extra costs nothing
+        _check_video(args.video)  # before the env is built and the episode run
         return _rollout_video(objective, basis, seconds, args.seed, args.video)
     r = objective(basis, seconds, args.seed)
     print(f"R = {r:.6g} per second from t = {objective.settle_time:g} s "
@@ -78,30 +77,54 @@ def _measures_r(objective, seconds: float) -> bool:
     return measured_steps(step, objective.settle_time, seconds) > 0
 
 
-def _check_video_name(video: Path) -> None:
-    """A --video name whose suffix no video writer takes is a usage error (its folder is
-    created, so only the name is checked)."""
+def _check_video(video: Path) -> None:
+    """Refuse, as a usage error before anything runs, a --video that could not be written
+    after the episode: a name no video writer takes, a missing imageio (or imageio-ffmpeg,
+    for a format written through ffmpeg), a folder, or a place that cannot be written. Its
+    folder is created (as a run's --out is), so a new one is no error."""
     try:
-        from controllers.episode import _VIDEO_SUFFIXES
+        from controllers.episode import _VIDEO_SUFFIXES, _check_video_path
     except ImportError:  # a stand-in controllers module (the tests'): it writes no video
+        _require_imageio(video.suffix)
         return
     if video.suffix.lower() not in _VIDEO_SUFFIXES:
         raise UsageError(f"--video {video}: the file name must end in one of "
                          f"{', '.join(sorted(_VIDEO_SUFFIXES))}")  # fmt: skip
+    _require_imageio(video.suffix)
+    try:
+        video.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"--video {video}: cannot create its folder {video.parent} "
+                         f"({exc.strerror or exc})") from exc  # fmt: skip
+    try:
+        _check_video_path(video)
+    except ValueError as exc:
+        # (its messages begin "video 'PATH'": the option, as the user wrote it)
+        raise UsageError(f"--{exc}") from exc
 
 
-def _require_imageio() -> None:
-    """Raise a usage error naming the extra when imageio cannot be imported.
+def _require_imageio(suffix: str) -> None:
+    """Raise a usage error naming the extra when a video of ``suffix`` cannot be written:
+    imageio, and for a format written through ffmpeg imageio-ffmpeg, which imageio imports
+    only when it opens the file, after the episode.
 
-    Only this import is turned into a usage error: an ImportError raised inside the episode
-    is a fault of the package and keeps its traceback.
+    Only these imports are turned into a usage error: an ImportError raised inside the
+    episode is a fault of the package and keeps its traceback.
     """
     try:
-        import imageio.v2  # noqa: F401
+        from controllers.episode import _imageio
+    except ImportError:  # (a stand-in controllers module: imageio alone, as it was)
+        try:
+            import imageio.v2  # noqa: F401
+        except ImportError as exc:
+            raise UsageError("--video needs imageio: pip install 'softrom[video]' (imageio "
+                             "and imageio-ffmpeg)") from exc  # fmt: skip
+        return
+    try:
+        _imageio(suffix)
     except ImportError as exc:
-        raise UsageError(
-            "--video needs imageio: pip install 'softrom[video]' (imageio and imageio-ffmpeg)"
-        ) from exc
+        # ("writing a ... video needs ...": said of --video)
+        raise UsageError(f"--video: {exc}") from exc
 
 
 def _rollout_video(objective, basis, seconds: float, seed: int, video: Path) -> int:

@@ -8,11 +8,17 @@ idle workers, and a worker that dies (segfault, os._exit, OOM kill) or runs past
 started with the ``spawn`` method (safe with threads, the same on every OS), build the
 objective once and keep it (e.g. its env) for all their tasks. Results still come back as
 ``concurrent.futures.Future`` objects.
+
+A worker that dies while idle (no task of its own) is replaced; a task that could not be
+handed to a worker, dead since it was last seen, never ran and goes back to the front of the
+queue. A worker whose parent dies (a ``kill -9`` of the run) exits at once, quietly, instead
+of running its evaluation on for nobody.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import signal
 import threading
 import time
@@ -29,16 +35,55 @@ from .base import EvaluationTask, Executor, evaluate_task, failed
 __all__ = ["ProcessExecutor"]
 
 
+# Tasks in a row that could not be handed to a slot's worker (each time dead since it was
+# last seen) before the task fails: workers that keep dying before they take one must not
+# keep it waiting forever.
+_MAX_LOST_SENDS = 3
+
+# How often a worker looks whether its parent still lives where the parent's sentinel is not
+# available (a worker then outlives a killed run by at most this long), seconds.
+_PARENT_POLL_S = 1.0
+
+
+def _exit_with_parent() -> None:
+    """Exit this worker process, quietly, as soon as the process that started it is gone.
+
+    A ``kill -9`` of the run skips its shutdown: its workers would run their evaluations on
+    (up to the evaluation's length) for nobody, then print a traceback for the result they
+    could not send. A daemon thread waits on the parent's sentinel (a pipe that closes when
+    the parent dies), and also looks whether the worker was handed to another parent.
+    ``prctl(PR_SET_PDEATHSIG)`` is not used: it fires when the *thread* that started the
+    worker ends, and replacement workers are started by the pool's supervisor thread.
+    """
+    parent = mp.parent_process()
+    ppid = os.getppid()
+
+    def watch() -> None:
+        while True:
+            if parent is not None:
+                parent.join(timeout=_PARENT_POLL_S)  # (returns at once when the parent dies)
+                if not parent.is_alive():
+                    break
+            else:  # pragma: no cover - every start method gives a spawned child a parent
+                time.sleep(_PARENT_POLL_S)
+            if os.getppid() != ppid:
+                break
+        os._exit(0)  # (the main thread may be deep in an evaluation: end the whole process)
+
+    threading.Thread(target=watch, name="rbbo-parent-watch", daemon=True).start()
+
+
 def _worker_main(conn, objective, name: str) -> None:
     """Loop in the worker process: say it is ready, then evaluate tasks as they come."""
     # Ctrl-C reaches the whole process group; the parent alone decides what an interrupt
     # means (it kills the workers at shutdown), so a worker must not die of it first and
     # have its task recorded as a crash, nor print a traceback of its own.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _exit_with_parent()
     say_warnings_as(f"rbbo {name}")  # (an env's warning in an evaluation, say)
     try:
         conn.send("ready")  # imports and the objective are loaded: the timeout clock may start
-    except OSError:  # the pool shut down while this worker was starting
+    except (OSError, ValueError):  # the pool shut down while this worker was starting
         return
     while True:
         try:
@@ -47,7 +92,13 @@ def _worker_main(conn, objective, name: str) -> None:
             return
         if task is None:
             return
-        conn.send(evaluate_task(objective, task, name))
+        outcome = evaluate_task(objective, task, name)
+        try:
+            conn.send(outcome)
+        except (OSError, ValueError):
+            # the pool is gone (its process killed, or it killed this worker's pipe at
+            # shutdown): nobody is left to tell, and a traceback here would only puzzle
+            return
 
 
 @dataclass
@@ -61,6 +112,7 @@ class _Slot:
     restarts: int = 0
     ready: bool = False
     failed_starts: int = 0
+    lost_sends: int = 0  # tasks in a row this slot's workers died before receiving
 
     @property
     def name(self) -> str:
@@ -70,6 +122,12 @@ class _Slot:
         """The process and pipe of a started slot (one busy or starting)."""
         assert self.process is not None and self.conn is not None
         return self.process, self.conn
+
+
+def _claim(future: Future) -> bool:
+    """Whether a queued task's ``future`` is to be run: not cancelled. A task requeued after
+    its worker could not be reached is running already (a future cannot go back to pending)."""
+    return future.running() or future.set_running_or_notify_cancel()
 
 
 def _exit_code(process, wait_s: float = 2.0) -> int | None:
@@ -170,13 +228,44 @@ class ProcessExecutor(Executor):
             for slot in self._slots:
                 if slot.task is None and self._queue and slot.ready:
                     task, future = self._queue.popleft()
-                    if not future.set_running_or_notify_cancel():
+                    if not _claim(future):
                         continue
                     slot.task, slot.future, slot.started = task, future, time.monotonic()
                     try:
                         slot.live()[1].send(task)
                     except (OSError, ValueError) as exc:  # the worker died while idle
-                        self._fail_and_replace(slot, f"could not reach the worker: {exc}")
+                        self._lost_send(slot, exc)
+
+    def _lost_send(self, slot: _Slot, exc: BaseException) -> None:
+        """The task just given to ``slot`` could not be sent: its worker died while idle.
+
+        The task never ran, so it goes back to the front of the queue (its future stays
+        running) for the slot's new worker or another, instead of being recorded as failed
+        for good; only a slot whose workers keep dying before taking a task fails it.
+        """
+        slot.lost_sends += 1
+        if slot.lost_sends >= _MAX_LOST_SENDS:
+            slot.lost_sends = 0
+            self._fail_and_replace(slot, f"could not reach the worker ({_MAX_LOST_SENDS} in "
+                                   f"a row died before taking a task): {exc}")  # fmt: skip
+            return
+        task, future, slot.task, slot.future = slot.task, slot.future, None, None
+        self._queue.appendleft((task, future))
+        self._replace_idle(slot)
+
+    def _replace_idle(self, slot: _Slot) -> None:
+        """Replace the dead worker of ``slot``, which holds no task."""
+        self._stop(slot, kill=True)
+        slot.restarts += 1
+        if not self._closing:
+            self._start(slot)
+
+    def _check_idle(self, slot: _Slot) -> None:
+        """Replace the worker of idle ``slot`` if it died (OOM killer, a stray kill): its next
+        task would otherwise find no one to take it."""
+        # (is_alive reaps a dead one; its sentinel in ``ready`` only woke the loop)
+        if not slot.live()[0].is_alive():
+            self._replace_idle(slot)
 
     def _supervise(self) -> None:
         while True:
@@ -188,6 +277,8 @@ class ProcessExecutor(Executor):
             self._assign()
             busy = [s for s in self._slots if s.task is not None]
             starting = [s for s in self._slots if not s.ready and s.process is not None]
+            idle = [s for s in self._slots
+                    if s.ready and s.task is None and s.process is not None]  # fmt: skip
             with self._lock:
                 if self._closing and not busy and not self._queue:
                     return
@@ -195,6 +286,7 @@ class ProcessExecutor(Executor):
             for slot in busy + starting:
                 process, conn = slot.live()
                 waits += [conn, process.sentinel]
+            waits += [slot.live()[0].sentinel for slot in idle]
             timeout = 0.5
             if self.timeout_s is not None and busy:
                 now = time.monotonic()
@@ -207,6 +299,8 @@ class ProcessExecutor(Executor):
                 self._check_start(slot, ready)
             for slot in busy:
                 self._check(slot, ready)
+            for slot in idle:
+                self._check_idle(slot)
 
     def _check_start(self, slot: _Slot, ready) -> None:
         process, conn = slot.live()
@@ -234,7 +328,7 @@ class ProcessExecutor(Executor):
             )
             queued, self._queue = list(self._queue), deque()
         for task, future in queued:
-            if future.set_running_or_notify_cancel():
+            if _claim(future):
                 future.set_result(failed(task, slot.name, 0.0, self._broken))
 
     def _check(self, slot: _Slot, ready) -> None:
@@ -246,6 +340,7 @@ class ProcessExecutor(Executor):
                 code = _exit_code(slot.process)
                 self._fail_and_replace(slot, f"worker crashed (exit code {code})")
                 return
+            slot.lost_sends = 0
             self._finish(slot, outcome)
         elif not process.is_alive():
             self._fail_and_replace(slot, f"worker crashed (exit code {_exit_code(slot.process)})")
@@ -276,7 +371,7 @@ class ProcessExecutor(Executor):
             self._abort = not wait
             queued, self._queue = list(self._queue), deque()
         for task, future in queued:
-            if future.set_running_or_notify_cancel():
+            if _claim(future):
                 future.set_result(failed(task, "", 0.0, "cancelled at shutdown"))
         self._wake_w.send_bytes(b"x")
         self._thread.join()

@@ -50,6 +50,26 @@ def _config(plan: ReproducePlan, fidelity: str, budget_s: float, repeat: int = 0
                       budget_s=budget_s)  # fmt: skip
 
 
+def _expect_same_run(opt: RBBO, path: Path, config: RBBOConfig, objective: EnvObjective) -> None:
+    """Refuse a stored run made for another plan or objective, naming what differs."""
+    stored = opt.config
+    for name in ("sim_dim", "control_dim", "fidelity", "t_min", "t_max", "seed", "n_init",
+                 "n_confirm"):  # fmt: skip
+        if getattr(stored, name) != getattr(config, name):
+            raise RunDirectoryError(f"{path} was made with {name} = "
+                                    f"{getattr(stored, name)!r}, this plan has "
+                                    f"{getattr(config, name)!r}")  # fmt: skip
+    stored_spec = dict(_run_spec(opt))
+    recorded = stored_spec.pop("simulation_space", None)
+    planner = stored_spec.pop("planner", None)
+    recorded_apart = ("simulation_space", "planner")  # checked on their own below
+    spec = {k: v for k, v in objective.spec().items() if k not in recorded_apart}
+    if stored_spec != spec:
+        raise RunDirectoryError(f"{path} optimises another objective: {opt.objective_spec}")
+    objective.expect_simulation_space(recorded)
+    objective.expect_planner(planner)
+
+
 def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity: str,
              budget_s: float, progress: bool, log: Log,
              heartbeat: Callable[[], None] | None = None, repeat: int = 0) -> Path:  # fmt: skip
@@ -58,22 +78,11 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
     config = _config(plan, fidelity, budget_s, repeat)
     if (path / "config.json").exists():
         opt = RBBO.resume(path)
-        stored = opt.config
-        for name in ("sim_dim", "control_dim", "fidelity", "t_min", "t_max", "seed", "n_init",
-                     "n_confirm"):  # fmt: skip
-            if getattr(stored, name) != getattr(config, name):
-                raise RunDirectoryError(f"{path} was made with {name} = "
-                                        f"{getattr(stored, name)!r}, this plan has "
-                                        f"{getattr(config, name)!r}")  # fmt: skip
-        stored_spec = dict(_run_spec(opt))
-        recorded = stored_spec.pop("simulation_space", None)
-        planner = stored_spec.pop("planner", None)
-        recorded_apart = ("simulation_space", "planner")  # checked on their own below
-        spec = {k: v for k, v in objective.spec().items() if k not in recorded_apart}
-        if stored_spec != spec:
-            raise RunDirectoryError(f"{path} optimises another objective: {opt.objective_spec}")
-        objective.expect_simulation_space(recorded)
-        objective.expect_planner(planner)
+        try:  # (a refused run is closed at once: its lock, as after a run, see below)
+            _expect_same_run(opt, path, config, objective)
+        except BaseException:
+            opt.close()
+            raise
     else:
         problem = {"env_id": objective.env_id, "N": objective.node_count()}
         execution = {"executor": plan.executor, "workers": plan.workers,
@@ -98,7 +107,11 @@ def optimise(path: Path, plan: ReproducePlan, objective: EnvObjective, fidelity:
         if heartbeat is not None:
             heartbeat()
 
-    executor = make_executor(plan.executor, objective, plan.workers, plan.timeout_s)
+    try:
+        executor = make_executor(plan.executor, objective, plan.workers, plan.timeout_s)
+    except BaseException:
+        opt.close()
+        raise
     finished = False
     try:
         result = opt.run(executor=executor, max_evaluations=plan.iterations, budget_s=budget_s,

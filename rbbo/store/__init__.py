@@ -35,14 +35,14 @@ A store that writes (:meth:`RunStore.create`, :meth:`RunStore.open` with ``repai
 exclusive lock on ``DIR/.rbbo.lock`` (``flock``; it holds the owner's pid) until
 :meth:`RunStore.close` or the process ends, so a second process, e.g. ``rbbo resume`` while
 the run still goes on under nohup, is refused instead of appending the same evaluation
-indices. Readers (``repair=False``) take no lock. Stores of one directory in one process share
-the lock.
+indices. So is a second writer in the same process (a second ``RBBO.resume`` beside an open
+one), until the first is closed. Readers (``repair=False``) take no lock.
 """
 
 # The run directory, module by job: errors.py (RunDirectoryError, TruncatedHistoryWarning),
 # evaluation.py (Evaluation: one record of history.jsonl, its validation and its JSON form),
 # files.py (durable writes: fsynced appends, atomic replacement), lock.py (one writer per run
-# directory: its flock, shared by the stores of one process) and run_store.py (RunStore: the
+# directory: its flock, and one store of this process holding it) and run_store.py (RunStore: the
 # directory's files, created, opened, resumed, read and written). The names below are
 # re-exported so that imports from rbbo.store keep working.
 from .errors import RunDirectoryError, TruncatedHistoryWarning

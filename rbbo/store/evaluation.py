@@ -17,6 +17,23 @@ STATUSES = ("ok", "failed")
 KINDS = ("initial", "random", "acquisition", "confirm-init", "confirm-best")
 
 
+def _number_or_none(value: object) -> bool:
+    """Whether ``value`` is None or a real number (not a bool): a GP hyperparameter's."""
+    return value is None or (
+        not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
+    )
+
+
+def _numbers(name: str, values, kinds: tuple[type, ...], what: str, cast: type) -> list:
+    """``values``, a list (or tuple) of ``kinds`` (no bools), as a list of ``cast``; else
+    ValueError naming the field ``name``."""
+    if not isinstance(values, (list, tuple)) or any(
+        isinstance(v, bool) or not isinstance(v, kinds) for v in values
+    ):
+        raise ValueError(f"{name} must be a list of {what}, got {values!r}")
+    return [cast(v) for v in values]
+
+
 @dataclass
 class Evaluation:
     """One finished evaluation of the objective R(B_c, T).
@@ -90,8 +107,38 @@ class Evaluation:
             raise ValueError(f"basis must be an (M, C) array, got shape {self.basis.shape}")
         if not np.all(np.isfinite(self.basis)):
             raise ValueError("basis holds non-finite values")
+        if self.R is not None:
+            if isinstance(self.R, bool) or not isinstance(self.R, real):
+                raise ValueError(f"R must be a number or null, got {self.R!r}")
+            self.R = float(self.R)
         if self.status == "ok" and (self.R is None or not math.isfinite(self.R)):
             raise ValueError(f"an 'ok' evaluation needs a finite R, got {self.R!r}")
+        # The rest is read by report, resume and confirm (sums, formats, comparisons): an
+        # edited value of another type is named here, not met there as a TypeError.
+        for name in ("wall_s", "elapsed_s"):
+            value = getattr(self, name)
+            if (isinstance(value, bool) or not isinstance(value, real)
+                    or not 0 <= value < math.inf):  # fmt: skip
+                raise ValueError(f"{name} must be a number of seconds >= 0, got {value!r}")
+            setattr(self, name, float(value))
+        self.seeds = _numbers("seeds", self.seeds, (int, np.integer), "integers", int)
+        self.R_seeds = _numbers("R_seeds", self.R_seeds, real, "finite numbers", float)
+        if not all(math.isfinite(r) for r in self.R_seeds):
+            raise ValueError(f"R_seeds must be a list of finite numbers, got {self.R_seeds!r}")
+        if not isinstance(self.worker, str):
+            raise ValueError(f"worker must be a string, got {self.worker!r}")
+        if self.error is not None and not isinstance(self.error, str):
+            raise ValueError(f"error must be a string or null, got {self.error!r}")
+        if self.gp is not None and not (
+            isinstance(self.gp, dict) and all(map(_number_or_none, self.gp.values()))
+        ):
+            raise ValueError(f"gp must be null or an object of numbers, got {self.gp!r}")
+        if (isinstance(self.duplicates_skipped, bool)
+                or not isinstance(self.duplicates_skipped, (int, np.integer))
+                or self.duplicates_skipped < 0):  # fmt: skip
+            raise ValueError("duplicates_skipped must be an integer >= 0, got "
+                             f"{self.duplicates_skipped!r}")  # fmt: skip
+        self.duplicates_skipped = int(self.duplicates_skipped)
 
     def to_json(self) -> str:
         record = asdict(self)

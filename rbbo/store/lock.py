@@ -2,8 +2,9 @@
 
 :func:`_acquire_lock` takes an exclusive ``flock`` on ``DIR/.rbbo.lock`` (writing the owner's
 pid into it) or refuses with :class:`RunDirectoryError` naming the process that holds it;
-stores of one directory in one process share the lock, counted in ``_HELD_LOCKS``, and
-:func:`_release_lock` lets it go when the last of them releases it.
+:func:`_release_lock` lets it go. One writer per directory holds within a process too: a
+directory this process has locked (``_HELD_LOCKS``) is refused to a second writer until the
+first releases it (both would hand out the same evaluation indices). Readers take no lock.
 """
 
 from __future__ import annotations
@@ -21,17 +22,28 @@ if sys.platform != "win32":
 else:  # pragma: no cover - no flock: runs are not guarded against a second writer
     fcntl = None
 
-# realpath of a run directory -> [lock file descriptor, stores of this process holding it]
-_HELD_LOCKS: dict[str, list[int]] = {}
+# realpath of a run directory this process has locked -> the lock file's descriptor
+_HELD_LOCKS: dict[str, int] = {}
 
 
 def _acquire_lock(path: Path) -> str:
-    """Lock run directory ``path`` for this process (shared by its stores); the key to release."""
+    """Lock run directory ``path`` for one writer; the key that releases it.
+
+    Raises
+    ------
+    RunDirectoryError
+        When another process holds the lock, or a writer of this one (an RBBO or store not
+        yet closed) does, or the system refuses the lock.
+    """
     key = os.path.realpath(path)
-    held = _HELD_LOCKS.get(key)
-    if held is not None:
-        held[1] += 1
-        return key
+    if key in _HELD_LOCKS:
+        # (two writers of one process would each number evaluations on their own and record
+        # the same indices; a second flock would be refused as another process's, naming
+        # this one's pid: said as it is instead)
+        raise RunDirectoryError(
+            f"{path} is in use by another writer in this process (pid {os.getpid()}): close "
+            "it first (RBBO.close(), or leave its with block), then open the run again"
+        )
     try:
         fd = os.open(path / LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
     except OSError as exc:
@@ -57,7 +69,7 @@ def _acquire_lock(path: Path) -> str:
         if isinstance(exc, OSError):
             raise _cannot_lock(path, exc) from exc
         raise
-    _HELD_LOCKS[key] = [fd, 1]
+    _HELD_LOCKS[key] = fd
     return key
 
 
@@ -70,10 +82,7 @@ def _cannot_lock(path: Path, exc: OSError) -> RunDirectoryError:
 
 
 def _release_lock(key: str) -> None:
-    held = _HELD_LOCKS.get(key)
-    if held is None:
-        return
-    held[1] -= 1
-    if held[1] == 0:
-        del _HELD_LOCKS[key]
-        os.close(held[0])  # releases the flock
+    """Let go of the lock :func:`_acquire_lock` returned ``key`` for (again: nothing)."""
+    fd = _HELD_LOCKS.pop(key, None)
+    if fd is not None:
+        os.close(fd)  # releases the flock

@@ -290,6 +290,11 @@ class RunStore:
         :mod:`rbbo.store`: an interrupted session writes none)."""
         path = self.path / BEST
         if not path.is_file():
+            index = self.summarised_best_index()
+            if index is not None:  # (written with the summary, then deleted or lost)
+                raise RunDirectoryError(f"{path} is missing: it was written (evaluation "
+                                        f"{index}'s basis) when a session of the run finished; "
+                                        f"rbbo resume {self.path} writes it again")  # fmt: skip
             raise RunDirectoryError(f"{self.path} has no {BEST} yet: no session of the run has "
                                     "finished (resume it with rbbo resume)")  # fmt: skip
         try:
@@ -311,6 +316,17 @@ class RunStore:
                 f"not a finite B_c of shape {expected or '(M, C)'}"
             )
         return basis
+
+    def summarised_best_index(self) -> int | None:
+        """The evaluation summary.json names as the recommendation, whose basis was written to
+        best_basis.npy with it when a session finished; None without a readable summary or
+        without a recommendation in it (no evaluation had succeeded)."""
+        try:
+            summary = self.summary()
+        except RunDirectoryError:
+            return None
+        index = (summary or {}).get("best_index")
+        return index if isinstance(index, int) and not isinstance(index, bool) else None
 
     def write_summary(self, summary: dict[str, Any]) -> None:
         self._require_writer("its summary cannot change")
