@@ -127,7 +127,9 @@ def _benchmark(env_id: str) -> str:
     if name not in DEFAULTS and len(versioned) == 1:
         name = versioned[0]
     if name not in DEFAULTS:
-        raise ValueError(f"no defaults for {env_id!r}; benchmarks: {sorted(DEFAULTS)}")
+        raise ValueError(f"no defaults for {env_id!r}; benchmarks: {sorted(DEFAULTS)} (for a "
+                         "robot of your own, controllers.planner_for(env_id, planner) takes "
+                         "the shared defaults)")  # fmt: skip
     return name
 
 

@@ -872,8 +872,9 @@ def test_invalid_weights_and_inputs_raise_clear_errors(walker):
         bound_to_walker.action(other)
     with pytest.raises(ValueError, match="replan_every must be a positive integer, got 0"):
         run_episode(walker, MPPI(), 1.0, replan_every=0)
-    with pytest.raises(ValueError, match="no defaults for 'softrom_gym/SoftRobot-v0'"):
+    with pytest.raises(ValueError, match="no defaults for 'softrom_gym/SoftRobot-v0'") as e:
         default_settings("softrom_gym/SoftRobot-v0", "mppi")
+    assert "controllers.planner_for(env_id, planner)" in str(e.value)  # where to go instead
     with pytest.raises(ValueError, match=r"unknown planner 'ilqr'; registered: gn, mppi"):
         default_planner("CrossWalk-v0", "ilqr")
     with pytest.raises(TypeError, match="planners need a softrom_gym env"):

@@ -13,6 +13,7 @@ import cpp_sim
 
 from ..robots import Robot
 from ..rom import build_reduced_model, build_subspace, train_cubature
+from .advice import warn_if_unsuited
 from .arguments import (
     check_on_ground,
     check_sizes_and_scales,
@@ -223,6 +224,8 @@ class SoftRobotEnv(PlanningAPI, Observations, gym.Env):
         else:
             self._orientation = orientation_rows(self.robot.nodes, mass, self.subspace.basis)
         self.action_bound = float(action_scale * self._sqrt_m * G)
+        warn_if_unsuited(self.robot.nodes, self.subspace.deformation, self.subspace.frequencies,
+                         self.action_bound, str(self.model.frame))  # fmt: skip
         c = control_dim
         m = sim_dim
         self.action_space = spaces.Box(-self.action_bound, self.action_bound, (c,), np.float32)
