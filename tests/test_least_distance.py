@@ -93,3 +93,35 @@ def test_least_distance_sequence_gives_no_x_for_an_infeasible_programme(solver):
     assert [feasible for _, _, feasible, _ in results] == [False, True, False]
     assert np.isnan(results[0][0]).all() and np.isnan(results[2][0]).all()
     np.testing.assert_allclose(results[1][0], [0.5])
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_a_programme_whose_multipliers_fall_below_the_floor_returns_zero(solver):
+    # A resting block's normal solve in a mass unit 1e20-1e40 times a kilogram's: every
+    # multiplier falls below NNLS's absolute 1e-14 floor and is dropped, and the reference
+    # solver's QR of the emptied passive set read an empty vector's maximum (a review,
+    # session 55: SIGSEGV). Such units are far outside any robot's (1e-10 to 1e10 agree with
+    # kilograms to ~3e-6; README), but a crash is never the answer.
+    from softrom_gym.robots.robot import Robot
+    from softrom_gym.robots.voxel import voxels_to_tets
+    from softrom_gym.rom import build_reduced_model, build_subspace
+
+    nodes, tets = voxels_to_tets(np.ones((4, 4, 2), dtype=bool), 0.05)
+    robot = Robot("block", nodes, tets, youngs_modulus=1e6)
+    sub = build_subspace(robot, 12)
+    model = build_reduced_model(robot, subspace=sub)
+    m = sub.basis.shape[1]
+    a = np.eye(m)
+    a[3:, 3:] += (model.dt**2 + model.dt * model.damping_beta) * model.elastic_stiffness(
+        np.zeros(m - 3)
+    )
+    surface = np.array(robot.surface_nodes)
+    bottom = surface[robot.nodes[surface, 2] < 1e-9]
+    e = np.linalg.solve(np.linalg.cholesky(a), sub.basis[3 * bottom + 2].T).T  # J_n L^-T
+    rng = np.random.default_rng(0)
+    fs = 9.81 * model.dt * (1 + 0.05 * rng.standard_normal((4, len(bottom))))
+    for scale in (1e-20, 1e-30, 1e-40):
+        for x, lam, feasible, _ in cpp_sim._core._least_distance_sequence(
+            e / np.sqrt(scale), fs, solver
+        ):
+            assert feasible and np.all(np.isfinite(x)) and np.all(lam >= 0.0)

@@ -53,10 +53,14 @@ inline NnlsResult nnls(const Eigen::Ref<const Eigen::MatrixXd>& g,
     for (Eigen::Index j = 0; j < n; ++j)
       if (passive[j]) idx.push_back(j);
     const Eigen::Index p = static_cast<Eigen::Index>(idx.size());
+    z.setZero();
+    // (An inner step can drop every passive variable, where multipliers fall below the
+    // absolute 1e-14 floor, e.g. a body some 1e20 times lighter than a kilogram: the QR of
+    // a matrix without columns read an empty vector's maximum and crashed. u = 0 then.)
+    if (p == 0) return;
     gp.resize(g.rows(), p);
     for (Eigen::Index c = 0; c < p; ++c) gp.col(c) = g.col(idx[c]);
     const Eigen::VectorXd zp = gp.colPivHouseholderQr().solve(d);
-    z.setZero();
     for (Eigen::Index c = 0; c < p; ++c) z[idx[c]] = zp[c];
   };
   if (guess != nullptr) {
