@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import importlib
 import os
-import secrets
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -12,6 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from softrom_gym._durable import fsync_dir, temporary_name
 
 from .planner import EnvAPI, Planner
 
@@ -444,31 +445,13 @@ def _write_video(path: str | os.PathLike, frames: list[np.ndarray], fps: int) ->
     except BaseException:
         temp.unlink(missing_ok=True)
         raise
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 def _temporary_name(path: Path) -> Path:
     """A new, hidden name beside ``path`` that keeps its suffix (ffmpeg picks the container
     by it), created empty so that it stays this call's."""
-    while True:
-        temp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
-        try:
-            os.close(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-        except FileExistsError:  # pragma: no cover - a 32-bit collision
-            continue
-        return temp
-
-
-def _fsync_dir(path: Path) -> None:
-    """Make a rename in folder ``path`` durable (a file's fsync does not reach its name)."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # pragma: no cover - platforms without directory fds
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    return temporary_name(path.with_suffix(""), f".tmp{path.suffix}")
 
 
 def _one_line(exc: BaseException) -> str:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import re
-import secrets
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -13,6 +12,7 @@ import numpy as np
 
 import cpp_sim
 
+from ._durable import fsync_dir, make_dirs, temporary_name
 from .robots import Robot
 
 __all__ = ["export_trajectory"]
@@ -91,7 +91,7 @@ def export_trajectory(
         frames.append(positions)
     if not frames:
         raise ValueError("states is empty: nothing to export")
-    _make_dirs(path.parent)
+    make_dirs(path.parent)
     glb = path.suffix.lower() == ".glb"
     file_type = path.suffix.lower().lstrip(".")
     finals = [path.with_name(f"{path.stem}_{i:04d}{path.suffix}") for i in range(len(frames))]
@@ -108,7 +108,7 @@ def export_trajectory(
                 positions = np.stack([positions[:, 0], positions[:, 2], -positions[:, 1]], 1)
             mesh = robot.surface(positions)
             mesh.remove_unreferenced_vertices()
-            temps.append(_temporary_name(out, ".tmp"))
+            temps.append(temporary_name(out, ".tmp"))
             _write_durably(temps[-1], mesh, file_type)
     except BaseException:
         # nothing published yet: the earlier sequence (if any) is untouched
@@ -152,7 +152,7 @@ def _publish(path: Path, temps: list[Path], finals: list[Path]) -> None:
     aside: list[tuple[Path, Path]] = []
     try:
         for entry in _frame_files(path):
-            aside.append((_temporary_name(entry, ".old"), entry))  # (listed before it moves)
+            aside.append((temporary_name(entry, ".old"), entry))  # (listed before it moves)
             os.replace(entry, aside[-1][0])
     except BaseException:
         for hidden, entry in reversed(aside):
@@ -172,30 +172,16 @@ def _publish(path: Path, temps: list[Path], finals: list[Path]) -> None:
         for temp, out in zip(temps, finals, strict=True):
             if temp.exists():
                 os.replace(temp, out)
-        _fsync_dir(path.parent)
+        fsync_dir(path.parent)
         _remove(hidden for hidden, _ in aside)
         raise
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
     _remove(hidden for hidden, _ in aside)
 
 
 def _remove(paths: Iterable[Path]) -> None:
     for p in paths:
         p.unlink(missing_ok=True)
-
-
-def _temporary_name(path: Path, ending: str) -> Path:
-    """A new, unused name in ``path``'s folder that is clearly temporary: hidden (a leading
-    dot), ending in ``ending`` and never one of a sequence's frame names. The file is
-    created (empty) so that the name stays this call's."""
-    while True:
-        candidate = path.with_name(f".{path.name}.{secrets.token_hex(4)}{ending}")
-        try:
-            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        except FileExistsError:  # pragma: no cover - a 32-bit collision
-            continue
-        os.close(fd)
-        return candidate
 
 
 def _write_durably(target: Path, mesh: Any, file_type: str) -> None:
@@ -205,29 +191,3 @@ def _write_durably(target: Path, mesh: Any, file_type: str) -> None:
         mesh.export(file_obj=f, file_type=file_type)
         f.flush()
         os.fsync(f.fileno())
-
-
-def _fsync_dir(path: Path) -> None:
-    """Make ``path``'s entries (renames, new files) durable, as a file's fsync does not.
-    A small copy of the run store's helper: softrom_gym depends on no package above it."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # pragma: no cover - platforms without directory fds
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _make_dirs(path: Path) -> None:
-    """``path.mkdir(parents=True, exist_ok=True)``, each folder it creates fsynced into its
-    parent (a new folder's name is its parent's entry, which no fsync inside it reaches)."""
-    created = []
-    p = path
-    while not p.exists() and p.parent != p:
-        created.append(p)
-        p = p.parent
-    path.mkdir(parents=True, exist_ok=True)
-    for d in reversed(created):
-        _fsync_dir(d.parent)

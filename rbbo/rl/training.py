@@ -196,9 +196,7 @@ def _train(algo, env_id, name, basis, folder, env_kwargs, steps, every, evaluati
             _save_durably(m.save_replay_buffer, ckpts / "tmp_replay.pkl",
                           ckpts / f"step_{n}_replay.pkl")  # fmt: skip
         if save:
-            state = _training_state(m)
-            _save_durably(lambda p: p.write_bytes(state), ckpts / "tmp_state.pkl",
-                          ckpts / f"step_{n}_state.pkl")  # fmt: skip
+            _atomic_write(ckpts / f"step_{n}_state.pkl", _training_state(m))
             # its training wall time beside it, for a resume whose log lost the row
             _atomic_write(ckpts / f"step_{n}.json", json.dumps({"wall_s": wall}).encode())
             _save_durably(m.save, ckpts / "tmp_step.zip", ckpts / f"step_{n}.zip")

@@ -15,33 +15,12 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from softrom_gym._durable import fsync_dir, make_dirs
 
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # pragma: no cover - platforms without directory fds
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _make_dirs(path: Path) -> None:
-    """``path.mkdir(parents=True, exist_ok=True)``, each directory it creates made durable.
-
-    A new directory's name is an entry of its parent, which fsyncing the files inside it does
-    not reach: without the parent's fsync a power loss could drop a new run directory with
-    every record fsynced in it.
-    """
-    created = []
-    p = path
-    while not p.exists() and p.parent != p:
-        created.append(p)
-        p = p.parent
-    path.mkdir(parents=True, exist_ok=True)
-    for d in created:
-        _fsync_dir(d.parent)
+# (one implementation for every package that writes a user's records: softrom_gym's, under
+# the names the store's modules use)
+_fsync_dir = fsync_dir
+_make_dirs = make_dirs
 
 
 def _append_line(path: Path, line: str, end_partial: bool = False) -> None:
