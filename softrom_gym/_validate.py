@@ -32,6 +32,10 @@ def real_array(name: str, value: object) -> np.ndarray:
     raw = np.asarray(value)
     if raw.dtype.kind in "bc":
         raise ValueError(f"{name} must be real numbers, got a {raw.dtype} array: {raw}")
+    # numpy casts None to nan, which would be reported as a non-finite number (or, for a lone
+    # None, as an array of shape ())
+    if raw.dtype.kind == "O" and any(v is None for v in raw.flat):
+        raise ValueError(f"{name} must be real numbers, got {value!r}")
     try:
         return np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError):

@@ -288,6 +288,10 @@ def test_bad_input_errors():
         env.step(np.zeros(2))
     with pytest.raises(ValueError, match="action contains non-finite values"):
         env.step(np.array([0.0, np.nan, 0.0]))
+    # None was cast to nan and reported as a non-finite number, a lone None as shape ()
+    for action in (None, np.array([1.0, None, 2.0], dtype=object), [0.0, None, 0.0]):
+        with pytest.raises(ValueError, match=r"action must be real numbers, got .*None"):
+            env.step(action)
     with pytest.raises(TypeError, match="state must be a ReducedState .* got NoneType"):
         env.unwrapped.rollout(None, np.zeros((2, 3, 3)))
     with pytest.raises(ValueError, match=r"controls has shape \(2, 3\), expected \(B, H, 3\)"):
@@ -811,6 +815,29 @@ def test_vector_env_names_bad_counts_seeds_and_actions_and_stays_usable():
         single.reset(seed=i)
         np.testing.assert_array_equal(obs[i], single.step(np.zeros(3, dtype=np.float32))[0])
     venv.close()
+
+
+def test_vector_env_ignores_a_non_finite_action_for_a_robot_it_resets_as_sync_does():
+    # NEXT_STEP autoreset skips the action of a sub-env being reset; the batched env checked
+    # every row first and refused a NaN that SyncVectorEnv ignores
+    results = []
+    for mode in ("sync", "vector_entry_point"):
+        venv = gym.make_vec("softrom_gym/BeamWalk-v0", num_envs=2, vectorization_mode=mode,
+                            max_episode_steps=1)  # fmt: skip
+        venv.reset(seed=0)
+        venv.step(np.zeros((2, 3), dtype=np.float32))  # both truncated
+        actions = np.zeros((2, 3), dtype=np.float32)
+        actions[0] = np.nan
+        results.append(venv.step(actions)[:2])
+        # a stepped robot's row must still be finite
+        actions = np.zeros((2, 3), dtype=np.float32)
+        actions[1, 0] = np.inf
+        if mode == "vector_entry_point":
+            with pytest.raises(ValueError, match=r"non-finite values \(env indices \[1\]\)"):
+                venv.step(actions)
+        venv.close()
+    np.testing.assert_array_equal(results[0][0], results[1][0])
+    np.testing.assert_array_equal(results[0][1], results[1][1])
 
 
 def test_export_names_frames_it_cannot_map(tmp_path):

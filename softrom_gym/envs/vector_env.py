@@ -251,8 +251,11 @@ class SoftRobotVectorEnv(VectorEnv):
         a = real_array("actions", actions)
         if a.shape != self.action_space.shape:
             raise ValueError(f"actions has shape {a.shape}, expected {self.action_space.shape}")
-        if not np.all(np.isfinite(a)):
-            rows = sorted({int(i) for i in np.argwhere(~np.isfinite(a))[:, 0]})
+        # Rows of sub-environments this step resets are ignored, as SyncVectorEnv ignores
+        # them, so only the rows that are stepped must be finite.
+        bad = ~np.isfinite(a).all(axis=1) & ~self._autoreset
+        if bad.any():
+            rows = np.flatnonzero(bad).tolist()
             raise ValueError(f"actions contains non-finite values (env indices {rows})")
         if self._never_reset.any():
             never = np.flatnonzero(self._never_reset).tolist()
