@@ -5,10 +5,16 @@ on the cluster. A supervisor thread hands tasks to idle actors and waits on thei
 actor that dies or runs past ``timeout_s`` is killed and replaced and its task resolves as
 ``status="failed"``. Ray is imported lazily: without it, constructing the executor raises an
 ImportError that names the ``[ray]`` extra.
+
+As in the process pool, a task given to an actor that had come up and died while idle (a
+stray kill, the OOM killer) never ran: it goes back to the front of the queue instead of
+being recorded as failed. ``ray.init`` takes over the process's SIGTERM handler; the executor
+puts back the one that was set (``rbbo``'s, which stops a run as Ctrl-C does).
 """
 
 from __future__ import annotations
 
+import signal
 import threading
 import time
 from collections import deque
@@ -22,6 +28,11 @@ from .._warn import say_warnings_as
 from .base import EvaluationTask, Executor, evaluate_task, failed
 
 __all__ = ["RayExecutor", "import_ray"]
+
+# Tasks in a row that a slot's actors, each up and then dead before the task, could not take
+# before the task fails (as the process pool's _MAX_LOST_SENDS): actors that keep dying idle
+# must not keep a task waiting forever.
+_MAX_LOST = 3
 
 
 def import_ray():
@@ -65,6 +76,8 @@ class _Slot:
     restarts: int = 0
     ready: Any = None  # the actor's ping while it starts; None once it has answered
     spawned: float = 0.0
+    alive: Any = None  # a ping sent just before the task to an actor that was up (_lost)
+    lost: int = 0  # tasks in a row this slot's actors died before taking
 
     @property
     def name(self) -> str:
@@ -105,7 +118,20 @@ class RayExecutor(Executor):
             kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
             if address is None:
                 kwargs["num_cpus"] = workers
-            ray.init(address=address, **kwargs)
+            # ray.init sets a SIGTERM handler of its own, sys.exit(15) (and its core worker one
+            # that prints a stack dump): under `rbbo` a SIGTERM (`kill`, a scheduler's time
+            # limit) then ended the run with status 15, its session recorded as "error:
+            # SystemExit: 15" and no resume hint, where Ctrl-C, and SIGTERM with the process
+            # executor, stop it as an interrupt (status 130, "interrupted"). The handler set
+            # before is put back; Ray's stays only where there was none (SIG_DFL), as its exit
+            # then at least shuts Ray down.
+            main = threading.current_thread() is threading.main_thread()
+            previous = signal.getsignal(signal.SIGTERM) if main else None
+            try:
+                ray.init(address=address, **kwargs)
+            finally:
+                if previous is not None and previous is not signal.SIG_DFL:
+                    signal.signal(signal.SIGTERM, previous)
             self._owns_ray = True
         self.objective = objective
         self.workers = workers
@@ -151,6 +177,38 @@ class RayExecutor(Executor):
         self._start(slot)
         self._finish(slot, outcome)
 
+    def _lost(self, slot: _Slot) -> bool:
+        """Whether the failed task of ``slot`` never ran: its actor had come up and died while
+        idle. Its ping, sent just before the task, then failed too (an actor runs one caller's
+        calls in order, so an actor that died in the task had answered it)."""
+        if slot.alive is None:  # (the actor was starting: a death then fails the task)
+            return False
+        try:
+            self._ray.get(slot.alive, timeout=10)
+        except self._ray.exceptions.RayActorError:
+            return True
+        except self._ray.exceptions.RayError:  # (not answered in time: say the task failed)
+            return False
+        return False
+
+    def _requeue(self, slot: _Slot) -> None:
+        """Put the task of ``slot``, which never ran (:meth:`_lost`), back at the front of the
+        queue, its future still running, and replace the dead actor; fail it instead at
+        shutdown (the queue was drained) or after ``_MAX_LOST`` such deaths in a row."""
+        slot.lost += 1
+        with self._lock:
+            if not self._closing and slot.lost < _MAX_LOST:
+                self._queue.appendleft((slot.task, slot.future))
+                slot.task = slot.future = slot.ref = None
+        if slot.task is not None:
+            slot.lost = 0
+            self._fail_and_replace(slot, f"worker failed: ActorDiedError ({_MAX_LOST} actors "
+                                   "in a row died before taking the task)")  # fmt: skip
+            return
+        self._ray.kill(slot.actor, no_restart=True)
+        slot.restarts += 1
+        self._start(slot)
+
     def _supervise(self) -> None:
         ray = self._ray
         while True:
@@ -163,10 +221,12 @@ class RayExecutor(Executor):
                 for slot in self._slots:
                     if slot.task is None and self._queue:
                         task, future = self._queue.popleft()
-                        if not future.set_running_or_notify_cancel():
+                        # (a requeued task's future is running already: it cannot go back)
+                        if not (future.running() or future.set_running_or_notify_cancel()):
                             continue
                         slot.task, slot.future = task, future
                         slot.started = None if slot.ready is not None else time.monotonic()
+                        slot.alive = None if slot.ready is not None else slot.actor.ping.remote()
                         slot.ref = slot.actor.evaluate.remote(task)
                 busy = [s for s in self._slots if s.task is not None]
                 if self._closing and not busy and not self._queue:
@@ -185,8 +245,14 @@ class RayExecutor(Executor):
                     try:
                         outcome = ray.get(slot.ref)
                     except ray.exceptions.RayError as exc:
-                        self._fail_and_replace(slot, f"worker failed: {type(exc).__name__}")
+                        if self._lost(slot):
+                            self._requeue(slot)
+                        else:
+                            self._fail_and_replace(slot, f"worker failed: {type(exc).__name__}")
                         continue
+                    # (an actor that answered is up, whether or not _clock saw its ping: the
+                    # next task's is then sent with it, and its clock starts at once)
+                    slot.lost, slot.ready = 0, None
                     self._finish(slot, outcome)
                 elif (
                     self.timeout_s is not None
