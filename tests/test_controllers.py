@@ -241,6 +241,20 @@ def test_gauss_newton_exploration_candidates_are_seeded_noise_clipped_to_the_bou
     assert np.abs(gn.plan_.knots).max() <= 1.0
 
 
+def test_gauss_newton_trust_region_leaves_exploration_noise_inside_it_as_drawn(walker):
+    # max_step scales down a candidate whose largest knot move exceeds it; noise already
+    # inside the region is used as drawn, not stretched out to the region's edge (a missing
+    # min(1, .) blew it up fifty-fold: mutation testing, session 56)
+    gn = GaussNewtonShooting(GaussNewtonSettings(horizon=6, knots=2, explore=5,
+                                                 explore_noise=0.01, max_step=0.5))  # fmt: skip
+    gn.reset(walker, seed=3)
+    (_, _), (trials, _) = _plan_recording_rollouts(gn, walker)
+    noise = 0.01 * np.random.default_rng(3).standard_normal((5, 6))  # around knots at zero
+    assert np.abs(noise).max() < 0.5
+    n_steps = len(gn.settings.line_search)
+    np.testing.assert_array_equal(trials[n_steps:].reshape(5, 6), noise)
+
+
 def test_mppi_with_zero_noise_returns_its_warm_start(walker):
     mppi = MPPI(MPPISettings(horizon=6, knots=3, samples=4, noise=0.0))
     mppi.reset(walker, seed=0)

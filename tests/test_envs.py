@@ -12,6 +12,7 @@ from gymnasium.utils.env_checker import check_env
 
 import cpp_sim
 import softrom_gym
+from softrom_gym.envs.observations import orientation_rows
 from softrom_gym.robots import from_mesh
 
 IDS = [f"softrom_gym/{name}" for name in softrom_gym.BENCHMARKS] + ["softrom_gym/SoftRobot-v0"]
@@ -1215,3 +1216,25 @@ def test_a_walking_robot_must_rest_on_the_ground(monkeypatch):
     near = Robot("block", nodes - np.array([0, 0, 1e-12]), tets)
     near = gym.make("softrom_gym/SoftRobot-v0", robot=near, sim_dim=4, control_dim=1)
     assert near.reset(seed=0)[0][0] == pytest.approx(0.02)
+
+
+def test_every_observation_slot_reads_its_own_part_of_the_state():
+    """obs = [height, COM velocity (3), theta (3), theta_dot (3), q[6:], qdot[6:]]: the slots
+    after the orientation were not checked, so an observation that repeated q[6:] where
+    qdot[6:] belongs (the deformation velocities a policy needs) passed every test."""
+    base = gym.make("softrom_gym/BeamWalk-v0").unwrapped
+    base.reset(seed=0)
+    basis, mass = base.subspace.basis, base.robot.fem_model().mass
+    m = basis.shape[1] - 6
+    rng = np.random.default_rng(1)
+    q = np.zeros(basis.shape[1])
+    q[3:] = 1e-3 * rng.normal(size=basis.shape[1] - 3)
+    qdot = 1e-2 * rng.normal(size=basis.shape[1])
+    base.set_state(cpp_sim.ReducedState(q, qdot, base.get_state().impulses))
+    obs = base._obs(base.get_state())
+    assert obs.shape == (10 + 2 * m,)
+    rows = orientation_rows(base.robot.nodes, mass, basis)
+    np.testing.assert_allclose(obs[4:7], rows @ q, rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(obs[7:10], rows @ qdot, rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(obs[10 : 10 + m], q[6:], rtol=1e-6)
+    np.testing.assert_allclose(obs[10 + m :], qdot[6:], rtol=1e-6)

@@ -204,3 +204,28 @@ def test_orthonormalize_names_a_matrix_without_columns():
     for shape in ((5, 0), (0, 0)):
         with pytest.raises(ValueError, match=rf"1 <= C <= M, got shape \({shape[0]}, 0\)"):
             gr.orthonormalize(np.zeros(shape))
+
+
+def test_canonical_is_orthonormal_when_a_pivot_row_is_nearly_in_the_span_of_earlier_ones(rng):
+    """The docstring's "Gram-Schmidt twice: orthogonal to working precision": rows 0 and 1
+    of B_c nearly parallel (row 1's residual ~1e-7, still a pivot) leave one classical
+    Gram-Schmidt pass ~1e-8 from orthogonal (u / 1e-7); the representative B_c Q is then as
+    far from orthonormal, and no longer as orthonormal as B_c (~1e-16)."""
+    for seed in range(20):
+        g = rng.standard_normal((7, 3))
+        g[1] = g[0] + 1e-7 * rng.standard_normal(3)
+        b = gr.orthonormalize(g) @ ortho_group.rvs(3, random_state=seed)
+        assert np.abs(b.T @ b - np.eye(3)).max() < 1e-14
+        c = gr.canonical(b)
+        np.testing.assert_allclose(c.T @ c, np.eye(3), atol=1e-13)
+        np.testing.assert_allclose(c @ c.T, b @ b.T, atol=1e-13)  # the same span
+
+
+def test_random_points_columns_have_independent_signs(rng):
+    """Haar on the Stiefel manifold: B and B diag(+-1) are equally likely, for each column
+    on its own. The existing test checks the signs of B_00 and B_11 one at a time; a sign fix
+    that flips every column by the sign of R_11 (instead of each by its own R_jj) passes it,
+    but couples the columns: B_00 B_11 > 0 in ~92 % of draws."""
+    pts = gr.random_points(6, 2, 2000, rng)
+    assert 0.45 < np.mean(pts[:, 0, 0] * pts[:, 1, 1] > 0) < 0.55
+    assert 0.45 < np.mean(np.linalg.det(pts[:, :2, :]) > 0) < 0.55

@@ -514,3 +514,53 @@ def test_cubature_training_ends_when_no_candidate_improves_the_fit(monkeypatch):
         assert err > 1e-6 and np.all(weights > 0) and len(set(selected)) == len(selected)
         residual = np.linalg.norm(b - a[:, selected] @ weights) / np.linalg.norm(b)
         assert residual == pytest.approx(err)
+
+
+def test_rotation_columns_are_the_documented_rotations_in_order_and_sign():
+    """Columns 3..5 are the infinitesimal rotations w x (X - c) about e_x, e_y, e_z,
+    mass-orthonormalised in that order: column 3 + k is a combination of the first k + 1
+    rotations with a positive coefficient on its own. The existing test checks the span only:
+    (X - c) x w in place of w x (X - c) flips every column and passed (caught only by a
+    1.10e-5 > 1e-5 drift in a chaotic contact test). Subspace.signature(), which RBBO runs
+    record, depends on these signs."""
+    robot = beam()
+    sub = build_subspace(robot, 6, cache=False)
+    mass = robot.fem_model().mass
+    r = robot.nodes - mass @ robot.nodes / mass.sum()
+    a = np.column_stack([np.cross(e, r).ravel() for e in np.eye(3)])
+    coef, *_ = np.linalg.lstsq(a, sub.rotations, rcond=None)
+    np.testing.assert_allclose(a @ coef, sub.rotations, atol=1e-12)
+    np.testing.assert_allclose(np.tril(coef, -1), 0.0, atol=1e-9 * np.abs(coef).max())
+    assert np.all(np.diag(coef) > 0)
+
+
+def test_modal_derivatives_are_those_of_the_lowest_eigenvalue_products():
+    """Barbic & James: the derivative columns are Phi_ij = -K^-1 (dK/dq_i) psi_j for the
+    pairs of low modes with the lowest lambda_i lambda_j first. The existing tests check only
+    properties any derivative columns have (stiffer than the modes, mass-orthonormal), so
+    ranking the pairs by eigenvalues shifted by one (lam[5:] for lam[6:], a rigid lambda ~ 0
+    for mode 0's) changed the last four columns of the beam's B_r entirely and was caught
+    only as a contact stagger that stopped converging in tests/test_solver.py."""
+    from softrom_gym.rom.subspace import _mass_gram_schmidt, _modal_derivatives
+
+    robot, m = beam(), 20
+    sub = build_subspace(robot, m, cache=False)
+    fem = robot.fem_model()
+    mass3 = np.repeat(fem.mass, 3)
+    k0 = fem.stiffness(robot.nodes)
+    rigid, modes = sub.basis[:, :6], sub.deformation[:, : sub.num_modes]
+    lam = sub.frequencies[: sub.num_modes] ** 2
+    nd = m - sub.num_modes
+    base = min(sub.num_modes, max(2, int(np.ceil(np.sqrt(2 * nd))) + 1))
+    unit = lam[0] * lam[0]
+
+    def rank(p):
+        return float(np.round(lam[p[0]] * lam[p[1]] / unit, 6)), p
+
+    ranked = sorted(((i, j) for i in range(base) for j in range(i, base)), key=rank)
+    pairs = ranked[: 2 * nd]
+    phis = _modal_derivatives(fem, robot.nodes, modes, pairs, k0, rigid, mass3)
+    expected = np.column_stack(_mass_gram_schmidt(list(modes.T) + phis, mass3, rigid)[:m])
+    # the same span as B_r's deformation columns (mass inner product)
+    overlap = expected.T @ (mass3[:, None] * sub.deformation)
+    np.testing.assert_allclose(np.linalg.svd(overlap, compute_uv=False), 1.0, atol=1e-6)
