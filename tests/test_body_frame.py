@@ -167,3 +167,25 @@ def test_bad_nodes_masses_and_fields_are_named(bar):
     ):  # fmt: skip
         with pytest.raises(error, match=match):
             call()
+
+
+def test_the_best_fit_of_a_mirror_image_is_a_proper_rotation(bar):
+    """Kabsch's reflection guard: for nodes mirrored through a plane the unconstrained best
+    orthogonal fit is a reflection (det -1); best_fit_rotation returns the best proper
+    rotation instead. No existing test gives it a configuration whose best orthogonal fit is
+    improper, so dropping the det sign passed."""
+    mass = bar.fem_model().mass
+    rest = bar.nodes - mass @ bar.nodes / mass.sum()
+    x = rest * np.array([1.0, 1.0, -1.0]) + np.array([0.3, -0.2, 0.1])  # mirrored, moved
+    r = best_fit_rotation(x, rest, mass)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) > 0
+    c = mass @ x / mass.sum()
+
+    def misfit(rotation):
+        return float(np.sum(mass[:, None] * (x - c - rest @ rotation.T) ** 2))
+
+    best = misfit(r)
+    for k in range(20):  # no nearby rotation fits better
+        nudge = Rotation.from_rotvec(1e-3 * Rotation.random(random_state=k).as_rotvec()).as_matrix()
+        assert misfit(nudge @ r) >= best - 1e-12

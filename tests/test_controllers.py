@@ -30,6 +30,7 @@ from controllers import (
 from controllers.__main__ import _parser as cli_parser
 from controllers.__main__ import main as cli_main
 from controllers.cost import evaluate
+from controllers.episode import _gif_timing
 
 
 def small_env(task="walk", **kwargs):
@@ -1638,3 +1639,55 @@ def test_weights_given_on_a_command_line_are_named_as_not_settable_there(capsys)
     assert "--mpc cannot set them" in err
     with pytest.raises(TypeError, match=r"CostWeights\(orientation=, lateral=, effort="):
         MPPISettings(weights={"effort": 0.01})
+
+
+@pytest.mark.parametrize("fps", [60, 100, 200])
+def test_a_gif_above_50_fps_drops_frames_to_keep_real_time(fps):
+    """GIF stores delays in 1/100 s and plays one under 2/100 s as 1/10 s: above 50 fps some
+    frames are dropped, each kept frame lasts at least 20 ms, and the delays still add up to
+    the video's running time. The existing GIF test runs at 40 fps, where no frame is
+    dropped, so keeping frames 1/100 s apart (then 20-ms delays on 10-ms frames: the GIF
+    played at half speed at 100 fps) passed it."""
+    count = 50
+    keep, delays = _gif_timing(count, fps)
+    assert keep[0] == 0 and np.all(np.diff(keep) > 0) and keep[-1] < count
+    assert len(keep) == len(delays) and min(delays) >= 20
+    assert sum(delays) == pytest.approx(1000 * count / fps, abs=10)
+    assert len(keep) < count  # (frames were dropped: 10-ms frames cannot each last 20 ms)
+
+
+class _InfoInterruptedAtCom(dict):
+    def __getitem__(self, key):
+        if key == "com":
+            raise KeyboardInterrupt  # Ctrl-C after the step's other terms were appended
+        return super().__getitem__(key)
+
+
+class _InterruptBeforeCom(gym.Wrapper):
+    def __init__(self, env, n):
+        super().__init__(env)
+        self.n, self.calls = n, 0
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.calls += 1
+        if self.calls == self.n:
+            info = _InfoInterruptedAtCom(info)
+        return obs, reward, terminated, truncated, info
+
+
+def test_an_interrupt_between_a_step_s_appends_keeps_only_whole_steps():
+    """EpisodeResult keeps the steps recorded whole: an interrupt after a step's rewards and
+    actions were appended but before its centre of mass was leaves that step out, so that
+    com and states have one row more than rewards. Sizing by len(com) rather than
+    len(com) - 1 (rewards of 3 steps with 3 com rows) passed every test."""
+    env = _InterruptBeforeCom(gym.make("softrom_gym/SoftRobot-v0", robot="beam", task="walk",
+                                       sim_dim=6, resolution=6), 3)  # fmt: skip
+    planner = MPPI(MPPISettings(horizon=4, knots=2, samples=2))
+    with pytest.raises(KeyboardInterrupt) as interrupt:
+        run_episode(env, planner, 0.25, seed=0, progress=False)
+    result = interrupt.value.result
+    assert result.stop_reason == "interrupted"
+    assert result.rewards.size == 2 and result.actions.shape[0] == 2
+    assert result.com.shape == (3, 3) and len(result.states) == 3
+    assert result.distance.shape == (3,)

@@ -6,7 +6,7 @@ import pytest
 from test_reduced import full_basis
 
 import cpp_sim
-from softrom_gym.full_space import FullSpaceModel
+from softrom_gym.full_space import FullSpaceModel, FullSpaceState
 from softrom_gym.robots.robot import Robot
 from softrom_gym.robots.voxel import voxels_to_tets
 from softrom_gym.rom import build_reduced_model
@@ -427,3 +427,46 @@ def test_a_diverging_newton_step_says_so():
     state = model.rest_state()
     with pytest.raises(FloatingPointError, match="the Newton step diverged at iteration"):
         model.step(type(state)(state.x, v0, state.impulses))
+
+
+def test_free_fall_with_mass_damping_is_the_exact_implicit_step(bar):
+    """A body falling from rest without contact stays undeformed, so the implicit step is
+    linear: M (v - 0) = h (M g - alpha M v) gives v = g h / (1 + h alpha) at every node, and
+    Newton with the exact Jacobian lands on it in one update (the second only confirms).
+    newton_tolerance bounds the mass-weighted RMS of an update, |dv|_M / sqrt(m): a tolerance
+    above |v| accepts the first update. Every existing test runs with damping_alpha = 0, so
+    the alpha term's sign in the residual, alpha left out of the Newton matrix, and an
+    unweighted |dv| (sqrt(3N) times larger) all passed."""
+    h, alpha = 0.005, 4.0
+    model = FullSpaceModel(bar, contact="none", dt=h, damping_alpha=alpha,
+                           newton_tolerance=1e-12)  # fmt: skip
+    new, info = model.step(model.rest_state())
+    expected = np.array([0.0, 0.0, -G * h / (1.0 + h * alpha)])
+    np.testing.assert_allclose(new.v, np.broadcast_to(expected, new.v.shape), rtol=0, atol=1e-12)
+    assert info["converged"] and info["newton_iterations"] == 2
+    speed = G * h / (1.0 + h * alpha)
+    for tolerance, iterations in ((1.25 * speed, 1), (0.8 * speed, 2)):
+        model.newton_tolerance = tolerance
+        _, info = model.step(model.rest_state())
+        assert info["converged"] and info["newton_iterations"] == iterations, tolerance
+
+
+@pytest.mark.parametrize("stabilization", [0.2, 0.5])
+def test_a_penetrating_node_rises_by_the_stabilization_share_of_its_depth(box, stabilization):
+    """A node below the ground ends the step with a normal velocity of at least
+    beta_s * depth / h: placed 1 mm into the ground at rest (no gravity, so nothing else
+    moves it), the stiff block's bottom rises by beta_s of its depth in one step. In every
+    existing test no node starts below the ground, so a bound of depth / h (the node lifted
+    out at once) passed."""
+    depth, h = 1e-3, 0.005
+    model = FullSpaceModel(box, gravity=(0.0, 0.0, 0.0), dt=h, friction=0.5,
+                           stabilization=stabilization)  # fmt: skip
+    rest = model.rest_state()
+    x = box.nodes.copy()
+    x[:, 2] += -x[:, 2].min() - depth
+    bottom = np.flatnonzero(np.isclose(x[:, 2], -depth))
+    assert len(bottom) >= 4
+    new, info = model.step(FullSpaceState(x, np.zeros_like(x), rest.impulses))
+    assert info["converged"] and info["contact_converged"]
+    np.testing.assert_allclose(new.x[bottom, 2], -(1.0 - stabilization) * depth,
+                               rtol=0, atol=0.02 * depth)  # fmt: skip

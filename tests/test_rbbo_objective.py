@@ -591,3 +591,21 @@ def test_a_recorded_source_is_checked_up_front_and_a_registration_here_wins(plan
     (difference,) = objective_differences(recorded, objective)
     assert difference.startswith("registered_planner absent (recorded {'planner_class': "
                                  "'examples.cem_planner:CEM'")  # fmt: skip
+
+
+def test_a_simulation_space_coordinate_off_either_way_is_refused():
+    """The B_r fingerprint check compares |current - recorded|: a coordinate off by the same
+    amount upwards or downwards is refused. The existing test flips a coordinate that happens
+    to be positive, so a check of current - recorded > tol (without abs) passed it."""
+    from rbbo.objective import EnvObjective, SimulationSpaceMismatch
+
+    objective = EnvObjective("softrom_gym/BeamWalk-v0", 6, 2)
+    recorded = objective.spec()["simulation_space"]
+    step = 1e-3 * max(abs(v) for v in recorded)
+    for k in (3, 8):
+        for sign in (1.0, -1.0):
+            off = list(recorded)
+            off[k] += sign * step
+            with pytest.raises(SimulationSpaceMismatch, match=rf"coordinates \[{k}\] differ"):
+                objective.expect_simulation_space(off)
+    objective.expect_simulation_space(recorded)  # itself: accepted

@@ -1425,3 +1425,37 @@ def test_run_evaluates_the_proposals_asked_and_never_told_and_counts_them_once(t
     assert list(resumed.pending) == [] and [p.index for p in resumed._restored] == [1]
     assert resumed.run(objective).evaluations == 5
     resumed.close()
+
+
+def test_boca_reads_tau_from_the_believer_with_the_proposals_in_flight(monkeypatch):
+    """T is chosen by BOCA on the GP conditioned on the search proposals in flight (the
+    kriging believer), as the acquisition is: a second worker's look at a basis near one in
+    flight sees the shrunken uncertainty there. Handing BOCA the fitted GP instead (the one
+    without fantasies) passed every test."""
+    m, c = 6, 2
+    objective = SyntheticObjective(m, c, optimum_seed=3)
+    opt = RBBO(RBBOConfig(m, c, fidelity="boca", t_min=4.0, t_max=10.0, n_init=3, seed=1,
+                          n_confirm=0, **FAST))  # fmt: skip
+    for _ in range(4):  # the initial design, told
+        p = opt.ask()
+        opt.tell(p.index, objective(p.basis, p.T, p.seeds[0]))
+    first = opt.ask()  # in flight from here on
+    assert first.kind == "acquisition"
+    seen = []
+    choose = opt._boca.choose
+
+    def spy(gp, basis, pending=()):
+        seen.append((gp, list(pending)))
+        return choose(gp, basis, pending)
+
+    monkeypatch.setattr(opt._boca, "choose", spy)
+    opt.ask()
+    assert seen, "BOCA chose no T"
+    gp, pending = seen[0]
+    assert pending == [first.T]
+    assert gp.n_observations == 4 + 1  # the told four and the fantasy of the one in flight
+    fitted = opt.fit()
+    z = opt._z([first.T])
+    (mu0, sd0), (mu1, sd1) = fitted.predict(first.basis[None], z), gp.predict(first.basis[None], z)
+    np.testing.assert_allclose(mu1, mu0, atol=1e-8)  # observed at its posterior mean
+    assert sd1[0] < 0.5 * sd0[0]

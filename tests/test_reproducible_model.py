@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from softrom_gym.rom.cubature import _ranked
+from softrom_gym.rom.eigen import reference_fields
 from softrom_gym.rom.subspace import canonical_eigenvectors
 
 
@@ -90,3 +91,48 @@ def test_the_same_model_from_two_blas_kernels(tmp_path):
     np.testing.assert_allclose(a["basis"], b["basis"], atol=1e-9)
     np.testing.assert_array_equal(a["elements"], b["elements"])
     np.testing.assert_allclose(a["weights"], b["weights"], rtol=1e-6)
+
+
+def _m_orthonormal(n, k, seed=0):
+    rng = np.random.default_rng(seed)
+    mass3 = rng.uniform(0.2, 5.0, n)  # far from uniform: the M inner product matters
+    q, _ = np.linalg.qr(rng.standard_normal((n, k)))
+    return mass3, q / np.sqrt(mass3)[:, None]
+
+
+def test_eigenvalues_within_a_relative_gap_form_one_cluster():
+    """rel_gap is relative: two eigenvalues of 1e4 that differ by 1e-7 of themselves (1e-3
+    absolute) are one eigenspace, whose canonical basis does not depend on the basis the
+    solver gave of it. An absolute gap of 1e-6 split them and passed every test."""
+    mass3, vec = _m_orthonormal(12, 5)
+    lam = np.array([1e4, 1e4 * (1 + 1e-7), 2e4, 3e4, 4e4])
+    c, s = np.cos(0.3), np.sin(0.3)
+    turned = vec.copy()
+    turned[:, :2] = vec[:, :2] @ np.array([[c, -s], [s, c]])
+    turned[:, 2] *= -1.0
+    np.testing.assert_allclose(canonical_eigenvectors(lam, turned, mass3, keep=4),
+                               canonical_eigenvectors(lam, vec, mass3, keep=4),
+                               rtol=0, atol=1e-12)  # fmt: skip
+
+
+def test_the_canonical_basis_is_the_mass_projection_of_the_reference_fields():
+    """The documented choice, which every recorded B_r fingerprint depends on: a simple
+    eigenvalue's eigenvector has w_1^T M u > 0, and a degenerate eigenspace's first column is
+    the M-projection of w_1 onto it, M-normalised, w_1 being the first reference field
+    whatever the cluster's size. Projecting with the Euclidean inner product, or reference
+    fields whose first column changes with their count, still gave bases invariant to the
+    solver's choices, and passed every test while changing every robot's modes."""
+    n = 12
+    mass3, vec = _m_orthonormal(n, 5, seed=1)
+    lam = np.array([1e4, 2e4, 2e4, 3e4, 4e4])
+    out = canonical_eigenvectors(lam, vec, mass3, keep=3)
+    w = reference_fields(n, 1)[:, 0]
+    np.testing.assert_array_equal(reference_fields(n, 3)[:, :1], reference_fields(n, 1))
+    sign = np.sign(w @ (mass3 * vec[:, 0]))
+    np.testing.assert_allclose(out[:, 0], sign * vec[:, 0], rtol=0, atol=1e-12)
+    block = vec[:, 1:3]
+    p = block @ (block.T @ (mass3 * w))
+    p /= np.sqrt(p @ (mass3 * p))
+    np.testing.assert_allclose(out[:, 1], p, rtol=0, atol=1e-12)
+    gram = out.T @ (mass3[:, None] * out)
+    np.testing.assert_allclose(gram, np.eye(3), atol=1e-12)

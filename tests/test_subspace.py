@@ -9,6 +9,8 @@ import trimesh
 import cpp_sim
 from softrom_gym.robots import beam, from_mesh
 from softrom_gym.rom import build_subspace, cache_dir, sample_poses, train_cubature
+from softrom_gym.rom.cubature import _greedy_nnls
+from softrom_gym.transfer import map_control_basis
 
 
 @pytest.fixture(scope="module")
@@ -564,3 +566,47 @@ def test_modal_derivatives_are_those_of_the_lowest_eigenvalue_products():
     # the same span as B_r's deformation columns (mass inner product)
     overlap = expected.T @ (mass3[:, None] * sub.deformation)
     np.testing.assert_allclose(np.linalg.svd(overlap, compute_uv=False), 1.0, atol=1e-6)
+
+
+def test_a_control_basis_off_orthonormal_by_more_than_1e_8_is_refused():
+    """The documented tolerance is the env's, 1e-8: a B_c 1e-6 off orthonormal is refused
+    (before any simulation space is built). The existing test uses a far-off basis, so a
+    tolerance of 1e-4 passed it."""
+    basis = np.eye(6)[:, :2]
+    basis[0, 0] += 1e-6
+    with pytest.raises(ValueError, match=r"not orthonormal: max \|B_c\^T B_c - I\| = 2e-06"):
+        map_control_basis(basis, beam(), 6, 8)
+
+
+def test_the_greedy_pick_is_the_element_most_aligned_with_the_residual():
+    """An, Kim & James's greedy step scores each element by the cosine of its column with the
+    residual, a_j . r / |a_j|: not by a_j . r (large columns win), a_j . r / |a_j|^2 (small
+    columns win) or an L1-normalised product. Here column 0 is parallel to b, columns 1 and 2
+    are at cosine 0.9 with norms 100 and 0.01, and column 3 (e_0) at cosine 0.87 has the
+    larger L1 score."""
+    b = np.array([3.0, 1.0, 1.0, 1.0])
+    unit = b / np.linalg.norm(b)
+    side1 = np.array([0.0, 1.0, -1.0, 0.0]) / np.sqrt(2.0)
+    side2 = np.array([0.0, 1.0, 1.0, -2.0]) / np.sqrt(6.0)
+    assert abs(side1 @ b) < 1e-15 and abs(side2 @ b) < 1e-15
+    tilt = np.sqrt(1.0 - 0.9**2)
+    a = np.column_stack([unit, 100.0 * (0.9 * unit + tilt * side1),
+                         0.01 * (0.9 * unit + tilt * side2), np.eye(4)[0]])  # fmt: skip
+    selected, weights, err = _greedy_nnls(a, b, 1e-9, 1, False)
+    assert selected.tolist() == [0]
+    assert weights == pytest.approx([np.linalg.norm(b)]) and err < 1e-12
+
+
+def test_training_turns_move_a_node_coordinate_by_up_to_5_percent_of_the_size():
+    """sample_poses: the linearised rotation's largest coordinate displacement is uniform on
+    [0, 5 %] of the robot's size (its largest extent). Dropping that scaling (unit Gaussian
+    rotation coordinates), a 10x range, the norm for the largest coordinate, or a turn in
+    metres rather than in sizes all passed the tests of sample_poses and train_cubature."""
+    robot = beam()
+    subspace = build_subspace(robot, 20)
+    size = float(np.ptp(robot.nodes, axis=0).max())
+    poses = sample_poses(robot, subspace, 400, np.random.default_rng(0))
+    turn = np.abs(poses[:, :3] @ subspace.rotations.T).max(axis=1) / size
+    assert turn.max() <= 0.05 * (1 + 1e-12)
+    assert turn.max() > 0.048  # reaches the top of its range ...
+    assert turn.mean() == pytest.approx(0.025, abs=0.003)  # ... uniform over it
