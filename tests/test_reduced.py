@@ -677,3 +677,95 @@ def test_min_volume_ratio_is_the_smallest_det_f_over_the_mesh(bar, frame):
     assert expected < 0.95  # deformed enough that the minimum means something
     assert model.min_volume_ratio(q) == pytest.approx(expected, rel=1e-12)
     assert model.min_volume_ratio(model.rest_state().q) == pytest.approx(1.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("frame", ["linear", "floating"])
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+@pytest.mark.parametrize("density", [50.0, 20000.0])  # m = 0.15 kg and 60 kg
+def test_max_speed_is_an_rms_node_speed_whatever_the_mass(solver, density, frame):
+    # max_speed bounds the RMS node speed |qdot| / sqrt(m), not |qdot|: a rigid translation at
+    # 0.9 max_speed is kept and one at 1.1 max_speed is rejected, on bodies far from 1 kg
+    # (test_a_step_faster_than_max_speed_is_diverged brackets 1 m/s by 0.5 and 2.0 on a beam
+    # of ~3.6 kg, where sqrt(m) ~ 1.9 hid a test on |qdot|). In free flight without gravity or
+    # contact a rigid translation is undamped: the step keeps its speed.
+    nodes, tets = voxels_to_tets(np.ones((3, 1, 1), dtype=bool), 0.1)
+    robot = Robot("bar", nodes, tets, youngs_modulus=2e4, density=density)
+    model = build_reduced_model(robot, forces="exact", subspace=full_basis(robot),
+                                contact="none", gravity=[0, 0, 0], solver=solver,
+                                frame=frame)  # fmt: skip
+    m = model.total_mass
+    assert m == pytest.approx(density * 0.003, rel=1e-9)
+    model.max_speed = 1.0
+    rest = model.rest_state()
+    direction = np.array([0.6, 0.0, 0.8])
+    for speed, diverged in ((0.9, False), (1.1, True)):
+        qdot = rest.qdot
+        qdot[:3] = speed * np.sqrt(m) * direction
+        state = cpp_sim.ReducedState(rest.q, qdot, rest.impulses)
+        after, info = model.step(state)
+        assert info["diverged"] == diverged, (m, speed)
+        if diverged:
+            np.testing.assert_array_equal(after.qdot, state.qdot)
+        else:
+            np.testing.assert_allclose(after.qdot[:3] / np.sqrt(m), speed * direction, rtol=1e-9)
+
+
+def _translated(model, dz, vz):
+    s = model.rest_state()
+    q, qdot = s.q, s.qdot
+    q[2] = dz * np.sqrt(model.total_mass)
+    qdot[2] = vz * np.sqrt(model.total_mass)
+    return cpp_sim.ReducedState(q, qdot, s.impulses)
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+@pytest.mark.parametrize("beta", [0.2, 0.5])
+def test_a_penetrating_body_rises_by_the_baumgarte_fraction_of_its_depth(box, solver, beta):
+    # A stiff block at rest with its bottom face 1 mm into the ground, no gravity: the normal
+    # bound of every bottom node is beta d / dt, and nothing pushes it further, so each loaded
+    # node ends the step at exactly beta d / dt (to the contact tolerance) and none below it;
+    # the block rises as a body at that speed (its bottom face stays flat: the stiff box's
+    # deformation costs ~40x its motion in A's metric). A bound that removed the whole
+    # penetration (-z / dt), or none of it, is off by 1 / beta or more.
+    depth = 1e-3
+    model = build_reduced_model(box, solver=solver, gravity=[0, 0, 0], stabilization=beta,
+                                contact_tolerance=1e-7, max_stagger_iterations=2000)  # fmt: skip
+    state = _translated(model, -depth, 0.0)
+    nxt, info = model.step(state)
+    assert info["converged"] and info["contact_converged"] and not info["diverged"]
+    nodes = np.asarray(model.surface_nodes)
+    z0 = model.positions(state.q)[nodes, 2] - model.ground_height
+    z1 = model.positions(nxt.q)[nodes, 2] - model.ground_height
+    bottom = z0 < -0.5 * depth
+    assert bottom.sum() >= 4
+    rise = (z1 - z0)[bottom] / model.dt  # the bottom nodes' normal velocities
+    bound = beta * depth / model.dt
+    loaded = nxt.impulses.reshape(-1, 3)[:, 2] > 0.0
+    assert loaded.any() and np.all(loaded <= bottom)
+    np.testing.assert_allclose((z1 - z0)[loaded] / model.dt, bound, rtol=0, atol=1e-5)
+    assert rise.min() >= bound - 1e-5
+    com_vz = nxt.qdot[2] / np.sqrt(model.total_mass)
+    assert com_vz == pytest.approx(bound, rel=0.05)
+
+
+@pytest.mark.parametrize("solver", ["fast", "reference"])
+def test_a_body_arriving_faster_than_its_gap_allows_lands_on_the_plane(box, solver):
+    # 1 mm above the ground and falling at 1 m/s (5 mm in a step): the bound -z / dt lets each
+    # bottom node reach the plane and no further, so the step ends with the bottom face on the
+    # plane (to the contact tolerance times dt): its nodes moved down at z / dt, not at the 1 m/s
+    # they came with. (The rest of the block keeps coming and squeezes it a little: the centre of
+    # mass is not bounded by the bottom face's speed.)
+    gap = 1e-3
+    model = build_reduced_model(box, solver=solver, gravity=[0, 0, 0],
+                                contact_tolerance=1e-7, max_stagger_iterations=2000)  # fmt: skip
+    state = _translated(model, gap, -1.0)
+    nxt, info = model.step(state)
+    assert info["converged"] and info["contact_converged"] and not info["diverged"]
+    nodes = np.asarray(model.surface_nodes)
+    z0 = model.positions(state.q)[nodes, 2] - model.ground_height
+    z1 = model.positions(nxt.q)[nodes, 2] - model.ground_height
+    bottom = z0 < 1.5 * gap
+    loaded = nxt.impulses.reshape(-1, 3)[:, 2] > 0.0
+    assert loaded.any() and np.all(loaded <= bottom)
+    np.testing.assert_allclose(z1[loaded], 0.0, rtol=0, atol=1e-7 * model.dt * 10)
+    assert z1.min() >= -1e-7 * model.dt * 10
