@@ -78,19 +78,26 @@ def test_orientation_slots_read_the_rotation_and_turning_shows_up():
     env.close()
 
 
+def _beam_observed_at_random_state(seed: int, first: int):
+    """A BeamWalk env set to small random coordinates q[first:] and velocities qdot, with
+    the observation of that state: (env, q, qdot, obs)."""
+    base = gym.make("softrom_gym/BeamWalk-v0").unwrapped
+    base.reset(seed=0)
+    r = base.subspace.basis.shape[1]
+    rng = np.random.default_rng(seed)
+    q = np.zeros(r)
+    q[first:] = 1e-3 * rng.normal(size=r - first)
+    qdot = 1e-2 * rng.normal(size=r)
+    base.set_state(cpp_sim.ReducedState(q, qdot, base.get_state().impulses))
+    return base, q, qdot, base._obs(base.get_state())
+
+
 def test_height_velocity_and_orientation_slots_against_their_definitions():
     # Guards: obs[0] forgetting the ground height, obs[1:4] the 1 / sqrt(m) of B_r's
     # translation columns, and the orientation fit losing its mass weighting (with it, pure
     # deformation, mass-orthogonal to the rotation columns, reads as no turn at all).
-    base = gym.make("softrom_gym/BeamWalk-v0").unwrapped
-    base.reset(seed=0)
+    base, q, qdot, obs = _beam_observed_at_random_state(seed=0, first=6)
     basis, mass = base.subspace.basis, base.robot.fem_model().mass
-    rng = np.random.default_rng(0)
-    q = np.zeros(basis.shape[1])
-    q[6:] = 1e-3 * rng.normal(size=basis.shape[1] - 6)
-    qdot = 1e-2 * rng.normal(size=basis.shape[1])
-    base.set_state(cpp_sim.ReducedState(q, qdot, base.get_state().impulses))
-    obs = base._obs(base.get_state())
     velocity = mass @ (basis @ qdot).reshape(-1, 3) / mass.sum()
     np.testing.assert_allclose(obs[1:4], velocity, rtol=1e-5)
     np.testing.assert_allclose(obs[4:7], 0.0, atol=1e-9)
@@ -1222,16 +1229,9 @@ def test_every_observation_slot_reads_its_own_part_of_the_state():
     """obs = [height, COM velocity (3), theta (3), theta_dot (3), q[6:], qdot[6:]]: the slots
     after the orientation were not checked, so an observation that repeated q[6:] where
     qdot[6:] belongs (the deformation velocities a policy needs) passed every test."""
-    base = gym.make("softrom_gym/BeamWalk-v0").unwrapped
-    base.reset(seed=0)
+    base, q, qdot, obs = _beam_observed_at_random_state(seed=1, first=3)
     basis, mass = base.subspace.basis, base.robot.fem_model().mass
     m = basis.shape[1] - 6
-    rng = np.random.default_rng(1)
-    q = np.zeros(basis.shape[1])
-    q[3:] = 1e-3 * rng.normal(size=basis.shape[1] - 3)
-    qdot = 1e-2 * rng.normal(size=basis.shape[1])
-    base.set_state(cpp_sim.ReducedState(q, qdot, base.get_state().impulses))
-    obs = base._obs(base.get_state())
     assert obs.shape == (10 + 2 * m,)
     rows = orientation_rows(base.robot.nodes, mass, basis)
     np.testing.assert_allclose(obs[4:7], rows @ q, rtol=1e-5, atol=1e-9)
