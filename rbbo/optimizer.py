@@ -81,6 +81,7 @@ from .run_loop import MAX_CONSECUTIVE_FAILURES as MAX_CONSECUTIVE_FAILURES
 from .run_loop import EvaluationsFailing
 from .run_result import _ok_R
 from .store import Evaluation, RunStore
+from .store.files import _signals_deferred
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # (typing's from Python 3.11)
@@ -312,13 +313,15 @@ class RBBO:
                     if value is None:  # every local optimum had been evaluated
                         kind = "random"
         proposal = Proposal(index, basis, float(t), cfg.crn_seeds, kind, info)
-        if self.store is not None and self.store.writable:  # (a reader may ask, not record)
-            record = {"index": index, "basis": basis.tolist(), "T": float(t),
-                      "seeds": [int(x) for x in cfg.crn_seeds], "kind": kind}  # fmt: skip
-            record.update({k: info[k] for k in ("gp", "duplicates_skipped") if k in info})
-            self.store.append_proposal(record)
-        self.pending[index] = proposal
-        self._next_index += 1
+        # (Ctrl-C held until the record and the pending proposal agree: see signals_deferred)
+        with _signals_deferred():
+            if self.store is not None and self.store.writable:  # (a reader may ask, not record)
+                record = {"index": index, "basis": basis.tolist(), "T": float(t),
+                          "seeds": [int(x) for x in cfg.crn_seeds], "kind": kind}  # fmt: skip
+                record.update({k: info[k] for k in ("gp", "duplicates_skipped") if k in info})
+                self.store.append_proposal(record)
+            self.pending[index] = proposal
+            self._next_index += 1
         return proposal
 
     def tell(self, index: int, R: float | None, *, status: str = "ok", wall_s: float = 0.0,
@@ -376,8 +379,11 @@ class RBBO:
             R_seeds=r_seeds, gp=proposal.info.get("gp"),
             duplicates_skipped=int(proposal.info.get("duplicates_skipped", 0)),
         )  # fmt: skip
-        self._record(evaluation, persist=True)
-        del self.pending[index]
+        # (a Ctrl-C between the history's line and the bookkeeping left the proposal pending
+        # though recorded: a run going on in this process evaluated and recorded it twice)
+        with _signals_deferred():
+            self._record(evaluation, persist=True)
+            del self.pending[index]
         return evaluation
 
     # -- driving a whole run ------------------------------------------------------------

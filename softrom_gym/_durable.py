@@ -5,15 +5,63 @@ bottom of the dependency order, so that each package above uses the same ones.
 A file's fsync does not reach its name, which is an entry of its folder: a rename or a new
 file is durable only once the folder is fsynced too (:func:`fsync_dir`), and a new folder
 only once its parent is (:func:`make_dirs`).
+
+A record is whole only if a signal cannot cut it: :func:`signals_deferred` holds Ctrl-C and
+SIGTERM while one is written (and its in-memory twin updated), then delivers them.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
+import signal
+import threading
+from collections.abc import Iterator
 from pathlib import Path
+from types import FrameType
+from typing import Any
 
-__all__ = ["fsync_dir", "make_dirs", "temporary_name"]
+__all__ = ["fsync_dir", "make_dirs", "signals_deferred", "temporary_name"]
+
+_HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM until the block ends, then hand each one caught to the handler
+    that was set before it (or to the default action), in the order they came.
+
+    A signal's handler raises (KeyboardInterrupt) between any two bytecodes: one that came
+    between a history line's write and its fsync cut back a finished evaluation, and one
+    between the file's append and the optimiser's bookkeeping left the record and the
+    in-memory run disagreeing. Held, it is raised once the block's record is whole. Blocks
+    nest (an inner one hands what it caught to the outer's hold). Off the main thread this
+    does nothing: Python runs signal handlers only there.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[tuple[int, FrameType | None]] = []
+
+    def hold(signum: int, frame: FrameType | None) -> None:
+        caught.append((signum, frame))
+
+    previous: dict[int, Any] = {}
+    try:
+        for held in _HELD_SIGNALS:
+            if signal.getsignal(held) is not None:  # (None: set outside Python; unrestorable)
+                previous[held] = signal.signal(held, hold)
+        yield
+    finally:
+        for restored, handler in previous.items():
+            signal.signal(restored, handler)
+        for signum, frame in caught:
+            handler = previous[signum]
+            if callable(handler):
+                handler(signum, frame)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(signum)
 
 
 def fsync_dir(path: Path) -> None:

@@ -558,6 +558,41 @@ def test_a_finished_run_keeps_its_confirmed_answer_when_reloaded(tmp_path, monke
     assert (tmp_path / "run" / "history.jsonl").read_text().count("\n") == lines
 
 
+def test_ctrl_c_as_a_proposal_or_an_outcome_is_recorded_leaves_the_run_and_its_files_agreeing(
+    tmp_path, monkeypatch
+):
+    """A Ctrl-C right after ask's or tell's line was written raised before the optimiser's
+    bookkeeping: told, the proposal stayed pending though its outcome was in the history, and
+    a run going on in this process evaluated and recorded it twice. It is raised once both
+    agree."""
+    from rbbo.store import RunStore
+
+    config = RBBOConfig(6, 2, n_init=3, max_evaluations=10, **FAST)
+    opt = RBBO.create(tmp_path / "run", config)
+
+    def then_ctrl_c(method):
+        def written(self, record):
+            method(self, record)
+            os.kill(os.getpid(), signal.SIGINT)
+
+        return written
+
+    monkeypatch.setattr(RunStore, "append_proposal", then_ctrl_c(RunStore.append_proposal))
+    with pytest.raises(KeyboardInterrupt):
+        opt.ask()
+    assert list(opt.pending) == [0]
+    monkeypatch.undo()
+    monkeypatch.setattr(RunStore, "append", then_ctrl_c(RunStore.append))
+    with pytest.raises(KeyboardInterrupt):
+        opt.tell(0, 0.5)
+    monkeypatch.undo()
+    assert not opt.pending and [e.index for e in opt.history] == [0]
+    assert opt.ask().index == 1  # (not 0 again)
+    opt.close()
+    again = RBBO.resume(tmp_path / "run")
+    assert [e.index for e in again.history] == [0] and again.ask().index == 1  # (recorded)
+
+
 def test_best_basis_file_holds_the_recommendation_written_when_the_run_stops(tmp_path, monkeypatch):
     # best_basis.npy is never the highest single R; it appears when the run ends, holding
     # R*'s basis. (The GP's recommendation under heavy noise was the best sample here after a

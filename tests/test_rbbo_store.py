@@ -493,6 +493,52 @@ def test_a_failed_append_leaves_nothing_behind_so_it_can_be_written_again(
     assert [e.index for e in RunStore.open(tmp_path / "run", repair=False).history()] == [0, 1]
 
 
+class _Terminated(Exception):
+    """What a SIGTERM handler raises here (rbbo's raises KeyboardInterrupt)."""
+
+
+def _raise_terminated(signum, frame):
+    raise _Terminated
+
+
+@pytest.mark.parametrize("signum", ["SIGINT", "SIGTERM", "SIGTERM ignored"])
+def test_a_signal_during_an_append_is_raised_once_the_line_is_durable(tmp_path, monkeypatch,
+                                                                      signum):  # fmt: skip
+    """Ctrl-C between a history line's write and its fsync cut the finished evaluation back
+    (the CI's deterministic-resume test saw 5 lines, signalled, and found 4): the signal is
+    held until the line is durable, then raised by the handler that was set."""
+    import os
+    import signal
+
+    store = RunStore.create(tmp_path / "run", {"x": 1})
+    store.append(_evaluation(0))
+    sig = signal.SIGINT if signum == "SIGINT" else signal.SIGTERM
+    handler = {"SIGINT": signal.default_int_handler, "SIGTERM": _raise_terminated,
+               "SIGTERM ignored": signal.SIG_IGN}[signum]  # fmt: skip
+    before = signal.signal(sig, handler)
+    real_fsync, synced = os.fsync, []
+
+    def signalled_fsync(fd):  # the signal as the line reaches the disk
+        os.kill(os.getpid(), sig)
+        real_fsync(fd)
+        synced.append(fd)
+
+    monkeypatch.setattr(os, "fsync", signalled_fsync)
+    try:
+        if signum == "SIGTERM ignored":
+            store.append(_evaluation(1))
+        else:
+            with pytest.raises(KeyboardInterrupt if signum == "SIGINT" else _Terminated):
+                store.append(_evaluation(1))
+        assert signal.getsignal(sig) is handler  # (handed back as it was)
+    finally:
+        signal.signal(sig, before)
+        monkeypatch.undo()
+    assert synced  # (the fsync ran whole)
+    store.close()
+    assert [e.index for e in RunStore.open(tmp_path / "run", repair=False).history()] == [0, 1]
+
+
 def test_more_corrupted_run_files_are_named(tmp_path):
     store = RunStore.create(tmp_path / "run", {})
     store.append(_evaluation(0))

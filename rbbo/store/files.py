@@ -15,12 +15,13 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from softrom_gym._durable import fsync_dir, make_dirs
+from softrom_gym._durable import fsync_dir, make_dirs, signals_deferred
 
 # (one implementation for every package that writes a user's records: softrom_gym's, under
 # the names the store's modules use)
 _fsync_dir = fsync_dir
 _make_dirs = make_dirs
+_signals_deferred = signals_deferred
 
 
 def _append_line(path: Path, line: str, end_partial: bool = False) -> None:
@@ -28,11 +29,18 @@ def _append_line(path: Path, line: str, end_partial: bool = False) -> None:
     has its directory fsynced too, which the file's fsync does not reach); with
     ``end_partial``, after a newline if the file ends inside a line.
 
-    An append that fails (a full disk's short write, a failed fsync, an interrupt) is undone
-    before the error propagates: the file is cut back to its length before it, so the caller
-    may write the line again. (A torn fragment was left, and the retry's line glued onto it;
-    a line whose fsync failed was written twice. Either made the history unreadable.)
+    An append that fails (a full disk's short write, a failed fsync) is undone before the
+    error propagates: the file is cut back to its length before it, so the caller may write
+    the line again. (A torn fragment was left, and the retry's line glued onto it; a line
+    whose fsync failed was written twice. Either made the history unreadable.) A signal
+    (Ctrl-C, SIGTERM) is held until the line is durable, then raised: one that came between
+    the write and the fsync cut back a finished evaluation.
     """
+    with _signals_deferred():
+        _append_whole_line(path, line, end_partial)
+
+
+def _append_whole_line(path: Path, line: str, end_partial: bool) -> None:
     new = not path.exists()
     data = line.encode() + b"\n"
     fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT, 0o666)
