@@ -29,39 +29,69 @@ _HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 @contextlib.contextmanager
 def signals_deferred() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM until the block ends, then hand each one caught to the handler
-    that was set before it (or to the default action), in the order they came.
+    """Hold SIGINT and SIGTERM (where a Python handler is set) until the block ends, then
+    hand each one caught to the handler set at that time, in the order they came (each one,
+    even where one before raised).
 
     A signal's handler raises (KeyboardInterrupt) between any two bytecodes: one that came
     between a history line's write and its fsync cut back a finished evaluation, and one
     between the file's append and the optimiser's bookkeeping left the record and the
     in-memory run disagreeing. Held, it is raised once the block's record is whole. Blocks
-    nest (an inner one hands what it caught to the outer's hold). Off the main thread this
-    does nothing: Python runs signal handlers only there.
+    nest (an inner one hands what it caught to the outer's hold). Off the main thread, or
+    the main interpreter, this does nothing: Python runs signal handlers only there.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     caught: list[tuple[int, FrameType | None]] = []
+    previous: dict[int, Any] = {}
+    done = False
 
     def hold(signum: int, frame: FrameType | None) -> None:
-        caught.append((signum, frame))
+        if not done:
+            caught.append((signum, frame))
+            return
+        # the block is over: act as the handler it replaced (also where an interrupted
+        # restore left this one installed, which then puts that handler back)
+        if signal.getsignal(signum) is hold:
+            signal.signal(signum, previous[signum])
+        _deliver(signum, frame)
 
-    previous: dict[int, Any] = {}
     try:
         for held in _HELD_SIGNALS:
-            if signal.getsignal(held) is not None:  # (None: set outside Python; unrestorable)
-                previous[held] = signal.signal(held, hold)
+            # (SIG_DFL: a kill leaves what was written in place and nothing in memory to
+            # disagree; SIG_IGN: nothing comes; None, or a handler set below Python such as
+            # faulthandler's: signal.signal would replace it for good)
+            if callable(signal.getsignal(held)):
+                try:
+                    previous[held] = signal.signal(held, hold)
+                except ValueError:  # (not the main interpreter: signals are not ours)
+                    break
         yield
     finally:
-        for restored, handler in previous.items():
-            signal.signal(restored, handler)
-        for signum, frame in caught:
-            handler = previous[signum]
-            if callable(handler):
-                handler(signum, frame)
-            elif handler == signal.SIG_DFL:
-                signal.raise_signal(signum)
+        done = True
+        try:
+            for restored, handler in previous.items():
+                signal.signal(restored, handler)
+        finally:
+            _deliver_all(caught)
+
+
+def _deliver(signum: int, frame: FrameType | None) -> None:
+    handler = signal.getsignal(signum)  # (now: one delivered before may have changed it)
+    if callable(handler):
+        handler(signum, frame)
+    elif handler == signal.SIG_DFL:
+        signal.raise_signal(signum)
+
+
+def _deliver_all(caught: list[tuple[int, FrameType | None]]) -> None:
+    """Each one, even where one before raised (the last exception propagates)."""
+    if caught:
+        try:
+            _deliver(*caught[0])
+        finally:
+            _deliver_all(caught[1:])
 
 
 def fsync_dir(path: Path) -> None:

@@ -126,7 +126,9 @@ class _ScrambledExecutor(Executor):
     def submit(self, task):
         def evaluate():
             if task.index in self.slow and task.index < self.last:
-                self._done[task.index + 1].wait(timeout=10.0)
+                # (a timeout went on silently, and the test failed later on the finish order)
+                if not self._done[task.index + 1].wait(timeout=60.0):
+                    raise AssertionError(f"task {task.index + 1} did not finish in 60 s")
             outcome = evaluate_task(self.objective, task, "thread")
             self.finished.append(task.index)
             self._done[task.index].set()

@@ -539,6 +539,89 @@ def test_a_signal_during_an_append_is_raised_once_the_line_is_durable(tmp_path, 
     assert [e.index for e in RunStore.open(tmp_path / "run", repair=False).history()] == [0, 1]
 
 
+def test_held_signals_reach_the_handler_set_when_each_is_delivered_even_after_one_raised():
+    """Two signals held in one block: each goes to the handler set when it is handed on (a
+    "Ctrl-C again to force" handler was called twice as it was before the block), and one
+    whose handler raises does not drop the next."""
+    import os
+    import signal
+
+    from softrom_gym._durable import signals_deferred
+
+    calls = []
+
+    def forced(signum, frame):
+        calls.append("forced")
+
+    def graceful(signum, frame):
+        calls.append("graceful")
+        signal.signal(signal.SIGINT, forced)  # (the next Ctrl-C forces)
+
+    def terminated(signum, frame):
+        calls.append("terminated")
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        signal.signal(signal.SIGINT, graceful)
+        with signals_deferred():
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)
+            assert calls == []
+        assert calls == ["graceful", "forced"]
+
+        calls.clear()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, terminated)
+        with pytest.raises(KeyboardInterrupt):
+            with signals_deferred():
+                os.kill(os.getpid(), signal.SIGINT)
+                os.kill(os.getpid(), signal.SIGTERM)
+        assert calls == ["terminated"]
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
+
+
+def test_a_ctrl_c_while_the_handlers_are_put_back_leaves_none_held(monkeypatch):
+    """signal.signal runs pending handlers first: a Ctrl-C just after SIGINT's handler was put
+    back raised out of putting back SIGTERM's, which stayed the block's hold, and every later
+    SIGTERM was swallowed. The hold left behind now acts as the handler it replaced."""
+    import os
+    import signal
+
+    from softrom_gym._durable import signals_deferred
+
+    terms = []
+
+    def terminated(signum, frame):
+        terms.append(signum)
+
+    real = signal.signal
+
+    def then_ctrl_c(signum, handler):
+        old = real(signum, handler)
+        if signum == signal.SIGINT and handler is signal.default_int_handler:
+            os.kill(os.getpid(), signal.SIGINT)  # the user's Ctrl-C, just then
+        return old
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        real(signal.SIGINT, signal.default_int_handler)
+        real(signal.SIGTERM, terminated)
+        monkeypatch.setattr(signal, "signal", then_ctrl_c)
+        with pytest.raises(KeyboardInterrupt):
+            with signals_deferred():
+                pass
+        monkeypatch.undo()
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert terms == [signal.SIGTERM]
+        assert signal.getsignal(signal.SIGTERM) is terminated
+    finally:
+        monkeypatch.undo()
+        for s, handler in before.items():
+            signal.signal(s, handler)
+
+
 def test_more_corrupted_run_files_are_named(tmp_path):
     store = RunStore.create(tmp_path / "run", {})
     store.append(_evaluation(0))

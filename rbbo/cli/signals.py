@@ -41,7 +41,9 @@ def _terminate_as_interrupt():
         yield
     finally:
         # After a SIGTERM the process is on its way out: a late second one must not turn the
-        # clean exit (status 130) into a kill. Ctrl-C works again for an in-process caller.
+        # clean exit (status 130) into a kill. Ctrl-C works again for an in-process caller,
+        # and after a Ctrl-C so does SIGTERM (ignored, it stayed ignored in the caller and in
+        # every process it started after: a pool's terminate() then did nothing).
         for s in handled:
-            ignore = stopping and s == signal.SIGTERM
+            ignore = stopping[:1] == [signal.SIGTERM] and s == signal.SIGTERM
             signal.signal(s, signal.SIG_IGN if ignore else previous[s])
